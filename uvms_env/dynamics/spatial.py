@@ -1,0 +1,73 @@
+"""Rotations, Euler-angle kinematics and skew matrices, written once for numpy and CasADi.
+
+Every function takes and returns CasADi expressions (SX or MX) and also accepts numpy
+arrays (evaluated through CasADi's DM), so the simulator, the controller and the tests
+share one implementation of the conventions: ZYX Euler angles (Fossen),
+R = Rz(psi) Ry(theta) Rx(phi), and eta_dot = blkdiag(R, T) nu.
+"""
+
+from __future__ import annotations
+
+import casadi as cs
+import numpy as np
+
+Sym = cs.SX | cs.MX | cs.DM
+
+
+def skew(v: Sym) -> Sym:
+    """S(v) with S(v) w = v x w."""
+    return cs.vertcat(
+        cs.horzcat(0, -v[2], v[1]),
+        cs.horzcat(v[2], 0, -v[0]),
+        cs.horzcat(-v[1], v[0], 0),
+    )
+
+
+def vee(m: Sym) -> Sym:
+    """Inverse of skew on the skew-symmetric part of a 3x3 matrix."""
+    return 0.5 * cs.vertcat(m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1])
+
+
+def rot_zyx(theta: Sym) -> Sym:
+    """Rotation body -> inertial for ZYX Euler angles [phi, theta, psi]."""
+    cf, sf = cs.cos(theta[0]), cs.sin(theta[0])
+    ct, st = cs.cos(theta[1]), cs.sin(theta[1])
+    cp, sp = cs.cos(theta[2]), cs.sin(theta[2])
+    return cs.vertcat(
+        cs.horzcat(cp * ct, -sp * cf + cp * st * sf, sp * sf + cp * cf * st),
+        cs.horzcat(sp * ct, cp * cf + sf * st * sp, -cp * sf + st * sp * cf),
+        cs.horzcat(-st, ct * sf, ct * cf),
+    )
+
+
+def euler_rate_matrix(theta: Sym) -> Sym:
+    """T(Theta): body angular velocity -> ZYX Euler-angle rates (singular at |theta| = pi/2)."""
+    cf, sf = cs.cos(theta[0]), cs.sin(theta[0])
+    ct, tt = cs.cos(theta[1]), cs.tan(theta[1])
+    return cs.vertcat(
+        cs.horzcat(1, sf * tt, cf * tt),
+        cs.horzcat(0, cf, -sf),
+        cs.horzcat(0, sf / ct, cf / ct),
+    )
+
+
+def euler_from_rot(r: np.ndarray) -> np.ndarray:
+    """ZYX Euler angles of a rotation matrix (numpy; used off the hot path)."""
+    r = np.asarray(r, dtype=float)
+    theta = -np.arcsin(np.clip(r[2, 0], -1.0, 1.0))
+    return np.array([np.arctan2(r[2, 1], r[2, 2]), theta, np.arctan2(r[1, 0], r[0, 0])])
+
+
+def homogeneous(p: Sym, r: Sym) -> Sym:
+    """4x4 transform from a position and a rotation."""
+    return cs.vertcat(cs.horzcat(r, p), cs.horzcat(0, 0, 0, 1))
+
+
+def rotation_error(r: Sym, r_target: Sym) -> Sym:
+    """Small-angle rotation error (inertial frame) that takes r_target to r."""
+    return vee(r @ r_target.T)
+
+
+def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
+    """Wrap to (-pi, pi]."""
+    return np.pi - np.mod(np.pi - np.asarray(a), 2 * np.pi)

@@ -1,0 +1,280 @@
+"""Dynamics of one UVMS (vehicle + 4-DoF arm) as CasADi functions of (q, zeta, tau, v_c, p).
+
+    M(q, p) zeta_dot + h(q, zeta, v_c, p) = B tau  (- J(q)^T lambda, added by the simulator)
+
+* q = [x y z phi theta psi, q_1..q_4] (NED, ZYX Euler), zeta = [u v w p q r, qdot_1..4]
+  (Fossen's body-fixed vehicle twist and joint rates), tau = [X Y Z N, tau_1..4].
+* Rigid body: mass matrix and Coriolis/centrifugal terms by adam-robotics (CRBA/RNEA on
+  the URDF, body-fixed base velocity, gravity off), plus the joint armature.
+* Hydrodynamics (``hydro``): vehicle added mass, Kirchhoff Coriolis and Fossen damping
+  on the velocity relative to the current; arm links by strip theory.
+* Restoring terms from one potential (weight at each centre of gravity, buoyancy at each
+  centre of buoyancy): g(q) = T(q)^T dV/dq with q_dot = T(q) zeta, so the potential in
+  ``energy`` and the forces cannot disagree.
+* End-effector kinematics in the inertial frame: pose, J with [p_dot; omega] = J zeta,
+  and Jdot zeta (for the grasp constraint at acceleration level).
+
+``p`` holds the physical numbers that a scenario may perturb (parameter mismatch,
+damping scale); ``nominal_parameters()`` gives the parameter file's values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as cs
+import numpy as np
+from adam import Representations
+from adam.casadi import KinDynComputations
+
+from uvms_env.dynamics.hydro import (
+    Strips,
+    TubeCoefficients,
+    current_twist_rate,
+    diagonal_damping,
+    kirchhoff_coriolis,
+    strip_damping,
+    tube_added_mass,
+)
+from uvms_env.dynamics.spatial import euler_rate_matrix, homogeneous, rot_zyx, vee
+from uvms_env.models import Parameters, load_parameters, render_urdf
+from uvms_env.models.urdf import JOINT_NAMES, LINK_NAMES, dh_tail
+
+NQ = 10  # generalized coordinates / velocities of one UVMS
+NU = 8  # inputs: surge, sway, heave, yaw, 4 joint torques
+ACTUATED_DOFS = (0, 1, 2, 5, 6, 7, 8, 9)  # zeta components driven by tau (roll, pitch passive)
+
+# Layout of the per-robot physical parameter vector p.
+PARAMETER_LAYOUT: dict[str, slice] = {
+    "vehicle_added_mass": slice(0, 6),
+    "vehicle_damping_linear": slice(6, 12),
+    "vehicle_damping_quadratic": slice(12, 18),
+    "vehicle_displaced_volume": slice(18, 19),
+    "vehicle_extra_mass": slice(19, 20),
+    "arm_added_mass_scale": slice(20, 21),
+    "arm_drag_scale": slice(21, 22),
+    "joint_damping": slice(22, 26),
+}
+NP = 26
+DAMPING_ENTRIES = (
+    "vehicle_damping_linear",
+    "vehicle_damping_quadratic",
+    "arm_drag_scale",
+    "joint_damping",
+)
+
+
+def actuation_matrix() -> np.ndarray:
+    """B (10x8): inputs to generalized forces; roll and pitch are passive."""
+    b = np.zeros((NQ, NU))
+    for k, dof in enumerate(ACTUATED_DOFS):
+        b[dof, k] = 1.0
+    return b
+
+
+@dataclass(frozen=True)
+class LinkHydro:
+    name: str
+    strips: Strips
+    coef: TubeCoefficients
+    added_mass: np.ndarray  # 6x6 about the link frame origin, nominal
+
+
+class UVMSModel:
+    """Symbolic model of one UVMS. Build once (a second or two); the functions are reusable.
+
+    Attributes are CasADi ``Function`` objects (SX, so they inline into larger graphs):
+    ``dynamics(q, zeta, v_c, p) -> (M, h)``,
+    ``free_acceleration(q, zeta, tau, v_c, p)`` (no grasp), ``mass_matrix(q, p)``,
+    ``bias(q, zeta, v_c, p)``, ``ee_pose(q) -> (p, R)``, ``ee_jacobian(q) -> J``,
+    ``ee_jdot_zeta(q, zeta)``, ``potential(q, p)``, ``manipulability(q)``,
+    ``body_points(q) -> 3xK`` (vehicle centre, arm joints, end effector).
+    """
+
+    def __init__(self, params: Parameters | None = None) -> None:
+        self.params = params or load_parameters()
+        prm = self.params
+        self.B = actuation_matrix()
+        self.kindyn = KinDynComputations(render_urdf(prm), list(JOINT_NAMES), gravity=np.zeros(6))
+        self.kindyn.set_frame_velocity_representation(Representations.BODY_FIXED_REPRESENTATION)
+        self.links = self._link_hydro()
+
+        q, zeta = cs.SX.sym("q", NQ), cs.SX.sym("zeta", NQ)
+        tau, v_c, p = cs.SX.sym("tau", NU), cs.SX.sym("v_c", 3), cs.SX.sym("p", NP)
+        pos, theta, qm = q[:3], q[3:6], q[6:]
+        rot = rot_zyx(theta)
+        base = homogeneous(pos, rot)
+        qdot = self.qdot_map(q) @ zeta
+
+        m_rb = self.kindyn.mass_matrix(base, qm) + cs.diag(
+            cs.vertcat(cs.DM.zeros(6), cs.DM(prm.arm.armature))
+        )
+        h_rb = self.kindyn.coriolis_term(base, qm, zeta[:6], zeta[6:])
+
+        # Vehicle hydrodynamics and mass mismatch (an extra rigid mass at r_g = origin,
+        # which Kirchhoff's form describes exactly).
+        nu = zeta[:6]
+        vc_body = rot.T @ v_c
+        nu_r = nu - cs.vertcat(vc_body, cs.DM.zeros(3))
+        m_a = cs.diag(p[PARAMETER_LAYOUT["vehicle_added_mass"]])
+        dm = p[PARAMETER_LAYOUT["vehicle_extra_mass"]]
+        inertia = cs.DM(prm.vehicle.inertia) / prm.vehicle.mass
+        m_extra = cs.diag(cs.vertcat(dm, dm, dm, dm * inertia))
+        m_veh = m_a + m_extra
+        h_veh = (
+            m_a @ (-current_twist_rate(nu[3:], vc_body))
+            + kirchhoff_coriolis(m_a, nu_r)
+            + kirchhoff_coriolis(m_extra, nu)
+            + diagonal_damping(
+                nu_r,
+                p[PARAMETER_LAYOUT["vehicle_damping_linear"]],
+                p[PARAMETER_LAYOUT["vehicle_damping_quadratic"]],
+            )
+        )
+        mass = m_rb + cs.diagcat(m_veh, cs.DM.zeros(4, 4))
+        bias = h_rb + cs.vertcat(h_veh, p[PARAMETER_LAYOUT["joint_damping"]] * zeta[6:])
+
+        # Arm links: strip theory in each link frame.
+        am_scale = p[PARAMETER_LAYOUT["arm_added_mass_scale"]]
+        drag_scale = p[PARAMETER_LAYOUT["arm_drag_scale"]]
+        for link in self.links:
+            v_l, r_l = self._body_twist(link.name, base, qm, q, zeta, qdot)
+            j_l = cs.jacobian(v_l, zeta)
+            jdot_l = cs.jtimes(v_l, q, qdot)
+            v_r = v_l - cs.vertcat(r_l.T @ v_c, cs.DM.zeros(3))
+            m_al = am_scale * cs.DM(link.added_mass)
+            wrench = (
+                m_al @ (jdot_l - current_twist_rate(v_l[3:], r_l.T @ v_c))
+                + kirchhoff_coriolis(m_al, v_r)
+                + strip_damping(v_r, link.strips, link.coef, drag_scale)
+            )
+            mass = mass + j_l.T @ m_al @ j_l
+            bias = bias + j_l.T @ wrench
+
+        pot = self._potential(base, qm, p)
+        bias = bias + self.qdot_map(q).T @ cs.gradient(pot, q)
+        mass = 0.5 * (mass + mass.T)  # exact symmetry despite round-off in the sums
+
+        p_ee, r_ee = self._fk("ee", base, qm)
+        v_ee = cs.vertcat(cs.jtimes(p_ee, q, qdot), self._omega(r_ee, q, qdot))
+        j_ee = cs.jacobian(v_ee, zeta)
+        jbar = j_ee[:, list(ACTUATED_DOFS)]
+
+        points = [pos] + [self._fk(n, base, qm)[0] for n in (*LINK_NAMES, "ee")]
+
+        self.dynamics = cs.Function("uvms_dynamics", [q, zeta, v_c, p], [mass, bias])
+        self.free_acceleration = cs.Function(
+            "uvms_free_acceleration",
+            [q, zeta, tau, v_c, p],
+            [cs.solve(mass, cs.DM(self.B) @ tau - bias)],
+        )
+        self.mass_matrix = cs.Function("uvms_mass", [q, p], [mass])
+        self.bias = cs.Function("uvms_bias", [q, zeta, v_c, p], [bias])
+        self.potential = cs.Function("uvms_potential", [q, p], [pot])
+        self.ee_pose = cs.Function("ee_pose", [q], [p_ee, r_ee])
+        self.ee_jacobian = cs.Function("ee_jacobian", [q], [j_ee])
+        self.ee_jdot_zeta = cs.Function("ee_jdot_zeta", [q, zeta], [cs.jtimes(v_ee, q, qdot)])
+        self.manipulability = cs.Function("manipulability", [q], [cs.det(jbar @ jbar.T)])
+        self.body_points = cs.Function("body_points", [q], [cs.horzcat(*points)])
+        self.qdot_matrix = cs.Function("qdot_matrix", [q], [self.qdot_map(q)])
+
+    def frame_pose(self, frame: str) -> cs.Function:
+        """Inertial pose (p, R) of a URDF frame ("vehicle", "arm_base", "link_i", "ee")."""
+        q = cs.SX.sym("q", NQ)
+        base = homogeneous(q[:3], rot_zyx(q[3:6]))
+        if frame == "vehicle":
+            return cs.Function("vehicle_pose", [q], [q[:3], base[:3, :3]])
+        p, r = self._fk(frame, base, q[6:])
+        return cs.Function(f"{frame}_pose", [q], [p, r])
+
+    # -- helpers -----------------------------------------------------------------------
+    @staticmethod
+    def qdot_map(q: cs.SX) -> cs.SX:
+        """T(q) with q_dot = T(q) zeta: blkdiag(R(Theta), T(Theta), I_4)."""
+        return cs.diagcat(rot_zyx(q[3:6]), euler_rate_matrix(q[3:6]), cs.SX.eye(4))
+
+    def _fk(self, frame: str, base: cs.SX, qm: cs.SX) -> tuple[cs.SX, cs.SX]:
+        h = self.kindyn.forward_kinematics(frame, base, qm)
+        return h[:3, 3], h[:3, :3]
+
+    @staticmethod
+    def _omega(rot: cs.SX, q: cs.SX, qdot: cs.SX) -> cs.SX:
+        rdot = cs.reshape(cs.jtimes(cs.reshape(rot, 9, 1), q, qdot), 3, 3)
+        return vee(rdot @ rot.T)
+
+    def _body_twist(self, frame, base, qm, q, zeta, qdot) -> tuple[cs.SX, cs.SX]:
+        p_l, r_l = self._fk(frame, base, qm)
+        v_w = cs.jtimes(p_l, q, qdot)
+        return cs.vertcat(r_l.T @ v_w, r_l.T @ self._omega(r_l, q, qdot)), r_l
+
+    def _link_hydro(self) -> list[LinkHydro]:
+        arm, rho = self.params.arm, self.params.water_density
+        out = []
+        for name, mass, row in zip(LINK_NAMES, arm.link_mass, arm.dh, strict=True):
+            tail, _ = dh_tail(*row)
+            length = float(np.linalg.norm(tail))
+            strips = Strips.along([(np.zeros(3), tail)], arm.tube_radius, per_segment=3)
+            coef = TubeCoefficients.for_tube(
+                arm.tube_radius,
+                mass / length,
+                rho,
+                arm.drag_coefficient,
+                arm.axial_added_mass_fraction,
+                arm.axial_drag_coefficient,
+                arm.linear_drag_per_length,
+            )
+            out.append(LinkHydro(name, strips, coef, tube_added_mass(strips, coef)))
+        return out
+
+    def arm_volumes(self) -> tuple[float, list[float]]:
+        """Displaced volumes of the base housing and links, trimmed neutral if configured."""
+        arm, rho = self.params.arm, self.params.water_density
+        if arm.trim_neutral:
+            return arm.base_housing_mass / rho, [m / rho for m in arm.link_mass]
+        return arm.base_housing_volume, list(arm.link_volume)
+
+    def _potential(self, base: cs.SX, qm: cs.SX, p: cs.SX) -> cs.SX:
+        """Gravity + buoyancy potential (NED: depth z is down, so weight has potential -W z)."""
+        prm = self.params
+        g, rho = prm.gravity, prm.water_density
+        rot, pos = base[:3, :3], base[:3, 3]
+        weight = (prm.vehicle.mass + p[PARAMETER_LAYOUT["vehicle_extra_mass"]]) * g
+        buoy = rho * g * p[PARAMETER_LAYOUT["vehicle_displaced_volume"]]
+        z_g = pos[2] + (rot @ cs.DM(prm.vehicle.center_of_gravity))[2]
+        z_b = pos[2] + (rot @ cs.DM(prm.vehicle.center_of_buoyancy))[2]
+        pot = -weight * z_g + buoy * z_b
+        # Arm bodies: weight and buoyancy both at the body's centre of gravity.
+        v_housing, v_links = self.arm_volumes()
+        arm = prm.arm
+        bodies = [("arm_base", arm.base_housing_mass, v_housing, np.zeros(3))]
+        for name, mass, vol, row in zip(LINK_NAMES, arm.link_mass, v_links, arm.dh, strict=True):
+            bodies.append((name, mass, vol, dh_tail(*row)[0] / 2))
+        for name, mass, vol, com in bodies:
+            net = (mass - rho * vol) * g
+            if abs(net) > 1e-12:
+                p_l, r_l = self._fk(name, base, qm)
+                pot = pot - net * (p_l + r_l @ cs.DM(com))[2]
+        return pot
+
+    # -- parameters --------------------------------------------------------------------
+    def nominal_parameters(self) -> np.ndarray:
+        """The parameter vector p of the parameter file."""
+        veh = self.params.vehicle
+        p = np.zeros(NP)
+        p[PARAMETER_LAYOUT["vehicle_added_mass"]] = veh.added_mass
+        p[PARAMETER_LAYOUT["vehicle_damping_linear"]] = veh.damping_linear
+        p[PARAMETER_LAYOUT["vehicle_damping_quadratic"]] = veh.damping_quadratic
+        p[PARAMETER_LAYOUT["vehicle_displaced_volume"]] = veh.displaced_volume
+        p[PARAMETER_LAYOUT["vehicle_extra_mass"]] = 0.0
+        p[PARAMETER_LAYOUT["arm_added_mass_scale"]] = 1.0
+        p[PARAMETER_LAYOUT["arm_drag_scale"]] = 1.0
+        p[PARAMETER_LAYOUT["joint_damping"]] = self.params.arm.joint_damping
+        return p
+
+
+def scale_damping(p: np.ndarray, scale: float) -> np.ndarray:
+    """A copy of p with every damping entry multiplied by ``scale`` (0 turns damping off)."""
+    out = np.array(p, dtype=float, copy=True)
+    for name in DAMPING_ENTRIES:
+        out[PARAMETER_LAYOUT[name]] *= scale
+    return out

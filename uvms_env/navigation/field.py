@@ -1,0 +1,870 @@
+r"""Rimon-Koditschek navigation function on the position of the carried object.
+
+Purpose
+-------
+Several vehicle-manipulator systems carry one object (a bar) through a workspace that
+contains obstacles.  The team is abstracted as a ball of radius ``R`` (``team_radius``)
+centred at the object position ``p``; this module gives a reference velocity for ``p``
+that leads to a goal while the ball stays clear of every obstacle.  The controller (or
+an MPC, via :meth:`NavigationField.casadi_function`) tracks that reference.
+
+Sphere world (Rimon & Koditschek 1992)
+--------------------------------------
+.. math::
+
+    \varphi(p) = \frac{\gamma}{(\gamma^k + \beta)^{1/k}},\qquad
+    \gamma = \lVert p - p_d \rVert^2,\qquad
+    \beta = \prod_{j=0}^{M} \beta_j
+
+* workspace ball (centre ``c_ws``, radius ``r_ws``), *deflated* by ``R`` so that the
+  whole team stays inside it: ``beta_0 = (r_ws - R)^2 - |p - c_ws|^2``;
+* obstacle ``m`` inflated by ``R``: ``beta_m = d_m(p)^2 - (r_m + R)^2`` where ``d_m`` is
+  the horizontal (x, y) distance to the axis of a vertical :class:`Cylinder` (infinite in
+  z) or the 3-D distance to the centre of a :class:`Sphere`.
+
+The free space is ``{p : beta_j(p) > 0 for all j}``, which is exactly
+``{p : clearance(p) > 0}``.  ``phi`` is 0 at the goal and 1 on the boundary of the free
+space.  Note that the brief's ``beta_0 = r_ws^2 - |p - c_ws|^2`` was deflated by ``R``
+here so that ``beta_j > 0`` and ``clearance > 0`` describe the same set.
+
+Vertical cylinders cross the workspace ball, so a scene with cylinders is not a sphere
+world in the strict sense (the free space has holes through it); the construction is
+used unchanged and the absence of spurious minima is checked numerically (see below).
+
+Numerics
+--------
+Nothing is evaluated as ``gamma**k`` or ``beta``; only logarithms are used::
+
+    log phi      = log gamma - (1/k) logaddexp(k log gamma, log beta)
+                 = -(1/k) softplus(log beta - k log gamma)       (used: <= 0 exactly)
+    w            = gamma^k / (gamma^k + beta) = sigmoid(k log gamma - log beta)
+    S            = grad(beta) / beta = sum_j grad(beta_j) / beta_j
+    grad log phi = (1 - w) (grad(gamma) / gamma - S / k)
+    grad phi     = exp(-(1/k) logaddexp(k log gamma, log beta)) (1 - w) (grad gamma - gamma S / k)
+
+``1 - w`` is evaluated as ``sigmoid(log beta - k log gamma)`` with a stable sigmoid, so
+``k`` up to ~50 and ``gamma`` up to ~1e3 (and far beyond) neither overflow nor give NaN.
+
+Since ``grad log phi = (1 - w) / (2 k gamma) * (2k (p - p_d) - gamma S)`` and the
+prefactor is positive, the direction of ``-grad log phi`` (and of ``-grad phi``) is the
+direction of
+
+.. math::  n(p) = -\left(p - p_d - \frac{\gamma}{2k} S\right),
+
+which does not contain ``w`` at all.  This is what the velocity reference uses: it is
+finite everywhere in the free space, smooth at the goal (``n ~ -(p - p_d)``, so
+``|n| ~ |p - p_d|``) and does not lose its direction when ``1 - w`` underflows far from
+the goal.
+
+Conventions at the singular places:
+
+* at the goal (``gamma == 0``): ``log_phi = -inf``, ``phi = 0``, ``grad_phi = 0``, and
+  ``grad_log_phi = 0`` (its true value diverges like ``1/|p - p_d|``; 0 is the limit of
+  ``grad phi``);
+* outside the free space or on its boundary (some ``beta_j <= 0``): ``log_phi = 0``,
+  ``phi = 1`` (the boundary value), ``grad_phi = 0``, and ``grad_log_phi = -u`` where
+  ``u`` is the unit vector along the sum of the unit gradients of the violated
+  ``beta_j``; ``-grad_log_phi`` (and :meth:`NavigationField.desired_velocity`, at
+  ``max_speed``) therefore points back into the free space.  These are conventions,
+  not derivatives.
+
+Velocity reference
+------------------
+Far from the goal ``phi`` is flat (close to 1) for large ``k``, so ``-K grad phi`` would
+be almost zero there.  The reference therefore keeps only the *direction* of
+``-grad phi`` and sets the speed from the distance to the goal:
+
+.. math::
+
+    v_d = \min(v_{max}, K_{NF} \lVert p - p_d \rVert)\,
+          \frac{n}{\lVert n \rVert}
+
+(defaults ``K_NF = 0.5 1/s``, ``v_max = 0.25 m/s``): saturated far away, a linear
+``v_d ~ -K_NF (p - p_d)`` near the goal (Jacobian ``-K_NF I`` at the goal).  In code
+``|x|`` is evaluated as ``sqrt(|x|^2 + eps^2)`` with ``eps = 1e-15`` so the expression is
+finite and differentiable at the goal; the NumPy and CasADi versions use the same
+formula.
+
+Orientation
+-----------
+The attitude reference is a saturated proportional law on the ZYX Euler angles
+``Theta = (phi, theta, psi)`` (roll, pitch, yaw):
+``dTheta_d/dt = clip(-K_att wrap(Theta - Theta_d), -w_max, w_max)`` elementwise, with
+``wrap`` into ``(-pi, pi]`` (see :func:`attitude_rate`).
+
+Choice of ``k``
+---------------
+Rimon-Koditschek guarantee no spurious local minimum only for ``k`` above a
+(conservative) scene-dependent bound.  :func:`choose_k` picks ``k`` empirically: it
+increases ``k`` geometrically until normalized gradient descent (:func:`descend`) from
+random free points reaches the goal from all of them.  Larger ``k`` removes minima but
+lets paths pass closer to the obstacles (the repulsion only acts near the boundary).
+
+Observed (tests/test_navigation.py): the paper scenario (three cylinders, R = 1.3 m)
+needs k = 2-3 per waypoint and uses k = 6 (min clearance along the path ~0.40 m; k = 4:
+0.54 m, k = 10: 0.26 m, k = 40: 0.04 m).  On random scenes (2-5 obstacles of radius
+0.3-1.0, R = 1.0, 8 m workspace, 100 scenes, 200 starts each) a fixed k left spurious
+minima in 9 scenes for k = 6, 3 for k = 9 or 10 (not monotone in k scene by scene), and
+none for k = 13.5, 20 or 30; hence the per-scene rule of :func:`choose_k`.
+
+Dependencies: this package may import numpy and casadi only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "Cylinder",
+    "NavigationField",
+    "Obstacle",
+    "Sphere",
+    "Workspace",
+    "attitude_rate",
+    "choose_k",
+    "descend",
+    "sample_free_points",
+    "wrap_angle",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Regularisation of norms, ``|x| := sqrt(|x|^2 + EPS^2)``; far below any physical length.
+EPS = 1e-15
+
+
+def _check_finite(name: str, value: float) -> float:
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value}")
+    return value
+
+
+def _check_radius(name: str, value: float) -> float:
+    value = _check_finite(name, value)
+    if value < 0.0:
+        raise ValueError(f"{name} must be non-negative, got {value}")
+    return value
+
+
+def _as_vector(name: str, value: ArrayLike, size: int) -> FloatArray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a numeric array of shape ({size},)") from exc
+    if arr.shape != (size,):
+        raise ValueError(f"{name} must have shape ({size},), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite (no NaN/inf), got {arr}")
+    return arr
+
+
+def _as_points(name: str, value: ArrayLike) -> FloatArray:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (M, 3), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite (no NaN/inf)")
+    return arr
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    """Vertical cylinder obstacle, infinite in z.
+
+    Parameters
+    ----------
+    x, y : float
+        Position of the axis in the horizontal plane [m].
+    radius : float
+        Radius [m], non-negative.
+    """
+
+    x: float
+    y: float
+    radius: float
+
+    def __post_init__(self) -> None:
+        # normalise to plain floats so instances compare and hash by value
+        object.__setattr__(self, "x", _check_finite("Cylinder.x", self.x))
+        object.__setattr__(self, "y", _check_finite("Cylinder.y", self.y))
+        object.__setattr__(self, "radius", _check_radius("Cylinder.radius", self.radius))
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """Spherical obstacle.
+
+    Parameters
+    ----------
+    center : tuple of 3 floats
+        Centre [m].
+    radius : float
+        Radius [m], non-negative.
+    """
+
+    center: tuple[float, float, float]
+    radius: float
+
+    def __post_init__(self) -> None:
+        center = _as_vector("Sphere.center", self.center, 3)
+        object.__setattr__(self, "center", tuple(float(c) for c in center))
+        object.__setattr__(self, "radius", _check_radius("Sphere.radius", self.radius))
+
+
+@dataclass(frozen=True)
+class Workspace:
+    """Ball that bounds the workspace.
+
+    Parameters
+    ----------
+    center : tuple of 3 floats
+        Centre [m].
+    radius : float
+        Radius [m], positive.
+    """
+
+    center: tuple[float, float, float]
+    radius: float
+
+    def __post_init__(self) -> None:
+        center = _as_vector("Workspace.center", self.center, 3)
+        object.__setattr__(self, "center", tuple(float(c) for c in center))
+        radius = _check_radius("Workspace.radius", self.radius)
+        if radius == 0.0:
+            raise ValueError("Workspace.radius must be positive, got 0")
+        object.__setattr__(self, "radius", radius)
+
+
+Obstacle = Cylinder | Sphere
+
+
+def wrap_angle(angle: ArrayLike) -> FloatArray:
+    """Wrap angles into ``(-pi, pi]``, elementwise.
+
+    Parameters
+    ----------
+    angle : array_like
+        Angles [rad].
+
+    Returns
+    -------
+    numpy.ndarray
+        Wrapped angles, same shape as ``angle``.
+    """
+    a = np.asarray(angle, dtype=float)
+    # pi - mod(pi - a, 2 pi) lands in (-pi, pi]; the same floor formula is used in CasADi.
+    b = np.pi - a
+    return np.pi - (b - 2.0 * np.pi * np.floor(b / (2.0 * np.pi)))
+
+
+def _wrap_angle_ca(angle: ca.SX) -> ca.SX:
+    b = np.pi - angle
+    return np.pi - (b - 2.0 * np.pi * ca.floor(b / (2.0 * np.pi)))
+
+
+def attitude_rate(
+    attitude: ArrayLike,
+    attitude_goal: ArrayLike,
+    gain: float = 0.2,
+    max_rate: float = 0.05,
+) -> FloatArray:
+    """Attractive ZYX Euler-angle rate towards a goal attitude.
+
+    ``clip(-gain * wrap(attitude - attitude_goal), -max_rate, max_rate)``, elementwise.
+
+    Parameters
+    ----------
+    attitude, attitude_goal : array_like, shape (3,)
+        ZYX Euler angles ``(phi, theta, psi)`` (roll, pitch, yaw) [rad].
+    gain : float
+        Proportional gain ``K_att`` [1/s], positive.
+    max_rate : float
+        Saturation of each Euler-angle rate [rad/s], positive.
+
+    Returns
+    -------
+    numpy.ndarray, shape (3,)
+        Desired Euler-angle rates [rad/s].
+    """
+    theta = _as_vector("attitude", attitude, 3)
+    theta_d = _as_vector("attitude_goal", attitude_goal, 3)
+    if not gain > 0.0:
+        raise ValueError(f"attitude gain must be positive, got {gain}")
+    if not max_rate > 0.0:
+        raise ValueError(f"max attitude rate must be positive, got {max_rate}")
+    return np.clip(-gain * wrap_angle(theta - theta_d), -max_rate, max_rate)
+
+
+def _attitude_rate_ca(attitude: ca.SX, goal: FloatArray, gain: float, max_rate: float) -> ca.SX:
+    raw = -gain * _wrap_angle_ca(attitude - ca.DM(goal))
+    return ca.fmin(ca.fmax(raw, -max_rate), max_rate)
+
+
+def _sigmoid(z: FloatArray) -> FloatArray:
+    # exp of a non-positive argument only, so neither branch overflows.
+    ez = np.exp(-np.abs(z))
+    return np.where(z >= 0.0, 1.0 / (1.0 + ez), ez / (1.0 + ez))
+
+
+class NavigationField:
+    """Rimon-Koditschek navigation function for the object position (see module doc).
+
+    Parameters
+    ----------
+    goal : array_like, shape (3,)
+        Goal position ``p_d`` [m]; must lie in the free space.
+    workspace : Workspace
+        Bounding ball; it is deflated by ``team_radius``.
+    obstacles : sequence of Cylinder or Sphere
+        Obstacles; each is inflated by ``team_radius``.
+    team_radius : float
+        Radius ``R`` of the ball that encloses the object and the robots [m].
+    k : float
+        Navigation-function exponent, ``k >= 1``.
+    gain : float
+        ``K_NF`` [1/s] of the speed law ``min(max_speed, gain * |p - p_d|)``.
+    max_speed : float
+        Speed saturation [m/s].
+
+    Raises
+    ------
+    ValueError
+        On negative radii, ``k < 1``, non-positive gain or speed, NaN/inf entries, a
+        workspace not larger than the team, or a goal outside the free space.
+    """
+
+    def __init__(
+        self,
+        goal: ArrayLike,
+        workspace: Workspace,
+        obstacles: Sequence[Obstacle],
+        team_radius: float,
+        k: float = 6.0,
+        gain: float = 0.5,
+        max_speed: float = 0.25,
+    ) -> None:
+        self._goal = _as_vector("goal", goal, 3)
+        if not isinstance(workspace, Workspace):
+            raise TypeError(f"workspace must be a Workspace, got {type(workspace).__name__}")
+        self._team_radius = _check_radius("team_radius", team_radius)
+        self._k = _check_finite("k", k)
+        if self._k < 1.0:
+            raise ValueError(f"k must be >= 1, got {self._k}")
+        self._gain = _check_finite("gain", gain)
+        if self._gain <= 0.0:
+            raise ValueError(f"gain must be positive, got {self._gain}")
+        self._max_speed = _check_finite("max_speed", max_speed)
+        if self._max_speed <= 0.0:
+            raise ValueError(f"max_speed must be positive, got {self._max_speed}")
+        obstacles = tuple(obstacles)
+        for i, obs in enumerate(obstacles):
+            if not isinstance(obs, (Cylinder, Sphere)):
+                raise TypeError(
+                    f"obstacle {i} must be a Cylinder or a Sphere, got {type(obs).__name__}"
+                )
+        self._workspace = workspace
+        self._obstacles = obstacles
+
+        self._ws_center = np.asarray(workspace.center, dtype=float)
+        self._ws_radius = float(workspace.radius) - self._team_radius
+        if self._ws_radius <= 0.0:
+            raise ValueError(
+                f"workspace radius ({workspace.radius}) must exceed team_radius "
+                f"({self._team_radius})"
+            )
+        cyl = [o for o in obstacles if isinstance(o, Cylinder)]
+        sph = [o for o in obstacles if isinstance(o, Sphere)]
+        self._cyl_xy = np.array([[c.x, c.y] for c in cyl], dtype=float).reshape(-1, 2)
+        self._cyl_r = np.array([c.radius for c in cyl], dtype=float) + self._team_radius
+        self._sph_c = np.array([s.center for s in sph], dtype=float).reshape(-1, 3)
+        self._sph_r = np.array([s.radius for s in sph], dtype=float) + self._team_radius
+
+        goal_clearance = self.clearance(self._goal)
+        if goal_clearance <= 0.0:
+            raise ValueError(
+                f"goal {self._goal.tolist()} is outside the free space "
+                f"(clearance {goal_clearance:.3g} m with team_radius {self._team_radius})"
+            )
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def goal(self) -> FloatArray:
+        """Goal position ``p_d`` (copy), shape (3,)."""
+        return self._goal.copy()
+
+    @property
+    def workspace(self) -> Workspace:
+        """Bounding ball as given (not deflated)."""
+        return self._workspace
+
+    @property
+    def obstacles(self) -> tuple[Obstacle, ...]:
+        """Obstacles as given (not inflated)."""
+        return self._obstacles
+
+    @property
+    def team_radius(self) -> float:
+        """Team radius ``R`` [m]."""
+        return self._team_radius
+
+    @property
+    def k(self) -> float:
+        """Navigation-function exponent."""
+        return self._k
+
+    @property
+    def gain(self) -> float:
+        """``K_NF`` [1/s]."""
+        return self._gain
+
+    @property
+    def max_speed(self) -> float:
+        """Speed saturation [m/s]."""
+        return self._max_speed
+
+    # ------------------------------------------------------------------ internals
+    def _betas(self, pts: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """All factors ``beta_j`` (M, J) and their gradients (M, J, 3); j = 0 is the workspace."""
+        m = pts.shape[0]
+        d0 = pts - self._ws_center
+        betas = [(self._ws_radius**2 - np.sum(d0 * d0, axis=1))[:, None]]
+        grads = [(-2.0 * d0)[:, None, :]]
+        if self._cyl_r.size:
+            dxy = pts[:, None, :2] - self._cyl_xy[None, :, :]
+            betas.append(np.sum(dxy * dxy, axis=2) - self._cyl_r**2)
+            g = np.zeros((m, self._cyl_r.size, 3))
+            g[:, :, :2] = 2.0 * dxy
+            grads.append(g)
+        if self._sph_r.size:
+            ds = pts[:, None, :] - self._sph_c[None, :, :]
+            betas.append(np.sum(ds * ds, axis=2) - self._sph_r**2)
+            grads.append(2.0 * ds)
+        return np.concatenate(betas, axis=1), np.concatenate(grads, axis=1)
+
+    def _terms(
+        self, pts: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Shared pieces: error e, gamma, betas, their gradients, S, free mask."""
+        e = pts - self._goal
+        gamma = np.sum(e * e, axis=1)
+        betas, grads = self._betas(pts)
+        free = np.all(betas > 0.0, axis=1)
+        # Rows outside the free space get their own conventions; neutral betas there keep
+        # the (discarded) free-space branch finite instead of dividing by <= 0.
+        safe = np.where(free[:, None], betas, 1.0)
+        s = np.sum(grads / safe[:, :, None], axis=1)
+        return e, gamma, betas, grads, s, free
+
+    @staticmethod
+    def _recovery(betas: FloatArray, grads: FloatArray) -> FloatArray:
+        """Unit direction back into the free space (zeros inside it)."""
+        norms = np.sqrt(np.sum(grads * grads, axis=2) + EPS**2)
+        unit = grads / norms[:, :, None]
+        r = np.sum(np.where((betas <= 0.0)[:, :, None], unit, 0.0), axis=1)
+        return r / np.sqrt(np.sum(r * r, axis=1) + EPS**2)[:, None]
+
+    def _log_parts(self, gamma: FloatArray, betas: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """``z = log beta - k log gamma`` and ``log(gamma^k + beta)`` (free points assumed)."""
+        with np.errstate(divide="ignore"):
+            log_gamma = np.log(gamma)
+        log_beta = np.sum(
+            np.log(np.where(np.all(betas > 0.0, axis=1)[:, None], betas, 1.0)), axis=1
+        )
+        k_log_gamma = self._k * log_gamma
+        return log_beta - k_log_gamma, np.logaddexp(k_log_gamma, log_beta)
+
+    # ------------------------------------------------------------------ batch API
+    def log_phi_batch(self, points: ArrayLike) -> FloatArray:
+        """``log phi`` at each row of ``points`` (M, 3); 0 outside, -inf at the goal."""
+        pts = _as_points("points", points)
+        _, gamma, betas, _, _, free = self._terms(pts)
+        z, _ = self._log_parts(gamma, betas)
+        # -(1/k) softplus(z) equals log gamma - (1/k) logaddexp(k log gamma, log beta) but
+        # is <= 0 by construction (no phi > 1 from rounding) and -inf exactly at the goal.
+        return np.where(free, -np.logaddexp(0.0, z) / self._k, 0.0)
+
+    def phi_batch(self, points: ArrayLike) -> FloatArray:
+        """``phi`` at each row of ``points`` (M, 3), in ``[0, 1]``."""
+        return np.exp(self.log_phi_batch(points))
+
+    def grad_log_phi_batch(self, points: ArrayLike) -> FloatArray:
+        """Gradient of ``log phi`` at each row of ``points``, shape (M, 3).
+
+        Zero at the goal; outside the free space the negated unit recovery direction.
+        """
+        pts = _as_points("points", points)
+        e, gamma, betas, grads, s, free = self._terms(pts)
+        z, _ = self._log_parts(gamma, betas)
+        one_minus_w = _sigmoid(z)
+        at_goal = gamma == 0.0
+        safe_gamma = np.where(at_goal, 1.0, gamma)
+        g = one_minus_w[:, None] * (2.0 * e / safe_gamma[:, None] - s / self._k)
+        g = np.where(at_goal[:, None], 0.0, g)
+        return np.where(free[:, None], g, -self._recovery(betas, grads))
+
+    def grad_phi_batch(self, points: ArrayLike) -> FloatArray:
+        """Gradient of ``phi`` at each row of ``points``, shape (M, 3); 0 outside."""
+        pts = _as_points("points", points)
+        e, gamma, betas, _, s, free = self._terms(pts)
+        z, log_den = self._log_parts(gamma, betas)
+        scale = np.exp(-log_den / self._k) * _sigmoid(z)
+        g = scale[:, None] * (2.0 * e - gamma[:, None] * s / self._k)
+        return np.where(free[:, None], g, 0.0)
+
+    def descent_direction_batch(self, points: ArrayLike) -> FloatArray:
+        """Unit vector along ``-grad phi`` (zero at the goal), recovery direction outside."""
+        pts = _as_points("points", points)
+        e, gamma, betas, grads, s, free = self._terms(pts)
+        n = -(e - gamma[:, None] * s / (2.0 * self._k))
+        n = n / np.sqrt(np.sum(n * n, axis=1) + EPS**2)[:, None]
+        return np.where(free[:, None], n, self._recovery(betas, grads))
+
+    def desired_velocity_batch(self, points: ArrayLike) -> FloatArray:
+        """Velocity reference at each row of ``points``, shape (M, 3) (see module doc)."""
+        pts = _as_points("points", points)
+        e, gamma, betas, grads, s, free = self._terms(pts)
+        n = -(e - gamma[:, None] * s / (2.0 * self._k))
+        speed = np.minimum(self._max_speed, self._gain * np.sqrt(gamma + EPS**2))
+        v = n * (speed / np.sqrt(np.sum(n * n, axis=1) + EPS**2))[:, None]
+        return np.where(free[:, None], v, self._max_speed * self._recovery(betas, grads))
+
+    def clearance_batch(self, points: ArrayLike) -> FloatArray:
+        """Signed clearance [m] of the team ball at each row of ``points`` (> 0 free)."""
+        pts = _as_points("points", points)
+        c = [self._ws_radius - np.linalg.norm(pts - self._ws_center, axis=1)]
+        if self._cyl_r.size:
+            dxy = pts[:, None, :2] - self._cyl_xy[None, :, :]
+            c.append(np.min(np.linalg.norm(dxy, axis=2) - self._cyl_r, axis=1))
+        if self._sph_r.size:
+            ds = pts[:, None, :] - self._sph_c[None, :, :]
+            c.append(np.min(np.linalg.norm(ds, axis=2) - self._sph_r, axis=1))
+        return np.min(np.stack(c, axis=1), axis=1)
+
+    # ------------------------------------------------------------------ point API
+    def log_phi(self, p: ArrayLike) -> float:
+        """``log phi(p)``; ``-inf`` at the goal, 0 outside the free space.
+
+        Parameters
+        ----------
+        p : array_like, shape (3,)
+            Object position [m].
+
+        Returns
+        -------
+        float
+        """
+        return float(self.log_phi_batch(_as_vector("p", p, 3)[None, :])[0])
+
+    def phi(self, p: ArrayLike) -> float:
+        """``phi(p)`` in ``[0, 1]``; 1 outside the free space.
+
+        Parameters
+        ----------
+        p : array_like, shape (3,)
+            Object position [m].
+
+        Returns
+        -------
+        float
+        """
+        return float(math.exp(self.log_phi(p)))
+
+    def grad_log_phi(self, p: ArrayLike) -> FloatArray:
+        """Gradient of ``log phi`` (conventions at the goal/outside: see module doc).
+
+        Parameters
+        ----------
+        p : array_like, shape (3,)
+            Object position [m].
+
+        Returns
+        -------
+        numpy.ndarray, shape (3,)
+        """
+        return self.grad_log_phi_batch(_as_vector("p", p, 3)[None, :])[0]
+
+    def grad_phi(self, p: ArrayLike) -> FloatArray:
+        """Gradient of ``phi``; finite everywhere, zero at the goal and outside.
+
+        Parameters
+        ----------
+        p : array_like, shape (3,)
+            Object position [m].
+
+        Returns
+        -------
+        numpy.ndarray, shape (3,)
+        """
+        return self.grad_phi_batch(_as_vector("p", p, 3)[None, :])[0]
+
+    def desired_velocity(self, p: ArrayLike) -> FloatArray:
+        """Velocity reference ``min(v_max, K_NF |p - p_d|) * unit(-grad phi)``.
+
+        Outside the free space: ``max_speed`` along the recovery direction.
+
+        Parameters
+        ----------
+        p : array_like, shape (3,)
+            Object position [m].
+
+        Returns
+        -------
+        numpy.ndarray, shape (3,)
+            Desired object velocity [m/s].
+        """
+        return self.desired_velocity_batch(_as_vector("p", p, 3)[None, :])[0]
+
+    def clearance(self, p: ArrayLike) -> float:
+        """Signed distance between the team ball and the nearest obstacle or the boundary.
+
+        Minimum over the obstacles of (distance to the obstacle surface - R) and of
+        (distance to the workspace sphere - R); positive in the free space.
+
+        Parameters
+        ----------
+        p : array_like, shape (3,)
+            Object position [m].
+
+        Returns
+        -------
+        float
+            Clearance [m].
+        """
+        return float(self.clearance_batch(_as_vector("p", p, 3)[None, :])[0])
+
+    # ------------------------------------------------------------------ CasADi
+    def casadi_velocity(self, p: ca.SX) -> ca.SX:
+        """Symbolic velocity reference for a 3x1 ``SX`` position (same formulas as NumPy).
+
+        Parameters
+        ----------
+        p : casadi.SX, 3x1
+            Object position.
+
+        Returns
+        -------
+        casadi.SX, 3x1
+            Desired object velocity.
+        """
+        e = p - ca.DM(self._goal)
+        gamma = ca.dot(e, e)
+        betas: list[ca.SX] = []
+        grads: list[ca.SX] = []
+        d0 = p - ca.DM(self._ws_center)
+        betas.append(self._ws_radius**2 - ca.dot(d0, d0))
+        grads.append(-2.0 * d0)
+        for (cx, cy), rho in zip(self._cyl_xy, self._cyl_r, strict=True):
+            dx = p[0] - float(cx)
+            dy = p[1] - float(cy)
+            betas.append(dx * dx + dy * dy - float(rho) ** 2)
+            grads.append(ca.vertcat(2.0 * dx, 2.0 * dy, 0.0))
+        for c, rho in zip(self._sph_c, self._sph_r, strict=True):
+            ds = p - ca.DM(c)
+            betas.append(ca.dot(ds, ds) - float(rho) ** 2)
+            grads.append(2.0 * ds)
+
+        free = ca.SX(1)
+        for b in betas:
+            free = ca.logic_and(free, b > 0.0)
+        s = ca.SX.zeros(3, 1)
+        rec = ca.SX.zeros(3, 1)
+        for b, g in zip(betas, grads, strict=True):
+            # same neutral beta as in NumPy so that no branch divides by <= 0
+            s += g / ca.if_else(free, b, 1.0)
+            rec += ca.if_else(b <= 0.0, g / ca.sqrt(ca.dot(g, g) + EPS**2), ca.SX.zeros(3, 1))
+        rec = rec / ca.sqrt(ca.dot(rec, rec) + EPS**2)
+
+        n = -(e - gamma * s / (2.0 * self._k))
+        speed = ca.fmin(self._max_speed, self._gain * ca.sqrt(gamma + EPS**2))
+        v = n * (speed / ca.sqrt(ca.dot(n, n) + EPS**2))
+        return ca.if_else(free, v, self._max_speed * rec)
+
+    def casadi_function(self) -> ca.Function:
+        """CasADi function ``nav_velocity``: ``p`` (3x1) -> ``v_d`` (3x1), SX-built.
+
+        Returns
+        -------
+        casadi.Function
+        """
+        p = ca.SX.sym("p", 3, 1)
+        return ca.Function("nav_velocity", [p], [self.casadi_velocity(p)], ["p"], ["v_d"])
+
+
+# ---------------------------------------------------------------------- k selection
+def descend(
+    field: NavigationField,
+    starts: ArrayLike,
+    step: float = 0.05,
+    goal_tol: float = 0.3,
+    max_iter: int = 4000,
+    stall_window: int = 200,
+) -> tuple[NDArray[np.bool_], FloatArray]:
+    """Normalized gradient descent on ``log phi`` from many starts at once.
+
+    Each step moves by ``min(step, clearance / 2, |p - p_d| / 2)`` along ``-grad phi``,
+    so an iterate never leaves the free space.  A start is given up when it has not come
+    within ``goal_tol`` of the goal after ``max_iter`` steps, or when it has moved less
+    than ``step`` (net) over the last ``stall_window`` steps: with normalized steps an
+    iterate at a spurious minimum keeps jumping back and forth across it, while a
+    descending one moves about ``step`` per iteration (the field repels it from the
+    boundary, so the clearance cap does not keep it slow for long).
+
+    Parameters
+    ----------
+    field : NavigationField
+        Field to descend.
+    starts : array_like, shape (M, 3)
+        Start points in the free space.
+    step : float
+        Maximum step length [m].
+    goal_tol : float
+        Success radius around the goal [m].
+    max_iter : int
+        Iteration budget.
+    stall_window : int
+        Number of iterations over which a net displacement below ``step`` means stuck.
+
+    Returns
+    -------
+    reached : numpy.ndarray of bool, shape (M,)
+        Whether each start reached the goal.
+    final : numpy.ndarray, shape (M, 3)
+        Last iterates.
+    """
+    pts = _as_points("starts", starts).copy()
+    if not step > 0.0 or not goal_tol > 0.0:
+        raise ValueError("step and goal_tol must be positive")
+    if stall_window < 1 or max_iter < 0:
+        raise ValueError("stall_window must be >= 1 and max_iter >= 0")
+    goal = field.goal
+    reached = np.linalg.norm(pts - goal, axis=1) < goal_tol
+    stuck = np.zeros_like(reached)
+    snapshot = pts.copy()
+    for it in range(1, max_iter + 1):
+        active = ~(reached | stuck)
+        if not np.any(active):
+            break
+        p = pts[active]
+        direction = field.descent_direction_batch(p)
+        dist = np.linalg.norm(p - goal, axis=1)
+        h = np.minimum(step, np.minimum(0.5 * field.clearance_batch(p), 0.5 * dist))
+        pts[active] = p + h[:, None] * direction
+        reached[active] = np.linalg.norm(pts[active] - goal, axis=1) < goal_tol
+        if it % stall_window == 0:
+            moved = np.linalg.norm(pts - snapshot, axis=1)
+            stuck |= ~reached & (moved < step)
+            snapshot = pts.copy()
+    return reached, pts
+
+
+def sample_free_points(
+    field: NavigationField,
+    count: int,
+    rng: np.random.Generator,
+    min_clearance: float = 1e-3,
+) -> FloatArray:
+    """Uniform samples of the free space (rejection sampling in the workspace ball).
+
+    Parameters
+    ----------
+    field : NavigationField
+        Field whose free space is sampled.
+    count : int
+        Number of points.
+    rng : numpy.random.Generator
+        Random source.
+    min_clearance : float
+        Points closer than this to the boundary are rejected [m].
+
+    Returns
+    -------
+    numpy.ndarray, shape (count, 3)
+    """
+    center = np.asarray(field.workspace.center, dtype=float)
+    radius = field.workspace.radius - field.team_radius
+    out: list[FloatArray] = []
+    have = 0
+    for _ in range(1000):
+        if have >= count:
+            break
+        cand = rng.normal(size=(4 * count, 3))
+        cand /= np.linalg.norm(cand, axis=1)[:, None]
+        cand *= radius * rng.random(4 * count)[:, None] ** (1.0 / 3.0)
+        cand += center
+        cand = cand[field.clearance_batch(cand) > min_clearance]
+        out.append(cand)
+        have += cand.shape[0]
+    if have < count:
+        raise ValueError("free space is too small to sample")
+    return np.concatenate(out, axis=0)[:count]
+
+
+def choose_k(
+    goal: ArrayLike,
+    workspace: Workspace,
+    obstacles: Sequence[Obstacle],
+    team_radius: float,
+    k_start: float = 4.0,
+    factor: float = 1.5,
+    k_max: float = 50.0,
+    samples: int = 200,
+    seed: int = 0,
+) -> float:
+    """Smallest ``k`` of the sequence ``k_start * factor**i`` without spurious minima.
+
+    Rule: for each candidate ``k`` (increasing, capped at ``k_max``), run :func:`descend`
+    from ``samples`` uniform free points (fixed ``seed``); return the first ``k`` for
+    which every start reaches the goal.  This is an empirical stand-in for the
+    conservative Rimon-Koditschek bound.
+
+    Parameters
+    ----------
+    goal, workspace, obstacles, team_radius
+        Scene, as for :class:`NavigationField`.
+    k_start : float
+        First candidate, ``>= 1``.
+    factor : float
+        Growth factor, ``> 1``.
+    k_max : float
+        Largest candidate.
+    samples : int
+        Number of random starts.
+    seed : int
+        Seed of the start points.
+
+    Returns
+    -------
+    float
+        The chosen ``k``.
+
+    Raises
+    ------
+    ValueError
+        If no candidate up to ``k_max`` passes, or on invalid arguments.
+    """
+    if not factor > 1.0:
+        raise ValueError(f"factor must be > 1, got {factor}")
+    k = _check_finite("k_start", k_start)
+    if k < 1.0:
+        raise ValueError(f"k must be >= 1, got {k}")
+    starts: FloatArray | None = None
+    while True:
+        field = NavigationField(goal, workspace, obstacles, team_radius, k=k)
+        if starts is None:
+            starts = sample_free_points(field, samples, np.random.default_rng(seed))
+        reached, _ = descend(field, starts)
+        if np.all(reached):
+            return k
+        if k >= k_max:
+            raise ValueError(
+                f"no k <= {k_max} removes the local minima ({np.sum(~reached)} of "
+                f"{samples} starts fail at k = {k})"
+            )
+        k = min(k * factor, k_max)

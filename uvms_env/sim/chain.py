@@ -1,0 +1,175 @@
+"""The closed kinematic chain of N UVMSs rigidly grasping one object, as CasADi functions.
+
+Unknowns per stage: zeta_dot_i, v_O_dot, lambda_i. Equations (MODEL: paper eq6, obj_dyn):
+
+    M_i zeta_dot_i + h_i = B tau_i - J_i^T lambda_i                  (each UVMS)
+    M_O v_O_dot + h_O = sum_i J_Oi^T lambda_i                        (object)
+    J_i zeta_dot_i + Jdot_i zeta_i = J_Oi v_O_dot + Jdot_Oi v_O - 2 w e_dot_i - w^2 e_i
+
+The last line is the grasp constraint at acceleration level with Baumgarte
+stabilization (e_i: grasp pose error, e_dot_i: twist error, w: stabilization rate).
+Rather than factorizing the whole (26N+6) KKT matrix, each UVMS is reduced to its
+end-effector (operational-space) inertia Lambda_i = (J_i M_i^-1 J_i^T)^-1, which is the
+same solve done blockwise: the cost is linear in N and the coupled system is 6x6:
+
+    (M_O + sum_i J_Oi^T Lambda_i J_Oi) v_O_dot = -h_O + sum_i J_Oi^T Lambda_i (a_i - c_i)
+    lambda_i = Lambda_i (a_i - c_i - J_Oi v_O_dot)
+
+with a_i = J_i M_i^-1 (B tau_i - h_i) + Jdot_i zeta_i (free end-effector acceleration)
+and c_i = Jdot_Oi v_O - 2 w e_dot_i - w^2 e_i.
+
+State layout (flat): [q_1..q_N (10N), zeta_1..zeta_N (10N), x_O (6), v_O (6)].
+One control period (all RK4 substeps) is one compiled function call.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as cs
+
+from uvms_env.dynamics import NP, NQ, NU, ObjectModel, UVMSModel
+from uvms_env.dynamics.payload import NPO, grasp_jacobian, grasp_jdot_v
+from uvms_env.dynamics.spatial import rot_zyx, rotation_error
+
+NG = 12  # grasp description per robot: offset l_i (3) and R_Oi (9, column-major)
+
+
+def state_size(n: int) -> int:
+    return 20 * n + 12
+
+
+@dataclass(frozen=True)
+class ChainFunctions:
+    """Symbolic closed-chain functions for N robots (uncompiled)."""
+
+    n: int
+    rhs: cs.Function  # (x, tau, v_c, P, P_O, grasp) -> x_dot
+    step: cs.Function  # (x, tau, v_c, P, P_O, grasp) -> x after one control period
+    wrenches: cs.Function  # (x, tau, v_c, P, P_O, grasp) -> lambda (6xN)
+    grasp_error: (
+        cs.Function
+    )  # (x, grasp) -> (position error 3xN, rotation error 3xN, twist error 6xN)
+
+
+def grasp_residual(uvms: UVMSModel) -> cs.Function:
+    """Grasp pose error e_i (position, rotation; inertial frame) and twist error e_dot_i."""
+    q, zeta, grasp = cs.SX.sym("q", NQ), cs.SX.sym("zeta", NQ), cs.SX.sym("grasp", NG)
+    x_o, v_o = cs.SX.sym("x_O", 6), cs.SX.sym("v_O", 6)
+    p_ee, r_ee = uvms.ee_pose(q)
+    offset, r_oi = grasp[:3], cs.reshape(grasp[3:], 3, 3)
+    r_o = rot_zyx(x_o[3:])
+    err = cs.vertcat(p_ee - (x_o[:3] + r_o @ offset), rotation_error(r_ee, r_o @ r_oi))
+    err_dot = uvms.ee_jacobian(q) @ zeta - grasp_jacobian(r_o, offset) @ v_o
+    return cs.Function("grasp_residual", [q, zeta, grasp, x_o, v_o], [err, err_dot])
+
+
+def robot_stage(uvms: UVMSModel, stabilization: float) -> cs.Function:
+    """Per-robot reduction (see module docstring), one SX function shared by every robot."""
+    q, zeta, tau = cs.SX.sym("q", NQ), cs.SX.sym("zeta", NQ), cs.SX.sym("tau", NU)
+    v_c, p, grasp = cs.SX.sym("v_c", 3), cs.SX.sym("p", NP), cs.SX.sym("grasp", NG)
+    x_o, v_o = cs.SX.sym("x_O", 6), cs.SX.sym("v_O", 6)
+    mass, bias = uvms.dynamics(q, zeta, v_c, p)
+    jac = uvms.ee_jacobian(q)
+    jdot = uvms.ee_jdot_zeta(q, zeta)
+    offset = grasp[:3]
+    r_o = rot_zyx(x_o[3:])
+    j_o = grasp_jacobian(r_o, offset)
+    err, err_dot = grasp_residual(uvms)(q, zeta, grasp, x_o, v_o)
+    w = stabilization
+    c = grasp_jdot_v(r_o, offset, v_o) - 2 * w * err_dot - w * w * err
+
+    sol = cs.solve(mass, cs.horzcat(cs.DM(uvms.B) @ tau - bias, jac.T))
+    acc_free, minv_jt = sol[:, 0], sol[:, 1:]
+    lam = cs.inv(jac @ minv_jt)  # operational-space inertia Lambda_i (6x6, SPD)
+    lam = 0.5 * (lam + lam.T)
+    a_free = jac @ acc_free + jdot
+    lam_a = lam @ (a_free - c)
+    lam_jo = lam @ j_o
+    return cs.Function(
+        "robot_stage",
+        [q, zeta, tau, v_c, p, grasp, x_o, v_o],
+        [
+            j_o.T @ lam_jo,  # K_i
+            j_o.T @ lam_a,  # r_i
+            acc_free - minv_jt @ lam_a,  # zeta_dot_i = this + G_i v_O_dot
+            minv_jt @ lam_jo,  # G_i
+            uvms.qdot_map(q) @ zeta,  # q_dot_i
+            lam_a,  # lambda_i = this - (Lambda_i J_Oi) v_O_dot
+            lam_jo,
+        ],
+        {"cse": True},
+    )
+
+
+def build_chain(
+    n: int,
+    uvms: UVMSModel,
+    obj: ObjectModel,
+    period: float,
+    substeps: int,
+    stabilization: float,
+) -> ChainFunctions:
+    """Closed-chain functions for ``n`` robots; ``step`` integrates one control period."""
+    stage = robot_stage(uvms, stabilization).map(n, "serial")
+    x = cs.MX.sym("x", state_size(n))
+    tau = cs.MX.sym("tau", NU, n)
+    v_c = cs.MX.sym("v_c", 3)
+    pp = cs.MX.sym("P", NP, n)
+    po = cs.MX.sym("P_O", NPO)
+    grasp = cs.MX.sym("grasp", NG, n)
+    args = [x, tau, v_c, pp, po, grasp]
+
+    def unpack(xx: cs.MX) -> tuple[cs.MX, cs.MX, cs.MX, cs.MX]:
+        q = cs.reshape(xx[: NQ * n], NQ, n)
+        zeta = cs.reshape(xx[NQ * n : 2 * NQ * n], NQ, n)
+        return q, zeta, xx[2 * NQ * n : 2 * NQ * n + 6], xx[2 * NQ * n + 6 :]
+
+    def solve_stage(xx: cs.MX) -> tuple[list[cs.MX], cs.MX]:
+        q, zeta, x_o, v_o = unpack(xx)
+        outs = stage(
+            q,
+            zeta,
+            tau,
+            cs.repmat(v_c, 1, n),
+            pp,
+            grasp,
+            cs.repmat(x_o, 1, n),
+            cs.repmat(v_o, 1, n),
+        )
+        k_blocks, r = outs[0], outs[1]
+        m_o, h_o = obj.dynamics(x_o, v_o, v_c, po)
+        k_sum = m_o + k_blocks @ cs.repmat(cs.DM.eye(6), n, 1)
+        v_o_dot = cs.solve(k_sum, cs.sum2(r) - h_o)
+        return outs, v_o_dot
+
+    def rhs_expr(xx: cs.MX) -> cs.MX:
+        outs, v_o_dot = solve_stage(xx)
+        z_part, g_blocks, q_dot = outs[2], outs[3], outs[4]
+        _, _, x_o, v_o = unpack(xx)
+        g_list = cs.horzsplit(g_blocks, list(range(0, 6 * n + 1, 6)))
+        zeta_dot = cs.horzcat(*[z_part[:, i] + g_list[i] @ v_o_dot for i in range(n)])
+        return cs.vertcat(cs.vec(q_dot), cs.vec(zeta_dot), obj.pose_rate(x_o, v_o), v_o_dot)
+
+    rhs = cs.Function("chain_rhs", args, [rhs_expr(x)])
+    dt = period / substeps
+    xk = x
+    for _ in range(substeps):
+        k1 = rhs_expr(xk)
+        k2 = rhs_expr(xk + dt / 2 * k1)
+        k3 = rhs_expr(xk + dt / 2 * k2)
+        k4 = rhs_expr(xk + dt * k3)
+        xk = xk + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    step = cs.Function(f"chain_step_n{n}", args, [xk])
+
+    outs, v_o_dot = solve_stage(x)
+    lam = outs[5] - cs.horzcat(
+        *[blk @ v_o_dot for blk in cs.horzsplit(outs[6], list(range(0, 6 * n + 1, 6)))]
+    )
+    wrenches = cs.Function("chain_wrenches", args, [lam])
+    q, zeta, x_o, v_o = unpack(x)
+    err, err_dot = grasp_residual(uvms).map(n, "serial")(
+        q, zeta, grasp, cs.repmat(x_o, 1, n), cs.repmat(v_o, 1, n)
+    )
+    grasp_error = cs.Function("chain_grasp_error", [x, grasp], [err[:3, :], err[3:, :], err_dot])
+    return ChainFunctions(n, rhs, step, wrenches, grasp_error)
