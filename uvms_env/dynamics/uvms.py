@@ -21,6 +21,7 @@ damping scale); ``nominal_parameters()`` gives the parameter file's values.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import casadi as cs
 import numpy as np
@@ -278,3 +279,9 @@ def scale_damping(p: np.ndarray, scale: float) -> np.ndarray:
     for name in DAMPING_ENTRIES:
         out[PARAMETER_LAYOUT[name]] *= scale
     return out
+
+
+@cache
+def default_model() -> UVMSModel:
+    """The UVMS model of the parameter file, built once per process (~0.1 s)."""
+    return UVMSModel()

@@ -10,15 +10,15 @@ import numpy as np
 from uvms_env.dynamics import ObjectModel, UVMSModel
 from uvms_env.dynamics.payload import grasp_jacobian
 from uvms_env.dynamics.spatial import rot_zyx, rotation_error
+from uvms_env.dynamics.uvms import default_model
 
 # Nominal arm pose for holding: gripper forward-down, every joint >= 1.2 rad from its limit.
 NOMINAL_ARM = np.array([0.0, 0.8, 0.4, 0.0])
 
 
-@cache
 def uvms_model() -> UVMSModel:
-    """One symbolic UVMS model per process (building it costs ~0.1 s)."""
-    return UVMSModel()
+    """The shared symbolic UVMS model of the parameter file."""
+    return default_model()
 
 
 def _rz(yaw: float) -> np.ndarray:

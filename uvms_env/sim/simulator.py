@@ -13,17 +13,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from uvms_env.dynamics import NP, NQ, NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall, compile_function
 from uvms_env.dynamics.payload import NPO
-from uvms_env.dynamics.uvms import PARAMETER_LAYOUT, scale_damping
-from uvms_env.scenarios import Scenario
-from uvms_env.scenarios.geometry import uvms_model
+from uvms_env.dynamics.spatial import rot_zyx
+from uvms_env.dynamics.uvms import PARAMETER_LAYOUT, default_model, scale_damping
 from uvms_env.sim.chain import ChainFunctions, build_chain, state_size
 from uvms_env.sim.current import OceanCurrent
+
+if TYPE_CHECKING:  # the simulator reads a scenario's fields; it does not import the layer
+    from uvms_env.scenarios import Scenario
 
 # Grasp stabilization rate w [1/s] (Baumgarte). Measured on the paper scenario with 2,000
 # periods of random bang-bang inputs at 8 substeps: w = 10 gave 4e-6 m worst drift,
@@ -35,7 +38,7 @@ STABILIZATION = 10.0
 def _chain(
     n: int, shape: str, ring_radius: float, period: float, substeps: int
 ) -> tuple[ChainFunctions, object]:
-    uvms = uvms_model()
+    uvms = default_model()
     obj = ObjectModel(shape, ring_radius)
     chain = build_chain(n, uvms, obj, period, substeps, STABILIZATION)
     return chain, compile_function(chain.step)
@@ -66,7 +69,7 @@ class Simulator:
         self.scenario = scenario
         s = scenario
         self.n = s.n_agents
-        self.uvms = uvms_model()
+        self.uvms = default_model()
         self.object = ObjectModel(s.object_shape, s.ring_radius)
         self.chain, step_fn = _chain(
             self.n, s.object_shape, float(s.ring_radius), s.period, s.substeps
@@ -124,7 +127,7 @@ class Simulator:
             p = p * (1 + s.mismatch * rng.uniform(-1, 1, p.shape))
             # the extra-mass entry is an absolute kg value around 0: perturb the vehicle mass
             p[:, PARAMETER_LAYOUT["vehicle_extra_mass"]] = (
-                s.mismatch * rng.uniform(-1, 1, self.n) * self.uvms.params.vehicle.mass
+                s.mismatch * rng.uniform(-1, 1, (self.n, 1)) * self.uvms.params.vehicle.mass
             )
             po = po * (1 + s.mismatch * rng.uniform(-1, 1, po.shape))
         self.parameters = np.ascontiguousarray(
@@ -181,8 +184,6 @@ class Simulator:
 
     def grasp_matrix_t(self) -> np.ndarray:
         """G^T (6 x 6N), maps stacked grasp wrenches to the object wrench at its centroid."""
-        from uvms_env.dynamics.spatial import rot_zyx
-
         r_o = np.array(rot_zyx(self.state.x_O[3:]))
         blocks = []
         for l_i in self.scenario.grasp_offsets:
