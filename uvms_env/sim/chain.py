@@ -45,7 +45,7 @@ class ChainFunctions:
 
     n: int
     rhs: cs.Function  # (x, tau, v_c, P, P_O, grasp) -> x_dot
-    step: cs.Function  # (x, tau, v_c, P, P_O, grasp) -> x after one control period
+    step: cs.Function  # (x, tau, v_c, P, P_O, grasp) -> (x after one period, grasp error 6xN)
     wrenches: cs.Function  # (x, tau, v_c, P, P_O, grasp) -> lambda (6xN)
     grasp_error: (
         cs.Function
@@ -160,7 +160,14 @@ def build_chain(
         k3 = rhs_expr(xk + dt / 2 * k2)
         k4 = rhs_expr(xk + dt * k3)
         xk = xk + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    step = cs.Function(f"chain_step_n{n}", args, [xk])
+    residual = grasp_residual(uvms).map(n, "serial")
+    q_end, zeta_end, x_o_end, v_o_end = unpack(xk)
+    err_end, _ = residual(
+        q_end, zeta_end, grasp, cs.repmat(x_o_end, 1, n), cs.repmat(v_o_end, 1, n)
+    )
+    # The grasp error at the end of the period comes out of the same call, so the simulator
+    # can decide to project without another evaluation.
+    step = cs.Function(f"chain_step_n{n}", args, [xk, err_end])
 
     outs, v_o_dot = solve_stage(x)
     lam = outs[5] - cs.horzcat(
@@ -168,8 +175,6 @@ def build_chain(
     )
     wrenches = cs.Function("chain_wrenches", args, [lam])
     q, zeta, x_o, v_o = unpack(x)
-    err, err_dot = grasp_residual(uvms).map(n, "serial")(
-        q, zeta, grasp, cs.repmat(x_o, 1, n), cs.repmat(v_o, 1, n)
-    )
+    err, err_dot = residual(q, zeta, grasp, cs.repmat(x_o, 1, n), cs.repmat(v_o, 1, n))
     grasp_error = cs.Function("chain_grasp_error", [x, grasp], [err[:3, :], err[3:, :], err_dot])
     return ChainFunctions(n, rhs, step, wrenches, grasp_error)

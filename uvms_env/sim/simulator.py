@@ -20,7 +20,7 @@ import numpy as np
 from uvms_env.dynamics import NP, NQ, NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall, compile_function
 from uvms_env.dynamics.payload import NPO
-from uvms_env.dynamics.spatial import rot_zyx
+from uvms_env.dynamics.spatial import euler_rate_matrix, rot_zyx
 from uvms_env.dynamics.uvms import PARAMETER_LAYOUT, default_model, scale_damping
 from uvms_env.sim.chain import ChainFunctions, build_chain, state_size
 from uvms_env.sim.current import OceanCurrent
@@ -32,6 +32,12 @@ if TYPE_CHECKING:  # the simulator reads a scenario's fields; it does not import
 # periods of random bang-bang inputs at 8 substeps: w = 10 gave 4e-6 m worst drift,
 # w = 20 gave 3e-4 m (it fights the RK4 error instead of damping it).
 STABILIZATION = 10.0
+# Baumgarte alone leaves up to ~1e-6 m of drift under violent inputs; when a period ends
+# with a grasp position error above this, the state is projected back onto the grasp
+# manifold (positions, then velocities; kinetic-energy metric). Measured on the paper
+# scenario over 2,000 periods: 9 projections under uniform random inputs (a third of
+# them saturated), 113 under bang-bang inputs; worst drift then 5e-7 m.
+PROJECTION_TOL = 5e-7  # m
 
 
 @cache
@@ -78,6 +84,8 @@ class Simulator:
         self.tau_max = self.uvms.params.limits.tau_max
         self._x = np.zeros(state_size(self.n))
         self._x_next = self._step.outputs[0]
+        self._err_next = self._step.outputs[1]  # (N, 6): position error, rotation error
+        self.projections = 0  # how many periods needed a projection (diagnostics)
         self._tau = np.zeros((self.n, NU))
         self._vc = np.zeros(3)
         self._grasp = np.ascontiguousarray(
@@ -157,8 +165,60 @@ class Simulator:
         if not np.all(np.isfinite(self._x_next)):
             raise FloatingPointError("the simulation diverged (non-finite state)")
         self._x[:] = self._x_next
+        if (
+            np.einsum("ij,ij->i", self._err_next[:, :3], self._err_next[:, :3]).max()
+            > PROJECTION_TOL**2
+        ):
+            self._project()
         self.t += self.scenario.period
         return StepInfo(self._tau.copy(), saturated, self._vc.copy())
+
+    def _constraint_jacobian(self) -> tuple[np.ndarray, np.ndarray]:
+        """A (6N x 10N+6) of the grasp constraints in velocity coordinates, and the
+        kinetic-energy metric W = blkdiag(M_1..M_N, M_O)."""
+        st, n = self.state, self.n
+        a = np.zeros((6 * n, 10 * n + 6))
+        w = np.zeros((10 * n + 6, 10 * n + 6))
+        g_t = self.grasp_matrix_t()
+        for i in range(n):
+            a[6 * i : 6 * i + 6, 10 * i : 10 * i + 10] = np.array(self.uvms.ee_jacobian(st.q[i]))
+            a[6 * i : 6 * i + 6, 10 * n :] = -g_t[:, 6 * i : 6 * i + 6].T
+            w[10 * i : 10 * i + 10, 10 * i : 10 * i + 10] = np.array(
+                self.uvms.mass_matrix(st.q[i], self.parameters[i])
+            )
+        m_o, _ = self.object.dynamics(st.x_O, st.v_O, np.zeros(3), self.object_parameters)
+        w[10 * n :, 10 * n :] = np.array(m_o)
+        return a, w
+
+    @staticmethod
+    def _min_metric_correction(a: np.ndarray, w: np.ndarray, residual: np.ndarray) -> np.ndarray:
+        """delta minimizing delta' W delta subject to A delta = -residual."""
+        w_inv_at = np.linalg.solve(w, a.T)
+        return -w_inv_at @ np.linalg.solve(a @ w_inv_at, residual)
+
+    def _project(self) -> None:
+        """Pull positions, then velocities, back onto the grasp constraints (Newton steps)."""
+        n = self.n
+        self.projections += 1
+        for _ in range(3):
+            pos, rot, _ = self.chain.grasp_error(self._x, self._grasp.T)
+            err = np.vstack([np.array(pos), np.array(rot)]).T.reshape(-1)
+            if np.abs(err).max() < 1e-12:
+                break
+            a, w = self._constraint_jacobian()
+            delta = self._min_metric_correction(a, w, err)
+            st = self.state
+            for i in range(n):
+                st.q[i] += np.array(self.uvms.qdot_matrix(st.q[i])) @ delta[10 * i : 10 * i + 10]
+            st.x_O[:3] += delta[10 * n : 10 * n + 3]
+            r_o = np.array(rot_zyx(st.x_O[3:]))
+            st.x_O[3:] += np.array(euler_rate_matrix(st.x_O[3:])) @ r_o.T @ delta[10 * n + 3 :]
+        a, w = self._constraint_jacobian()
+        v = self._x[10 * n : 20 * n + 12].copy()
+        v_all = np.concatenate([v[: 10 * n], v[10 * n + 6 :]])  # skip x_O in the flat layout
+        v_all += self._min_metric_correction(a, w, a @ v_all)
+        self._x[10 * n : 20 * n] = v_all[: 10 * n]
+        self._x[20 * n + 6 :] = v_all[10 * n :]
 
     # -- diagnostics -------------------------------------------------------------------
     def grasp_error(self) -> tuple[np.ndarray, np.ndarray]:
