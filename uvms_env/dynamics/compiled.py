@@ -12,8 +12,10 @@ Cache folder: ``$UVMS_ENV_CACHE`` or the user cache dir (``platformdirs``). Set
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
+import platform
 import shutil
 import subprocess
 import tempfile
@@ -23,7 +25,21 @@ import casadi as cs
 import numpy as np
 import platformdirs
 
-CFLAGS = ("-O2", "-fPIC", "-shared")
+# -O3 -march=native measured 25% faster than -O2 on the simulator step (264 vs 350 us);
+# native code is tied to the CPU, so the CPU's identity is part of the cache key.
+CFLAGS = ("-O3", "-march=native", "-fPIC", "-shared")
+
+
+@functools.cache
+def _cpu_identity() -> bytes:
+    ident = platform.machine() + platform.processor()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            wanted = {line for line in fh if line.startswith(("model name", "flags"))}
+        ident += "".join(sorted(wanted))
+    except OSError:
+        pass
+    return ident.encode()
 
 
 def cache_dir() -> Path:
@@ -51,7 +67,9 @@ def compile_function(fn: cs.Function) -> cs.Function:
         cg.add(fn)
         cg.generate(tmp + os.sep)
         code = src.read_bytes()
-        key = hashlib.sha256(code + " ".join(CFLAGS).encode() + cs.__version__.encode())
+        key = hashlib.sha256(
+            code + " ".join(CFLAGS).encode() + cs.__version__.encode() + _cpu_identity()
+        )
         lib = cache_dir() / f"{fn.name()}_{key.hexdigest()[:16]}.so"
         if not lib.exists():
             part = lib.with_suffix(f".{os.getpid()}.part")
