@@ -53,3 +53,10 @@ def test_make_rejects_unknown_names_and_overrides():
         make("paper", speed=3)
     with pytest.raises(ValueError, match="exactly 2 agents"):
         make("paper", n_agents=3)
+
+
+def test_short_family_is_a_single_seeded_waypoint_two_metres_away():
+    a, b, c = make("short", seed=1), make("short", seed=1), make("short", seed=2)
+    assert np.array_equal(a.waypoints, b.waypoints) and not np.array_equal(a.waypoints, c.waypoints)
+    assert a.waypoints.shape == (1, 6) and not a.obstacles
+    assert np.linalg.norm(a.waypoints[0, :2] - a.object_start[:2]) == pytest.approx(2.0)

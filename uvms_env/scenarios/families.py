@@ -195,7 +195,37 @@ def _too_close(a: Cylinder | Sphere, b: Cylinder | Sphere, r_team: float) -> boo
     return float(np.linalg.norm(ca - cb)) < a.radius + b.radius + 2 * r_team
 
 
-FAMILIES: dict[str, Callable[..., Scenario]] = {"paper": paper, "random": random}
+def short(**settings) -> Scenario:
+    """A learning-sized task: the paper's team and start, one waypoint 2 m away in a seeded
+    random horizontal direction (depth and heading unchanged), no obstacles, 300 periods
+    (36 s; the navigation reference needs ~12 s). The paper scenario's first leg takes
+    ~45 s and passes an obstacle; this variant makes RL on 2 CPU cores feasible."""
+    n = settings.pop("n_agents", 2)
+    if n != 2:
+        raise ValueError(f"the short scenario has exactly 2 agents, got n_agents={n}")
+    rng = np.random.default_rng(settings.get("seed"))
+    start = np.array([-0.7, 0.0, 0.72, 0.04, -0.07, 0.0])
+    heading = rng.uniform(-np.pi, np.pi)
+    goal = start.copy()
+    goal[:2] += 2.0 * np.array([np.cos(heading), np.sin(heading)])
+    goal[3:5] = 0.0
+    settings.setdefault("max_steps", 300)
+    return _configure(
+        "short",
+        "bar",
+        0.0,
+        offsets=np.array([[0.0, 0.8, 0.0], [0.0, -0.8, 0.0]]),
+        yaws=np.zeros(2),
+        shares=np.array([0.5, 0.5]),
+        start=start,
+        waypoints=goal[None],
+        obstacles=(),
+        workspace=Workspace((-0.7, 0.0, 0.72), 8.0),
+        **settings,
+    )
+
+
+FAMILIES: dict[str, Callable[..., Scenario]] = {"paper": paper, "random": random, "short": short}
 
 
 def make(name: str = "paper", **overrides) -> Scenario:
