@@ -1,0 +1,385 @@
+"""One fair comparison of policies on the same seeded episodes.
+
+    python -m baselines.evaluate --policy nmpc --policy random --scenario paper \\
+        --scenario random --episodes 20 --seed 0 --workers 2 --out runs/eval
+
+Every policy plays exactly the same episodes: episode k of scenario S has the seed
+``episode_seed(seed, S, k)``, which fixes the random family's geometry, the truth-model
+draws, the current and the sensor noise. Episodes run in worker processes; a result
+depends only on (policy, scenario, seed), never on the number of workers. A policy that
+raises ends its episode as a failure with the error recorded, not the evaluation.
+
+Writes ``episodes.csv`` (one row per episode), ``results.json`` and ``results.md``
+(success with a Wilson 95% interval, means with bootstrap 95% intervals, violations per
+kind, decision time median and p95), and plots (success by scenario, decision time on a
+log scale, the object's path per policy on the paper scenario).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import hashlib
+import json
+import os
+import time
+import traceback
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from baselines.policies import PolicySource, check_policy
+from baselines.stats import bootstrap_mean_interval, wilson_interval
+
+VIOLATION_KINDS = (
+    "input",
+    "joint_limit",
+    "joint_speed",
+    "vehicle_speed",
+    "manipulability",
+    "representation",
+    "collision",
+    "workspace",
+)
+MEAN_METRICS = (
+    "episode_steps",
+    "sim_time_s",
+    "final_pos_error_m",
+    "final_att_error_rad",
+    "min_obstacle_clearance_m",
+    "min_manipulability",
+    "internal_wrench_rms",
+    "control_effort",
+    "grasp_drift_max_m",
+    "return",
+)
+
+
+def episode_seed(seed: int, scenario: str, index: int) -> int:
+    """A stable 32-bit seed per (evaluation seed, scenario, episode index)."""
+    digest = hashlib.sha256(f"{seed}/{scenario}/{index}".encode()).digest()
+    return int.from_bytes(digest[:4], "little")
+
+
+@dataclass(frozen=True)
+class EpisodeJob:
+    policy: str
+    scenario: str
+    index: int
+    seed: int
+    overrides: tuple[tuple[str, Any], ...]
+    max_cycles: int | None
+    record_path: bool
+
+
+def run_episode(job: EpisodeJob) -> dict[str, Any]:
+    """Play one episode; never raises (errors become failed episodes)."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    import uvms_env
+    from uvms_env.policy import AgentSpec
+
+    row: dict[str, Any] = {
+        "policy": job.policy,
+        "scenario": job.scenario,
+        "episode": job.index,
+        "seed": job.seed,
+        "error": "",
+    }
+    times: list[float] = []
+    path: list[list[float]] = []
+    total_reward = 0.0
+    try:
+        kwargs = dict(job.overrides)
+        if job.max_cycles is not None:
+            kwargs["max_cycles"] = job.max_cycles
+        env = uvms_env.parallel_env(scenario=job.scenario, seed=job.seed, **kwargs)
+        obs, infos = env.reset(seed=job.seed)
+        factory = PolicySource.parse(job.policy).factory(job.seed)
+        policies = {}
+        for i, agent in enumerate(env.possible_agents):
+            policy = factory(AgentSpec.from_scenario(env.scenario, i))
+            check_policy(policy)
+            policy.reset()
+            policies[agent] = policy
+        final_info: dict[str, Any] = {}
+        while env.agents:
+            actions = {}
+            for agent in env.agents:
+                start = time.perf_counter()
+                actions[agent] = policies[agent].act(obs[agent])
+                times.append(time.perf_counter() - start)
+            obs, rewards, _, _, infos = env.step(actions)
+            total_reward += float(next(iter(rewards.values()))) if rewards else 0.0
+            if job.record_path:
+                path.append(env.unwrapped.sim.state.x_O[:3].tolist())
+            for info in infos.values():
+                if "metrics" in info:
+                    final_info = info["metrics"]
+        env.close()
+        row.update(flatten_metrics(final_info))
+    except Exception as exc:  # a failing policy must not stop the evaluation
+        row["error"] = f"{type(exc).__name__}: {exc}"
+        row["traceback"] = traceback.format_exc(limit=5)
+        row["success"] = False
+    row["return"] = total_reward
+    ms = np.array(times) * 1e3
+    row["policy_time_ms_median"] = float(np.median(ms)) if len(ms) else float("nan")
+    row["policy_time_ms_p95"] = float(np.quantile(ms, 0.95)) if len(ms) else float("nan")
+    row["policy_time_ms_max"] = float(ms.max()) if len(ms) else float("nan")
+    row["_decision_ms"] = ms.tolist()
+    row["_path"] = path
+    return row
+
+
+def flatten_metrics(metrics: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in metrics.items():
+        if key == "violations" and isinstance(value, dict):
+            for kind in VIOLATION_KINDS:
+                out[f"violations_{kind}"] = int(value.get(kind, 0))
+        elif key == "policy_time_ms":
+            continue  # measured here, where the policy runs
+        elif isinstance(value, bool | int | float | np.floating | np.integer) or value is None:
+            out[key] = value
+    return out
+
+
+def aggregate(rows: list[dict[str, Any]], seed: int) -> list[dict[str, Any]]:
+    """One summary per (policy, scenario): rates with Wilson, means with bootstrap."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for row in rows:
+        groups.setdefault((row["policy"], row["scenario"]), []).append(row)
+    out = []
+    for (policy, scenario), group in sorted(groups.items()):
+        n = len(group)
+        wins = sum(bool(r.get("success")) for r in group)
+        lo, hi = wilson_interval(wins, n)
+        summary: dict[str, Any] = {
+            "policy": policy,
+            "scenario": scenario,
+            "episodes": n,
+            "errors": sum(bool(r["error"]) for r in group),
+            "success_rate": wins / n,
+            "success_ci95": [lo, hi],
+        }
+        for key in MEAN_METRICS:
+            vals = np.array([r.get(key, np.nan) for r in group], dtype=float)
+            if np.isfinite(vals).any():
+                summary[key] = float(np.nanmean(vals))
+                summary[f"{key}_ci95"] = list(bootstrap_mean_interval(vals, seed=seed))
+        summary["violations"] = {
+            kind: int(sum(r.get(f"violations_{kind}", 0) or 0 for r in group))
+            for kind in VIOLATION_KINDS
+        }
+        ms = np.concatenate([np.asarray(r["_decision_ms"], float) for r in group] or [[]])
+        summary["policy_time_ms"] = {
+            "median": float(np.median(ms)) if len(ms) else None,
+            "p95": float(np.quantile(ms, 0.95)) if len(ms) else None,
+            "max": float(ms.max()) if len(ms) else None,
+        }
+        out.append(summary)
+    return out
+
+
+def markdown_table(summaries: list[dict[str, Any]]) -> str:
+    def fmt(x: Any, digits: int = 2) -> str:
+        return (
+            "n/a"
+            if x is None or (isinstance(x, float) and not np.isfinite(x))
+            else f"{x:.{digits}f}"
+        )
+
+    lines = [
+        "| policy | scenario | episodes | success [95% CI] | final pos. error m | "
+        "min clearance m | violations (total) | decision ms median / p95 | errors |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for s in summaries:
+        lo, hi = s["success_ci95"]
+        t = s["policy_time_ms"]
+        lines.append(
+            f"| {s['policy']} | {s['scenario']} | {s['episodes']} | "
+            f"{s['success_rate']:.2f} [{fmt(lo)}, {fmt(hi)}] | "
+            f"{fmt(s.get('final_pos_error_m'))} | {fmt(s.get('min_obstacle_clearance_m'))} | "
+            f"{sum(s['violations'].values())} | {fmt(t['median'], 3)} / {fmt(t['p95'], 3)} | "
+            f"{s['errors']} |"
+        )
+    kinds = " | ".join(VIOLATION_KINDS)
+    lines += ["", f"| policy | scenario | {kinds} |", "|---|---|" + "---|" * len(VIOLATION_KINDS)]
+    for s in summaries:
+        counts = " | ".join(str(s["violations"][k]) for k in VIOLATION_KINDS)
+        lines.append(f"| {s['policy']} | {s['scenario']} | {counts} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_plots(rows: list[dict[str, Any]], summaries: list[dict[str, Any]], out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenarios = sorted({s["scenario"] for s in summaries})
+    policies = list(dict.fromkeys(s["policy"] for s in summaries))
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    width = 0.8 / max(1, len(policies))
+    for k, policy in enumerate(policies):
+        for j, scen in enumerate(scenarios):
+            s = next(
+                (x for x in summaries if x["policy"] == policy and x["scenario"] == scen), None
+            )
+            if s is None:
+                continue
+            lo, hi = s["success_ci95"]
+            rate = s["success_rate"]
+            ax.bar(j + k * width, rate, width, color=f"C{k}", label=policy if j == 0 else None)
+            ax.errorbar(j + k * width, rate, yerr=[[rate - lo], [hi - rate]], color="k", capsize=3)
+    ax.set_xticks(np.arange(len(scenarios)) + width * (len(policies) - 1) / 2, scenarios)
+    ax.set_ylabel("success rate (Wilson 95%)")
+    ax.set_ylim(0, 1.05)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "success_by_scenario.png", dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    data = [
+        np.concatenate([r["_decision_ms"] for r in rows if r["policy"] == p] or [[np.nan]])
+        for p in policies
+    ]
+    ax.boxplot(
+        [d[np.isfinite(d)] if np.isfinite(d).any() else [np.nan] for d in data], showfliers=False
+    )
+    ax.set_xticks(np.arange(1, len(policies) + 1), policies)
+    ax.set_yscale("log")
+    ax.set_ylabel("decision time per agent [ms]")
+    fig.tight_layout()
+    fig.savefig(out / "decision_time.png", dpi=120)
+    plt.close(fig)
+
+    paths = [r for r in rows if r["scenario"] == "paper" and r["episode"] == 0 and r["_path"]]
+    if paths:
+        from uvms_env.scenarios import make
+
+        scen = make("paper")
+        fig, ax = plt.subplots(figsize=(6, 5))
+        for obs in scen.obstacles:
+            ax.add_patch(plt.Circle((obs.y, obs.x), obs.radius, color="0.5"))
+            ax.add_patch(
+                plt.Circle((obs.y, obs.x), obs.radius + scen.team_radius, fill=False, ls=":")
+            )
+        for r in paths:
+            p = np.array(r["_path"])
+            ax.plot(p[:, 1], p[:, 0], color=f"C{policies.index(r['policy'])}", label=r["policy"])
+        ax.plot(scen.waypoints[:, 1], scen.waypoints[:, 0], "k*", ms=12, label="waypoints")
+        ax.set_xlabel("y (east) [m]")
+        ax.set_ylabel("x (north) [m]")
+        ax.set_aspect("equal")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(out / "paths_paper.png", dpi=120)
+        plt.close(fig)
+
+
+def evaluate(
+    policies: list[str],
+    scenarios: list[str],
+    episodes: int,
+    seed: int,
+    workers: int,
+    overrides: dict[str, Any] | None = None,
+    max_cycles: int | None = None,
+    progress: bool = True,
+) -> list[dict[str, Any]]:
+    """Run every (policy, scenario, episode) and return the per-episode rows, sorted."""
+    for p in policies:
+        PolicySource.parse(p)  # fail fast on a typo, before any worker starts
+    items = tuple(sorted((overrides or {}).items()))
+    jobs = [
+        EpisodeJob(p, s, k, episode_seed(seed, s, k), items, max_cycles, k == 0 and s == "paper")
+        for p in policies
+        for s in scenarios
+        for k in range(episodes)
+    ]
+    rows: list[dict[str, Any]] = []
+    bar = tqdm(total=len(jobs), desc="episodes", disable=not progress, unit="ep")
+    if workers <= 1:
+        for job in jobs:
+            rows.append(run_episode(job))
+            bar.update()
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            for fut in as_completed([pool.submit(run_episode, j) for j in jobs]):
+                rows.append(fut.result())
+                bar.update()
+    bar.close()
+    rows.sort(
+        key=lambda r: (policies.index(r["policy"]), scenarios.index(r["scenario"]), r["episode"])
+    )
+    return rows
+
+
+def write_outputs(rows: list[dict[str, Any]], seed: int, out: Path) -> list[dict[str, Any]]:
+    out.mkdir(parents=True, exist_ok=True)
+    summaries = aggregate(rows, seed)
+    keys = list(
+        dict.fromkeys(k for r in rows for k in r if not k.startswith("_") and k != "traceback")
+    )
+    with open(out / "episodes.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=keys)
+        writer.writeheader()
+        for r in rows:
+            writer.writerow({k: r.get(k, "") for k in keys})
+    (out / "results.json").write_text(json.dumps(summaries, indent=2))
+    (out / "results.md").write_text(markdown_table(summaries))
+    write_plots(rows, summaries, out)
+    return summaries
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(
+        prog="python -m baselines.evaluate",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument(
+        "--policy", action="append", required=True, help="nmpc, random, zero, pkg.mod:factory"
+    )
+    ap.add_argument("--scenario", action="append", default=None, help="paper, random (repeatable)")
+    ap.add_argument("--episodes", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--max-cycles", type=int, default=None)
+    ap.add_argument("--n-agents", type=int, default=None, help="random family only")
+    ap.add_argument("--current", default=None, choices=["none", "mild", "strong"])
+    ap.add_argument("--mismatch", type=float, default=None)
+    ap.add_argument("--out", type=Path, default=Path("runs/eval"))
+    args = ap.parse_args(argv)
+    overrides = {
+        k: v
+        for k, v in {
+            "n_agents": args.n_agents,
+            "current": args.current,
+            "mismatch": args.mismatch,
+        }.items()
+        if v is not None
+    }
+    rows = evaluate(
+        args.policy,
+        args.scenario or ["paper"],
+        args.episodes,
+        args.seed,
+        args.workers,
+        overrides,
+        args.max_cycles,
+    )
+    summaries = write_outputs(rows, args.seed, args.out)
+    print(markdown_table(summaries))
+    print(f"wrote {args.out}/episodes.csv, results.json, results.md and plots")
+
+
+if __name__ == "__main__":
+    main()

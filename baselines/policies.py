@@ -1,0 +1,143 @@
+"""Policy sources for the evaluator: ``--policy NAME[:ARG]`` to a per-agent factory.
+
+Known names: ``nmpc`` (the expert, ``nmpc:ipopt`` for its reference solver), ``random``
+(uniform actions, seeded per episode and agent), ``zero`` (all inputs zero), and
+``module:factory`` (a user's ``factory(spec) -> Policy`` importable as
+``package.module:factory``), ``ppo:PATH`` / ``sac:PATH`` (an SB3 run folder, or
+``pretrained`` for the committed model), ``bc:PATH`` / ``dagger:PATH`` (a folder with
+``policy.pt``, or ``pretrained``).
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from uvms_env.policy import AgentSpec, Policy, PolicyFactory
+
+PRETRAINED = Path(__file__).resolve().parent / "pretrained"
+
+
+class RandomPolicy:
+    """Uniform random normalized actions from its own seeded stream."""
+
+    def __init__(self, spec: AgentSpec, seed: int) -> None:
+        self._seed = (seed, spec.index)
+        self.stats: dict[str, Any] = {}
+        self.reset()
+
+    def reset(self) -> None:
+        self._rng = np.random.default_rng(self._seed)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return self._rng.uniform(-1.0, 1.0, 8).astype(np.float32)
+
+
+class ZeroPolicy:
+    """No input at all: the team drifts under weight, buoyancy and current."""
+
+    def __init__(self, spec: AgentSpec) -> None:
+        del spec
+        self.stats: dict[str, Any] = {}
+
+    def reset(self) -> None:
+        pass
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return np.zeros(8, dtype=np.float32)
+
+
+def _nmpc(arg: str | None, seed: int) -> PolicyFactory:
+    from nmpc_expert import NMPCPolicy  # the expert is optional at import time
+
+    solver = arg or "rti"
+    return lambda spec: NMPCPolicy(spec, solver=solver)
+
+
+def _random(arg: str | None, seed: int) -> PolicyFactory:
+    return lambda spec: RandomPolicy(spec, seed)
+
+
+def _zero(arg: str | None, seed: int) -> PolicyFactory:
+    return ZeroPolicy
+
+
+def _sb3(algo: str) -> Callable[[str | None, int], PolicyFactory]:
+    def build(arg: str | None, seed: int) -> PolicyFactory:
+        from baselines.rl.policy import SB3Policy, resolve_run
+
+        folder = resolve_run(algo, arg)
+        return lambda spec: SB3Policy(spec, algo, folder)
+
+    return build
+
+
+def _cloned(method: str) -> Callable[[str | None, int], PolicyFactory]:
+    def build(arg: str | None, seed: int) -> PolicyFactory:
+        from baselines.imitation.network import ClonedPolicy
+
+        folder = Path(arg) if arg not in (None, "", "pretrained") else PRETRAINED / method
+        path = folder if folder.suffix == ".pt" else folder / "policy.pt"
+        if not path.exists():
+            raise ValueError(f"no {method} policy at {path}")
+        return lambda spec: ClonedPolicy(spec, path)
+
+    return build
+
+
+def _user(module: str, attr: str) -> Callable[[str | None, int], PolicyFactory]:
+    def build(arg: str | None, seed: int) -> PolicyFactory:
+        try:
+            factory = getattr(importlib.import_module(module), attr)
+        except (ImportError, AttributeError) as exc:
+            raise ValueError(f"cannot import policy factory {module}:{attr}: {exc}") from exc
+        return factory
+
+    return build
+
+
+BUILTIN: dict[str, Callable[[str | None, int], PolicyFactory]] = {
+    "nmpc": _nmpc,
+    "random": _random,
+    "zero": _zero,
+    "ppo": _sb3("ppo"),
+    "sac": _sb3("sac"),
+    "bc": _cloned("bc"),
+    "dagger": _cloned("dagger"),
+}
+
+
+@dataclass(frozen=True)
+class PolicySource:
+    """A parsed ``--policy`` argument: a label for tables and a way to build factories."""
+
+    label: str
+    name: str
+    arg: str | None
+
+    @staticmethod
+    def parse(text: str) -> PolicySource:
+        name, _, arg = text.partition(":")
+        if name in BUILTIN:
+            return PolicySource(text, name, arg or None)
+        if arg and "." in name:  # package.module:factory
+            return PolicySource(text, "module", text)
+        known = ", ".join(sorted(BUILTIN))
+        raise ValueError(f"unknown policy {text!r}: use one of {known}, or package.module:factory")
+
+    def factory(self, episode_seed: int) -> PolicyFactory:
+        """The per-agent factory for one episode (random policies are seeded by it)."""
+        if self.name == "module":
+            module, _, attr = self.arg.partition(":")  # type: ignore[union-attr]
+            return _user(module, attr)(None, episode_seed)
+        return BUILTIN[self.name](self.arg, episode_seed)
+
+
+def check_policy(policy: Policy) -> None:
+    if not isinstance(policy, Policy):
+        raise TypeError(f"{type(policy).__name__} does not implement reset(), act(obs) and stats")
