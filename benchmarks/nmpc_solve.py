@@ -1,0 +1,67 @@
+"""Per-agent decision time of the NMPC expert (one core), at N = 2, 4, 6 robots.
+
+    python benchmarks/nmpc_solve.py [--steps 150] [--solver rti] [--sizes 2 4 6]
+
+Runs each case in closed loop on the environment (N = 2: the paper scenario; N = 4, 6:
+the random family, seed 0) with one policy per robot and times every ``act`` call (the
+whole decision: observation check, object estimate, reference, QP build and solve).
+The controllers are distributed, so the time per decision must not grow with N. The
+first run compiles the OCP of each object shape (~50 s each, cached on disk).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np
+
+import uvms_env
+from nmpc_expert import NMPCPolicy
+from uvms_env.policy import AgentSpec
+
+
+def measure(n: int, steps: int, solver: str) -> np.ndarray:
+    kwargs = {"scenario": "paper"} if n == 2 else {"scenario": "random", "n_agents": n, "seed": 0}
+    env = uvms_env.parallel_env(**kwargs)
+    obs, _ = env.reset(seed=0)
+    pols = {
+        a: NMPCPolicy(AgentSpec.from_scenario(env.scenario, i), solver=solver)
+        for i, a in enumerate(env.agents)
+    }
+    times = []
+    for _ in range(steps):
+        actions = {}
+        for a, p in pols.items():
+            t = time.perf_counter()
+            actions[a] = p.act(obs[a])
+            times.append((time.perf_counter() - t) * 1e3)
+        obs, _, term, trunc, _ = env.step(actions)
+        if any(term.values()) or any(trunc.values()):
+            obs, _ = env.reset(seed=0)
+            for p in pols.values():
+                p.reset()
+    return np.asarray(times)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--steps", type=int, default=150)
+    ap.add_argument("--solver", default="rti", choices=["rti", "ipopt"])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 6])
+    args = ap.parse_args()
+    print(f"{'N':>3} {'decisions':>9} {'median ms':>10} {'p95 ms':>8} {'max ms':>8}")
+    for n in args.sizes:
+        t = measure(n, args.steps, args.solver)
+        print(
+            f"{n:>3} {len(t):>9} {np.median(t):>10.2f} {np.percentile(t, 95):>8.2f} {t.max():>8.2f}"
+        )
+
+
+if __name__ == "__main__":
+    main()

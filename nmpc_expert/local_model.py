@@ -1,0 +1,128 @@
+"""The local (distributed) prediction model of one UVMS and its object estimate.
+
+MODEL section 5 (paper dec_dynamics, nominal_system): UVMS i assumes it carries the
+share c_i of the object's dynamics, with v_O = A_i zeta_i and A_i = J_Oi^-1 J_i:
+
+    (M_i + c_i A_i^T M_O A_i) zeta_dot_i = B_i tau_i - h_i - c_i A_i^T (M_O Adot_i zeta_i + h_O)
+
+Everything is built from the same CasADi functions as the truth simulator
+(``uvms_env.dynamics``), at the nominal parameters and zero current: the controller
+knows no more than its own model. The grasp (l_i, R_Oi), the load share c_i and the
+object's nominal parameters are *inputs* of the functions, not constants, so one compiled
+library serves every robot that carries the same object shape.
+
+State x = [q (10); zeta (10)]; input a (8) normalized by the saturation tau_max.
+Parameter vector ``theta`` (see ``ModelParams``): [l_i (3); R_Oi (9, column-major); c_i;
+p_O (4)].
+
+May import: numpy, casadi and ``uvms_env.dynamics`` / ``uvms_env.models``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as cs
+import numpy as np
+
+from uvms_env.dynamics import NQ, NU, ObjectModel, UVMSModel
+from uvms_env.dynamics.payload import NPO
+from uvms_env.dynamics.spatial import skew
+
+NX = 2 * NQ  # state of the prediction model: [q; zeta]
+NTHETA = 3 + 9 + 1 + NPO  # grasp offset, grasp rotation, load share, object parameters
+
+
+def euler_zyx(rot: cs.SX) -> cs.SX:
+    """ZYX Euler angles [phi, theta, psi] of a rotation matrix (symbolic; |theta| < pi/2)."""
+    return cs.vertcat(
+        cs.atan2(rot[2, 1], rot[2, 2]),
+        -cs.asin(cs.fmin(cs.fmax(rot[2, 0], -1.0), 1.0)),
+        cs.atan2(rot[1, 0], rot[0, 0]),
+    )
+
+
+def wrap(a: cs.SX) -> cs.SX:
+    """Smooth angle wrap to (-pi, pi] for cost residuals (differentiable everywhere but at pi)."""
+    return cs.atan2(cs.sin(a), cs.cos(a))
+
+
+@dataclass(frozen=True)
+class ModelParams:
+    """Per-robot constants of the local model, packed as the ``theta`` input."""
+
+    grasp_offset: np.ndarray  # (3,) l_i in the object frame
+    grasp_rotation: np.ndarray  # (3, 3) R_Oi
+    load_share: float  # c_i
+    object_parameters: np.ndarray  # (NPO,) nominal p_O
+
+    def pack(self) -> np.ndarray:
+        return np.concatenate(
+            [
+                np.asarray(self.grasp_offset, float),
+                np.asarray(self.grasp_rotation, float).T.reshape(-1),  # column-major
+                [float(self.load_share)],
+                np.asarray(self.object_parameters, float),
+            ]
+        )
+
+
+@dataclass(frozen=True)
+class LocalModel:
+    """Symbolic functions of the local model (SX, uncompiled).
+
+    * ``rhs(x, a, theta) -> x_dot`` (20): the continuous dynamics above.
+    * ``object_state(x, theta) -> (x_O (6), v_O (6))``: the robot's own estimate of the
+      object pose (ZYX Euler) and twist ``[p_dot; omega]`` (inertial) from its kinematics.
+    * ``manipulability(x) -> det(Jbar Jbar^T)`` of the actuated end-effector Jacobian.
+    """
+
+    rhs: cs.Function
+    object_state: cs.Function
+    manipulability: cs.Function
+    tau_max: np.ndarray
+
+
+def build_local_model(uvms: UVMSModel, obj: ObjectModel) -> LocalModel:
+    """The local model of MODEL section 5 on top of ``uvms`` and ``obj`` (nominal, v_c = 0)."""
+    x = cs.SX.sym("x", NX)
+    a = cs.SX.sym("a", NU)
+    theta = cs.SX.sym("theta", NTHETA)
+    q, zeta = x[:NQ], x[NQ:]
+    offset = theta[0:3]
+    r_oi = cs.reshape(theta[3:12], 3, 3)
+    share = theta[12]
+    p_o = theta[13 : 13 + NPO]
+    p_nom = cs.DM(uvms.nominal_parameters())
+    v_c = cs.DM.zeros(3)  # the controller does not know the current
+    tau_max = np.asarray(uvms.params.limits.tau_max, float)
+
+    p_ee, r_ee = uvms.ee_pose(q)
+    r_o = r_ee @ r_oi.T
+    arm = r_o @ offset  # grasp offset in the inertial frame
+    x_o = cs.vertcat(p_ee - arm, euler_zyx(r_o))
+    jac = uvms.ee_jacobian(q)
+    v_ee = jac @ zeta
+    # J_Oi^-1 = [[I, S(R_O l_i)], [0, I]]  (J_Oi = [[I, -S(R_O l_i)], [0, I]])
+    j_o_inv = cs.vertcat(
+        cs.horzcat(cs.DM.eye(3), skew(arm)), cs.horzcat(cs.DM.zeros(3, 3), cs.DM.eye(3))
+    )
+    a_i = j_o_inv @ jac  # A_i (6x10)
+    v_o = j_o_inv @ v_ee
+    omega = v_ee[3:]
+    # Adot_i zeta = J_Oi^-1 Jdot zeta + d/dt(J_Oi^-1) J zeta, d/dt(S(r)) = S(omega x r)
+    adot_zeta = j_o_inv @ uvms.ee_jdot_zeta(q, zeta) + cs.vertcat(
+        cs.cross(cs.cross(omega, arm), omega), cs.DM.zeros(3)
+    )
+    mass, bias = uvms.dynamics(q, zeta, v_c, p_nom)
+    m_o, h_o = obj.dynamics(x_o, v_o, v_c, p_o)
+    m_loc = mass + share * a_i.T @ m_o @ a_i
+    rhs = cs.DM(uvms.B) @ (cs.DM(tau_max) * a) - bias - share * a_i.T @ (m_o @ adot_zeta + h_o)
+    zeta_dot = cs.solve(0.5 * (m_loc + m_loc.T), rhs)
+    x_dot = cs.vertcat(uvms.qdot_map(q) @ zeta, zeta_dot)
+    return LocalModel(
+        rhs=cs.Function("local_rhs", [x, a, theta], [x_dot], {"cse": True}),
+        object_state=cs.Function("local_object_state", [x, theta], [x_o, v_o], {"cse": True}),
+        manipulability=cs.Function("local_manipulability", [x], [uvms.manipulability(q)]),
+        tau_max=tau_max,
+    )

@@ -1,0 +1,330 @@
+"""The optimal control problem of one robot (MODEL section 7, paper eq12) as CasADi pieces.
+
+* ``interval``: one shooting interval, exact RK4 of the local model with ``substeps``
+  substeps, and its sensitivities (Phi = dF/dx, Gamma = dF/da) chained through the RK4
+  substeps from the Jacobian of f, frozen over each substep's four stages.
+* ``outputs``: the cost residuals and soft-constraint values at a node, with Jacobians.
+* ``qp_builder``: the Gauss-Newton QP of one real-time iteration, in HPIPM's stage-wise
+  layout [dx_0, du_0, dx_1, du_1, ..., dx_N] with du_k = [da_k (8); s_k (NC)], s_k the
+  slacks of the soft constraints on x_{k+1}.
+
+The Jacobian of f used for the sensitivities drops the terms that are small at the speeds
+of this task (|v| <= 0.5 m/s, |w| <= 0.1 rad/s): the configuration dependence of the mass
+matrix times the acceleration and of the velocity-dependent forces. It keeps the
+kinematics, the restoring forces (roll and pitch are passive), the full velocity
+dependence (damping, Coriolis, the object's share) and the input matrix. The defects
+(F(x_k, a_k) - x_{k+1}) are exact, so the RTI converges to a dynamically consistent plan;
+the exact AD Jacobian would cost ~11x more per call and ~200 s of compilation.
+
+Soft constraints (NC = 16 per node, normalized by their limits so one penalty fits all):
+body twist of the vehicle (6), joint rates (4), joint angles (4), object pitch (1),
+manipulability (1). They apply to x_1..x_N, never to the measured x_0.
+
+May import: numpy, casadi, ``uvms_env.dynamics`` and this package's ``local_model``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+
+import casadi as cs
+import numpy as np
+
+from nmpc_expert.local_model import NTHETA, NX, LocalModel, build_local_model, euler_zyx, wrap
+from uvms_env.dynamics import NQ, NU, ObjectModel
+from uvms_env.dynamics.compiled import compile_function
+from uvms_env.dynamics.spatial import rot_zyx, skew
+from uvms_env.dynamics.uvms import default_model
+
+NC = 16  # soft constraints per node
+CONSTRAINT_NAMES = (
+    *(f"vehicle_speed_{a}" for a in ("u", "v", "w", "p", "q", "r")),
+    *(f"joint_speed_{k}" for k in range(1, 5)),
+    *(f"joint_position_{k}" for k in range(1, 5)),
+    "object_pitch",
+    "manipulability",
+)
+NW = 6 + 6 + 6 + NU + 5 * NC + 1  # weight/bound vector: see ``weight_vector``
+NR = 12  # state residual rows per node (pose 6, twist 6)
+
+
+def weight_vector(
+    q_x: np.ndarray,
+    q_v: np.ndarray,
+    p_x: np.ndarray,
+    r_u: np.ndarray,
+    slack_l1: np.ndarray,
+    slack_l2: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    scale: np.ndarray,
+    steady_state: bool,
+) -> np.ndarray:
+    """Pack the builder's ``w`` input: diagonal weights (Qx, Qv, Px, R), slack penalties
+    (L1, L2), normalized constraint bounds (lower, upper: for c / scale) and the
+    row scales, and whether R penalizes a - a_ss (1) or a (0)."""
+    parts = [q_x, q_v, p_x, r_u, slack_l1, slack_l2, lower, upper, scale, [float(steady_state)]]
+    return np.concatenate([np.asarray(p, float).ravel() for p in parts])
+
+
+@dataclass(frozen=True)
+class OCPFunctions:
+    """Compiled functions of the OCP for one object shape (shared by every robot)."""
+
+    horizon: int
+    model: LocalModel
+    interval: cs.Function  # (x, a, theta) -> (F, Phi, Gamma)
+    outputs: cs.Function  # (x, theta, xd, vd) -> (r 12, Jr 12x20, c NC, Jc NCx20)
+    qp_builder: cs.Function  # see build_qp_builder
+    object_state: cs.Function  # (x, theta) -> (x_O, v_O)
+    steady_input: cs.Function  # (x, theta, v_d) -> a_ss (8)
+    h_sparsity: cs.Sparsity
+    a_sparsity: cs.Sparsity
+
+
+def local_terms(uvms, obj: ObjectModel, q, zeta, theta):
+    """(M_i + c_i A_i^T M_O A_i, -h_i - c_i A_i^T (M_O Adot_i zeta + h_O)) of the local model."""
+    offset, r_oi, share, p_o = theta[0:3], cs.reshape(theta[3:12], 3, 3), theta[12], theta[13:]
+    zero3 = cs.DM.zeros(3)
+    p_ee, r_ee = uvms.ee_pose(q)
+    r_o = r_ee @ r_oi.T
+    arm = r_o @ offset
+    x_o = cs.vertcat(p_ee - arm, euler_zyx(r_o))
+    jac = uvms.ee_jacobian(q)
+    v_ee = jac @ zeta
+    j_o_inv = cs.vertcat(
+        cs.horzcat(cs.DM.eye(3), skew(arm)), cs.horzcat(cs.DM.zeros(3, 3), cs.DM.eye(3))
+    )
+    a_i = j_o_inv @ jac
+    omega = v_ee[3:]
+    adz = j_o_inv @ uvms.ee_jdot_zeta(q, zeta) + cs.vertcat(
+        cs.cross(cs.cross(omega, arm), omega), zero3
+    )
+    mass, bias = uvms.dynamics(q, zeta, zero3, cs.DM(uvms.nominal_parameters()))
+    m_o, h_o = obj.dynamics(x_o, j_o_inv @ v_ee, zero3, p_o)
+    return mass + share * a_i.T @ m_o @ a_i, -bias - share * a_i.T @ (m_o @ adz + h_o)
+
+
+def build_f_jac(uvms, obj: ObjectModel) -> cs.Function:
+    """f(x, a) and the approximate Jacobians (see module docstring)."""
+    x, a, theta = cs.SX.sym("x", NX), cs.SX.sym("a", NU), cs.SX.sym("theta", NTHETA)
+    q, zeta = x[:NQ], x[NQ:]
+    m_loc, r = local_terms(uvms, obj, q, zeta, theta)
+    _, r_static = local_terms(uvms, obj, q, cs.DM.zeros(NQ), theta)
+    b_t = cs.DM(uvms.B) @ cs.diag(cs.DM(uvms.params.limits.tau_max))
+    sol = cs.solve(
+        0.5 * (m_loc + m_loc.T),
+        cs.horzcat(b_t @ a + r, cs.jacobian(r_static, q), cs.jacobian(r, zeta), b_t),
+    )
+    t_map = uvms.qdot_map(q)
+    q_dot = t_map @ zeta
+    f = cs.vertcat(q_dot, sol[:, 0])
+    jx = cs.vertcat(cs.horzcat(cs.jacobian(q_dot, q), t_map), sol[:, 1 : 1 + 2 * NQ])
+    ju = cs.vertcat(cs.DM.zeros(NQ, NU), sol[:, 1 + 2 * NQ :])
+    return cs.Function("nmpc_f_jac", [x, a, theta], [f, jx, ju], {"cse": True})
+
+
+def build_interval(model: LocalModel, f_jac: cs.Function, period: float, substeps: int):
+    """RK4 over one interval with frozen-Jacobian sensitivities per substep. MX calls of
+    the SX functions, so code generation emits f and its Jacobian once."""
+    x, a, theta = cs.MX.sym("x", NX), cs.MX.sym("a", NU), cs.MX.sym("theta", NTHETA)
+    dt = period / substeps
+    xk, phi, gam = x, cs.MX.eye(NX), cs.MX.zeros(NX, NU)
+    eye = cs.DM.eye(NX)
+    for _ in range(substeps):
+        k1, jx, ju = f_jac(xk, a, theta)
+        k2 = model.rhs(xk + dt / 2 * k1, a, theta)
+        k3 = model.rhs(xk + dt / 2 * k2, a, theta)
+        k4 = model.rhs(xk + dt * k3, a, theta)
+        xk = xk + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        m = dt * jx
+        m2 = m @ m
+        m3 = m2 @ m
+        # RK4 applied to the flow linearized at the substep start: the 4th-order Taylor
+        # polynomial of expm(dt J) and of its integral
+        step_x = eye + m + m2 / 2 + m3 / 6 + m3 @ m / 24
+        step_u = dt * (eye + m / 2 + m2 / 6 + m3 / 24) @ ju
+        phi = step_x @ phi
+        gam = step_x @ gam + step_u
+    return cs.Function("nmpc_interval", [x, a, theta], [xk, phi, gam])
+
+
+def node_terms(model: LocalModel, x, theta, xd, vd):
+    """Unweighted residual [pose error (angles wrapped); twist error] and the NC
+    constraint values [zeta (10); q_m (4); theta_O; det(Jbar Jbar^T)] at one node."""
+    x_o, v_o = model.object_state(x, theta)
+    r = cs.vertcat(x_o[:3] - xd[:3], wrap(x_o[3:] - xd[3:]), v_o - vd)
+    c = cs.vertcat(x[NQ:], x[6:NQ], x_o[4], model.manipulability(x))
+    return r, c
+
+
+def build_outputs(model: LocalModel):
+    """Residuals (unweighted) and constraint values with their Jacobians at one node."""
+    x, theta = cs.SX.sym("x", NX), cs.SX.sym("theta", NTHETA)
+    xd, vd = cs.SX.sym("xd", 6), cs.SX.sym("vd", 6)
+    r, c = node_terms(model, x, theta, xd, vd)
+    return cs.Function(
+        "nmpc_outputs",
+        [x, theta, xd, vd],
+        [r, cs.jacobian(r, x), c, cs.jacobian(c, x)],
+        {"cse": True},
+    )
+
+
+def build_steady_input(uvms, obj: ObjectModel, model: LocalModel) -> cs.Function:
+    """a_ss: the nominal input that keeps the robot moving rigidly with the object at the
+    desired twist v_d (arm joints still, vehicle twist from the rigid motion), balancing
+    drag, Coriolis and weight of the local model at zero acceleration. Roll and pitch are
+    passive: their rows are left to the restoring moments. Clipped to the saturation."""
+    x, theta, vd = cs.SX.sym("x", NX), cs.SX.sym("theta", NTHETA), cs.SX.sym("vd", 6)
+    q = x[:NQ]
+    x_o, _ = model.object_state(x, theta)
+    r_v = rot_zyx(q[3:6])
+    lin = vd[:3] + cs.cross(vd[3:], q[:3] - x_o[:3])
+    zeta_ss = cs.vertcat(r_v.T @ lin, r_v.T @ vd[3:], cs.DM.zeros(4))
+    _, r = local_terms(uvms, obj, q, zeta_ss, theta)
+    a_ss = (cs.DM(uvms.B).T @ -r) / cs.DM(uvms.params.limits.tau_max)
+    return cs.Function("nmpc_steady_input", [x, theta, vd], [cs.fmin(cs.fmax(a_ss, -1), 1)])
+
+
+def build_qp_builder(
+    interval: cs.Function, outputs: cs.Function, steady: cs.Function, horizon: int
+) -> cs.Function:
+    """The Gauss-Newton QP of one real-time iteration around (xbar, abar).
+
+    Inputs: xbar (NX x N+1), abar (NU x N), theta, xd (6 x N+1), vd (6 x N+1), w (NW).
+    Outputs: H, g, A, lba, uba, lbx, ubx, a_ref (NU x N) of
+    min 0.5 dw' H dw + g' dw  s.t.  lba <= A dw <= uba, lbx <= dw <= ubx,
+    the objective being sum_k |r_k + J_k dw|^2 (weights squared in) + slack penalties.
+    """
+    n = horizon
+    xbar, abar = cs.MX.sym("xbar", NX, n + 1), cs.MX.sym("abar", NU, n)
+    theta = cs.MX.sym("theta", NTHETA)
+    xd, vd = cs.MX.sym("xd", 6, n + 1), cs.MX.sym("vd", 6, n + 1)
+    w = cs.MX.sym("w", NW)
+    o = 0
+    q_x, q_v, p_x = w[o : o + 6], w[o + 6 : o + 12], w[o + 12 : o + 18]
+    o += 18
+    r_u = w[o : o + NU]
+    o += NU
+    l1, l2, lower, upper, scale = (w[o + k * NC : o + (k + 1) * NC] for k in range(5))
+    use_ss = w[o + 5 * NC]
+
+    f_next, phis, gams = interval.map(n, "serial")(xbar[:, :n], abar, cs.repmat(theta, 1, n))
+    r, jr, c, jc = outputs.map(n + 1, "serial")(xbar, cs.repmat(theta, 1, n + 1), xd, vd)
+    a_ref = use_ss * steady.map(n, "serial")(xbar[:, :n], cs.repmat(theta, 1, n), vd[:, :n])
+    inv_scale = 1 / scale
+
+    h_blocks, g_parts, a_rows, lba, uba, lbx, ubx = [], [], [], [], [], [], []
+    zero_s = cs.MX(NX, NC)
+    inf_nc = cs.DM.inf(NC)
+    for k in range(n + 1):
+        jr_k = jr[:, k * NX : (k + 1) * NX]
+        if k == 0:
+            wr = cs.vertcat(q_x, q_v) * 0  # x_0 is fixed: its cost is a constant
+        elif k < n:
+            wr = cs.vertcat(q_x, q_v)
+        else:
+            wr = cs.vertcat(p_x, cs.MX.zeros(6))  # terminal: pose only (paper's E)
+        h_blocks.append(2 * jr_k.T @ (wr * jr_k))
+        g_parts.append(2 * jr_k.T @ (wr * r[:, k]))
+        if k == 0:
+            lbx.append(cs.DM.zeros(NX))  # measured state: dx_0 = 0
+            ubx.append(cs.DM.zeros(NX))
+        else:
+            lbx.append(-cs.DM.inf(NX))
+            ubx.append(cs.DM.inf(NX))
+        if k == n:
+            break
+        h_blocks.append(cs.diag(2 * r_u))
+        h_blocks.append(cs.diag(2 * l2))
+        g_parts.append(2 * r_u * (abar[:, k] - a_ref[:, k]))
+        g_parts.append(l1)
+        lbx += [-1 - abar[:, k], cs.DM.zeros(NC)]
+        ubx += [1 - abar[:, k], inf_nc]
+        # dynamics: Phi dx_k + Gamma da_k - dx_{k+1} = -(F(xbar_k, abar_k) - xbar_{k+1})
+        phi_k, gam_k = phis[:, k * NX : (k + 1) * NX], gams[:, k * NU : (k + 1) * NU]
+        defect = f_next[:, k] - xbar[:, k + 1]
+        # soft constraints on x_{k+1}, linearized through the dynamics, normalized
+        cj = inv_scale * jc[:, (k + 1) * NX : (k + 2) * NX]
+        cval = inv_scale * c[:, k + 1] + cj @ defect
+        c_phi, c_gam = cj @ phi_k, cj @ gam_k
+        eye_s = cs.MX(cs.DM.eye(NC))
+        a_rows.append((phi_k, gam_k, zero_s, -cs.DM.eye(NX)))
+        a_rows.append((c_phi, c_gam, eye_s, None))
+        a_rows.append((c_phi, c_gam, -eye_s, None))
+        lba += [-defect, lower - cval, -inf_nc]
+        uba += [-defect, inf_nc, upper - cval]
+
+    # assemble A in HPIPM's layout: rows [gap_k; lincon_k], columns [dx_k, da_k, s_k, ...]
+    nv_stage = NX + NU + NC
+    n_var = n * nv_stage + NX
+    rows = []
+    for k in range(n):
+        col = k * nv_stage
+        for j in range(3):
+            blk_x, blk_u, blk_s, blk_next = a_rows[3 * k + j]
+            left = cs.MX(blk_x.shape[0], col)
+            mid = cs.horzcat(blk_x, blk_u, blk_s)
+            if blk_next is not None:
+                right = cs.horzcat(cs.MX(blk_next), cs.MX(NX, n_var - col - nv_stage - NX))
+            else:
+                right = cs.MX(blk_x.shape[0], n_var - col - nv_stage)
+            rows.append(cs.horzcat(left, mid, right))
+    a_mat = cs.vertcat(*rows)
+    h_mat = cs.diagcat(*h_blocks)
+    h_mat = 0.5 * (h_mat + h_mat.T)
+    return cs.Function(
+        "nmpc_qp_builder",
+        [xbar, abar, theta, xd, vd, w],
+        [
+            h_mat,
+            cs.vertcat(*g_parts),
+            a_mat,
+            cs.vertcat(*lba),
+            cs.vertcat(*uba),
+            cs.vertcat(*lbx),
+            cs.vertcat(*ubx),
+            a_ref,
+        ],
+        ["xbar", "abar", "theta", "xd", "vd", "w"],
+        ["h", "g", "a", "lba", "uba", "lbx", "ubx", "a_ref"],
+    )
+
+
+@cache
+def ocp_functions(
+    shape: str, ring_radius: float, horizon: int, period: float, substeps: int
+) -> OCPFunctions:
+    """Build and compile (disk-cached) the OCP functions once per process and object."""
+    uvms = default_model()
+    obj = ObjectModel(shape, ring_radius)
+    model = build_local_model(uvms, obj)
+    f_jac = build_f_jac(uvms, obj)
+    interval = build_interval(model, f_jac, period, substeps)
+    outputs = build_outputs(model)
+    steady = build_steady_input(uvms, obj, model)
+    builder = build_qp_builder(interval, outputs, steady, horizon)
+    tag = f"{shape}_{ring_radius:.4f}_n{horizon}_h{period:g}_s{substeps}".replace(".", "p")
+    compiled = compile_function(_renamed(builder, tag))
+    h_sp = builder.sparsity_out("h")
+    a_sp = builder.sparsity_out("a")
+    return OCPFunctions(
+        horizon=horizon,
+        model=model,
+        interval=interval,
+        outputs=outputs,
+        qp_builder=compiled,
+        object_state=model.object_state,
+        steady_input=steady,
+        h_sparsity=h_sp,
+        a_sparsity=a_sp,
+    )
+
+
+def _renamed(fn: cs.Function, tag: str) -> cs.Function:
+    """The same function under a name unique per object/horizon (the cache key hashes the
+    source anyway; the name only keeps the cache folder readable)."""
+    args = fn.mx_in()
+    return cs.Function(f"nmpc_qp_{tag}", args, fn.call(args), fn.name_in(), fn.name_out())

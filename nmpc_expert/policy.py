@@ -1,0 +1,207 @@
+"""``NMPCPolicy``: the distributed NMPC of one robot behind the shared policy interface.
+
+    policy = NMPCPolicy(AgentSpec.from_scenario(scenario, i))   # solver="rti" | "ipopt"
+    policy.reset()
+    action = policy.act(obs_i)    # (8,) normalized inputs in [-1, 1]
+    policy.stats                  # solve_time_ms, iterations, status, fallbacks, ...
+
+Built only from what robot i knows before the task (its ``AgentSpec``: grasp, load
+share, object shape, waypoints, obstacles, workspace, team radius) and fed only its own
+observation; nothing is shared between instances except read-only compiled functions.
+
+May import: numpy, casadi, ``uvms_env`` (dynamics, navigation, policy, env.observation)
+and this package. Never ``baselines``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from functools import cache
+from typing import Any
+
+import numpy as np
+
+from nmpc_expert.local_model import NX, ModelParams
+from nmpc_expert.observation import OBSERVATION_STRUCTURE, check_observation
+from nmpc_expert.ocp import NC, ocp_functions, weight_vector
+from nmpc_expert.reference import HorizonReference
+from nmpc_expert.rti import RTISolver
+from nmpc_expert.settings import NMPCSettings
+from uvms_env.dynamics import NU, ObjectModel
+from uvms_env.dynamics.compiled import BufferCall
+from uvms_env.env.observation import NAV_K_MAX, NAV_K_MIN, WAYPOINT_TOLERANCE
+from uvms_env.navigation import WaypointNavigator, choose_k
+from uvms_env.policy import AgentSpec
+
+SOLVERS = ("rti", "ipopt")
+
+
+@cache
+def _navigator(
+    waypoints: bytes, n_wp: int, workspace, obstacles, team_radius: float
+) -> WaypointNavigator:
+    wps = np.frombuffer(waypoints).reshape(n_wp, 6)
+    k = NAV_K_MIN
+    for wp in wps:
+        try:
+            k = max(k, choose_k(wp[:3], workspace, obstacles, team_radius))
+        except ValueError:
+            k = NAV_K_MAX
+    return WaypointNavigator(
+        wps, workspace, obstacles, team_radius, k=k, pos_tol=WAYPOINT_TOLERANCE
+    )
+
+
+def navigator_for(spec: AgentSpec) -> WaypointNavigator:
+    """The navigation reference every robot of the task uses (the environment's rule:
+    k = max(NAV_K_MIN, choose_k per waypoint), sequencing tolerance WAYPOINT_TOLERANCE),
+    rebuilt from the robot's own spec. Cached: it is read-only after construction."""
+    wps = np.ascontiguousarray(spec.waypoints, dtype=float)
+    return _navigator(
+        wps.tobytes(), len(wps), spec.workspace, tuple(spec.obstacles), float(spec.team_radius)
+    )
+
+
+def constraint_bounds(settings: NMPCSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(lower, upper, scale) of the NC soft constraints, normalized by ``scale``."""
+    b = settings.backoff
+    v_lin, v_ang = settings.vehicle_speed
+    limit = np.array(
+        [v_lin] * 3
+        + [v_ang] * 3
+        + [settings.joint_speed] * 4
+        + [settings.joint_position] * 4
+        + [np.pi / 2 - settings.pitch_margin]
+    )
+    scale = np.concatenate([limit, [settings.manipulability_eps]])
+    back = np.full(len(limit), b)
+    back[3:10] = settings.angular_backoff
+    upper = np.concatenate([back, [np.inf]])
+    lower = np.concatenate([-back, [1.0 / b]])  # det >= eps / backoff
+    return lower, upper, scale
+
+
+class NMPCPolicy:
+    """Distributed NMPC of one robot (see module docstring)."""
+
+    def __init__(
+        self,
+        spec: AgentSpec,
+        solver: str = "rti",
+        settings: NMPCSettings | None = None,
+    ) -> None:
+        if solver not in SOLVERS:
+            raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+        self.spec = spec
+        self.settings = s = settings or NMPCSettings()
+        if abs(s.period - spec.period) > 1e-12:
+            raise ValueError(f"settings.period {s.period} != scenario period {spec.period}")
+        ring = float(spec.ring_radius) if spec.object_shape == "ring" else 0.0
+        self.funcs = ocp_functions(spec.object_shape, ring, s.horizon, s.period, s.substeps)
+        obj = ObjectModel(spec.object_shape, spec.ring_radius)
+        self.theta = ModelParams(
+            spec.grasp_offset, spec.grasp_rotation, spec.load_share, obj.nominal_parameters()
+        ).pack()
+        lower, upper, scale = constraint_bounds(s)
+        self.weights = weight_vector(
+            s.q_x * np.ones(6),
+            s.q_v * np.ones(6),
+            s.p_x * np.ones(6),
+            s.r_u * np.ones(NU),
+            s.slack_l1 * np.ones(NC),
+            s.slack_l2 * np.ones(NC),
+            lower,
+            upper,
+            scale,
+            s.input_reference == "steady_state",
+        )
+        self.navigator = navigator_for(spec)
+        self.reference = HorizonReference(
+            self.navigator, s.horizon, s.period, s.attitude_from_waypoint
+        )
+        self._object_state = BufferCall(self.funcs.object_state)
+        self._steady = BufferCall(self.funcs.steady_input)
+        if solver == "rti":
+            self.solver = RTISolver(self.funcs, self.theta, self.weights)
+        else:
+            from nmpc_expert.ipopt_solver import IpoptSolver
+
+            self.solver = IpoptSolver(self.funcs, self.theta, self.weights, s)
+        self.solver_name = solver
+        self._x0 = np.zeros(NX)
+        self._wp = np.ascontiguousarray(spec.waypoints, dtype=float)
+        self.stats: dict[str, Any] = {}
+        self.fallbacks = 0
+        self.decisions = 0
+
+    # -- Policy protocol -----------------------------------------------------------------
+    def reset(self) -> None:
+        self.solver.reset()
+        self.stats = {}
+        self.fallbacks = 0
+        self.decisions = 0
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        start = time.perf_counter()
+        o = check_observation(obs)
+        st = OBSERVATION_STRUCTURE
+        self._x0[: NX // 2] = o[st["q"]]
+        self._x0[NX // 2 :] = o[st["zeta"]]
+        index = self._waypoint_index(o[st["waypoint"]])
+        x_o, _ = self._object_state(self._x0, self.theta)
+        xd, vd = self.reference(x_o, index)
+        self.solver.xd[:] = xd
+        self.solver.vd[:] = vd
+        status, info = "ok", {}
+        try:
+            a_init = self._steady(self._x0, self.theta, self.solver.vd[0])[0].ravel()
+            action, info = self.solver.step(self._x0.copy(), a_init)
+        except Exception as err:  # a failed solve must never stop the robot
+            self.fallbacks += 1
+            status = f"fallback: {type(err).__name__}: {err}"
+            hold = self._steady(self._x0, self.theta, np.zeros(6))[0].ravel()
+            action = self.solver.fallback(self._x0, hold)
+        self.decisions += 1
+        elapsed = (time.perf_counter() - start) * 1e3
+        self.stats = {
+            "solve_time_ms": elapsed,
+            "iterations": info.get("iterations", 0),
+            "status": status if status != "ok" else info.get("status", "ok"),
+            "fallbacks": self.fallbacks,
+            "waypoint_index": index,
+            "slow": elapsed > self.settings.fallback_after_ms,
+            **{k: v for k, v in info.items() if k not in ("iterations", "status")},
+        }
+        return np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+
+    # -- helpers ----------------------------------------------------------------------------
+    def _waypoint_index(self, waypoint: np.ndarray) -> int:
+        """Which of the mission's waypoints the observation's active waypoint is (float32
+        observations: match to 1e-3)."""
+        d = np.max(np.abs(self._wp - waypoint), axis=1)
+        k = int(np.argmin(d))
+        if d[k] > 1e-3:
+            raise ValueError(
+                f"observation waypoint {np.round(waypoint, 3).tolist()} is not one of the "
+                "mission's waypoints"
+            )
+        return k
+
+    def predicted_plan(self) -> tuple[np.ndarray, np.ndarray]:
+        """The current plan: states (N+1, 20) and normalized inputs (N, 8) (copies)."""
+        return self.solver.xbar.copy(), self.solver.abar.copy()
+
+
+def make_policy(solver: str = "rti", **settings: Any) -> Callable[[AgentSpec], NMPCPolicy]:
+    """A ``PolicyFactory`` (AgentSpec -> policy) for evaluators, e.g.
+    ``make_policy("rti", q_v=0.4)``; unknown setting names raise ValueError."""
+    unknown = sorted(set(settings) - set(NMPCSettings.field_names()))
+    if unknown:
+        raise ValueError(f"unknown NMPC setting(s) {unknown}; known: {NMPCSettings.field_names()}")
+    cfg = NMPCSettings(**settings)
+
+    def factory(spec: AgentSpec) -> NMPCPolicy:
+        return NMPCPolicy(spec, solver=solver, settings=cfg)
+
+    return factory

@@ -1,0 +1,92 @@
+"""Settings of the NMPC expert: one typed, frozen, validated dataclass.
+
+May import: numpy and the standard library only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+# Manipulability bound det(Jbar Jbar^T) >= MANIPULABILITY_EPS (actuated 6x8 Jacobian). The
+# paper gives no number; at the paper scenario's start the value is ~4.2 and it falls
+# towards 0 only near arm singularities, so 0.5 keeps a wide margin while never binding in
+# normal transport.
+MANIPULABILITY_EPS = 0.5
+
+
+@dataclass(frozen=True)
+class NMPCSettings:
+    """Tuning and limits of one robot's NMPC (defaults: the paper's values where it has them)."""
+
+    horizon: int = 5
+    """Np, number of shooting intervals (paper: 5)."""
+    period: float = 0.12
+    """h [s], sampling time and shooting interval (paper: 0.12 s)."""
+    substeps: int = 2
+    """RK4 substeps per interval: with the joints' armature and friction the fastest mode
+    has a time constant of ~0.05 s; one RK4 step of 0.12 s sits at the edge of RK4's
+    stability region (|lambda h| ~ 2.4 < 2.79), two give a safe margin."""
+    q_x: float = 0.8
+    """Qx = q_x I6: weight on the object pose error (paper 0.8)."""
+    q_v: float = 0.4
+    """Qv = q_v I6: weight on the object twist error (paper 0.4)."""
+    p_x: float = 0.8
+    """Px = p_x I6: terminal weight on the object pose error (paper 0.8)."""
+    r_u: float = 0.3
+    """R = r_u I8 on the *normalized* inputs a = tau / tau_max in [-1, 1] (paper 0.3)."""
+    input_reference: str = "steady_state"
+    """What R penalizes: "zero" (|a|^2_R, literally the paper) or "steady_state"
+    (|a - a_ss|^2_R with a_ss the nominal input that holds the reference twist against
+    drag and weight; see docs in README). With "zero" the input cost outweighs the speed
+    error at the paper's weights and the team crawls (~0.05 m/s in steady state)."""
+    attitude_from_waypoint: bool = True
+    """Pose reference attitude = the active waypoint's (True) or the navigation law's
+    propagated Euler angles (False); see ``reference``."""
+    angular_backoff: float = 0.55
+    """Tighter back-off for the joint rates and the vehicle's angular rates: the local
+    model ignores the internal wrench, whose effect on these rates reaches ~0.02 rad/s
+    within one period (measured: predicted vs true rates on the paper scenario)."""
+    slack_l1: float = 100.0
+    """Exact-penalty weight (per unit of normalized violation) of the soft state constraints."""
+    slack_l2: float = 10.0
+    """Quadratic penalty on the same slacks (keeps the QP strictly convex)."""
+    vehicle_speed: tuple[float, float] = (0.5, 0.1)
+    """Limits per body axis: translational [m/s], rotational [rad/s] (paper)."""
+    joint_speed: float = 0.1
+    """|qd_m| [rad/s] (paper)."""
+    joint_position: float = 2.0
+    """|q_m| [rad] (paper)."""
+    pitch_margin: float = 0.2
+    """|theta_O| <= pi/2 - pitch_margin [rad] (representation singularity)."""
+    manipulability_eps: float = MANIPULABILITY_EPS
+    """Lower bound of det(Jbar Jbar^T)."""
+    backoff: float = 0.85
+    """The NMPC uses backoff * limit for speeds and joint positions, so that model error
+    and the soft-constraint slack do not reach the true limit."""
+    fallback_after_ms: float = 50.0
+    """A decision slower than this counts as 'slow' in the stats (never blocks)."""
+
+    def __post_init__(self) -> None:
+        if self.horizon < 1 or self.substeps < 1:
+            raise ValueError("horizon and substeps must be >= 1")
+        if self.period <= 0:
+            raise ValueError(f"period must be > 0, got {self.period}")
+        for name in ("q_x", "q_v", "p_x", "r_u", "slack_l1", "slack_l2"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.r_u <= 0:
+            raise ValueError("r_u must be > 0 (the QP needs a positive definite input weight)")
+        if self.input_reference not in ("zero", "steady_state"):
+            raise ValueError(
+                f"input_reference must be 'zero' or 'steady_state', got {self.input_reference!r}"
+            )
+        if not 0 < self.backoff <= 1:
+            raise ValueError(f"backoff must lie in (0, 1], got {self.backoff}")
+        if not 0 < self.pitch_margin < np.pi / 2:
+            raise ValueError(f"pitch_margin must lie in (0, pi/2), got {self.pitch_margin}")
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))

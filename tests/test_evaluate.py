@@ -1,0 +1,67 @@
+"""The evaluation tool end to end on short episodes."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from baselines.evaluate import evaluate, write_outputs
+
+
+class _Raises:
+    def __init__(self, spec) -> None:
+        self.stats: dict = {}
+
+    def reset(self) -> None:
+        pass
+
+    def act(self, obs):
+        raise RuntimeError("policy exploded")
+
+
+def raising_factory(spec):
+    return _Raises(spec)
+
+
+def _strip(rows):
+    return [{k: v for k, v in r.items() if not k.startswith(("_", "policy_time"))} for r in rows]
+
+
+def test_deterministic_policy_gives_identical_results_with_1_and_2_workers():
+    args = (["zero", "random"], ["short"], 2, 0)
+    one = evaluate(*args, workers=1, max_cycles=15, progress=False)
+    again = evaluate(*args, workers=1, max_cycles=15, progress=False)
+    two = evaluate(*args, workers=2, max_cycles=15, progress=False)
+    assert _strip(one) == _strip(again) == _strip(two)
+    assert all(r["error"] == "" for r in one)
+    assert {r["seed"] for r in one if r["policy"] == "zero"} == {
+        r["seed"] for r in one if r["policy"] == "random"
+    }
+
+
+def test_a_raising_policy_is_a_failed_episode_not_a_crash(tmp_path):
+    rows = evaluate(
+        ["tests.test_evaluate:raising_factory", "zero"],
+        ["short"],
+        1,
+        0,
+        workers=1,
+        max_cycles=5,
+        progress=False,
+    )
+    bad = [r for r in rows if r["policy"].startswith("tests.")]
+    assert bad and "policy exploded" in bad[0]["error"] and bad[0]["success"] is False
+    summaries = write_outputs(rows, 0, tmp_path)
+    assert (tmp_path / "episodes.csv").exists() and (tmp_path / "results.md").exists()
+    assert json.loads((tmp_path / "results.json").read_text())[0]["errors"] == 1
+    assert summaries[1]["errors"] == 0
+
+
+def test_random_policy_scores_lower_than_the_expert():
+    rows = evaluate(["nmpc", "random"], ["short"], 2, 0, workers=2, progress=False)
+    rate = {
+        p: np.mean([bool(r["success"]) for r in rows if r["policy"] == p])
+        for p in ("nmpc", "random")
+    }
+    assert rate["nmpc"] > rate["random"]

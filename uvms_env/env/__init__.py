@@ -1,0 +1,50 @@
+"""The environments: PettingZoo ``ParallelEnv`` (decentralized), Gymnasium view (centralized).
+
+    import uvms_env
+    env = uvms_env.parallel_env(scenario="paper")        # or pettingzoo.make("parallel",
+    obs, infos = env.reset(seed=0)                         #   "uvms_env/CoopTransport-v0")
+    obs, rewards, terminated, truncated, infos = env.step(
+        {agent: env.action_space(agent).sample() for agent in env.agents}
+    )
+
+Modules, one job each: ``parallel`` (the env and its documentation), ``observation``
+(local observation layout, noise, waypoint sequencing), ``kinematics`` (the one compiled
+per-step call), ``constraints``, ``reward``, ``metrics``, ``wrench`` (internal wrench),
+``render`` (frames, videos), ``gym_wrapper``, ``registration``.
+
+May import everything in ``uvms_env`` below it (models, dynamics, sim, navigation,
+scenarios), plus pettingzoo, gymnasium and (lazily) matplotlib.
+"""
+
+from uvms_env.env.constraints import CONSTRAINTS, MANIPULABILITY_EPS
+from uvms_env.env.gym_wrapper import CoopTransportGymEnv
+from uvms_env.env.metrics import METRICS, EpisodeMetrics, goal_errors
+from uvms_env.env.observation import (
+    OBSERVATION_FIELDS,
+    OBSERVATION_SIZE,
+    OBSERVATION_STRUCTURE,
+    make_navigator,
+)
+from uvms_env.env.parallel import CoopTransportEnv, parallel_env
+from uvms_env.env.registration import ENV_ID
+from uvms_env.env.render import save_video
+from uvms_env.env.reward import REWARD_TERMS, RewardWeights
+
+__all__ = [
+    "CONSTRAINTS",
+    "ENV_ID",
+    "MANIPULABILITY_EPS",
+    "METRICS",
+    "OBSERVATION_FIELDS",
+    "OBSERVATION_SIZE",
+    "OBSERVATION_STRUCTURE",
+    "REWARD_TERMS",
+    "CoopTransportEnv",
+    "CoopTransportGymEnv",
+    "EpisodeMetrics",
+    "RewardWeights",
+    "goal_errors",
+    "make_navigator",
+    "parallel_env",
+    "save_video",
+]

@@ -1,0 +1,128 @@
+"""The task's constraints, as symbolic expressions with one sign convention: g <= 0 holds.
+
+Each robot reports one value per kind (``CONSTRAINTS``); all are evaluated on the true
+state after the step (the physical system is what must stay safe, not an estimate):
+
+================  ========================================================================
+kind              g (<= 0 means satisfied)
+================  ========================================================================
+input             max_k |a_k| - 1: a requested normalized input beyond the saturation
+joint_limit       max_m |q_m| - 2 rad
+joint_speed       max_m |qdot_m| - 0.1 rad/s
+vehicle_speed     max(max |u, v, w| - 0.5 m/s, max |p, q, r| - 0.1 rad/s)
+manipulability    eps - det(Jbar Jbar^T), eps = ``MANIPULABILITY_EPS``, Jbar the 8 actuated
+                  columns of the end-effector Jacobian (about 4.2 at the paper's start)
+representation    max(|theta_O|, |theta_i|) - (pi/2 - ``REPRESENTATION_MARGIN``): object and
+                  vehicle pitch away from the ZYX Euler singularity
+collision         -clearance: the smallest signed distance from the robot's bodies and from
+                  the object to any obstacle (m; clearances beyond 100 m read 100 m)
+workspace         the largest distance by which the robot's bodies or the object reach
+                  outside the workspace ball (m)
+================  ========================================================================
+
+Bodies: the vehicle is a sphere of radius ``vehicle.bounding_radius`` at its origin, the
+arm links are capsules of radius ``arm.tube_radius`` between consecutive columns 1..5 of
+``body_points`` (joint 1, ..., joint 4, end effector; the vehicle-to-joint-1 stretch lies
+inside the vehicle sphere), the object is capsules of its tube radius along its segments.
+Vertical cylinders are infinite in z. The object is shared, so its collision and
+workspace terms enter every robot's value.
+
+Limits come from ``parameters.toml`` (``[limits]``). May import: numpy, casadi and
+``uvms_env.models``.
+"""
+
+from __future__ import annotations
+
+import casadi as cs
+import numpy as np
+
+from uvms_env.models import Parameters
+
+CONSTRAINTS = (
+    "input",
+    "joint_limit",
+    "joint_speed",
+    "vehicle_speed",
+    "manipulability",
+    "representation",
+    "collision",
+    "workspace",
+)
+# Always end the episode, whatever the constraint mode: the bodies have hit something.
+HARD_CONSTRAINTS = ("collision",)
+
+# The paper leaves eps open. det(Jbar Jbar^T) is ~4.2 at the paper scenario's start and
+# falls towards 0 as the arm stretches out or folds; 0.5 leaves the arm room to work.
+MANIPULABILITY_EPS = 0.5
+# Margin from the Euler singularity |theta| = pi/2 where T(Theta) blows up (rad).
+REPRESENTATION_MARGIN = 0.2
+# Clearances beyond this read as this (m): no obstacle nearby, or none at all.
+MAX_CLEARANCE = 100.0
+# Far-away stand-ins that pad the obstacle lists to a few fixed lengths, so a few compiled
+# functions serve every scenario with the same number of robots.
+PAD_CYLINDER = (1e6, 1e6, 0.0)
+PAD_SPHERE = (1e6, 1e6, 1e6, 0.0)
+
+
+def segment_point_distance(a: cs.SX, b: cs.SX, c: cs.SX) -> cs.SX:
+    """Distance from point c to the segment [a, b] (any dimension; a == b allowed)."""
+    d = b - a
+    dd = cs.dot(d, d)
+    t = cs.fmin(cs.fmax(cs.dot(c - a, d) / cs.fmax(dd, 1e-12), 0.0), 1.0)
+    e = c - (a + t * d)
+    return cs.sqrt(cs.dot(e, e) + 1e-18)
+
+
+def capsule_clearance(a: cs.SX, b: cs.SX, radius: float, cylinders: cs.SX, spheres: cs.SX) -> cs.SX:
+    """Smallest signed distance from the capsule (a, b, radius) to the obstacles.
+
+    ``cylinders`` is 3 x C (x, y, radius), ``spheres`` 4 x P (centre, radius)."""
+    out = cs.SX(np.inf)
+    for k in range(cylinders.shape[1]):
+        c = cylinders[:, k]
+        out = cs.fmin(out, segment_point_distance(a[:2], b[:2], c[:2]) - c[2] - radius)
+    for k in range(spheres.shape[1]):
+        s = spheres[:, k]
+        out = cs.fmin(out, segment_point_distance(a, b, s[:3]) - s[3] - radius)
+    return out
+
+
+def ball_excess(points: list[tuple[cs.SX, float]], workspace: cs.SX) -> cs.SX:
+    """Largest distance by which balls (centre, radius) reach outside the workspace ball
+    (workspace = [centre; radius]); <= 0 when all are inside."""
+    out = cs.SX(-np.inf)
+    for p, r in points:
+        e = p - workspace[:3]
+        out = cs.fmax(out, cs.sqrt(cs.dot(e, e) + 1e-18) + r - workspace[3])
+    return out
+
+
+def robot_constraints(
+    params: Parameters,
+    action: cs.SX,
+    q: cs.SX,
+    zeta: cs.SX,
+    object_pitch: cs.SX,
+    manipulability: cs.SX,
+    clearance: cs.SX,
+    workspace_excess: cs.SX,
+) -> cs.SX:
+    """The constraint vector of one robot, ordered as ``CONSTRAINTS``.
+
+    ``clearance`` and ``workspace_excess`` already include the object's terms."""
+    lim = params.limits
+    amax = cs.mmax(cs.fabs(action))
+    g = [
+        amax - 1.0,
+        cs.mmax(cs.fabs(q[6:])) - lim.joint_position,
+        cs.mmax(cs.fabs(zeta[6:])) - lim.joint_speed,
+        cs.fmax(
+            cs.mmax(cs.fabs(zeta[:3])) - lim.vehicle_linear_speed,
+            cs.mmax(cs.fabs(zeta[3:6])) - lim.vehicle_angular_speed,
+        ),
+        MANIPULABILITY_EPS - manipulability,
+        cs.fmax(cs.fabs(object_pitch), cs.fabs(q[4])) - (np.pi / 2 - REPRESENTATION_MARGIN),
+        -cs.fmin(clearance, MAX_CLEARANCE),
+        workspace_excess,
+    ]
+    return cs.vertcat(*g)

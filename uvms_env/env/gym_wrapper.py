@@ -1,0 +1,93 @@
+"""The centralized Gymnasium view of the environment, for single-agent algorithms.
+
+One observation is the agents' local observations concatenated (uvms_0 first), one
+action is their actions concatenated; the reward is the shared team reward; the episode
+ends when the agents' episode ends. This view is centralized by construction (a policy
+on it sees every robot): use the PettingZoo environment for decentralized policies.
+
+May import: numpy, gymnasium and ``uvms_env.env.parallel``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from uvms_env.dynamics import NU
+from uvms_env.env.parallel import CoopTransportEnv
+from uvms_env.scenarios import Scenario
+
+
+class CoopTransportGymEnv(gym.Env[np.ndarray, np.ndarray]):
+    """Gymnasium ``uvms_env/CoopTransport-v0``: ``CoopTransportEnv`` seen as one agent.
+
+    Observation ``Box(79 N,)`` float32, action ``Box(-1, 1, (8 N,), float32)``; agent i's
+    part is ``[79 i, 79 (i + 1))`` and ``[8 i, 8 (i + 1))``. ``info`` carries the shared
+    ``reward_terms``, the summed ``cost``, ``metrics`` and ``episode_end`` at the end, and
+    every agent's own info under ``"agents"``. Arguments: as ``CoopTransportEnv``.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {
+        "render_modes": list(CoopTransportEnv.metadata["render_modes"]),
+        "render_fps": CoopTransportEnv.metadata["render_fps"],
+    }
+
+    def __init__(
+        self, scenario: str | Scenario = "paper", render_mode: str | None = None, **overrides: Any
+    ) -> None:
+        self.parallel = CoopTransportEnv(scenario, render_mode, **overrides)
+        self.render_mode = render_mode
+        agents = self.parallel.possible_agents
+        obs = [self.parallel.observation_space(a) for a in agents]
+        self.observation_space = spaces.Box(
+            np.concatenate([o.low for o in obs]),
+            np.concatenate([o.high for o in obs]),
+            dtype=np.float32,
+        )
+        self.action_space = spaces.Box(-1.0, 1.0, (NU * len(agents),), np.float32)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        obs, infos = self.parallel.reset(seed=seed, options=options)
+        return self._flatten(obs), {"agents": infos}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        action = np.asarray(action)
+        if action.shape != self.action_space.shape:
+            raise ValueError(
+                f"action must have shape {self.action_space.shape}, got {action.shape}"
+            )
+        agents = self.parallel.possible_agents
+        obs, rewards, terms, truncs, infos = self.parallel.step(
+            {a: action[NU * i : NU * (i + 1)] for i, a in enumerate(agents)}
+        )
+        first = infos[agents[0]]
+        info: dict[str, Any] = {
+            "reward_terms": first["reward_terms"],
+            "cost": sum(infos[a]["cost"] for a in agents),
+            "agents": infos,
+        }
+        for key in ("episode_end", "metrics"):
+            if key in first:
+                info[key] = first[key]
+        return (
+            self._flatten(obs),
+            float(rewards[agents[0]]),
+            bool(terms[agents[0]]),
+            bool(truncs[agents[0]]),
+            info,
+        )
+
+    def render(self) -> np.ndarray | None:
+        return self.parallel.render()
+
+    def close(self) -> None:
+        self.parallel.close()
+
+    def _flatten(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        return np.concatenate([obs[a] for a in self.parallel.possible_agents])

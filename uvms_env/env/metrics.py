@@ -1,0 +1,133 @@
+"""Episode metrics, with the names used everywhere (metrics.json, evaluation tables, README).
+
+``EpisodeMetrics`` accumulates one episode; the environment feeds it and puts
+``result()`` into ``infos[agent]["metrics"]`` when the episode ends. The expert's main
+job and the evaluator reuse it (and ``goal_errors``) instead of recomputing.
+
+=========================  ==============================================================
+metric                     meaning
+=========================  ==============================================================
+success                    the true object reached the final waypoint within the
+                           scenario's success_pos_tol and success_att_tol
+episode_steps              control periods played
+sim_time_s                 simulated time (s)
+final_pos_error_m          |p_O - p_goal| of the true object at the end (m)
+final_att_error_rad        largest wrapped ZYX Euler-angle error to the goal at the end
+min_obstacle_clearance_m   smallest clearance of any physical body (vehicles, arms,
+                           object) to any obstacle over the episode, start included (m);
+                           None when the scenario has no obstacle
+min_manipulability         smallest det(Jbar Jbar^T) of any robot, start included
+violations                 per constraint kind: control periods in which at least one
+                           robot violated it (g > 0)
+internal_wrench_rms        RMS over the sampled periods of the Frobenius norm of the
+                           internal (squeeze) wrenches (N, 6), in N and N m; the env
+                           samples every period by default; None if never sampled
+control_effort             sum over periods and robots of |a|^2 h, a the normalized
+                           inputs after clipping to [-1, 1] (s)
+policy_time_ms             None here; evaluators fill it (they time the policy)
+grasp_drift_max_m          largest end-effector position error to its grasp point (m)
+=========================  ==============================================================
+
+May import: numpy and ``uvms_env.env.constraints``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from uvms_env.env.constraints import CONSTRAINTS
+
+METRICS = (
+    "success",
+    "episode_steps",
+    "sim_time_s",
+    "final_pos_error_m",
+    "final_att_error_rad",
+    "min_obstacle_clearance_m",
+    "min_manipulability",
+    "violations",
+    "internal_wrench_rms",
+    "control_effort",
+    "policy_time_ms",
+    "grasp_drift_max_m",
+)
+
+
+def goal_errors(x_o: Sequence[float], goal: Sequence[float]) -> tuple[float, float]:
+    """Position error (m) and largest wrapped Euler-angle error (rad) of pose x_O to goal.
+
+    Plain floats (it runs every step): |remainder(a, 2 pi)| is |wrap(a)|."""
+    x, g = list(x_o), list(goal)
+    pos = math.dist(x[:3], g[:3])
+    att = max(abs(math.remainder(a - b, math.tau)) for a, b in zip(x[3:6], g[3:6], strict=True))
+    return pos, att
+
+
+class EpisodeMetrics:
+    """Accumulator of one episode's metrics (see module docstring)."""
+
+    def __init__(self, period: float) -> None:
+        self.period = period
+        self.reset()
+
+    def reset(self) -> None:
+        self.steps = 0
+        self.min_clearance = math.inf
+        self.min_manipulability = math.inf
+        self.grasp_drift = 0.0
+        self.violations = [0] * len(CONSTRAINTS)
+        self.effort = 0.0
+        self._wrench_sq = 0.0
+        self._wrench_samples = 0
+
+    def observe(self, clearance: float, manipulability: float, grasp_error: float) -> None:
+        """State quantities: call at the start and after every period (``clearance``:
+        ``math.inf`` when there is no obstacle)."""
+        self.min_clearance = min(self.min_clearance, clearance)
+        self.min_manipulability = min(self.min_manipulability, manipulability)
+        self.grasp_drift = max(self.grasp_drift, grasp_error)
+
+    def record_step(
+        self,
+        action_sq: float,
+        violated_kinds: Sequence[float] | np.ndarray,
+        internal_wrench_sq: float | None = None,
+    ) -> None:
+        """One period: ``action_sq`` the sum of the squared normalized (clipped) inputs of
+        all robots, ``violated_kinds`` (K,) nonzero where some robot violated that kind
+        (order of ``CONSTRAINTS``), ``internal_wrench_sq`` the squared Frobenius norm of
+        the (N, 6) internal wrench if sampled."""
+        self.steps += 1
+        self.effort += action_sq * self.period
+        for k, v in enumerate(violated_kinds):  # plain Python: K = 8 is too few for numpy
+            if v:
+                self.violations[k] += 1
+        if internal_wrench_sq is not None:
+            self._wrench_sq += internal_wrench_sq
+            self._wrench_samples += 1
+
+    def result(self, x_o: np.ndarray, goal: np.ndarray, success: bool) -> dict[str, Any]:
+        """The metrics dict (plain Python types, JSON-ready) at the end of the episode."""
+        pos, att = goal_errors(x_o, goal)
+        n = self._wrench_samples
+        rms = math.sqrt(self._wrench_sq / n) if n else None  # None: never sampled
+        return {
+            "success": bool(success),
+            "episode_steps": self.steps,
+            "sim_time_s": self.steps * self.period,
+            "final_pos_error_m": pos,
+            "final_att_error_rad": att,
+            "min_obstacle_clearance_m": (
+                self.min_clearance if math.isfinite(self.min_clearance) else None
+            ),
+            "min_manipulability": self.min_manipulability,
+            "violations": {k: int(v) for k, v in zip(CONSTRAINTS, self.violations, strict=True)},
+            "internal_wrench_rms": rms,
+            "control_effort": self.effort,
+            "policy_time_ms": None,
+            "grasp_drift_max_m": self.grasp_drift,
+        }

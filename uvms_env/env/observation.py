@@ -1,0 +1,253 @@
+"""Each robot's local observation: its layout, its sensor noise and how it is built.
+
+A robot observes only what it measures itself (its own q and zeta, with noise) and what
+it knows before the task (the scenario's waypoints and obstacles, its grasp and load
+share). Everything about the object is its own estimate, derived from its own measured
+kinematics and its known grasp; no other robot's data and no contact force enters.
+
+``OBSERVATION_FIELDS`` is the one source of the layout: ``observation_structure``
+(name -> slice) is generated from it, and a test checks the environment's docstring
+table against it. The NMPC expert reads observations through these names.
+
+May import: numpy, casadi, ``uvms_env.dynamics`` (compiled calls), ``uvms_env.navigation``,
+``uvms_env.scenarios`` (types) and ``uvms_env.env.kinematics``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import TYPE_CHECKING
+
+import casadi as cs
+import numpy as np
+
+from uvms_env.dynamics.compiled import BufferCall
+from uvms_env.env.kinematics import TeamKinematics
+from uvms_env.navigation import WaypointNavigator, WaypointSequencer, choose_k
+
+if TYPE_CHECKING:
+    from uvms_env.scenarios import Scenario
+
+
+OBSERVED_OBSTACLES = 3
+FAR_OBSTACLE = (100.0, 100.0, 0.0, 0.0, 0.0)  # padding when fewer obstacles exist
+
+
+@dataclass(frozen=True)
+class ObservationField:
+    name: str
+    size: int
+    meaning: str
+    frame: str
+    unit: str
+
+
+OBSERVATION_FIELDS: tuple[ObservationField, ...] = (
+    ObservationField(
+        "q",
+        10,
+        "own generalized coordinates x y z phi theta psi q1..q4 (measured)",
+        "NED, ZYX Euler",
+        "m, rad",
+    ),
+    ObservationField(
+        "zeta",
+        10,
+        "own velocities u v w p q r qd1..qd4 (measured)",
+        "vehicle body; joints",
+        "m/s, rad/s",
+    ),
+    ObservationField(
+        "object_pose",
+        6,
+        "own estimate of the object pose x y z phi theta psi",
+        "NED, ZYX Euler",
+        "m, rad",
+    ),
+    ObservationField(
+        "object_twist",
+        6,
+        "own estimate of the object twist p_dot_O, omega_O",
+        "NED (inertial)",
+        "m/s, rad/s",
+    ),
+    ObservationField(
+        "waypoint",
+        6,
+        "active waypoint x y z phi theta psi (own sequencing)",
+        "NED, ZYX Euler",
+        "m, rad",
+    ),
+    ObservationField("goal", 6, "final waypoint x y z phi theta psi", "NED, ZYX Euler", "m, rad"),
+    ObservationField(
+        "nav_velocity",
+        6,
+        "navigation-function desired object twist: v_d, Euler-angle rates",
+        "NED",
+        "m/s, rad/s",
+    ),
+    ObservationField(
+        "obstacles",
+        OBSERVED_OBSTACLES * len(FAR_OBSTACLE),
+        "3 nearest obstacles, each dx dy dz radius is_cylinder",
+        "NED, from own object estimate",
+        "m, m, m, m, 1",
+    ),
+    ObservationField("load_share", 1, "own load share c_i", "-", "1"),
+    ObservationField("grasp_offset", 3, "own grasp offset l_i", "object frame", "m"),
+    ObservationField(
+        "grasp_rotation", 9, "own grasp rotation R_Oi, row-major", "object frame", "1"
+    ),
+    ObservationField("time_fraction", 1, "t / (max_cycles h)", "-", "1"),
+)
+
+
+def _structure() -> dict[str, slice]:
+    out, start = {}, 0
+    for f in OBSERVATION_FIELDS:
+        out[f.name] = slice(start, start + f.size)
+        start += f.size
+    return out
+
+
+OBSERVATION_STRUCTURE: dict[str, slice] = _structure()
+OBSERVATION_SIZE = sum(f.size for f in OBSERVATION_FIELDS)
+OBSERVATION_LAYOUT = tuple((f.name, f.size) for f in OBSERVATION_FIELDS)  # for the kernel
+
+
+def observation_bounds() -> tuple[np.ndarray, np.ndarray]:
+    """Low and high of the observation Box: unbounded except where bounds are exact."""
+    s = OBSERVATION_STRUCTURE
+    low = np.full(OBSERVATION_SIZE, -np.inf, dtype=np.float32)
+    high = np.full(OBSERVATION_SIZE, np.inf, dtype=np.float32)
+    low[s["grasp_rotation"]], high[s["grasp_rotation"]] = -1.0, 1.0
+    low[s["load_share"]], high[s["load_share"]] = 0.0, 1.0
+    low[s["time_fraction"]] = 0.0
+    obstacles = np.arange(OBSERVATION_SIZE)[s["obstacles"]].reshape(-1, 5)
+    low[obstacles[:, 3]] = 0.0  # radius
+    low[obstacles[:, 4]], high[obstacles[:, 4]] = 0.0, 1.0  # is_cylinder
+    return low, high
+
+
+# Per-component standard deviation of the sensor noise at sensor_noise = 1 (the scenario
+# scales it): position 2 cm, attitude and joint angles 0.01 rad; linear velocity 1 cm/s,
+# angular velocity and joint rates 0.005 rad/s. Gaussian, independent per component.
+NOISE_STD_Q = np.array([0.02] * 3 + [0.01] * 3 + [0.01] * 4)
+NOISE_STD_ZETA = np.array([0.01] * 3 + [0.005] * 3 + [0.005] * 4)
+
+# Each robot passes a waypoint when its own object estimate is this close (m); the
+# navigation module's default. Attitude is not required at intermediate waypoints.
+WAYPOINT_TOLERANCE = 0.3
+# Navigation-function exponent: the navigation module's paper value, raised per scenario
+# when its empirical rule (choose_k) needs more to remove spurious minima.
+NAV_K_MIN = 6.0
+NAV_K_MAX = 50.0
+
+
+@lru_cache(maxsize=64)
+def make_navigator(scenario: Scenario) -> WaypointNavigator:
+    """The waypoint navigator every robot uses for a scenario (scenario constants only).
+
+    ``k = max(NAV_K_MIN, choose_k(waypoint) for every waypoint)`` (``NAV_K_MAX`` if the
+    rule finds none); other parameters are the navigation module's defaults. Cached per
+    scenario object (choose_k costs ~0.1 s per waypoint)."""
+    k = NAV_K_MIN
+    for wp in scenario.waypoints:
+        try:
+            k = max(
+                k,
+                choose_k(wp[:3], scenario.workspace, scenario.obstacles, scenario.team_radius),
+            )
+        except ValueError:
+            k = NAV_K_MAX
+    return WaypointNavigator(
+        scenario.waypoints,
+        scenario.workspace,
+        scenario.obstacles,
+        scenario.team_radius,
+        k=k,
+        pos_tol=WAYPOINT_TOLERANCE,
+    )
+
+
+def _nav_function(navigator: WaypointNavigator, n: int) -> cs.Function:
+    """All robots' desired twists towards every waypoint in one SX call: (6, N) -> (6, K N),
+    column k N + i for waypoint k at robot i's estimate."""
+    x = cs.SX.sym("x_O", 6, n)
+    fns = [navigator.casadi_function(k) for k in range(len(navigator.sequencer))]
+    return cs.Function(
+        "nav_twists", [x], [cs.horzcat(*[f(x[:, i]) for f in fns for i in range(n)])]
+    )
+
+
+class Observer:
+    """Builds the N local observations of one scenario each step (see module docstring).
+
+    Owns each robot's waypoint sequencer (advanced from that robot's own estimate) and
+    its sensor noise, drawn from the generator given at ``reset``. The kinematics kernel
+    writes every block of the observation but the navigation twist, which depends on
+    the scenario's navigation functions and is added here."""
+
+    def __init__(self, scenario: Scenario, kinematics: TeamKinematics) -> None:
+        self.scenario = scenario
+        self.n = n = scenario.n_agents
+        self.kin = kinematics
+        self.navigator = make_navigator(scenario)
+        self.waypoints = np.asarray(scenario.waypoints, dtype=float)
+        self.sequencers = [
+            WaypointSequencer(self.waypoints, pos_tol=WAYPOINT_TOLERANCE) for _ in range(n)
+        ]
+        self.index = np.zeros(n, dtype=int)
+        self._nav = BufferCall(_nav_function(self.navigator, n))
+        self._rows = np.arange(n)
+        self._noise_q = scenario.sensor_noise * NOISE_STD_Q
+        self._noise_zeta = scenario.sensor_noise * NOISE_STD_ZETA
+        self.q_meas = np.zeros((n, 10))
+        self.zeta_meas = np.zeros((n, 10))
+        self._rng = np.random.default_rng(0)
+        self._waypoint = OBSERVATION_STRUCTURE["waypoint"]
+        self._nav_slice = OBSERVATION_STRUCTURE["nav_velocity"]
+        self._on_waypoint_change()
+
+    @property
+    def noisy(self) -> bool:
+        return self.scenario.sensor_noise > 0
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """New episode: noise from ``rng``, every robot back to the first waypoint."""
+        self._rng = rng
+        for seq in self.sequencers:
+            seq.reset()
+        self.index[:] = 0
+        self._on_waypoint_change()
+
+    def _on_waypoint_change(self) -> None:
+        self.kin.waypoint[:] = self.waypoints[self.index]
+        self._nav_rows = self.index * self.n + self._rows
+
+    def measure(self, q: np.ndarray, zeta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What the robots' sensors read: the true q, zeta (N, 10) plus noise (the same
+        arrays when there is no noise)."""
+        if not self.noisy:
+            return q, zeta
+        noise = self._rng.standard_normal((2, self.n, 10))
+        np.multiply(noise[0], self._noise_q, out=self.q_meas)
+        self.q_meas += q
+        np.multiply(noise[1], self._noise_zeta, out=self.zeta_meas)
+        self.zeta_meas += zeta
+        return self.q_meas, self.zeta_meas
+
+    def build(self, min_waypoint_distance2: float) -> np.ndarray:
+        """The (N, 79) float32 observations, after the kinematics kernel was evaluated on
+        this step's measurements. Advances each robot's own waypoint sequencer first (the
+        kernel's distance to the active waypoint says whether any robot may pass one)."""
+        kin = self.kin
+        obs, pose = kin.observation, kin.pose_estimate
+        if min_waypoint_distance2 < WAYPOINT_TOLERANCE**2:
+            for i, seq in enumerate(self.sequencers):
+                self.index[i] = seq.update(pose[i])  # the exact test is the sequencer's
+            self._on_waypoint_change()
+            obs[:, self._waypoint] = kin.waypoint
+        obs[:, self._nav_slice] = self._nav(pose)[0][self._nav_rows]
+        return obs.astype(np.float32)

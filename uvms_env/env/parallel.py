@@ -1,0 +1,596 @@
+"""The PettingZoo environment (native ParallelEnv): the class docstring is its documentation.
+
+May import: numpy, gymnasium, pettingzoo and everything in ``uvms_env`` below ``env``
+(``models``, ``dynamics``, ``sim``, ``navigation``, ``scenarios``) plus the ``env``
+modules it composes (kinematics, observation, constraints, reward, metrics, wrench,
+render).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections import OrderedDict
+from collections.abc import Mapping
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Any, ClassVar
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from uvms_env.dynamics import NQ, NU
+from uvms_env.env.constraints import CONSTRAINTS, HARD_CONSTRAINTS
+from uvms_env.env.kinematics import TeamKinematics
+from uvms_env.env.metrics import EpisodeMetrics
+from uvms_env.env.observation import (
+    FAR_OBSTACLE,
+    OBSERVATION_LAYOUT,
+    OBSERVATION_SIZE,
+    OBSERVATION_STRUCTURE,
+    Observer,
+    observation_bounds,
+)
+from uvms_env.env.registration import ENV_ID
+from uvms_env.env.reward import RewardWeights, TeamReward
+from uvms_env.env.wrench import InternalWrench
+from uvms_env.scenarios import Scenario, make, replace
+from uvms_env.scenarios.families import COMMON_OVERRIDES
+from uvms_env.sim import Simulator
+
+CONSTRAINT_MODES = ("penalize", "terminate")
+ENV_OPTIONS = (
+    "constraint_mode",
+    "max_cycles",
+    "reward_weights",
+    "reseed_geometry",
+    "internal_wrench_every",
+)
+SCENARIO_OVERRIDES = (*COMMON_OVERRIDES, "n_agents")
+# Seeded-family scenarios kept per geometry seed (each costs an IPOPT solve to build).
+GEOMETRY_CACHE_SIZE = 32
+_HARD = [CONSTRAINTS.index(c) for c in HARD_CONSTRAINTS]
+
+
+@dataclass
+class _World:
+    """Everything that depends on one scenario's geometry."""
+
+    scenario: Scenario
+    sim: Simulator
+    kinematics: TeamKinematics
+    observer: Observer
+    reward: TeamReward
+    wrench: InternalWrench
+    renderer: Any = None
+
+
+class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
+    """Cooperative transport: N underwater vehicle-manipulator systems carry one object.
+
+    | | |
+    |---|---|
+    | Import | `uvms_env.parallel_env(scenario="paper", render_mode=None, **overrides)` |
+    | PettingZoo | `pettingzoo.make("parallel", "uvms_env/CoopTransport-v0")` |
+    | Gymnasium | `gymnasium.make("uvms_env/CoopTransport-v0")`: centralized view |
+    | Agents | `uvms_0 ... uvms_{N-1}`; paper scenario N = 2, random family N = 2..6 |
+    | Action space | `Box(-1, 1, (8,), float32)` per agent |
+    | Observation space | `Box(79,)` float32 per agent, local only (layout below) |
+    | State space | `Box(20 N + 19,)` float32, the global state for centralized critics only |
+    | Control period | h = `scenario.period` = 0.12 s; one `step` is one period |
+
+    Several UVMSs (vehicle + 4-DoF arm) rigidly grasp one object and carry it past
+    obstacles through a list of waypoints. Each robot decides from its own observation:
+    its own measured state and what it knows before the task, nothing measured by
+    another robot and no contact force (a test proves it). The truth is the closed-chain
+    simulator `uvms_env.sim.Simulator`.
+
+    **Actions.** Normalized inputs of robot i, scaled by the saturation limits
+    (`load_parameters().limits.tau_max`); values beyond [-1, 1] are clipped (the
+    simulator saturates) and reported by the `input` constraint.
+
+    | index | input | unit | scale (saturation) |
+    |---|---|---|---|
+    | 0 | surge force X | N | 10 |
+    | 1 | sway force Y | N | 10 |
+    | 2 | heave force Z | N | 10 |
+    | 3 | yaw moment N | N m | 10 |
+    | 4-7 | joint torques tau_1 .. tau_4 | N m | 2 |
+
+    **Observations** (per robot; names and slices in `env.observation_structure`; a test
+    checks this table against it):
+
+    | index | meaning | frame | unit |
+    |---|---|---|---|
+    | 0-9 | `q`: own x y z, phi theta psi, q1..q4 (measured) | NED, ZYX Euler | m, rad |
+    | 10-19 | `zeta`: own u v w, p q r, qd1..qd4 (measured) | body; joints | m/s, rad/s |
+    | 20-25 | `object_pose`: own estimate of p_O, Theta_O (1) | NED, ZYX Euler | m, rad |
+    | 26-31 | `object_twist`: own estimate of p_dot_O, omega_O (2) | NED | m/s, rad/s |
+    | 32-37 | `waypoint`: active waypoint, own sequencing (3) | NED, ZYX Euler | m, rad |
+    | 38-43 | `goal`: final waypoint | NED, ZYX Euler | m, rad |
+    | 44-49 | `nav_velocity`: navigation twist: v_d, Euler-angle rates (3) | NED | m/s, rad/s |
+    | 50-64 | `obstacles`: 3 nearest, each dx dy dz radius is_cylinder (4) | NED | m, 1 |
+    | 65 | `load_share`: c_i | - | 1 |
+    | 66-68 | `grasp_offset`: l_i | object frame | m |
+    | 69-77 | `grasp_rotation`: R_Oi, row-major | object frame | 1 |
+    | 78 | `time_fraction`: t / (max_cycles h) | - | 1 |
+
+    (1) From the robot's own measured q and its known grasp: p_O = p_ee - R_O l_i,
+    R_O = R_ee R_Oi^T, as ZYX Euler angles. (2) [p_dot_O; omega_O] = J_Oi^-1 J_i zeta_i
+    with J_Oi^-1 = [[I, S(R_O l_i)], [0, I]]. (3) Each robot's own `WaypointSequencer`
+    passes a waypoint when its own estimate is within 0.3 m; `nav_velocity` is its
+    `WaypointNavigator` twist (`uvms_env.env.observation.make_navigator(scenario)`) at
+    its own estimate. (4) dx dy dz = obstacle centre minus the own object estimate
+    (dz = 0 for the vertical cylinders, infinite in z), nearest first by surface
+    distance, padded with [100, 100, 0, 0, 0].
+
+    **Sensor noise** (scenario `sensor_noise` = s > 0): Gaussian on q and zeta before
+    any estimate is derived, std per component times s: position 0.02 m, Euler angles
+    0.01 rad, joint angles 0.01 rad; linear velocity 0.01 m/s, angular velocity and
+    joint rates 0.005 rad/s. Drawn from the episode's seeded generator.
+
+    **State** (`state()`, `env.state_structure`): the true `q` (10 N), `zeta` (10 N),
+    object pose (6) and twist (6), the team's active waypoint (6) and the time fraction.
+
+    **Reward** (shared: computed once per step, the same for every agent; every term in
+    `infos[agent]["reward_terms"]`, and the reward is their sum):
+
+        r = progress + waypoint + success + violation + effort
+        progress  = 10 (Phi_prev - Phi),  Phi = |p_O - p_wp| + 0.5 |wrap(Theta_O - Theta_wp)|
+        waypoint  = 5 when the true object passes an intermediate waypoint
+        success   = 50 when the episode succeeds
+        violation = -0.5 (violated constraints summed over robots) / N - 50 [failure]
+        effort    = -0.05 mean(a^2)
+
+    on the true object and the team's waypoint (details and weights:
+    `uvms_env.env.reward`; change them with `reward_weights`).
+
+    **Constraints** (`infos[agent]["constraint_values"]`, g <= 0 holds; the true state):
+    input, joint_limit, joint_speed, vehicle_speed, manipulability (eps = 0.5; ~4.2 at
+    the paper's start), representation, collision, workspace; definitions in
+    `uvms_env.env.constraints`. `infos[agent]["cost"]` is the number of the robot's
+    violated constraints. Collisions always end the episode; the others end it in
+    `constraint_mode="terminate"` and only cost reward in `"penalize"` (default).
+
+    **Starting state.** The scenario's start, at rest: a static equilibrium that holds
+    the grasps exactly, kept by the normalized actions `env.sim.holding_inputs() /
+    env.sim.tau_max` (not by zero actions).
+
+    **Episode end.** Terminated: success (the true object within `success_pos_tol` =
+    0.15 m and `success_att_tol` = 0.1 rad of the final waypoint), a collision, a
+    violation in "terminate" mode, or a diverged simulation (the state is kept, the
+    episode ends as a failure). Truncated: `max_cycles` periods. All agents end
+    together. The last infos carry `"episode_end"` (success, collision, constraint,
+    diverged, max_cycles) and `"metrics"` (`uvms_env.env.metrics`).
+
+    **Infos.** Every step, per agent: `constraint_values` (dict), `cost`, `reward_terms`
+    (dict); at the end also `episode_end` and `metrics` (the same dict for every agent;
+    `policy_time_ms` is left None). The internal wrench metric costs ~20 us (~6% of a
+    step); `internal_wrench_every=0` drops it (e.g. for training).
+
+    **Rendering.** `render_mode="rgb_array"`: `render()` returns a 720 x 360 x 3 uint8
+    top and side view (vehicles, arms, object, obstacles, waypoints, the object's path);
+    "human" shows it in a window when a display exists and otherwise warns once.
+    `uvms_env.env.save_video(frames, "episode.gif")` writes GIF (or MP4 with imageio).
+
+    **Beyond the API.** `env.sim` and `env.scenario` (global: never feed them to a
+    policy), `env.observe()` (observations of the current state, e.g. after
+    `sim.set_state`), `env.constraint_values()`, `env.metrics` (`EpisodeMetrics`).
+
+    **Arguments**
+
+    | name | type | default | meaning |
+    |---|---|---|---|
+    | scenario | str or Scenario | "paper" | family ("paper", "random", "short") or a Scenario |
+    | render_mode | None, "rgb_array", "human" | None | "human" is headless-safe |
+    | n_agents | int | family's | random family: 2..6 |
+    | current | str | "none" | ocean current preset: none, mild, strong |
+    | damping_scale | float | 1.0 | multiplies all damping |
+    | mismatch | float | 0.0 | relative truth-model perturbation, drawn per episode |
+    | sensor_noise | float | 0.0 | scale of the sensor noise above |
+    | seed | int or None | None | scenario seed: random geometry, default episode seed |
+    | max_steps, substeps, success_pos_tol, success_att_tol | | scenario's | scenario fields |
+    | constraint_mode | str | "penalize" | "penalize" or "terminate" |
+    | max_cycles | int | scenario max_steps | truncation (also settable as an attribute) |
+    | reward_weights | dict | {} | overrides of `RewardWeights` |
+    | reseed_geometry | bool | True | seeded families: `reset(seed=s)` uses geometry seed s |
+    | internal_wrench_every | int | 1 | internal wrench metric every k periods (0: never) |
+
+    Unknown keywords raise ValueError listing the allowed ones.
+
+    **Seeding.** `reset(seed=s)` reseeds everything random in an episode: the truth
+    model's mismatch draws, the current and the sensor noise; `reset()` continues the
+    sequence, so a seeded reset followed by the same actions replays an episode step
+    for step. For the families whose geometry is seeded ("random", "short"; not
+    "paper") and `reseed_geometry=True`, `reset(seed=s)` also sets the geometry to
+    `make(family, seed=s, n_agents=N, ...)` (the last 32 are cached; the first build of
+    a seed costs an IPOPT solve, ~0.2-1 s); `reset()` keeps the current geometry. With
+    `reseed_geometry=False` the geometry stays the one built at construction (from the
+    `seed` override). The number of agents never changes.
+
+    **Version history.** v0 (2026-11): first version.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {
+        "render_modes": ["human", "rgb_array"],
+        "name": ENV_ID,
+        "is_parallelizable": True,
+        "render_fps": 8,
+    }
+
+    def __init__(
+        self, scenario: str | Scenario = "paper", render_mode: str | None = None, **overrides: Any
+    ) -> None:
+        options = {k: overrides.pop(k) for k in ENV_OPTIONS if k in overrides}
+        unknown = sorted(set(overrides) - set(SCENARIO_OVERRIDES))
+        if unknown:
+            raise ValueError(
+                f"unknown option(s) {unknown}; allowed: scenario overrides "
+                f"{sorted(SCENARIO_OVERRIDES)} and environment options {sorted(ENV_OPTIONS)}"
+            )
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be None or one of {self.metadata['render_modes']}, "
+                f"got {render_mode!r}"
+            )
+        self.render_mode = render_mode
+        self.constraint_mode = options.get("constraint_mode", "penalize")
+        if self.constraint_mode not in CONSTRAINT_MODES:
+            raise ValueError(
+                f"constraint_mode must be one of {CONSTRAINT_MODES}, got {self.constraint_mode!r}"
+            )
+        self.reward_weights = RewardWeights.from_mapping(options.get("reward_weights"))
+        self.reseed_geometry = bool(options.get("reseed_geometry", True))
+        self.internal_wrench_every = int(options.get("internal_wrench_every", 1))
+        if self.internal_wrench_every < 0:
+            raise ValueError(
+                f"internal_wrench_every must be >= 0 (0: never), got {self.internal_wrench_every}"
+            )
+
+        if isinstance(scenario, Scenario):
+            if "n_agents" in overrides:
+                raise ValueError("n_agents cannot be overridden on a built Scenario")
+            built = replace(scenario, **overrides) if overrides else scenario
+            self._family: str | None = None
+        elif isinstance(scenario, str):
+            built = _make_scenario(scenario, overrides)
+            self._family = scenario
+        else:
+            raise ValueError(f"scenario must be a family name or a Scenario, got {scenario!r}")
+        self._overrides = {**overrides, "n_agents": built.n_agents}
+        # Every family but the paper's draws its geometry from the seed.
+        self._seeded_geometry = self.reseed_geometry and self._family not in (None, "paper")
+        max_cycles = options.get("max_cycles")
+        self.max_cycles = int(built.max_steps if max_cycles is None else max_cycles)
+        if self.max_cycles < 1:
+            raise ValueError(f"max_cycles must be >= 1, got {max_cycles}")
+
+        n = built.n_agents
+        self.n = n
+        self.possible_agents = [f"uvms_{i}" for i in range(n)]
+        self.agents: list[str] = []
+        self._index = {a: i for i, a in enumerate(self.possible_agents)}
+        low, high = observation_bounds()
+        self.observation_spaces = {
+            a: spaces.Box(low, high, (OBSERVATION_SIZE,), np.float32) for a in self.possible_agents
+        }
+        self.action_spaces = {
+            a: spaces.Box(-1.0, 1.0, (NU,), np.float32) for a in self.possible_agents
+        }
+        self.observation_structure = dict(OBSERVATION_STRUCTURE)
+        self.state_structure = _state_structure(n)
+        size = self.state_structure["time_fraction"].stop
+        self.state_space = spaces.Box(-np.inf, np.inf, (size,), np.float32)
+
+        self._worlds: OrderedDict[int, _World] = OrderedDict()
+        self._world = self._build_world(built)
+        if self._seeded_geometry and built.seed is not None:
+            self._worlds[int(built.seed)] = self._world
+        self._seeder = np.random.default_rng(built.seed)
+        self.metrics = EpisodeMetrics(built.period)
+        self._zero_action = np.zeros((n, NU))
+        self._team: list[float] = []
+        self._steps = 0
+        self._path: list[np.ndarray] = []
+
+    # -- public views ------------------------------------------------------------------
+    @property
+    def scenario(self) -> Scenario:
+        return self._world.scenario
+
+    @property
+    def sim(self) -> Simulator:
+        """The truth simulator (global information: never feed it to a policy)."""
+        return self._world.sim
+
+    def observation_space(self, agent: str) -> spaces.Box:
+        return self.observation_spaces[self._agent(agent)]
+
+    def action_space(self, agent: str) -> spaces.Box:
+        return self.action_spaces[self._agent(agent)]
+
+    def state(self) -> np.ndarray:
+        w = self._world
+        wp = w.reward.waypoints[w.reward.sequencer.index]
+        return np.concatenate(
+            [w.sim.flat_state, wp, [self._steps / self.max_cycles]], dtype=np.float32
+        )
+
+    # -- episode -----------------------------------------------------------------------
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
+        """Start an episode (``options`` is accepted and unused)."""
+        if seed is not None:
+            self._seeder = np.random.default_rng(seed)
+            if self._seeded_geometry:
+                self._world = self._world_for_seed(int(seed))
+        w = self._world
+        rng = np.random.default_rng(self._seeder.integers(2**63))
+        w.sim.reset(seed=int(rng.integers(2**63)))
+        w.observer.reset(rng)
+        self._bind(w)
+        self.agents = self.possible_agents[:]
+        self._steps = 0
+        self.metrics.reset()
+        obs = self._evaluate(self._zero_action)
+        w.reward.reset(self._x_o)
+        self._path = [self._x_o[:3].copy()]
+        return (
+            {a: obs[i] for i, a in enumerate(self.possible_agents)},
+            {a: {} for a in self.possible_agents},
+        )
+
+    def step(
+        self, actions: Mapping[str, Any]
+    ) -> tuple[
+        dict[str, np.ndarray],
+        dict[str, float],
+        dict[str, bool],
+        dict[str, bool],
+        dict[str, dict[str, Any]],
+    ]:
+        if not self.agents:
+            raise RuntimeError("step() called on a finished episode: call reset() first")
+        w = self._world
+        a = self._parse_actions(actions)
+        diverged = False
+        try:
+            info = w.sim.step(a * w.sim.tau_max)  # it saturates: clip(a) tau_max
+        except FloatingPointError:
+            diverged = True  # the simulator kept the last finite state
+        except ValueError as exc:  # NaN or inf: the simulator checks before it steps
+            raise self._bad_actions(a) from exc
+        self._steps += 1
+        obs = self._evaluate(a)
+        kin = w.kinematics
+        n_violated, action_sq = self._team[4], self._team[5]
+        kinds = kin.kinds_violated.tolist()
+        collision = any(kinds[k] for k in _HARD)
+        failed = diverged or collision or (self.constraint_mode == "terminate" and n_violated > 0)
+        x_o = self._x_o.tolist()
+        success = not failed and w.reward.at_goal(x_o)
+        terminated = success or failed
+        truncated = not terminated and self._steps >= self.max_cycles
+
+        every = self.internal_wrench_every
+        sample = not diverged and every > 0 and self._steps % every == 0
+        wrench_sq = w.wrench(info.tau_applied, info.current) if sample else None
+        self.metrics.record_step(action_sq, kinds, wrench_sq)
+        reward, terms = w.reward(x_o, action_sq / a.size, n_violated, success, failed)
+        if self.render_mode is not None:
+            self._path.append(self._x_o[:3].copy())
+
+        agents = self.possible_agents
+        g_rows = kin.constraints.tolist()
+        costs = kin.violated_count.tolist()
+        infos = {
+            agent: {
+                "constraint_values": dict(zip(CONSTRAINTS, g_rows[i], strict=True)),
+                "cost": costs[i],
+                "reward_terms": dict(terms),
+            }
+            for i, agent in enumerate(agents)
+        }
+        if terminated or truncated:
+            if success:
+                end = "success"
+            elif diverged:
+                end = "diverged"
+            elif collision:
+                end = "collision"
+            elif failed:
+                end = "constraint"
+            else:
+                end = "max_cycles"
+            metrics = self.metrics.result(self._x_o, w.reward.goal, success)
+            for info_a in infos.values():
+                info_a["episode_end"] = end
+                info_a["metrics"] = metrics
+            self.agents = []
+        return (
+            {agent: obs[i] for i, agent in enumerate(agents)},
+            dict.fromkeys(agents, reward),
+            dict.fromkeys(agents, terminated),
+            dict.fromkeys(agents, truncated),
+            infos,
+        )
+
+    def _evaluate(self, action: np.ndarray) -> np.ndarray:
+        """Measure, run the kinematics kernel, note the state metrics, build the (N, 79)
+        observations. ``action``: the requested normalized actions (input constraint)."""
+        w = self._world
+        kin = w.kinematics
+        kin.time_fraction[0] = self._steps / self.max_cycles
+        q_meas, zeta_meas = w.observer.measure(self._q, self._zeta)
+        kin(action, self._q, self._zeta, q_meas, zeta_meas, self._x_o)
+        self._team = team = kin.team()
+        clearance = team[0] if w.scenario.obstacles else math.inf  # else: padding distance
+        self.metrics.observe(clearance, team[1], team[2])
+        return w.observer.build(team[3])
+
+    def observe(self) -> dict[str, np.ndarray]:
+        """Observations of the simulator's current state, e.g. after ``sim.set_state`` in a
+        replay or a test. Measures like a step (draws sensor noise, may advance the
+        robots' waypoint sequencers) but does not advance time or touch the reward."""
+        self._bind(self._world)
+        obs = self._evaluate(self._zero_action)
+        return {a: obs[i] for i, a in enumerate(self.possible_agents)}
+
+    def constraint_values(self) -> dict[str, dict[str, float]]:
+        """Constraint values of the current true state (zero actions), per agent: for
+        checks and tests; it does not advance the episode."""
+        w = self._world
+        self._bind(w)
+        zero = self._zero_action
+        w.kinematics(zero, self._q, self._zeta, self._q, self._zeta, self._x_o)
+        rows = w.kinematics.constraints.tolist()
+        return {
+            a: dict(zip(CONSTRAINTS, rows[i], strict=True))
+            for i, a in enumerate(self.possible_agents)
+        }
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            warnings.warn(
+                "render() called with render_mode=None; pass render_mode='rgb_array' or "
+                "'human' to the environment",
+                stacklevel=2,
+            )
+            return None
+        w = self._world
+        if w.renderer is None:
+            from uvms_env.env.render import Renderer
+
+            w.renderer = Renderer(w.scenario, w.sim.object.segments)
+        st = w.sim.state
+        frame = w.renderer.frame(st.q, st.x_O, np.array(self._path), st.t)
+        if self.render_mode == "rgb_array":
+            return frame
+        w.renderer.show(frame)
+        return None
+
+    def close(self) -> None:
+        for world in (self._world, *self._worlds.values()):
+            if world.renderer is not None:
+                world.renderer.close()
+
+    # -- internals ---------------------------------------------------------------------
+    def _agent(self, agent: str) -> str:
+        if agent not in self._index:
+            raise ValueError(f"unknown agent {agent!r}; agents: {self.possible_agents}")
+        return agent
+
+    def _parse_actions(self, actions: Mapping[str, Any]) -> np.ndarray:
+        """(N, 8) float64 requested actions; ValueError naming the agent otherwise."""
+        if type(actions) is not dict and not isinstance(actions, Mapping):  # dict: fast
+            raise ValueError(
+                f"actions must be a dict agent -> array of shape ({NU},), got {type(actions)}"
+            )
+        try:  # fast path: one conversion for the whole team
+            a = np.array([actions[agent] for agent in self.possible_agents], dtype=float)
+        except (KeyError, ValueError, TypeError):
+            a = None
+        if a is None or a.shape != (self.n, NU):
+            self._explain_bad_actions(actions)
+        if len(actions) != self.n:
+            unknown = sorted(set(actions) - set(self._index), key=str)
+            raise ValueError(
+                f"actions for unknown agent(s) {unknown}; agents: {self.possible_agents}"
+            )
+        return a  # finiteness: the simulator checks it (see step)
+
+    def _bad_actions(self, a: np.ndarray) -> ValueError:
+        bad = np.argwhere(~np.isfinite(a))
+        if not len(bad):
+            return ValueError("the simulator rejected the actions")
+        return ValueError(
+            f"action of agent {self.possible_agents[bad[0, 0]]!r} contains NaN or inf"
+        )
+
+    def _explain_bad_actions(self, actions: Mapping[str, Any]) -> None:
+        for agent in self.possible_agents:
+            if agent not in actions:
+                raise ValueError(f"no action for agent {agent!r}: every live agent must act")
+            act = actions[agent]
+            try:
+                shape = np.shape(np.asarray(act, dtype=float))
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"action of agent {agent!r} is not numeric: {act!r}") from exc
+            if shape != (NU,):
+                raise ValueError(f"action of agent {agent!r} must have shape ({NU},), got {shape}")
+        raise ValueError("actions could not be read")  # not reached: some agent is wrong
+
+    def _bind(self, w: _World) -> None:
+        """Views into the simulator's state (kept across steps: it is updated in place)."""
+        x, n = w.sim.flat_state, self.n
+        self._q = x[: NQ * n].reshape(n, NQ)
+        self._zeta = x[NQ * n : 2 * NQ * n].reshape(n, NQ)
+        self._x_o = x[2 * NQ * n : 2 * NQ * n + 6]
+
+    def _build_world(self, scenario: Scenario) -> _World:
+        sim = Simulator(scenario)
+        kin = TeamKinematics(scenario, sim.object.segments, OBSERVATION_LAYOUT, FAR_OBSTACLE)
+        return _World(
+            scenario=scenario,
+            sim=sim,
+            kinematics=kin,
+            observer=Observer(scenario, kin),
+            reward=TeamReward(scenario, self.reward_weights),
+            wrench=InternalWrench(sim),
+        )
+
+    def _world_for_seed(self, seed: int) -> _World:
+        """The world of geometry seed ``seed`` (built once, then cached)."""
+        if seed in self._worlds:
+            self._worlds.move_to_end(seed)
+            return self._worlds[seed]
+        assert self._family is not None
+        scenario = _make_scenario(self._family, {**self._overrides, "seed": seed})
+        world = self._build_world(scenario)
+        self._worlds[seed] = world
+        while len(self._worlds) > GEOMETRY_CACHE_SIZE:
+            old = self._worlds.popitem(last=False)[1]
+            if old.renderer is not None and old is not self._world:
+                old.renderer.close()
+        return world
+
+
+def _make_scenario(name: str, overrides: dict[str, Any]) -> Scenario:
+    """``make(name, **overrides)``, shared between environments when it is deterministic
+    (scenarios are immutable; building one costs an IPOPT solve)."""
+    if name != "paper" and overrides.get("seed") is None:  # a fresh random geometry
+        return make(name, **overrides)
+    try:
+        return _make_cached(name, tuple(sorted(overrides.items())))
+    except TypeError:  # an unhashable override value: build it, make() validates it
+        return make(name, **overrides)
+
+
+@lru_cache(maxsize=GEOMETRY_CACHE_SIZE)
+def _make_cached(name: str, overrides: tuple[tuple[str, Any], ...]) -> Scenario:
+    return make(name, **dict(overrides))
+
+
+def _state_structure(n: int) -> dict[str, slice]:
+    sizes = {
+        "q": NQ * n,
+        "zeta": NQ * n,
+        "object_pose": 6,
+        "object_twist": 6,
+        "waypoint": 6,
+        "time_fraction": 1,
+    }
+    out, start = {}, 0
+    for name, size in sizes.items():
+        out[name] = slice(start, start + size)
+        start += size
+    return out
+
+
+def parallel_env(
+    scenario: str | Scenario = "paper", render_mode: str | None = None, **overrides: Any
+) -> CoopTransportEnv:
+    """The cooperative transport environment (see ``CoopTransportEnv``)."""
+    return CoopTransportEnv(scenario, render_mode, **overrides)

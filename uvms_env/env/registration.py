@@ -1,0 +1,36 @@
+"""Put the environment in PettingZoo's and Gymnasium's registries (on ``import uvms_env``).
+
+* PettingZoo 1.27: ``pettingzoo.make("parallel", "uvms_env/CoopTransport-v0", **kwargs)``
+  (``max_cycles`` is passed through when given).
+* Gymnasium: ``gymnasium.make("uvms_env/CoopTransport-v0", **kwargs)``, or without a
+  prior import ``gymnasium.make("uvms_env:uvms_env/CoopTransport-v0")``. The package
+  also declares a ``gymnasium.envs`` entry point (``register_gymnasium``) for Gymnasium
+  versions that load plugins (0.26 - 0.29; 1.x no longer reads that group).
+
+Entry points are strings, so registering imports nothing heavy. Registering twice is a
+no-op (no "overriding" warnings). May import: gymnasium, pettingzoo.
+"""
+
+from __future__ import annotations
+
+import gymnasium
+import pettingzoo
+
+ENV_ID = "uvms_env/CoopTransport-v0"
+PARALLEL_ENTRY_POINT = "uvms_env.env.parallel:parallel_env"
+GYMNASIUM_ENTRY_POINT = "uvms_env.env.gym_wrapper:CoopTransportGymEnv"
+
+
+def register_pettingzoo() -> None:
+    if ENV_ID not in pettingzoo.parallel_registry:
+        pettingzoo.register("parallel", ENV_ID, entry_point=PARALLEL_ENTRY_POINT)
+
+
+def register_gymnasium() -> None:
+    if ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=ENV_ID, entry_point=GYMNASIUM_ENTRY_POINT)
+
+
+def register_all() -> None:
+    register_pettingzoo()
+    register_gymnasium()
