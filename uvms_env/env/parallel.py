@@ -35,8 +35,7 @@ from uvms_env.env.observation import (
 from uvms_env.env.registration import ENV_ID
 from uvms_env.env.reward import RewardWeights, TeamReward
 from uvms_env.env.wrench import InternalWrench
-from uvms_env.scenarios import Scenario, make, replace
-from uvms_env.scenarios.families import COMMON_OVERRIDES
+from uvms_env.scenarios import COMMON_OVERRIDES, Scenario, make, replace
 from uvms_env.sim import Simulator
 
 CONSTRAINT_MODES = ("penalize", "terminate")

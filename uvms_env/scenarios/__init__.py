@@ -6,6 +6,14 @@ naming the problem. May import: numpy, ``uvms_env.models``, ``uvms_env.dynamics`
 """
 
 from uvms_env.scenarios.config import CURRENT_PRESETS, Scenario, obstacle_distance
-from uvms_env.scenarios.families import FAMILIES, make, replace
+from uvms_env.scenarios.families import COMMON_OVERRIDES, FAMILIES, make, replace
 
-__all__ = ["CURRENT_PRESETS", "FAMILIES", "Scenario", "make", "obstacle_distance", "replace"]
+__all__ = [
+    "COMMON_OVERRIDES",
+    "CURRENT_PRESETS",
+    "FAMILIES",
+    "Scenario",
+    "make",
+    "obstacle_distance",
+    "replace",
+]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 
 import numpy as np
@@ -53,7 +54,9 @@ def _configure(
             for l, r, y in zip(offsets, rotations, yaws, strict=True)
         ]
     )
-    q0, _ = static_equilibrium(start, offsets, rotations, q_ik, ObjectModel(shape, ring_radius))
+    q0 = _equilibrium_start(
+        start.tobytes(), offsets.tobytes(), rotations.tobytes(), q_ik.tobytes(), shape, ring_radius
+    )
     return Scenario(
         name=name,
         n_agents=len(offsets),
@@ -71,6 +74,24 @@ def _configure(
         team_radius=team_radius(start, q0, shape, ring_radius),
         **settings,
     )
+
+
+@functools.lru_cache(maxsize=256)
+def _equilibrium_start(
+    start: bytes, offsets: bytes, rotations: bytes, q_ik: bytes, shape: str, ring: float
+) -> np.ndarray:
+    """Cached by value: seeded families often share a start (e.g. every ``short`` task),
+    and the equilibrium NLP costs ~0.2 s."""
+    n = len(np.frombuffer(offsets)) // 3
+    q0, _ = static_equilibrium(
+        np.frombuffer(start).copy(),
+        np.frombuffer(offsets).reshape(n, 3),
+        np.frombuffer(rotations).reshape(n, 3, 3),
+        np.frombuffer(q_ik).reshape(n, 10),
+        ObjectModel(shape, ring),
+    )
+    q0.setflags(write=False)
+    return q0
 
 
 def team_radius(x_o: np.ndarray, q: np.ndarray, shape: str, ring_radius: float) -> float:
