@@ -47,6 +47,7 @@ class ChainFunctions:
     rhs: cs.Function  # (x, tau, v_c, P, P_O, grasp) -> x_dot
     step: cs.Function  # (x, tau, v_c, P, P_O, grasp) -> (x after one period, grasp error 6xN)
     wrenches: cs.Function  # (x, tau, v_c, P, P_O, grasp) -> lambda (6xN)
+    internal_wrench: cs.Function  # same inputs -> the squeeze (6xN), cancels on the object
     grasp_error: (
         cs.Function
     )  # (x, grasp) -> (position error 3xN, rotation error 3xN, twist error 6xN)
@@ -174,7 +175,16 @@ def build_chain(
         *[blk @ v_o_dot for blk in cs.horzsplit(outs[6], list(range(0, 6 * n + 1, 6)))]
     )
     wrenches = cs.Function("chain_wrenches", args, [lam])
+    # The squeeze: lam minus its projection on the range of A^T, A = G^T = [J_O1^T ..
+    # J_ON^T] (full row rank: every J_Oi is invertible), so pinv(A) = A^T (A A^T)^-1 and
+    # A A^T = sum_i J_Oi^T J_Oi: one 6x6 solve instead of a pseudo-inverse.
+    _, _, x_o, _ = unpack(x)
+    r_o = rot_zyx(x_o[3:])
+    j_o = [grasp_jacobian(r_o, grasp[:3, i]) for i in range(n)]
+    y = cs.solve(sum(j.T @ j for j in j_o), sum(j.T @ lam[:, i] for i, j in enumerate(j_o)))
+    internal = cs.horzcat(*[lam[:, i] - j @ y for i, j in enumerate(j_o)])
+    internal_wrench = cs.Function(f"chain_internal_wrench_n{n}", args, [internal])
     q, zeta, x_o, v_o = unpack(x)
     err, err_dot = residual(q, zeta, grasp, cs.repmat(x_o, 1, n), cs.repmat(v_o, 1, n))
     grasp_error = cs.Function("chain_grasp_error", [x, grasp], [err[:3, :], err[3:, :], err_dot])
-    return ChainFunctions(n, rhs, step, wrenches, grasp_error)
+    return ChainFunctions(n, rhs, step, wrenches, internal_wrench, grasp_error)
