@@ -34,27 +34,13 @@ from tqdm import tqdm
 
 from baselines.policies import PolicySource, check_policy
 from baselines.stats import bootstrap_mean_interval, wilson_interval
+from uvms_env.env.constraints import CONSTRAINTS
+from uvms_env.env.metrics import METRICS
 
-VIOLATION_KINDS = (
-    "input",
-    "joint_limit",
-    "joint_speed",
-    "vehicle_speed",
-    "manipulability",
-    "representation",
-    "collision",
-    "workspace",
-)
+VIOLATION_KINDS = CONSTRAINTS
+# numeric per-episode metrics averaged with bootstrap intervals (same names as the env's)
 MEAN_METRICS = (
-    "episode_steps",
-    "sim_time_s",
-    "final_pos_error_m",
-    "final_att_error_rad",
-    "min_obstacle_clearance_m",
-    "min_manipulability",
-    "internal_wrench_rms",
-    "control_effort",
-    "grasp_drift_max_m",
+    *(m for m in METRICS if m not in ("success", "violations", "policy_time_ms")),
     "return",
 )
 
