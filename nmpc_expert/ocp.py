@@ -47,6 +47,12 @@ CONSTRAINT_NAMES = (
 )
 NW = 6 + 6 + 6 + NU + 5 * NC + 1  # weight/bound vector: see ``weight_vector``
 NR = 12  # state residual rows per node (pose 6, twist 6)
+# start of each part of the weight vector (``weight_vector``)
+WEIGHT_OFFSETS = {
+    "lower": 18 + NU + 2 * NC,
+    "upper": 18 + NU + 3 * NC,
+    "scale": 18 + NU + 4 * NC,
+}
 
 
 def weight_vector(

@@ -24,7 +24,7 @@ import numpy as np
 
 from nmpc_expert.local_model import NX, ModelParams
 from nmpc_expert.observation import OBSERVATION_STRUCTURE, check_observation
-from nmpc_expert.ocp import NC, ocp_functions, weight_vector
+from nmpc_expert.ocp import NC, WEIGHT_OFFSETS, ocp_functions, weight_vector
 from nmpc_expert.reference import HorizonReference
 from nmpc_expert.rti import RTISolver
 from nmpc_expert.settings import NMPCSettings
@@ -129,6 +129,14 @@ class NMPCPolicy:
 
             self.solver = IpoptSolver(self.funcs, self.theta, self.weights, s)
         self.solver_name = solver
+        # rate-offset estimator (settings.offset_gain): the speed bounds, shifted in place
+        # in the solver's weight vector by the estimated prediction error
+        self._bounds = (lower.copy(), upper.copy(), scale.copy())
+        o = WEIGHT_OFFSETS
+        self._lower = self.solver.weights[o["lower"] : o["lower"] + NC]
+        self._upper = self.solver.weights[o["upper"] : o["upper"] + NC]
+        self.rate_offset = np.zeros(NX // 2)  # e, filtered one-step error of zeta
+        self._predicted_zeta: np.ndarray | None = None
         self._x0 = np.zeros(NX)
         self._wp = np.ascontiguousarray(spec.waypoints, dtype=float)
         self.stats: dict[str, Any] = {}
@@ -138,6 +146,9 @@ class NMPCPolicy:
     # -- Policy protocol -----------------------------------------------------------------
     def reset(self) -> None:
         self.solver.reset()
+        self.rate_offset[:] = 0.0
+        self._predicted_zeta = None
+        self._lower[:], self._upper[:] = self._bounds[0], self._bounds[1]
         self.stats = {}
         self.fallbacks = 0
         self.decisions = 0
@@ -149,6 +160,7 @@ class NMPCPolicy:
         self._x0[: NX // 2] = o[st["q"]]
         self._x0[NX // 2 :] = o[st["zeta"]]
         index = self._waypoint_index(o[st["waypoint"]])
+        self._update_rate_offset()
         x_o, _ = self._object_state(self._x0, self.theta)
         xd, vd = self.reference(x_o, index)
         self.solver.xd[:] = xd
@@ -157,11 +169,14 @@ class NMPCPolicy:
         try:
             a_init = self._steady(self._x0, self.theta, self.solver.vd[0])[0].ravel()
             action, info = self.solver.step(self._x0.copy(), a_init)
+            # the plan's node 1 is the model's one-step prediction under the applied input
+            self._predicted_zeta = self.solver.xbar[1, NX // 2 :].copy()
         except Exception as err:  # a failed solve must never stop the robot
             self.fallbacks += 1
             status = f"fallback: {type(err).__name__}: {err}"
             hold = self._steady(self._x0, self.theta, np.zeros(6))[0].ravel()
             action = self.solver.fallback(self._x0, hold)
+            self._predicted_zeta = None
         self.decisions += 1
         elapsed = (time.perf_counter() - start) * 1e3
         self.stats = {
@@ -170,12 +185,27 @@ class NMPCPolicy:
             "status": status if status != "ok" else info.get("status", "ok"),
             "fallbacks": self.fallbacks,
             "waypoint_index": index,
+            "rate_offset_max": float(np.max(np.abs(self.rate_offset / self._bounds[2][:10]))),
             "slow": elapsed > self.settings.fallback_after_ms,
             **{k: v for k, v in info.items() if k not in ("iterations", "status")},
         }
         return np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
 
     # -- helpers ----------------------------------------------------------------------------
+    def _update_rate_offset(self) -> None:
+        """e <- e + L (zeta - zeta_pred - e), clipped; then bounds on the speed rows
+        (the first 10 soft constraints, c = zeta) shift by -e: zeta_pred + e within limits."""
+        s = self.settings
+        if self._predicted_zeta is None or s.offset_gain == 0:
+            return
+        err = self._x0[NX // 2 :] - self._predicted_zeta
+        self.rate_offset += s.offset_gain * (err - self.rate_offset)
+        lower, upper, scale = self._bounds
+        m = NX // 2
+        shift = np.clip(self.rate_offset / scale[:m], -s.offset_limit, s.offset_limit)
+        self._lower[:m] = lower[:m] - shift
+        self._upper[:m] = upper[:m] - shift
+
     def _waypoint_index(self, waypoint: np.ndarray) -> int:
         """Which of the mission's waypoints the observation's active waypoint is (float32
         observations: match to 1e-3)."""
