@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import hashlib
 import json
 import os
@@ -222,7 +223,8 @@ def write_plots(rows: list[dict[str, Any]], summaries: list[dict[str, Any]], out
             lo, hi = s["success_ci95"]
             rate = s["success_rate"]
             ax.bar(j + k * width, rate, width, color=f"C{k}", label=policy if j == 0 else None)
-            ax.errorbar(j + k * width, rate, yerr=[[rate - lo], [hi - rate]], color="k", capsize=3)
+            yerr = [[max(0.0, rate - lo)], [max(0.0, hi - rate)]]  # rounding: never < 0
+            ax.errorbar(j + k * width, rate, yerr=yerr, color="k", capsize=3)
     ax.set_xticks(np.arange(len(scenarios)) + width * (len(policies) - 1) / 2, scenarios)
     ax.set_ylabel("success rate (Wilson 95%)")
     ax.set_ylim(0, 1.05)
@@ -297,6 +299,13 @@ def evaluate(
             rows.append(run_episode(job))
             bar.update()
     else:
+        # Build each (policy, scenario) once here first: compiled controllers and
+        # simulators land in the disk cache before the workers would race to build them.
+        seen = set()
+        for job in jobs:
+            if (job.policy, job.scenario) not in seen:
+                seen.add((job.policy, job.scenario))
+                run_episode(dataclasses.replace(job, max_cycles=1, record_path=False))
         with ProcessPoolExecutor(max_workers=workers) as pool:
             for fut in as_completed([pool.submit(run_episode, j) for j in jobs]):
                 rows.append(fut.result())
