@@ -7,7 +7,14 @@ import pytest
 from gymnasium.spaces import Box
 
 from baselines.imitation import bc, dataset
-from baselines.imitation.network import ClonedPolicy, MLPPolicyNet
+from baselines.imitation.network import (
+    FEATURE_DIM,
+    FEATURES,
+    ClonedPolicy,
+    MLPPolicyNet,
+    featurize,
+    featurize_one,
+)
 
 
 def test_bc_fits_a_known_linear_expert():
@@ -27,17 +34,40 @@ def test_bc_fits_a_known_linear_expert():
 def test_saved_network_reproduces_its_decisions(tmp_path):
     rng = np.random.default_rng(1)
     obs = rng.normal(size=(500, 79)).astype(np.float32)
-    net, _ = bc.fit(obs, np.tanh(obs[:, :8]), epochs=2, progress=False)
-    net.save(tmp_path / "policy.pt")
-    policy = ClonedPolicy(spec=None, path=tmp_path / "policy.pt")  # type: ignore[arg-type]
-    again = MLPPolicyNet.load(tmp_path / "policy.pt")
-    import torch
+    for features in FEATURES:
+        net, _ = bc.fit(obs, np.tanh(obs[:, :8]), epochs=2, features=features, progress=False)
+        net.save(tmp_path / "policy.pt")
+        policy = ClonedPolicy(spec=None, path=tmp_path / "policy.pt")
+        again = MLPPolicyNet.load(tmp_path / "policy.pt")
+        assert again.features == features
+        for o in obs[:20]:
+            a = policy.act(o)  # numpy inference
+            assert a.shape == (8,) and np.all(np.abs(a) <= 1)
+            assert np.allclose(a, again.predict(o[None])[0], atol=1e-5)  # torch
 
-    for o in obs[:20]:
-        a = policy.act(o)
-        assert a.shape == (8,) and np.all(np.abs(a) <= 1)
-        with torch.no_grad():
-            assert np.array_equal(a, again(torch.as_tensor(o[None]))[0].numpy())
+
+def test_features_single_and_batched_agree_and_are_yaw_invariant():
+    rng = np.random.default_rng(3)
+    obs = rng.normal(size=(200, 79)) * 3
+    obs[::2, 50:65] = np.tile([100, 100, 0, 0, 0], 3)  # absent obstacles
+    obs[1::2, 53:65:5] = np.abs(obs[1::2, 53:65:5])  # radii > 0
+    batched = featurize(obs)
+    single = np.stack([featurize_one(o) for o in obs])
+    assert batched.shape == (200, FEATURE_DIM)
+    assert np.allclose(batched, single, atol=1e-5)
+    # rotate the whole world about the vertical by 0.7 rad and shift it: same features
+    th, shift = 0.7, np.array([3.0, -2.0])
+    rot = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    moved = obs.copy()
+    for i in (0, 20, 32, 38):  # positions
+        moved[:, i : i + 2] = obs[:, i : i + 2] @ rot.T + shift
+    for i in (26, 29, 44, *range(50, 65, 5)):  # NED vectors and obstacle offsets
+        moved[:, i : i + 2] = obs[:, i : i + 2] @ rot.T
+    for i in (5, 25, 37, 43):  # headings
+        moved[:, i] = obs[:, i] + th
+    pad = obs[:, 53] <= 0
+    moved[pad, 50:52] = obs[pad, 50:52]  # padding is not a place
+    assert np.allclose(featurize(moved), batched, atol=1e-4)
 
 
 def test_bc_rejects_mismatched_data():

@@ -1,4 +1,9 @@
-"""Behaviour cloning: regress the expert's normalized actions from observations (MSE)."""
+"""Behaviour cloning: regress the expert's normalized actions from observations (MSE).
+
+Targets are clipped to [-1, 1] (the saturation: the network's tanh output cannot go
+beyond it). A random ``val_fraction`` of the samples is held out to report a validation
+loss; the CSV log gets one row per epoch (``stage, epoch, train_loss, val_loss``).
+"""
 
 from __future__ import annotations
 
@@ -9,7 +14,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from baselines.imitation.network import MLPPolicyNet
+from baselines.imitation.network import MLPPolicyNet, prepare
+
+LOG_FIELDS = ["stage", "epoch", "samples", "train_loss", "val_loss"]
 
 
 def fit(
@@ -21,42 +28,61 @@ def fit(
     hidden: tuple[int, ...] = (256, 256),
     seed: int = 0,
     net: MLPPolicyNet | None = None,
+    features: str = "raw",
+    val_fraction: float = 0.0,
     log_path: Path | None = None,
+    stage: str = "bc",
     progress: bool = True,
 ) -> tuple[MLPPolicyNet, list[float]]:
-    """Train (or continue training ``net``) and return it with the per-epoch losses."""
+    """Train a new network (or continue training ``net``, keeping its normalization) and
+    return it with the per-epoch training losses."""
     if obs.ndim != 2 or act.ndim != 2 or len(obs) != len(act):
         raise ValueError(f"obs (M, D) and act (M, A) must match, got {obs.shape} and {act.shape}")
     torch.manual_seed(seed)
     torch.set_num_threads(1)
+    x_all = prepare(obs, net.features if net is not None else features)
     if net is None:
-        net = MLPPolicyNet(obs.shape[1], act.shape[1], hidden)
-    net.set_normalization(obs)
-    net.train()
-    x = torch.as_tensor(obs, dtype=torch.float32)
-    y = torch.as_tensor(np.clip(act, -1, 1), dtype=torch.float32)
-    opt = torch.optim.Adam(net.parameters(), lr=lr)
+        net = MLPPolicyNet(x_all.shape[1], act.shape[1], hidden, features=features)
+        net.set_normalization(x_all)
     gen = torch.Generator().manual_seed(seed)
-    losses = []
-    for _ in tqdm(range(epochs), desc="bc", disable=not progress, unit="epoch"):
-        perm = torch.randperm(len(x), generator=gen)
+    perm = torch.randperm(len(x_all), generator=gen)
+    n_val = round(val_fraction * len(x_all)) if len(x_all) > 1 else 0
+    val_idx, train_idx = perm[:n_val], perm[n_val:]
+    x = torch.as_tensor(x_all, dtype=torch.float32)
+    y = torch.as_tensor(np.clip(act, -1, 1), dtype=torch.float32)
+    xv, yv = x[val_idx], y[val_idx]
+    x, y = x[train_idx], y[train_idx]
+    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    losses: list[float] = []
+    rows = []
+    bar = tqdm(range(epochs), desc=stage, disable=not progress, unit="epoch")
+    for epoch in bar:
+        net.train()
+        order = torch.randperm(len(x), generator=gen)
         total = 0.0
         for k in range(0, len(x), batch_size):
-            idx = perm[k : k + batch_size]
+            idx = order[k : k + batch_size]
             loss = torch.nn.functional.mse_loss(net(x[idx]), y[idx])
             opt.zero_grad()
             loss.backward()
             opt.step()
             total += loss.item() * len(idx)
-        losses.append(total / len(x))
+        losses.append(total / max(1, len(x)))
+        net.eval()
+        val = float("nan")
+        if n_val:
+            with torch.no_grad():
+                val = torch.nn.functional.mse_loss(net(xv), yv).item()
+        rows.append([stage, epoch, len(x), losses[-1], val])
+        bar.set_postfix(loss=f"{losses[-1]:.3g}", val=f"{val:.3g}")
     net.eval()
     if log_path is not None:
+        log_path = Path(log_path)
         log_path.parent.mkdir(parents=True, exist_ok=True)
         new = not log_path.exists()
         with open(log_path, "a", newline="") as fh:
             w = csv.writer(fh)
             if new:
-                w.writerow(["epoch", "loss"])
-            for e, v in enumerate(losses):
-                w.writerow([e, v])
+                w.writerow(LOG_FIELDS)
+            w.writerows(rows)
     return net, losses

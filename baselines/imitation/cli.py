@@ -1,13 +1,25 @@
 """``python -m baselines.imitate``: collect expert demonstrations, clone, DAgger.
 
-    python -m baselines.imitate collect --scenario paper --episodes 4 --out data/paper_expert
-    python -m baselines.imitate bc --data data/paper_expert --out runs/bc
-    python -m baselines.imitate dagger --data data/paper_expert --iterations 4 --out runs/dagger
+    python -m baselines.imitate collect --scenario short --episodes 16 --out data/short
+    python -m baselines.imitate bc --data data/short --data data/paper --out runs/bc
+    python -m baselines.imitate dagger --data data/short --data data/paper \\
+        --scenario short --scenario paper --iterations 4 --out runs/dagger
 
-DAgger (Ross et al. 2011): iteration k rolls out ``--episodes-per-iteration`` episodes in
-which each robot executes the expert's action with probability beta_k = 0.5^k (k >= 1;
-the demonstrations are iteration 0 with beta = 1) and the learner's otherwise; the expert
-labels every visited observation; the aggregated data retrains the network (warm start).
+``collect`` writes one Minari dataset (one episode per robot; see
+``baselines.imitation.dataset``) under ``data/`` with id ``uvms/NAME-v0``. ``bc`` and
+``dagger`` read any number of them (``--data`` repeats) and write ``policy.pt`` (load it
+with ``python -m baselines.evaluate --policy bc:runs/bc``), the loss log (CSV, one row
+per epoch) and ``train.json`` (settings, data sizes, per-iteration results).
+
+DAgger (Ross et al. 2011) with a mixing schedule: the demonstrations are iteration 0
+(beta = 1). Iteration k = 1..K rolls out ``--episodes-per-iteration`` episodes of every
+``--scenario`` in which each robot, at each step, independently executes the expert's
+action with probability beta_k = ``--beta`` ** k (default 0.5, 0.25, 0.125, ...; ``--beta
+0`` lets the learner drive alone) and the current network's otherwise. The expert labels
+every visited observation (it runs on every step, so its warm start follows the visited
+states); the labelled rollouts join the aggregate, and the network is retrained from
+scratch on all of it (normalization refitted). ``--max-cycles`` caps the rollouts (the
+cloned policy ignores the time-fraction input, so the cap does not shift its inputs).
 """
 
 from __future__ import annotations
@@ -15,22 +27,45 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import platform
+import time
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
 from baselines.imitation import bc, dataset
-from baselines.imitation.network import ClonedPolicy
+from baselines.imitation.network import FEATURES, ClonedPolicy
 from baselines.imitation.rollout import rollouts
 from baselines.policies import PolicySource
 
 
-def _env_factory(scenario: str, overrides: dict):
+def env_overrides(scenario: str, args: argparse.Namespace) -> dict[str, Any]:
+    """Environment options from the command line (``n_agents`` only for ``random``;
+    ``--max-cycles`` is applied by ``_env_factory`` as a cap)."""
+    out: dict[str, Any] = {}
+    if getattr(args, "n_agents", None) and scenario == "random":
+        out["n_agents"] = args.n_agents
+    if getattr(args, "constraint_mode", None):
+        out["constraint_mode"] = args.constraint_mode
+    out["internal_wrench_every"] = 0  # not needed for learning; saves ~6% per step
+    return out
+
+
+def _env_factory(scenario: str, overrides: dict, cap: int | None = None):
+    """Seed -> environment; ``cap`` shortens episodes to at most ``cap`` periods (never
+    lengthens them beyond the scenario's own ``max_steps``)."""
     import uvms_env
 
-    return lambda seed: uvms_env.parallel_env(scenario=scenario, seed=seed, **overrides)
+    def make(seed: int):
+        env = uvms_env.parallel_env(scenario=scenario, seed=seed, **overrides)
+        if cap:
+            env.max_cycles = min(env.max_cycles, cap)
+        return env
+
+    return make
 
 
 def _spaces(scenario: str, overrides: dict):
@@ -39,82 +74,195 @@ def _spaces(scenario: str, overrides: dict):
     return env.observation_space(agent), env.action_space(agent)
 
 
+def _summary(metrics: list[dict]) -> dict[str, Any]:
+    wins = sum(bool(m.get("success")) for m in metrics)
+    steps = [m.get("episode_steps") for m in metrics if m.get("episode_steps") is not None]
+    return {
+        "episodes": len(metrics),
+        "success": wins,
+        "mean_steps": float(np.mean(steps)) if steps else None,
+    }
+
+
 def collect(args: argparse.Namespace) -> None:
-    overrides = _overrides(args)
+    start = time.time()
+    overrides = env_overrides(args.scenario, args)
     expert = PolicySource.parse(args.expert).factory(args.seed)
     streams, metrics = rollouts(
-        _env_factory(args.scenario, overrides), expert, args.episodes, args.seed
+        _env_factory(args.scenario, overrides, args.max_cycles),
+        expert,
+        args.episodes,
+        args.seed,
+        desc="collect",
     )
     root, name = dataset.split_path(args.out)
     obs_space, act_space = _spaces(args.scenario, overrides)
-    dataset_id = dataset.write_dataset(streams, root, name, obs_space, act_space)
-    wins = sum(bool(m.get("success")) for m in metrics)
+    dataset_id = dataset.write_dataset(
+        streams, root, name, obs_space, act_space, algorithm=f"expert {args.expert}"
+    )
+    summary = _summary(metrics)
+    steps = sum(len(s.actions) for s in streams)
+    solve = np.concatenate([s.solve_ms for s in streams]) if streams else np.zeros(0)
     print(
         f"wrote Minari dataset {dataset_id} under {root}: {len(streams)} robot streams, "
-        f"{sum(len(s.actions) for s in streams)} steps, expert success {wins}/{len(metrics)}"
+        f"{steps} steps, expert success {summary['success']}/{summary['episodes']}, "
+        f"expert decision median {np.median(solve):.3f} ms, {time.time() - start:.0f} s"
     )
+
+
+def _write_json(path: Path, payload: dict[str, Any]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(payload, indent=2, default=str))
+
+
+def _common(args: argparse.Namespace) -> dict[str, Any]:
+    return {
+        "data": [str(p) for p in args.data],
+        "epochs": args.epochs,
+        "hidden": list(args.hidden),
+        "lr": args.lr,
+        "features": args.features,
+        "seed": args.seed,
+        "python": platform.python_version(),
+    }
 
 
 def train_bc(args: argparse.Namespace) -> None:
-    root, name = dataset.split_path(args.data)
-    obs, act, _ = dataset.read_dataset(root, name)
+    start = time.time()
+    obs, act, n_streams = dataset.read_many(args.data)
+    log = args.out / "bc_loss.csv"
+    log.unlink(missing_ok=True)
     net, losses = bc.fit(
-        obs, act, epochs=args.epochs, seed=args.seed, log_path=args.out / "bc_loss.csv"
+        obs,
+        act,
+        epochs=args.epochs,
+        lr=args.lr,
+        hidden=tuple(args.hidden),
+        features=args.features,
+        seed=args.seed,
+        val_fraction=0.05,
+        log_path=log,
+        stage="bc",
     )
-    net.save(args.out / "policy.pt", {"method": "bc", "data": str(args.data), "steps": len(obs)})
+    info = {
+        "method": "bc",
+        **_common(args),
+        "samples": len(obs),
+        "robot_streams": n_streams,
+        "final_train_loss": losses[-1],
+        "train_wall_s": round(time.time() - start, 1),
+    }
+    net.save(args.out / "policy.pt", info)
+    _write_json(args.out / "train.json", info)
     print(f"bc: {len(obs)} samples, final loss {losses[-1]:.4g}; saved {args.out / 'policy.pt'}")
 
 
 def train_dagger(args: argparse.Namespace) -> None:
-    overrides = _overrides(args)
-    root, name = dataset.split_path(args.data)
-    obs, act, _ = dataset.read_dataset(root, name)
-    net, _ = bc.fit(
-        obs, act, epochs=args.epochs, seed=args.seed, log_path=args.out / "dagger_loss.csv"
-    )
+    start = time.time()
+    obs, act, n_streams = dataset.read_many(args.data)
+    scenarios = args.scenario or ["short"]
+    log = args.out / "dagger_loss.csv"
+    log.unlink(missing_ok=True)
+
+    def fit(o: np.ndarray, a: np.ndarray, k: int):
+        return bc.fit(
+            o,
+            a,
+            epochs=args.epochs,
+            lr=args.lr,
+            hidden=tuple(args.hidden),
+            features=args.features,
+            seed=args.seed + k,
+            val_fraction=0.05,
+            log_path=log,
+            stage=f"dagger_{k}",
+        )
+
+    net, losses = fit(obs, act, 0)
     expert = PolicySource.parse(args.expert).factory(args.seed)
-    log = []
+    history: list[dict[str, Any]] = [
+        {"iteration": 0, "beta": 1.0, "samples": len(obs), "loss": losses[-1]}
+    ]
+    obs_space = act_space = None
     for k in range(1, args.iterations + 1):
         path = args.out / f"iter_{k - 1}" / "policy.pt"
         net.save(path, {"method": "dagger", "iteration": k - 1})
-        beta = 0.5**k
-        streams, metrics = rollouts(
-            _env_factory(args.scenario, overrides),
-            expert,
-            args.episodes_per_iteration,
-            args.seed + 1000 * k,
-            learner=lambda spec, p=path: ClonedPolicy(spec, p),
-            beta=beta,
-        )
-        new_obs = np.concatenate([np.stack(s.observations[:-1]) for s in streams])
-        new_act = np.concatenate([np.stack(s.actions) for s in streams])
+        beta = args.beta**k
+        row: dict[str, Any] = {"iteration": k, "beta": beta}
+        new_streams = []
+        for j, scenario in enumerate(scenarios):
+            overrides = env_overrides(scenario, args)
+            if obs_space is None:
+                obs_space, act_space = _spaces(scenario, overrides)
+            streams, metrics = rollouts(
+                _env_factory(scenario, overrides, args.max_cycles),
+                expert,
+                args.episodes_per_iteration,
+                args.seed + 1000 * k + 100 * j,
+                learner=lambda spec, p=path: ClonedPolicy(spec, p),
+                beta=beta,
+                desc=f"dagger {k} {scenario}",
+            )
+            new_streams += streams
+            row[f"rollouts_{scenario}"] = _summary(metrics)
+        if args.save_data:
+            dataset.write_dataset(
+                new_streams,
+                args.out / "data",
+                f"iter_{k}",
+                obs_space,
+                act_space,
+                algorithm=f"DAgger iteration {k}, labels {args.expert}",
+            )
+        new_obs = np.concatenate([np.stack(s.observations[:-1]) for s in new_streams])
+        new_act = np.concatenate([np.stack(s.actions) for s in new_streams])
+        learner_share = np.mean(np.concatenate([s.learner_acted for s in new_streams]))
         obs, act = np.concatenate([obs, new_obs]), np.concatenate([act, new_act])
-        net, losses = bc.fit(
-            obs,
-            act,
-            epochs=args.epochs,
-            seed=args.seed + k,
-            net=net,
-            log_path=args.out / "dagger_loss.csv",
+        net, losses = fit(obs, act, k)
+        row.update(
+            samples=len(obs),
+            new_samples=len(new_obs),
+            learner_share=float(learner_share),
+            loss=losses[-1],
+            wall_s=round(time.time() - start, 1),
         )
-        wins = sum(bool(m.get("success")) for m in metrics)
-        log.append(
-            {
-                "iteration": k,
-                "beta": beta,
-                "samples": len(obs),
-                "loss": losses[-1],
-                "rollout_success": wins / max(1, len(metrics)),
-            }
-        )
-        print(json.dumps(log[-1]))
-    net.save(args.out / "policy.pt", {"method": "dagger", "iterations": args.iterations})
-    (args.out / "dagger_log.json").write_text(json.dumps(log, indent=2))
-    print(f"saved {args.out / 'policy.pt'}")
+        history.append(row)
+        print(json.dumps(row))
+    info = {
+        "method": "dagger",
+        **_common(args),
+        "scenarios": scenarios,
+        "iterations": args.iterations,
+        "episodes_per_iteration": args.episodes_per_iteration,
+        "beta_schedule": f"beta_k = {args.beta}**k",
+        "max_cycles": args.max_cycles,
+        "constraint_mode": args.constraint_mode,
+        "n_agents": args.n_agents,
+        "expert": args.expert,
+        "demo_robot_streams": n_streams,
+        "samples": len(obs),
+        "history": history,
+        "train_wall_s": round(time.time() - start, 1),
+    }
+    net.save(args.out / "policy.pt", info)
+    _write_json(args.out / "train.json", info)
+    print(f"saved {args.out / 'policy.pt'} ({len(obs)} samples, {info['train_wall_s']} s)")
 
 
-def _overrides(args: argparse.Namespace) -> dict:
-    return {"n_agents": args.n_agents} if getattr(args, "n_agents", None) else {}
+def _add_env_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--n-agents", type=int, default=None, help="random family only")
+    p.add_argument("--max-cycles", type=int, default=None, help="cap on the episode length")
+    p.add_argument("--constraint-mode", default=None, choices=["penalize", "terminate"])
+    p.add_argument("--expert", default="nmpc", help="any baselines.evaluate --policy source")
+
+
+def _add_train_args(p: argparse.ArgumentParser, epochs: int) -> None:
+    p.add_argument("--data", type=Path, action="append", required=True, help="data/NAME")
+    p.add_argument("--epochs", type=int, default=epochs)
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--hidden", type=int, nargs="+", default=[256, 256])
+    p.add_argument("--features", default="uvms-v1", choices=FEATURES)
+    p.add_argument("--seed", type=int, default=0)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -127,25 +275,21 @@ def main(argv: list[str] | None = None) -> None:
     c = sub.add_parser("collect", help="expert demonstrations to a Minari dataset")
     c.add_argument("--scenario", default="paper")
     c.add_argument("--episodes", type=int, default=4)
-    c.add_argument("--n-agents", type=int, default=None)
-    c.add_argument("--expert", default="nmpc")
     c.add_argument("--seed", type=int, default=0)
     c.add_argument("--out", type=Path, required=True, help="data/NAME")
+    _add_env_args(c)
     b = sub.add_parser("bc", help="behaviour cloning")
-    b.add_argument("--data", type=Path, required=True)
-    b.add_argument("--epochs", type=int, default=50)
-    b.add_argument("--seed", type=int, default=0)
+    _add_train_args(b, epochs=50)
     b.add_argument("--out", type=Path, default=Path("runs/bc"))
     d = sub.add_parser("dagger", help="DAgger with the expert relabelling")
-    d.add_argument("--data", type=Path, required=True, help="initial demonstrations")
-    d.add_argument("--scenario", default="paper")
-    d.add_argument("--n-agents", type=int, default=None)
+    _add_train_args(d, epochs=30)
+    d.add_argument("--scenario", action="append", default=None, help="repeatable; default short")
     d.add_argument("--iterations", type=int, default=4)
-    d.add_argument("--episodes-per-iteration", type=int, default=2)
-    d.add_argument("--epochs", type=int, default=30)
-    d.add_argument("--expert", default="nmpc")
-    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--episodes-per-iteration", type=int, default=2, help="per scenario")
+    d.add_argument("--beta", type=float, default=0.5, help="beta_k = beta**k")
+    d.add_argument("--save-data", action="store_true", help="write each iteration's data")
     d.add_argument("--out", type=Path, default=Path("runs/dagger"))
+    _add_env_args(d)
     args = ap.parse_args(argv)
     {"collect": collect, "bc": train_bc, "dagger": train_dagger}[args.command](args)
 

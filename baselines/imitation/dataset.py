@@ -2,14 +2,16 @@
 
 Minari has no multi-agent support, so an episode of N robots becomes N episodes (its
 observations, the expert's actions, the shared reward, terminations, and per-step
-solver statistics in ``infos``). Datasets live under ``root`` (``MINARI_DATASETS_PATH``)
-with ids ``uvms/NAME-v0``.
+expert statistics in ``infos``: ``solve_ms``, ``expert_iterations``, ``expert_fallbacks``
+and ``learner_acted`` (DAgger); entry 0 belongs to the reset observation). Datasets live
+under ``root`` (``MINARI_DATASETS_PATH``) with ids ``uvms/NAME-v0``.
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +30,9 @@ class AgentStream:
     truncations: list[bool]
     solve_ms: list[float]
     seed: int
+    iterations: list[int] = field(default_factory=list)  # expert solver iterations
+    fallbacks: list[int] = field(default_factory=list)  # expert fallbacks so far
+    learner_acted: list[bool] = field(default_factory=list)  # executed: learner (DAgger)
 
     @staticmethod
     def start(obs: np.ndarray, seed: int) -> AgentStream:
@@ -43,7 +48,30 @@ def _use_root(root: Path) -> None:
     os.environ["MINARI_DATASETS_PATH"] = str(root.resolve())
 
 
-def write_dataset(streams: list[AgentStream], root: Path, name: str, obs_space, act_space) -> str:
+def _infos(s: AgentStream) -> dict[str, np.ndarray]:
+    """Per-step expert statistics, aligned with the observations (entry 0: the reset)."""
+    t = len(s.actions)
+
+    def col(values: list, dtype, pad) -> np.ndarray:
+        values = list(values) if len(values) == t else [pad] * t
+        return np.asarray([pad, *values], dtype=dtype)
+
+    return {
+        "solve_ms": col(s.solve_ms, np.float64, np.nan),
+        "expert_iterations": col(s.iterations, np.int64, 0),
+        "expert_fallbacks": col(s.fallbacks, np.int64, 0),
+        "learner_acted": col(s.learner_acted, np.bool_, False),
+    }
+
+
+def write_dataset(
+    streams: list[AgentStream],
+    root: Path,
+    name: str,
+    obs_space,
+    act_space,
+    algorithm: str = "distributed NMPC expert",
+) -> str:
     """Write the streams as a Minari dataset (replacing one of the same name)."""
     import minari
     from minari.data_collector import EpisodeBuffer
@@ -61,19 +89,33 @@ def write_dataset(streams: list[AgentStream], root: Path, name: str, obs_space, 
             rewards=list(map(float, s.rewards)),
             terminations=list(map(bool, s.terminations)),
             truncations=list(map(bool, s.truncations)),
-            infos={"solve_ms": np.asarray([np.nan, *s.solve_ms], dtype=np.float64)},
+            infos=_infos(s),
         )
         for k, s in enumerate(streams)
     ]
-    minari.create_dataset_from_buffers(
-        dataset_id,
-        buffers,
-        observation_space=obs_space,
-        action_space=act_space,
-        algorithm_name="distributed NMPC expert",
-        description="Per-robot streams of the UVMS cooperative transport testbed",
-    )
+    with warnings.catch_warnings():  # author, permalink, eval_env: not applicable here
+        warnings.simplefilter("ignore", UserWarning)
+        minari.create_dataset_from_buffers(
+            dataset_id,
+            buffers,
+            observation_space=obs_space,
+            action_space=act_space,
+            algorithm_name=algorithm,
+            description="Per-robot streams of the UVMS cooperative transport testbed",
+        )
     return dataset_id
+
+
+def read_many(paths: list[Path]) -> tuple[np.ndarray, np.ndarray, int]:
+    """Concatenated (observations, actions) of several ``data/NAME`` datasets, and the
+    number of robot streams."""
+    obs, act, n = [], [], 0
+    for p in paths:
+        o, a, eps = read_dataset(*split_path(p))
+        obs.append(o)
+        act.append(a)
+        n += len(eps)
+    return np.concatenate(obs), np.concatenate(act), n
 
 
 def read_dataset(root: Path, name: str) -> tuple[np.ndarray, np.ndarray, list]:

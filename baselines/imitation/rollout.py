@@ -1,10 +1,10 @@
 """Roll out episodes where an expert labels every visited observation.
 
 The executed action of each robot is the expert's with probability ``beta`` and the
-learner's otherwise (``beta = 1``: plain demonstrations; ``beta < 1``: DAgger). The
-expert runs on every step either way, so a stateful expert (the NMPC warm-starts from
-its previous plan) sees the same observation stream as if it were in control, and its
-label is what it would do in the visited state.
+learner's otherwise, drawn independently per robot and per step (``beta = 1``: plain
+demonstrations; ``beta < 1``: DAgger). The expert runs on every step either way, so a
+stateful expert (the NMPC warm-starts from its previous plan) sees the same observation
+stream as if it were in control, and its label is what it would do in the visited state.
 """
 
 from __future__ import annotations
@@ -27,12 +27,17 @@ def rollouts(
     learner: PolicyFactory | None = None,
     beta: float = 1.0,
     progress: bool = True,
+    desc: str = "rollouts",
 ) -> tuple[list[AgentStream], list[dict]]:
-    """Per-robot streams (obs, expert label, reward, ...) and each episode's end metrics."""
+    """Per-robot streams (obs, expert label, reward, ...) and each episode's end metrics.
+    Episode ``ep`` uses ``env_factory(seed + ep)`` reset with ``seed + ep``."""
+    if not 0.0 <= beta <= 1.0:
+        raise ValueError(f"beta must be in [0, 1], got {beta}")
     rng = np.random.default_rng(seed)
     streams: list[AgentStream] = []
     metrics: list[dict] = []
-    for ep in tqdm(range(episodes), desc="rollouts", disable=not progress, unit="ep"):
+    bar = tqdm(total=episodes, desc=desc, disable=not progress, unit="ep")
+    for ep in range(episodes):
         ep_seed = seed + ep
         env = env_factory(ep_seed)
         obs, _ = env.reset(seed=ep_seed)
@@ -44,18 +49,26 @@ def rollouts(
             p.reset()
         ep_streams = {a: AgentStream.start(obs[a], ep_seed) for a in agents}
         end: dict = {}
+        steps = 0
         while env.agents:
             actions = {}
             for i, a in enumerate(agents):
+                s = ep_streams[a]
                 start = time.perf_counter()
                 label = np.asarray(experts[i].act(obs[a]), dtype=np.float32)
-                ep_streams[a].solve_ms.append((time.perf_counter() - start) * 1e3)
-                ep_streams[a].actions.append(label)
+                s.solve_ms.append((time.perf_counter() - start) * 1e3)
+                stats = getattr(experts[i], "stats", None) or {}
+                s.iterations.append(int(stats.get("iterations", 0) or 0))
+                s.fallbacks.append(int(stats.get("fallbacks", 0) or 0))
+                s.actions.append(label)
                 executed = label
-                if learners is not None and rng.random() >= beta:
+                use_learner = learners is not None and rng.random() >= beta
+                if use_learner:
                     executed = np.asarray(learners[i].act(obs[a]), dtype=np.float32)
+                s.learner_acted.append(bool(use_learner))
                 actions[a] = executed
             obs, rew, term, trunc, infos = env.step(actions)
+            steps += 1
             for a in agents:
                 s = ep_streams[a]
                 s.observations.append(np.asarray(obs.get(a, s.observations[-1]), np.float32))
@@ -64,7 +77,12 @@ def rollouts(
                 s.truncations.append(bool(trunc.get(a, False)))
                 if "metrics" in infos.get(a, {}):
                     end = infos[a]["metrics"]
+            if steps % 50 == 0:
+                bar.set_postfix(ep=ep, step=steps)
         env.close()
         streams.extend(ep_streams.values())
         metrics.append(end)
+        bar.set_postfix(ep=ep, steps=steps, success=bool(end.get("success")))
+        bar.update()
+    bar.close()
     return streams, metrics

@@ -1,0 +1,37 @@
+"""A cheap deterministic scripted controller (a proportional pull of the object estimate
+towards the active waypoint, arms idle) behind the policy interface: a stand-in expert
+for tests and smoke runs of ``python -m baselines.imitate`` without the NMPC, e.g.
+``--expert baselines.imitation.scripted:expert``. It is not meant to solve the task."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from uvms_env.policy import AgentSpec
+
+GAIN = 0.5
+
+
+class ScriptedPolicy:
+    def __init__(self, spec: AgentSpec | None = None, gain: float = GAIN) -> None:
+        self.spec = spec
+        self.gain = gain
+        self.stats: dict[str, Any] = {}
+
+    def reset(self) -> None:
+        self.stats = {}
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        o = np.asarray(obs, dtype=np.float64)
+        a = np.zeros(8)
+        a[:3] = self.gain * (o[32:35] - o[20:23])  # waypoint minus own object estimate
+        a[3] = 0.2 * self.gain * ((o[37] - o[5] + np.pi) % (2 * np.pi) - np.pi)
+        self.stats = {"solve_ms": 0.0, "iterations": 1, "fallbacks": 0}
+        return np.clip(a, -1.0, 1.0).astype(np.float32)
+
+
+def expert(spec: AgentSpec) -> ScriptedPolicy:
+    """``PolicyFactory``: ``--expert baselines.imitation.scripted:expert``."""
+    return ScriptedPolicy(spec)
