@@ -7,7 +7,7 @@ its own observation with the saved statistics and acts deterministically.
 from __future__ import annotations
 
 import pickle
-from functools import cache
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -32,8 +32,19 @@ def resolve_run(algo: str, path: str | None) -> Path:
     return folder
 
 
-@cache
 def _load(algo: str, folder: str) -> tuple[Any, Any]:
+    """The model and observation statistics, cached until the files change (a training
+    run re-saves its evaluation snapshot into the same folder)."""
+    stamps = tuple(
+        (p.stat().st_mtime_ns, p.stat().st_size) if p.exists() else None
+        for p in (Path(folder) / "model.zip", Path(folder) / "vecnormalize.pkl")
+    )
+    return _load_cached(algo, str(Path(folder).resolve()), stamps)
+
+
+@lru_cache(maxsize=8)
+def _load_cached(algo: str, folder: str, stamps: tuple) -> tuple[Any, Any]:
+    del stamps  # part of the cache key only
     import torch
     from stable_baselines3 import PPO, SAC
 

@@ -28,20 +28,73 @@ from baselines.rl.vec_env import ParallelVecEnv
 
 ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
     # PPO: SB3 defaults except a smaller rollout per sub-env (many sub-envs) and a
-    # small network; SAC: SB3 defaults with a short warm-up.
+    # small network. SAC: SB3 defaults except a short warm-up, a replay buffer sized to
+    # our budgets and one gradient step per collected robot-step (gradient_steps = the
+    # number of sub-environments, set in ``train``).
     "ppo": {"n_steps": 256, "batch_size": 256, "gae_lambda": 0.95, "gamma": 0.99, "ent_coef": 0.0},
-    "sac": {"learning_starts": 2000, "batch_size": 256, "gamma": 0.99, "train_freq": 1},
+    "sac": {
+        "learning_starts": 2000,
+        "batch_size": 256,
+        "gamma": 0.99,
+        "train_freq": 1,
+        "buffer_size": 50_000,
+    },
 }
 NET = [64, 64]
+# PPO starts with action std exp(-1) ~ 0.37 instead of 1: with std 1 nearly every step
+# violates the joint and vehicle speed limits and the penalties swamp the progress term.
+POLICY_KWARGS: dict[str, dict[str, Any]] = {"ppo": {"log_std_init": -1.0}, "sac": {}}
+# Training drops the internal-wrench metric (~6% of a step); it changes no observation,
+# reward or dynamics.
+TRAIN_ENV_DEFAULTS: dict[str, Any] = {"internal_wrench_every": 0}
+EVAL_RECORD_EPISODES = 2  # the per-episode evaluation recorded in eval.json
 
 
 def make_vec_env(scenario: str, n_envs: int, seed: int, overrides: dict[str, Any]):
     import uvms_env
 
-    def factory(k: int):
-        return uvms_env.parallel_env(scenario=scenario, seed=seed + k, **overrides)
+    kwargs = {**TRAIN_ENV_DEFAULTS, **overrides}
 
-    return ParallelVecEnv(factory, n_envs, seed=seed)
+    def factory(k: int):
+        return uvms_env.parallel_env(scenario=scenario, seed=seed + k, **kwargs)
+
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    # VecMonitor: raw (unnormalized) episode returns and lengths -> rollout/ep_rew_mean.
+    return VecMonitor(ParallelVecEnv(factory, n_envs, seed=seed))
+
+
+def find_resume(path: Path) -> tuple[Path, Path, Path | None]:
+    """(model.zip, vecnormalize.pkl, replay buffer or None) to resume from ``path``: a run
+    folder (its ``model.zip``, or its newest checkpoint when it has none or the
+    checkpoint is newer) or a checkpoint ``.zip``."""
+    path = Path(path)
+    if path.is_file():
+        model = path
+    else:
+        candidates = sorted(
+            (path / "checkpoints").glob("rl_model_*_steps.zip"), key=_checkpoint_steps
+        )
+        model = candidates[-1] if candidates else path / "model.zip"
+        final = path / "model.zip"
+        if final.exists() and (not candidates or final.stat().st_mtime >= model.stat().st_mtime):
+            model = final
+    if not model.exists():
+        raise FileNotFoundError(f"nothing to resume at {path}")
+    if model.parent.name == "checkpoints":
+        steps = _checkpoint_steps(model)
+        norm = model.parent / f"rl_model_vecnormalize_{steps}_steps.pkl"
+        buffer = model.parent / f"rl_model_replay_buffer_{steps}_steps.pkl"
+    else:
+        norm = model.parent / "vecnormalize.pkl"
+        buffer = model.parent / "replay_buffer.pkl"
+    if not norm.exists():
+        raise FileNotFoundError(f"no VecNormalize statistics {norm} next to {model}")
+    return model, norm, buffer if buffer.exists() else None
+
+
+def _checkpoint_steps(path: Path) -> int:
+    return int(path.stem.split("_")[-2])
 
 
 def train(
@@ -56,8 +109,13 @@ def train(
     eval_episodes: int = 5,
     overrides: dict[str, Any] | None = None,
     progress: bool = True,
+    hyperparameters: dict[str, Any] | None = None,
+    checkpoint_every: int = 50_000,
+    record_eval: bool = True,
 ) -> Path:
-    """Train and save; returns the run folder."""
+    """Train (or continue) until ``total_timesteps`` robot-steps in all; save; return the
+    run folder. With ``resume``, the model, its statistics (and SAC's replay buffer) are
+    loaded from there and ``total_timesteps`` counts the steps already done."""
     import torch
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
@@ -67,64 +125,132 @@ def train(
     torch.set_num_threads(1)
     if algo not in ALGO_DEFAULTS:
         raise ValueError(f"unknown algorithm {algo!r}; expected ppo or sac")
-    overrides = overrides or {}
+    overrides = dict(overrides or {})
+    hp = {**ALGO_DEFAULTS[algo], **(hyperparameters or {})}
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    venv = make_vec_env(scenario, n_envs, seed, overrides)
     cls = {"ppo": PPO, "sac": SAC}[algo]
+    previous: dict[str, Any] = {}
     if resume is not None:
-        venv = VecNormalize.load(str(resume / "vecnormalize.pkl"), venv)
-        model = cls.load(resume / "model.zip", env=venv, device="cpu")
+        model_path, norm_path, buffer_path = find_resume(Path(resume))
+        old_config = Path(resume if Path(resume).is_dir() else model_path.parent) / "config.json"
+        if not old_config.exists():
+            old_config = model_path.parent.parent / "config.json"
+        if old_config.exists():
+            previous = json.loads(old_config.read_text())
+        # New episode seeds, so a resumed run does not replay the first episodes.
+        venv = make_vec_env(
+            scenario, n_envs, seed + 1_000_003 * (1 + previous.get("resumes", 0)), overrides
+        )
+        venv = VecNormalize.load(str(norm_path), venv)
+        venv.training = True
+        model = cls.load(model_path, env=venv, device="cpu")
+        if buffer_path is not None and hasattr(model, "load_replay_buffer"):
+            model.load_replay_buffer(buffer_path)
+        if algo == "sac":
+            hp["gradient_steps"] = model.gradient_steps
         reset = False
+        print(f"resuming {model_path} at {model.num_timesteps} timesteps")
     else:
-        venv = VecNormalize(venv, norm_obs=True, norm_reward=True, clip_obs=10.0)
+        venv = VecNormalize(make_vec_env(scenario, n_envs, seed, overrides), clip_obs=10.0)
+        if algo == "sac":
+            hp.setdefault("gradient_steps", venv.num_envs)
         model = cls(
             "MlpPolicy",
             venv,
             seed=seed,
             device="cpu",
-            policy_kwargs={"net_arch": NET},
+            policy_kwargs={"net_arch": NET, **POLICY_KWARGS[algo]},
             verbose=0,
-            **ALGO_DEFAULTS[algo],
+            **hp,
         )
         reset = True
+    _keep_old_progress(out)
     model.set_logger(configure(str(out), ["csv", "tensorboard"]))
     config = {
         "algo": algo,
         "scenario": scenario,
         "total_timesteps": total_timesteps,
         "n_envs": n_envs,
+        "robot_sub_envs": venv.num_envs,
         "seed": seed,
         "overrides": overrides,
-        "hyperparameters": ALGO_DEFAULTS[algo],
+        "env_defaults": TRAIN_ENV_DEFAULTS,
+        "hyperparameters": hp,
         "net_arch": NET,
+        "policy_kwargs": POLICY_KWARGS[algo],
+        "resumes": previous.get("resumes", -1) + 1 if resume is not None else 0,
+        "torch_threads": torch.get_num_threads(),
     }
-    (out / "config.json").write_text(json.dumps(config, indent=2))
-    callbacks = [
+    _write_json(out / "config.json", config)
+    callbacks: list[Any] = [
         CheckpointCallback(
-            save_freq=max(1, 50_000 // venv.num_envs),
+            save_freq=max(1, checkpoint_every // venv.num_envs),
             save_path=str(out / "checkpoints"),
             save_vecnormalize=True,
+            save_replay_buffer=algo == "sac",
         )
     ]
     if eval_every > 0:
         callbacks.append(_EvalCallback(algo, out, scenario, eval_every, eval_episodes, seed))
+    remaining = max(0, total_timesteps - (0 if reset else model.num_timesteps))
     start = time.perf_counter()
     model.learn(
-        total_timesteps=total_timesteps,
+        total_timesteps=remaining,
         callback=CallbackList(callbacks),
         reset_num_timesteps=reset,
         progress_bar=progress,
     )
-    save(model, out)
     wall = time.perf_counter() - start
-    config["wall_time_s"] = wall
+    save(model, out)
+    if algo == "sac":
+        model.save_replay_buffer(out / "replay_buffer.pkl")
+    config["wall_time_s"] = round(wall + previous.get("wall_time_s", 0.0), 1)
     config["timesteps_done"] = int(model.num_timesteps)
-    (out / "config.json").write_text(json.dumps(config, indent=2))
+    if record_eval:
+        # The per-episode result of the saved model on fixed seeds: a regression value
+        # produced by running, checked by tests/test_rl.py for the pretrained models.
+        config["eval"] = record_evaluation(algo, out, scenario, EVAL_RECORD_EPISODES, seed=0)
+    _write_json(out / "config.json", config)
     venv.close()
     return out
 
 
+def record_evaluation(algo: str, folder: Path, scenario: str, episodes: int, seed: int):
+    from baselines.evaluate import evaluate
+
+    rows = evaluate([f"{algo}:{folder}"], [scenario], episodes, seed, 1, progress=False)
+    return {
+        "scenario": scenario,
+        "seed": seed,
+        "episodes": [
+            {
+                "episode": r["episode"],
+                "seed": r["seed"],
+                "success": bool(r.get("success")),
+                "return": r["return"],
+                "episode_steps": r.get("episode_steps"),
+                "final_pos_error_m": r.get("final_pos_error_m"),
+            }
+            for r in rows
+        ],
+    }
+
+
+def _keep_old_progress(out: Path) -> None:
+    """SB3's CSV logger truncates progress.csv: keep a resumed run's earlier part."""
+    old = out / "progress.csv"
+    if old.exists() and old.stat().st_size > 0:
+        k = len(list(out.glob("progress.part*.csv")))
+        old.rename(out / f"progress.part{k}.csv")
+
+
+def _write_json(path: Path, data: dict[str, Any]) -> None:
+    path.write_text(json.dumps(data, indent=2, default=float) + "\n")
+
+
 def save(model, out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
     model.save(out / "model.zip")
     model.get_vec_normalize_env().save(str(out / "vecnormalize.pkl"))
 
@@ -141,23 +267,38 @@ def _EvalCallback(algo: str, out: Path, scenario: str, every: int, episodes: int
             super().__init__()
             self._next = every
 
+        def _init_callback(self) -> None:
+            # Resumed runs: the next evaluation after the steps already done.
+            while self._next <= self.model.num_timesteps:
+                self._next += every
+
         def _on_step(self) -> bool:
             if self.num_timesteps < self._next:
                 return True
             self._next += every
             snap = out / "eval_snapshot"
-            snap.mkdir(exist_ok=True)
             save(self.model, snap)
+            start = time.perf_counter()
             rows = evaluate([f"{algo}:{snap}"], [scenario], episodes, seed, 1, progress=False)
             s = aggregate(rows, seed)[0]
-            line = f"{self.num_timesteps},{s['success_rate']},{s.get('return', np.nan)}\n"
+            row = [
+                self.num_timesteps,
+                s["success_rate"],
+                s.get("return", np.nan),
+                s.get("final_pos_error_m", np.nan),
+                s.get("episode_steps", np.nan),
+            ]
             path = out / "evaluations.csv"
             if not path.exists():
-                path.write_text("timesteps,success_rate,mean_return\n")
+                path.write_text(
+                    "timesteps,success_rate,mean_return,final_pos_error_m,episode_steps\n"
+                )
             with open(path, "a") as fh:
-                fh.write(line)
+                fh.write(",".join(str(x) for x in row) + "\n")
             self.logger.record("eval/success_rate", s["success_rate"])
             self.logger.record("eval/mean_return", s.get("return", np.nan))
+            self.logger.record("eval/final_pos_error_m", s.get("final_pos_error_m", np.nan))
+            self.logger.record("eval/seconds", time.perf_counter() - start)
             return True
 
     return EvalCallback()
@@ -176,7 +317,25 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--eval-every", type=int, default=0, help="timesteps between evaluations")
     ap.add_argument("--eval-episodes", type=int, default=5)
-    ap.add_argument("--resume", type=Path, default=None, help="run folder to continue")
+    ap.add_argument(
+        "--resume",
+        type=Path,
+        default=None,
+        help="run folder (its model.zip or newest checkpoint) or checkpoint .zip to continue; "
+        "--total-timesteps then counts the steps already done",
+    )
+    ap.add_argument(
+        "--env-option",
+        action="append",
+        default=[],
+        metavar="KEY=JSON",
+        help="environment option, e.g. max_cycles=200 or reward_weights='{\"effort\": 0.01}'",
+    )
+    ap.add_argument(
+        "--hp", action="append", default=[], metavar="KEY=JSON", help="SB3 hyperparameter"
+    )
+    ap.add_argument("--checkpoint-every", type=int, default=50_000, help="timesteps")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     ap.add_argument("--out", type=Path, default=Path("runs/rl"))
     args = ap.parse_args(argv)
     out = train(
@@ -189,8 +348,25 @@ def main(argv: list[str] | None = None) -> None:
         resume=args.resume,
         eval_every=args.eval_every,
         eval_episodes=args.eval_episodes,
+        overrides=_pairs(args.env_option),
+        progress=not args.no_progress,
+        hyperparameters=_pairs(args.hp),
+        checkpoint_every=args.checkpoint_every,
     )
     print(f"saved {out / 'model.zip'} and {out / 'vecnormalize.pkl'}")
+
+
+def _pairs(items: list[str]) -> dict[str, Any]:
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise SystemExit(f"expected KEY=VALUE, got {item!r}")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
 
 
 if __name__ == "__main__":

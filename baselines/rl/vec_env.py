@@ -23,6 +23,10 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
 
 class ParallelVecEnv(VecEnv):
+    """Episode ``e`` of copy ``k`` is reset with seed ``seed + 10_007 k + e`` (for the
+    seeded scenario families this also picks the geometry); ``seed(s)`` restarts that
+    sequence from ``s`` at the next ``reset()``."""
+
     def __init__(self, factory: Callable[[int], Any], n_copies: int, seed: int = 0) -> None:
         """``factory(copy_index)`` returns a new PettingZoo ParallelEnv."""
         if n_copies < 1:
@@ -50,8 +54,17 @@ class ParallelVecEnv(VecEnv):
     def _reset_copy(self, copy: int) -> dict[str, np.ndarray]:
         seed = self._seed + 10_007 * copy + self._episodes[copy]
         self._episodes[copy] += 1
-        obs, _ = self.envs[copy].reset(seed=seed)
+        obs, infos = self.envs[copy].reset(seed=seed)
+        for a, agent in enumerate(self.agents):
+            self.reset_infos[self._slot(copy, a)] = dict(infos.get(agent, {}))
         return obs
+
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """Restart the episode seed sequence from ``seed`` (used at the next ``reset``)."""
+        if seed is not None:
+            self._seed = int(seed)
+            self._episodes = [0] * len(self.envs)
+        return [self._seed + 10_007 * c for c in range(len(self.envs)) for _ in self.agents]
 
     def reset(self) -> np.ndarray:
         for c in range(len(self.envs)):

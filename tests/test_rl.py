@@ -1,0 +1,154 @@
+"""RL baselines: the parameter-sharing VecEnv adapter, training end to end, and the
+committed pretrained models reproducing their recorded evaluation."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+import uvms_env
+from baselines.evaluate import evaluate
+from baselines.rl.policy import PRETRAINED_DIR
+from baselines.rl.train import find_resume, train
+from baselines.rl.vec_env import ParallelVecEnv
+
+SEED = 7
+
+
+def _factory(**kwargs):
+    return lambda k: uvms_env.parallel_env(scenario="short", seed=SEED + k, **kwargs)
+
+
+def _reference(copy: int, episode: int, **kwargs):
+    env = uvms_env.parallel_env(scenario="short", seed=SEED + copy, **kwargs)
+    obs, _ = env.reset(seed=SEED + 10_007 * copy + episode)
+    return env, obs
+
+
+def _actions(venv: ParallelVecEnv, t: int) -> np.ndarray:
+    rng = np.random.default_rng(t)
+    return rng.uniform(-0.3, 0.3, (venv.num_envs, 8)).astype(np.float32)
+
+
+def test_agent_order_and_truncation_auto_reset():
+    kwargs = {"max_cycles": 3}
+    venv = ParallelVecEnv(_factory(**kwargs), 2, seed=SEED)
+    n = venv.n_agents
+    assert venv.agents == list(venv.envs[0].possible_agents) == ["uvms_0", "uvms_1"]
+    assert venv.num_envs == 2 * n
+    obs = venv.reset()
+    refs = [_reference(c, 0, **kwargs) for c in range(2)]
+    for c, (_, robs) in enumerate(refs):
+        for a, agent in enumerate(venv.agents):
+            np.testing.assert_array_equal(obs[c * n + a], robs[agent])
+    for t in range(3):
+        acts = _actions(venv, t)
+        obs, rewards, dones, infos = venv.step(acts)
+        for c, (env, _) in enumerate(refs):
+            step = {agent: acts[c * n + a] for a, agent in enumerate(venv.agents)}
+            robs, rrew, rterm, rtrunc, _ = env.step(step)
+            for a, agent in enumerate(venv.agents):
+                i = c * n + a
+                assert rewards[i] == pytest.approx(rrew[agent])
+                assert dones[i] == (t == 2)
+                if t < 2:
+                    np.testing.assert_array_equal(obs[i], robs[agent])
+                    assert "terminal_observation" not in infos[i]
+                else:  # truncated: terminal observation in infos, obs of the new episode
+                    assert rtrunc[agent] and not rterm[agent]
+                    np.testing.assert_array_equal(infos[i]["terminal_observation"], robs[agent])
+                    assert infos[i]["TimeLimit.truncated"] is True
+                    assert infos[i]["episode_end"] == "max_cycles"
+    for c in range(2):  # auto-reset with the copy's next episode seed
+        _, new = _reference(c, 1, **kwargs)
+        for a, agent in enumerate(venv.agents):
+            np.testing.assert_array_equal(obs[c * n + a], new[agent])
+    venv.close()
+
+
+def test_termination_is_not_truncation():
+    # Inputs beyond +-1 violate the input constraint: "terminate" mode ends at once.
+    venv = ParallelVecEnv(_factory(constraint_mode="terminate", max_cycles=50), 1, seed=SEED)
+    venv.reset()
+    _, _, dones, infos = venv.step(np.full((venv.num_envs, 8), 2.0, np.float32))
+    assert dones.all()
+    for info in infos:
+        assert info["TimeLimit.truncated"] is False
+        assert info["terminal_observation"].shape == venv.observation_space.shape
+        assert "metrics" in info
+    venv.close()
+
+
+def test_train_save_resume_evaluate(tmp_path):
+    out = tmp_path / "ppo"
+    hp = {"n_steps": 32, "batch_size": 64, "n_epochs": 1}
+    train(
+        "ppo",
+        "short",
+        128,
+        n_envs=2,
+        seed=0,
+        out=out,
+        overrides={"max_cycles": 40},
+        progress=False,
+        hyperparameters=hp,
+        eval_every=128,
+        eval_episodes=1,
+        checkpoint_every=128,
+        record_eval=False,
+    )
+    for name in ("model.zip", "vecnormalize.pkl", "config.json", "progress.csv"):
+        assert (out / name).exists(), name
+    assert (out / "evaluations.csv").read_text().count("\n") == 2  # header + one evaluation
+    assert list((out / "checkpoints").glob("rl_model_*_steps.zip"))
+    assert any(out.glob("events.out.tfevents*"))
+    # Resume from the newest checkpoint to 256 steps in all.
+    model, norm, _ = find_resume(out / "checkpoints" / "rl_model_128_steps.zip")
+    assert norm.name == "rl_model_vecnormalize_128_steps.pkl"
+    train(
+        "ppo",
+        "short",
+        256,
+        n_envs=2,
+        seed=0,
+        out=out,
+        resume=model,
+        overrides={"max_cycles": 40},
+        progress=False,
+        hyperparameters=hp,
+        record_eval=False,
+    )
+    config = json.loads((out / "config.json").read_text())
+    assert config["timesteps_done"] == 256 and config["resumes"] == 1
+    assert (out / "progress.part0.csv").exists()
+    rows = evaluate([f"ppo:{out}"], ["short"], 1, 0, 1, max_cycles=20, progress=False)
+    assert rows[0]["error"] == "" and rows[0]["episode_steps"] == 20
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_pretrained_reproduces_recorded_evaluation(algo):
+    folder = PRETRAINED_DIR / algo
+    if not (folder / "model.zip").exists():
+        pytest.skip(f"no pretrained {algo} model")
+    for name in ("model.zip", "vecnormalize.pkl", "config.json"):
+        assert (folder / name).stat().st_size < 1_000_000, name
+    recorded = json.loads((folder / "config.json").read_text())["eval"]
+    n = len(recorded["episodes"])
+    runs = [
+        evaluate(
+            [f"{algo}:pretrained"], [recorded["scenario"]], n, recorded["seed"], 1, progress=False
+        )
+        for _ in range(2)
+    ]
+    for first, second, rec in zip(*runs, recorded["episodes"], strict=True):
+        assert first["error"] == ""
+        assert first["return"] == second["return"]  # deterministic, bit for bit
+        assert first["episode_steps"] == second["episode_steps"]
+        assert first["seed"] == rec["seed"]
+        assert bool(first["success"]) == rec["success"]
+        assert first["episode_steps"] == rec["episode_steps"]
+        assert first["return"] == pytest.approx(rec["return"], rel=1e-6, abs=1e-6)
