@@ -20,9 +20,9 @@ import numpy as np
 
 from nmpc_expert.local_model import NTHETA, NX
 from nmpc_expert.ocp import NC, NW, OCPFunctions, node_terms
-from nmpc_expert.rti import SparseBufferCall
 from nmpc_expert.settings import NMPCSettings
 from uvms_env.dynamics import NU
+from uvms_env.dynamics.compiled import BufferCall
 
 
 class IpoptSolver:
@@ -37,7 +37,7 @@ class IpoptSolver:
         n = self.n = funcs.horizon
         self.theta = np.ascontiguousarray(theta, dtype=float)
         self.weights = np.ascontiguousarray(weights, dtype=float)
-        self._build = SparseBufferCall(funcs.qp_builder)
+        self._build = BufferCall(funcs.qp_builder, sparse=True)
         self.xbar = np.zeros((n + 1, NX))
         self.abar = np.zeros((n, NU))
         self.sbar = np.zeros((n, NC))

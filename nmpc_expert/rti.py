@@ -24,33 +24,11 @@ from scipy.sparse import csc_matrix
 from nmpc_expert.local_model import NX
 from nmpc_expert.ocp import NC, OCPFunctions
 from uvms_env.dynamics import NU
+from uvms_env.dynamics.compiled import BufferCall
 
 # Primal feasibility accepted from the QP solver (normalized units; the HPIPM default
 # tolerance is 1e-8, anything above 1e-5 means it stopped early or diverged).
 FEASIBILITY_TOL = 1e-5
-
-
-class SparseBufferCall:
-    """Zero-copy calls of a CasADi function whose outputs may be sparse: each output is a
-    flat numpy array of its nonzeros (CasADi's column-major order)."""
-
-    def __init__(self, fn: cs.Function) -> None:
-        self.fn = fn
-        self._buf, self._eval = fn.buffer()
-        self.outputs = [np.zeros(fn.nnz_out(i)) for i in range(fn.n_out())]
-        for i, out in enumerate(self.outputs):
-            self._buf.set_res(i, memoryview(out))
-        self._inputs: list[np.ndarray | None] = [None] * fn.n_in()
-
-    def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
-        for i, a in enumerate(args):
-            if self._inputs[i] is not a:
-                if not (a.flags.c_contiguous and a.dtype == np.float64):
-                    raise ValueError(f"input {i} of {self.fn.name()} must be C-contiguous float64")
-                self._buf.set_arg(i, memoryview(a))
-                self._inputs[i] = a
-        self._eval()
-        return self.outputs
 
 
 _SOLVERS: dict[int, cs.Function] = {}
@@ -87,7 +65,7 @@ class RTISolver:
         self.funcs = funcs
         n = funcs.horizon
         self.n = n
-        self._build = SparseBufferCall(funcs.qp_builder)
+        self._build = BufferCall(funcs.qp_builder, sparse=True)
         self._qp = qp_solver(funcs)
         sp = funcs.a_sparsity
         col, row = sp.get_ccs()

@@ -86,10 +86,16 @@ class BufferCall:
     matrices as their transposes in C order (``a.T`` of a C-contiguous array is that).
     """
 
-    def __init__(self, fn: cs.Function) -> None:
+    def __init__(self, fn: cs.Function, sparse: bool = False) -> None:
+        """``sparse``: each output is the flat array of its nonzeros (column-major), for
+        functions with sparse outputs (e.g. QP matrices); otherwise dense arrays shaped
+        as the transposes of CasADi's matrices."""
         self.fn = fn
         self._buf, self._eval = fn.buffer()
-        self.outputs = [np.zeros(fn.size_out(i)[::-1]) for i in range(fn.n_out())]
+        self.outputs = [
+            np.zeros(fn.nnz_out(i)) if sparse else np.zeros(fn.size_out(i)[::-1])
+            for i in range(fn.n_out())
+        ]
         for i, out in enumerate(self.outputs):
             self._buf.set_res(i, memoryview(out))
         self._inputs: list[np.ndarray | None] = [None] * fn.n_in()
