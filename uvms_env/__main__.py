@@ -4,7 +4,8 @@
 
 Applies the static holding inputs (a feed-forward, no feedback: the equilibrium is not
 stable under constant inputs) and writes ``summary.json``: grasp drift, object motion,
-energy, speed. The NMPC expert will replace this as the main job.
+energy, speed. A smoke test of the physics without any controller; the main job with
+a controller is ``python -m nmpc_expert``.
 """
 
 from __future__ import annotations
