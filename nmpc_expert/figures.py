@@ -123,34 +123,34 @@ def make_figures(
     plt.close(fig)
     written.append("manipulability.png")
 
-    fig, axs = plt.subplots(n, 1, figsize=(8, 2.5 * n), sharex=True, squeeze=False)
-    for i in range(n):
-        ax = axs[i, 0]
-        for j in range(4):
-            ax.plot(t, q[:, i, 6 + j], label=f"q{j + 1}")
-        _bounds(ax, lim.joint_position, "limit")
-        ax.set_ylabel(f"UVMS {i} [rad]")
-        ax.legend(fontsize=7, ncol=5)
-    axs[-1, 0].set_xlabel("t [s]")
-    fig.suptitle("Joint-level states")
-    fig.savefig(out / "joint_states.png", dpi=110)
-    plt.close(fig)
-    written.append("joint_states.png")
-
-    fig, axs = plt.subplots(n, 1, figsize=(8, 2.5 * n), sharex=True, squeeze=False)
-    names = ["X", "Y", "Z", "N", "tau1", "tau2", "tau3", "tau4"]
-    for i in range(n):
-        ax = axs[i, 0]
-        for j in range(8):
-            ax.plot(t, act[:, i, j], lw=0.8, label=names[j])
-        _bounds(ax, 1.0, "saturation")
-        ax.set_ylabel(f"UVMS {i} (a = tau / tau_max)")
-        ax.legend(fontsize=6, ncol=9)
-    axs[-1, 0].set_xlabel("t [s]")
-    fig.suptitle("Control inputs (normalized: 10 N / 10 N m vehicle, 2 N m joints)")
-    fig.savefig(out / "inputs.png", dpi=110)
-    plt.close(fig)
-    written.append("inputs.png")
+    written.append(
+        _per_robot(
+            out / "joint_states.png",
+            t,
+            q[:, :, 6:],
+            [f"q{j + 1}" for j in range(4)],
+            lim.joint_position,
+            "limit",
+            "[rad]",
+            "Joint-level states",
+            lw=1.5,
+            legend=7,
+        )
+    )
+    written.append(
+        _per_robot(
+            out / "inputs.png",
+            t,
+            act,
+            ["X", "Y", "Z", "N", "tau1", "tau2", "tau3", "tau4"],
+            1.0,
+            "saturation",
+            "(a = tau / tau_max)",
+            "Control inputs (normalized: 10 N / 10 N m vehicle, 2 N m joints)",
+            lw=0.8,
+            legend=6,
+        )
+    )
 
     fig, axs = plt.subplots(n, 3, figsize=(12, 2.6 * n), sharex=True, squeeze=False)
     for i in range(n):
@@ -204,3 +204,32 @@ def _animation(arr: dict[str, np.ndarray], scenario, out: Path, frames: int = 50
     anim.save(out / "animation.gif", writer=PillowWriter(fps=10), dpi=70)
     plt.close(fig)
     return ["animation.gif"]
+
+
+def _per_robot(
+    path: Path,
+    t: np.ndarray,
+    series: np.ndarray,
+    names: list[str],
+    bound: float,
+    bound_label: str,
+    unit: str,
+    title: str,
+    lw: float,
+    legend: int,
+) -> str:
+    """One panel per robot with its series (T, N, K) and the +-bound drawn."""
+    n = series.shape[1]
+    fig, axs = plt.subplots(n, 1, figsize=(8, 2.5 * n), sharex=True, squeeze=False)
+    for i in range(n):
+        ax = axs[i, 0]
+        for j, name in enumerate(names):
+            ax.plot(t, series[:, i, j], lw=lw, label=name)
+        _bounds(ax, bound, bound_label)
+        ax.set_ylabel(f"UVMS {i} {unit}")
+        ax.legend(fontsize=legend, ncol=len(names) + 1)
+    axs[-1, 0].set_xlabel("t [s]")
+    fig.suptitle(title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path.name
