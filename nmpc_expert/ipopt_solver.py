@@ -37,7 +37,7 @@ class IpoptSolver:
         n = self.n = funcs.horizon
         self.theta = np.ascontiguousarray(theta, dtype=float)
         self.weights = np.ascontiguousarray(weights, dtype=float)
-        self._build = BufferCall(funcs.qp_builder, sparse=True)
+        self._build = BufferCall(funcs.qp_builder)
         self.xbar = np.zeros((n + 1, NX))
         self.abar = np.zeros((n, NU))
         self.sbar = np.zeros((n, NC))
@@ -130,7 +130,7 @@ class IpoptSolver:
 
     def step(self, x0: np.ndarray, a_init: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
         self.shift(x0, a_init)
-        a_ref = self._build(self.xbar, self.abar, self.theta, self.xd, self.vd, self.weights)[7]
+        a_ref = self._build(self.xbar, self.abar, self.theta, self.xd, self.vd, self.weights)[9]
         n = self.n
         w0 = np.concatenate([self.xbar.ravel(), self.abar.ravel(), self.sbar.ravel()])
         lbx = np.concatenate([-np.inf * np.ones(NX * (n + 1)), -np.ones(NU * n), np.zeros(NC * n)])
@@ -138,7 +138,7 @@ class IpoptSolver:
             [np.inf * np.ones(NX * (n + 1)), np.ones(NU * n), np.inf * np.ones(NC * n)]
         )
         p = np.concatenate(
-            [x0, self.theta, self.xd.ravel(), self.vd.ravel(), a_ref.copy(), self.weights]
+            [x0, self.theta, self.xd.ravel(), self.vd.ravel(), a_ref.ravel(), self.weights]
         )
         o = 18 + NU + 2 * NC
         lower, upper = self.weights[o : o + NC], self.weights[o + NC : o + 2 * NC]

@@ -4,9 +4,9 @@
   substeps, and its sensitivities (Phi = dF/dx, Gamma = dF/da) chained through the RK4
   substeps from the Jacobian of f, frozen over each substep's four stages.
 * ``outputs``: the cost residuals and soft-constraint values at a node, with Jacobians.
-* ``qp_builder``: the Gauss-Newton QP of one real-time iteration, in HPIPM's stage-wise
-  layout [dx_0, du_0, dx_1, du_1, ..., dx_N] with du_k = [da_k (8); s_k (NC)], s_k the
-  slacks of the soft constraints on x_{k+1}.
+* ``qp_builder``: the condensed Gauss-Newton QP of one real-time iteration: the state
+  deviations eliminated through the linearized dynamics, a dense QP in the N * 8 input
+  steps with hard saturation bounds and the soft constraints of x_1..x_N as rows.
 
 The Jacobian of f used for the sensitivities drops the terms that are small at the speeds
 of this task (|v| <= 0.5 m/s, |w| <= 0.1 rad/s): the configuration dependence of the mass
@@ -85,8 +85,6 @@ class OCPFunctions:
     qp_builder: cs.Function  # see build_qp_builder
     object_state: cs.Function  # (x, theta) -> (x_O, v_O)
     steady_input: cs.Function  # (x, theta, v_d) -> a_ss (8)
-    h_sparsity: cs.Sparsity
-    a_sparsity: cs.Sparsity
 
 
 def local_terms(uvms, obj: ObjectModel, q, zeta, theta):
@@ -197,14 +195,28 @@ def build_steady_input(uvms, obj: ObjectModel, model: LocalModel) -> cs.Function
 def build_qp_builder(
     interval: cs.Function, outputs: cs.Function, steady: cs.Function, horizon: int
 ) -> cs.Function:
-    """The Gauss-Newton QP of one real-time iteration around (xbar, abar).
+    """The condensed Gauss-Newton QP of one real-time iteration around (xbar, abar).
+
+    The state deviations are eliminated through the linearized dynamics (dx_0 = 0 is the
+    measured state): dx_k = G_k da + e_k, G_k and e_k chained from (Phi, Gamma) and the
+    defects F(xbar_k, abar_k) - xbar_{k+1}. What is left is a dense QP in the N * 8 input
+    steps da = [da_0; ...; da_{N-1}]:
+
+        min 0.5 da' H da + f' da   s.t.  lb <= da <= ub (saturation, hard),
+                                         lbc <= C da <= ubc (soft, per node k = 1..N)
+
+    With N = 5 it has 40 variables and 80 soft rows, small enough for a dense active-set
+    solver; condensing here (compiled) costs microseconds. The soft rows are the
+    normalized constraint values of x_1..x_N; their L1 + L2 slack penalties are the
+    solver's business (``rti``).
 
     Inputs: xbar (NX x N+1), abar (NU x N), theta, xd (6 x N+1), vd (6 x N+1), w (NW).
-    Outputs: H, g, A, lba, uba, lbx, ubx, a_ref (NU x N) of
-    min 0.5 dw' H dw + g' dw  s.t.  lba <= A dw <= uba, lbx <= dw <= ubx,
-    the objective being sum_k |r_k + J_k dw|^2 (weights squared in) + slack penalties.
+    Outputs, laid out for numpy through the buffer interface (column-major transposes):
+    h (H), f, c_t (C' so that numpy reads C, 16N x 8N, row-major), lb, ub, lbc, ubc,
+    g_t (G' with G = [G_1; ...; G_N], NX N x 8N), e ([e_1; ...; e_N]), a_ref (NU x N).
     """
     n = horizon
+    nz = n * NU
     xbar, abar = cs.MX.sym("xbar", NX, n + 1), cs.MX.sym("abar", NU, n)
     theta = cs.MX.sym("theta", NTHETA)
     xd, vd = cs.MX.sym("xd", 6, n + 1), cs.MX.sym("vd", 6, n + 1)
@@ -214,88 +226,61 @@ def build_qp_builder(
     o += 18
     r_u = w[o : o + NU]
     o += NU
-    l1, l2, lower, upper, scale = (w[o + k * NC : o + (k + 1) * NC] for k in range(5))
+    lower, upper, scale = (w[o + k * NC : o + (k + 1) * NC] for k in (2, 3, 4))
     use_ss = w[o + 5 * NC]
 
     f_next, phis, gams = interval.map(n, "serial")(xbar[:, :n], abar, cs.repmat(theta, 1, n))
-    r, jr, c, jc = outputs.map(n + 1, "serial")(xbar, cs.repmat(theta, 1, n + 1), xd, vd)
+    # node 0 is the measured state: neither its cost nor its constraints depend on da
+    thetas = cs.repmat(theta, 1, n)
+    r, jr, c, jc = outputs.map(n, "serial")(xbar[:, 1:], thetas, xd[:, 1:], vd[:, 1:])
     a_ref = use_ss * steady.map(n, "serial")(xbar[:, :n], cs.repmat(theta, 1, n), vd[:, :n])
     inv_scale = 1 / scale
 
-    h_blocks, g_parts, a_rows, lba, uba, lbx, ubx = [], [], [], [], [], [], []
-    zero_s = cs.MX(NX, NC)
-    inf_nc = cs.DM.inf(NC)
-    for k in range(n + 1):
-        jr_k = jr[:, k * NX : (k + 1) * NX]
-        if k == 0:
-            wr = cs.vertcat(q_x, q_v) * 0  # x_0 is fixed: its cost is a constant
-        elif k < n:
-            wr = cs.vertcat(q_x, q_v)
-        else:
-            wr = cs.vertcat(p_x, cs.MX.zeros(6))  # terminal: pose only (paper's E)
-        h_blocks.append(2 * jr_k.T @ (wr * jr_k))
-        g_parts.append(2 * jr_k.T @ (wr * r[:, k]))
-        if k == 0:
-            lbx.append(cs.DM.zeros(NX))  # measured state: dx_0 = 0
-            ubx.append(cs.DM.zeros(NX))
-        else:
-            lbx.append(-cs.DM.inf(NX))
-            ubx.append(cs.DM.inf(NX))
-        if k == n:
-            break
-        h_blocks.append(cs.diag(2 * r_u))
-        h_blocks.append(cs.diag(2 * l2))
-        g_parts.append(2 * r_u * (abar[:, k] - a_ref[:, k]))
-        g_parts.append(l1)
-        lbx += [-1 - abar[:, k], cs.DM.zeros(NC)]
-        ubx += [1 - abar[:, k], inf_nc]
-        # dynamics: Phi dx_k + Gamma da_k - dx_{k+1} = -(F(xbar_k, abar_k) - xbar_{k+1})
-        phi_k, gam_k = phis[:, k * NX : (k + 1) * NX], gams[:, k * NU : (k + 1) * NU]
-        defect = f_next[:, k] - xbar[:, k + 1]
-        # soft constraints on x_{k+1}, linearized through the dynamics, normalized
-        cj = inv_scale * jc[:, (k + 1) * NX : (k + 2) * NX]
-        cval = inv_scale * c[:, k + 1] + cj @ defect
-        c_phi, c_gam = cj @ phi_k, cj @ gam_k
-        eye_s = cs.MX(cs.DM.eye(NC))
-        a_rows.append((phi_k, gam_k, zero_s, -cs.DM.eye(NX)))
-        a_rows.append((c_phi, c_gam, eye_s, None))
-        a_rows.append((c_phi, c_gam, -eye_s, None))
-        lba += [-defect, lower - cval, -inf_nc]
-        uba += [-defect, inf_nc, upper - cval]
-
-    # assemble A in HPIPM's layout: rows [gap_k; lincon_k], columns [dx_k, da_k, s_k, ...]
-    nv_stage = NX + NU + NC
-    n_var = n * nv_stage + NX
-    rows = []
+    r_all = cs.repmat(r_u, n, 1)
+    h_mat = cs.diag(2 * r_all)
+    f_vec = 2 * r_all * cs.vec(abar - a_ref)
+    g_k, e_k = cs.MX(NX, nz), cs.MX(NX, 1)
+    c_rows, lbc, ubc, g_rows, e_rows = [], [], [], [], []
+    w_run = cs.vertcat(q_x, q_v)
+    w_end = cs.vertcat(p_x, cs.MX.zeros(6))  # terminal: pose only (paper's E)
     for k in range(n):
-        col = k * nv_stage
-        for j in range(3):
-            blk_x, blk_u, blk_s, blk_next = a_rows[3 * k + j]
-            left = cs.MX(blk_x.shape[0], col)
-            mid = cs.horzcat(blk_x, blk_u, blk_s)
-            if blk_next is not None:
-                right = cs.horzcat(cs.MX(blk_next), cs.MX(NX, n_var - col - nv_stage - NX))
-            else:
-                right = cs.MX(blk_x.shape[0], n_var - col - nv_stage)
-            rows.append(cs.horzcat(left, mid, right))
-    a_mat = cs.vertcat(*rows)
-    h_mat = cs.diagcat(*h_blocks)
+        phi_k, gam_k = phis[:, k * NX : (k + 1) * NX], gams[:, k * NU : (k + 1) * NU]
+        # dx_{k+1} = Phi_k dx_k + Gamma_k da_k + defect_k
+        g_k = phi_k @ g_k + cs.horzcat(cs.MX(NX, k * NU), gam_k, cs.MX(NX, nz - (k + 1) * NU))
+        e_k = phi_k @ e_k + (f_next[:, k] - xbar[:, k + 1])
+        g_rows.append(g_k)
+        e_rows.append(e_k)
+        wr = w_run if k + 1 < n else w_end
+        jr_k = jr[:, k * NX : (k + 1) * NX]
+        jg = jr_k @ g_k
+        h_mat += 2 * jg.T @ (wr * jg)
+        f_vec += 2 * jg.T @ (wr * (r[:, k] + jr_k @ e_k))
+        cj = inv_scale * jc[:, k * NX : (k + 1) * NX]
+        c_rows.append(cj @ g_k)
+        c_const = inv_scale * c[:, k] + cj @ e_k
+        lbc.append(lower - c_const)
+        ubc.append(upper - c_const)
     h_mat = 0.5 * (h_mat + h_mat.T)
+    lb = cs.vec(-1 - abar)
+    ub = cs.vec(1 - abar)
+    dense = cs.densify
     return cs.Function(
         "nmpc_qp_builder",
         [xbar, abar, theta, xd, vd, w],
         [
-            h_mat,
-            cs.vertcat(*g_parts),
-            a_mat,
-            cs.vertcat(*lba),
-            cs.vertcat(*uba),
-            cs.vertcat(*lbx),
-            cs.vertcat(*ubx),
-            a_ref,
+            dense(h_mat),
+            dense(f_vec),
+            dense(cs.vertcat(*c_rows).T),
+            dense(lb),
+            dense(ub),
+            dense(cs.vertcat(*lbc)),
+            dense(cs.vertcat(*ubc)),
+            dense(cs.vertcat(*g_rows).T),
+            dense(cs.vertcat(*e_rows)),
+            dense(a_ref),
         ],
         ["xbar", "abar", "theta", "xd", "vd", "w"],
-        ["h", "g", "a", "lba", "uba", "lbx", "ubx", "a_ref"],
+        ["h", "f", "c_t", "lb", "ub", "lbc", "ubc", "g_t", "e", "a_ref"],
     )
 
 
@@ -314,8 +299,6 @@ def ocp_functions(
     builder = build_qp_builder(interval, outputs, steady, horizon)
     tag = f"{shape}_{ring_radius:.4f}_n{horizon}_h{period:g}_s{substeps}".replace(".", "p")
     compiled = compile_function(_renamed(builder, tag))
-    h_sp = builder.sparsity_out("h")
-    a_sp = builder.sparsity_out("a")
     return OCPFunctions(
         horizon=horizon,
         model=model,
@@ -324,8 +307,6 @@ def ocp_functions(
         qp_builder=compiled,
         object_state=model.object_state,
         steady_input=steady,
-        h_sparsity=h_sp,
-        a_sparsity=a_sp,
     )
 
 
