@@ -191,6 +191,25 @@ class NMPCPolicy:
         }
         return np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
 
+    def executed(self, action: np.ndarray) -> None:
+        """The input actually applied after the last ``act``, when another policy drove
+        (DAgger rollouts). The one-step prediction that feeds the rate-offset estimator is
+        corrected to first order, zeta_1 += Gamma_0 (a_applied - a_planned), so the
+        estimator keeps measuring model error, not the other policy's choice. Only the
+        RTI solver has Gamma_0 at hand; with IPOPT the prediction is dropped instead
+        (the estimate holds for one period)."""
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (NU,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"executed action must be {NU} finite numbers, got {a.shape}")
+        if self._predicted_zeta is None:
+            return
+        gain = self.solver.input_sensitivity() if self.solver_name == "rti" else None
+        if gain is None:
+            self._predicted_zeta = None
+            return
+        delta = np.clip(a, -1.0, 1.0) - self.solver.abar[0]
+        self._predicted_zeta = self._predicted_zeta + gain[NX // 2 :] @ delta
+
     # -- helpers ----------------------------------------------------------------------------
     def _update_rate_offset(self) -> None:
         """e <- e + L (zeta - zeta_pred - e), clipped; then bounds on the speed rows

@@ -176,3 +176,98 @@ def test_paper_scenario_full():
     assert all(v == 0 for v in m["violations"].values()), m["violations"]
     assert m["min_manipulability"] > 0.5
     assert m["fallbacks"] == 0
+
+
+def test_condensed_input_sensitivity_matches_finite_differences(env, short_run):
+    """Gamma_0 = dx_1/da_0 read from the condensed QP equals central differences of the
+    RK4 interval (the sensitivities drop small terms of the Jacobian of f: 5% slack)."""
+    *_, stream, _ = short_run
+    pol = NMPCPolicy(AgentSpec.from_scenario(env.scenario, 0))
+    for o in stream[env.possible_agents[0]][:10]:
+        pol.act(o)
+    gamma = pol.solver.input_sensitivity()
+    x0, a0 = pol.solver.xbar[0].copy(), pol.solver.abar[0].copy()
+    fd = np.zeros_like(gamma)
+    for j in range(a0.size):
+        e = np.zeros_like(a0)
+        e[j] = 1e-4
+        hi = pol.funcs.interval(x0, a0 + e, pol.theta)[0].full().ravel()
+        lo = pol.funcs.interval(x0, a0 - e, pol.theta)[0].full().ravel()
+        fd[:, j] = (hi - lo) / 2e-4
+    assert np.linalg.norm(gamma - fd) < 0.05 * np.linalg.norm(fd)
+
+
+def test_executed_hook_keeps_the_prediction_on_the_applied_input():
+    """When another policy drives (DAgger), the expert is told the applied input; its
+    one-step prediction of its own rates must then follow that input, not its own plan."""
+    errors = {}
+    for use_hook in (False, True):
+        env = uvms_env.parallel_env(scenario="paper")
+        obs, _ = env.reset(seed=0)
+        pols = _policies(env)
+        rng = np.random.default_rng(0)
+        err = []
+        for t in range(40):
+            act = {a: p.act(obs[a]) for a, p in pols.items()}
+            if t % 2:
+                a0 = env.possible_agents[0]
+                act[a0] = np.clip(act[a0] + 0.1 * rng.normal(size=8), -1, 1)
+                if use_hook:
+                    pols[a0].executed(act[a0])
+            pred = pols[env.possible_agents[0]]._predicted_zeta.copy()
+            obs, *_ = env.step(act)
+            if t % 2:
+                err.append(np.max(np.abs(obs[env.possible_agents[0]][10:20] - pred)))
+        errors[use_hook] = float(np.mean(err))
+    assert errors[True] < 0.7 * errors[False]
+    with pytest.raises(ValueError, match="8 finite"):
+        pols[env.possible_agents[0]].executed(np.full(8, np.nan))
+
+
+def test_soft_rows_carry_the_l1_l2_slack_penalty(env, short_run):
+    """DAQP's soft rows solve the same QP as explicit slacks s >= 0 with l1 s + l2 s^2
+    (the IPOPT formulation), also when the rows cannot all hold: checked against IPOPT
+    on the explicit-slack QP with the joint-rate bounds moved out of reach."""
+    import casadi as cs
+
+    *_, stream, _ = short_run
+    pol = NMPCPolicy(AgentSpec.from_scenario(env.scenario, 0))
+    for o in stream[env.possible_agents[0]][:10]:
+        pol.act(o)
+    solver = pol.solver
+    h, f, c, lb, ub, lbc, ubc, *_ = (np.array(v) for v in solver._build.outputs)
+    f, lb, ub, lbc, ubc = (v.ravel() for v in (f, lb, ub, lbc, ubc))
+    ncol = lbc.size // solver.n
+    rows = np.concatenate([np.arange(6, 10) + k * ncol for k in range(solver.n)])
+    # force violations: joint rates of 5x their limit, beyond what the saturated
+    # inputs can reach within the horizon
+    lbc[rows] += 5.0
+    ubc[rows] = np.inf
+    solver._build.outputs[5][...] = lbc.reshape(solver._build.outputs[5].shape)
+    solver._build.outputs[6][...] = ubc.reshape(solver._build.outputs[6].shape)
+    build = solver._build
+    solver._build = lambda *a: build.outputs  # reuse the edited QP
+    da, info = solver.solve_qp()
+    assert info["slack_max"] > 1e-3  # the tightened rows are violated
+    l1 = np.tile(pol.weights[18 + 8 : 18 + 8 + 16], solver.n)
+    l2 = np.tile(pol.weights[18 + 8 + 16 : 18 + 8 + 32], solver.n)
+    z, s = cs.SX.sym("z", da.size), cs.SX.sym("s", lbc.size)
+    cost = 0.5 * cs.dot(z, cs.mtimes(cs.DM(h), z)) + cs.dot(cs.DM(f), z)
+    cost += cs.dot(cs.DM(l1), s) + cs.dot(cs.DM(l2), s * s)
+    cz = cs.mtimes(cs.DM(c), z)
+    g = cs.vertcat(cz + s, cz - s)
+    big = 1e20
+    nlp = cs.nlpsol(
+        "q",
+        "ipopt",
+        {"x": cs.vertcat(z, s), "f": cost, "g": g},
+        {"ipopt.print_level": 0, "print_time": False, "ipopt.tol": 1e-10},
+    )
+    sol = nlp(
+        lbx=np.concatenate([lb, np.zeros(lbc.size)]),
+        ubx=np.concatenate([ub, np.full(lbc.size, big)]),
+        lbg=np.concatenate([lbc, np.full(lbc.size, -big)]),
+        ubg=np.concatenate([np.full(lbc.size, big), np.minimum(ubc, big)]),
+    )
+    ref = sol["x"].full().ravel()[: da.size]
+    np.testing.assert_allclose(da, ref, atol=1e-5)

@@ -68,6 +68,13 @@ class AgentSpec:
 
 @runtime_checkable
 class Policy(Protocol):
+    """``reset()`` at the start of an episode, then ``act(obs) -> action`` (normalized,
+    in [-1, 1]) once per control period; ``stats`` describes the last decision.
+
+    A stateful policy may also define ``executed(action)``: a driver that applies some
+    other action than the one returned (DAgger mixing, a safety filter) calls it after
+    ``act``, so that the policy's memory follows what was actually applied."""
+
     stats: dict[str, Any]
 
     def reset(self) -> None: ...

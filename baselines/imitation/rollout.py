@@ -4,7 +4,9 @@ The executed action of each robot is the expert's with probability ``beta`` and 
 learner's otherwise, drawn independently per robot and per step (``beta = 1``: plain
 demonstrations; ``beta < 1``: DAgger). The expert runs on every step either way, so a
 stateful expert (the NMPC warm-starts from its previous plan) sees the same observation
-stream as if it were in control, and its label is what it would do in the visited state.
+stream as if it were in control, and its label is what it would do in the visited state;
+an expert with an ``executed(action)`` hook (the NMPC's rate-offset estimator) is told
+which action was applied.
 """
 
 from __future__ import annotations
@@ -65,6 +67,10 @@ def rollouts(
                 use_learner = learners is not None and rng.random() >= beta
                 if use_learner:
                     executed = np.asarray(learners[i].act(obs[a]), dtype=np.float32)
+                    # a stateful expert's memory must follow the applied input
+                    hook = getattr(experts[i], "executed", None)
+                    if hook is not None:
+                        hook(executed)
                 s.learner_acted.append(bool(use_learner))
                 actions[a] = executed
             obs, rew, term, trunc, infos = env.step(actions)
