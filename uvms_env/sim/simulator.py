@@ -19,7 +19,7 @@ import numpy as np
 
 from uvms_env.dynamics import NP, NQ, NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall, compile_function
-from uvms_env.dynamics.payload import NPO
+from uvms_env.dynamics.payload import NPO, OBJECT_PARAMETER_LAYOUT
 from uvms_env.dynamics.spatial import euler_rate_matrix, rot_zyx
 from uvms_env.dynamics.uvms import PARAMETER_LAYOUT, default_model, scale_damping
 from uvms_env.sim.chain import ChainFunctions, build_chain, state_size
@@ -38,6 +38,8 @@ STABILIZATION = 10.0
 # scenario over 2,000 periods: 9 projections under uniform random inputs (a third of
 # them saturated), 113 under bang-bang inputs; worst drift then 5e-7 m.
 PROJECTION_TOL = 5e-7  # m
+# Fraction of ``mismatch`` applied to weighed quantities (masses, displaced volumes).
+WEIGHED_FRACTION = 0.1
 
 
 @cache
@@ -140,12 +142,24 @@ class Simulator:
         p = self.nominal_parameters.copy()
         po = self.nominal_object_parameters.copy()
         if s.mismatch > 0:
-            p = p * (1 + s.mismatch * rng.uniform(-1, 1, p.shape))
+            # Hydrodynamic coefficients (added mass, damping, drag scales, joint friction)
+            # are uncertain by +-mismatch. Masses and displaced volumes are weighed and
+            # trimmed before a dive, so they get a tenth of it: a 10% volume error would
+            # be 13 N of buoyancy on a 10 N heave saturation, a task no controller can do.
+            rel = np.full(p.shape[1], 1.0)
+            rel[PARAMETER_LAYOUT["vehicle_displaced_volume"]] = WEIGHED_FRACTION
+            p = p * (1 + s.mismatch * rel * rng.uniform(-1, 1, p.shape))
             # the extra-mass entry is an absolute kg value around 0: perturb the vehicle mass
             p[:, PARAMETER_LAYOUT["vehicle_extra_mass"]] = (
-                s.mismatch * rng.uniform(-1, 1, (self.n, 1)) * self.uvms.params.vehicle.mass
+                s.mismatch
+                * WEIGHED_FRACTION
+                * rng.uniform(-1, 1, (self.n, 1))
+                * self.uvms.params.vehicle.mass
             )
-            po = po * (1 + s.mismatch * rng.uniform(-1, 1, po.shape))
+            rel_o = np.full(po.shape, 1.0)
+            rel_o[OBJECT_PARAMETER_LAYOUT["mass"]] = WEIGHED_FRACTION
+            rel_o[OBJECT_PARAMETER_LAYOUT["displaced_volume"]] = WEIGHED_FRACTION
+            po = po * (1 + s.mismatch * rel_o * rng.uniform(-1, 1, po.shape))
         self.parameters = np.ascontiguousarray(
             np.stack([scale_damping(pi, s.damping_scale) for pi in p])
         )
