@@ -136,6 +136,7 @@ class NMPCPolicy:
         self._lower = self.solver.weights[o["lower"] : o["lower"] + NC]
         self._upper = self.solver.weights[o["upper"] : o["upper"] + NC]
         self.rate_offset = np.zeros(NX // 2)  # e, filtered one-step error of zeta
+        self.goal_integral = np.zeros(3)  # I, integral of the object's position error at the goal
         self._predicted_zeta: np.ndarray | None = None
         self._x0 = np.zeros(NX)
         self._wp = np.ascontiguousarray(spec.waypoints, dtype=float)
@@ -147,6 +148,7 @@ class NMPCPolicy:
     def reset(self) -> None:
         self.solver.reset()
         self.rate_offset[:] = 0.0
+        self.goal_integral[:] = 0.0
         self._predicted_zeta = None
         self._lower[:], self._upper[:] = self._bounds[0], self._bounds[1]
         self.stats = {}
@@ -164,6 +166,7 @@ class NMPCPolicy:
         x_o, _ = self._object_state(self._x0, self.theta)
         xd, vd = self.reference(x_o, index)
         self.solver.xd[:] = xd
+        self._goal_integral_action(x_o, index)
         self.solver.vd[:] = vd
         status, info = "ok", {}
         try:
@@ -224,6 +227,18 @@ class NMPCPolicy:
         shift = np.clip(self.rate_offset / scale[:m], -s.offset_limit, s.offset_limit)
         self._lower[:m] = lower[:m] - shift
         self._upper[:m] = upper[:m] - shift
+
+    def _goal_integral_action(self, x_o: np.ndarray, index: int) -> None:
+        """Integral action near the last waypoint (``goal_integral_gain``): the position
+        reference of the horizon moves by -k_i I."""
+        s = self.settings
+        if s.goal_integral_gain == 0 or index != len(self._wp) - 1:
+            return
+        err = x_o.reshape(-1)[:3] - self._wp[index, :3]
+        if np.linalg.norm(err) < s.goal_integral_radius:
+            lim = s.goal_integral_limit / s.goal_integral_gain
+            self.goal_integral[:] = np.clip(self.goal_integral + s.period * err, -lim, lim)
+        self.solver.xd[:, :3] -= s.goal_integral_gain * self.goal_integral
 
     def _waypoint_index(self, waypoint: np.ndarray) -> int:
         """Which of the mission's waypoints the observation's active waypoint is (float32

@@ -271,3 +271,29 @@ def test_soft_rows_carry_the_l1_l2_slack_penalty(env, short_run):
     )
     ref = sol["x"].full().ravel()[: da.size]
     np.testing.assert_allclose(da, ref, atol=1e-5)
+
+
+def test_goal_integral_moves_the_reference_against_a_steady_offset(env):
+    """Near the last waypoint the position reference moves opposite to the persistent
+    object position error, by k_i * integral, clipped; elsewhere it is untouched."""
+    spec = AgentSpec.from_scenario(env.scenario, 0)
+    pol = NMPCPolicy(spec)
+    s = pol.settings
+    last = len(spec.waypoints) - 1
+    x_o = np.zeros(6)
+    x_o[:3] = spec.waypoints[last, :3] + np.array([0.2, -0.1, 0.0])
+    for k in range(1, 4):
+        pol.solver.xd[:] = 0.0
+        pol._goal_integral_action(x_o, last)
+        expected = -s.goal_integral_gain * k * s.period * np.array([0.2, -0.1, 0.0])
+        np.testing.assert_allclose(pol.solver.xd[:, :3], np.tile(expected, (6, 1)))
+    for _ in range(10_000):  # windup is clipped
+        pol._goal_integral_action(x_o, last)
+    assert np.max(np.abs(s.goal_integral_gain * pol.goal_integral)) <= s.goal_integral_limit
+    pol.reset()
+    pol.solver.xd[:] = 0.0
+    pol._goal_integral_action(x_o, 0)  # not the last waypoint: nothing happens
+    far = x_o.copy()
+    far[:3] += 1.0
+    pol._goal_integral_action(far, last)  # beyond the radius: no integration
+    assert not pol.solver.xd.any() and not pol.goal_integral.any()
