@@ -136,7 +136,7 @@ class NMPCPolicy:
         self._lower = self.solver.weights[o["lower"] : o["lower"] + NC]
         self._upper = self.solver.weights[o["upper"] : o["upper"] + NC]
         self.rate_offset = np.zeros(NX // 2)  # e, filtered one-step error of zeta
-        self.goal_integral = np.zeros(3)  # I, integral of the object's position error at the goal
+        self.goal_integral = np.zeros(6)  # I, integral of the object's pose error at the goal
         self._predicted_zeta: np.ndarray | None = None
         self._x0 = np.zeros(NX)
         self._wp = np.ascontiguousarray(spec.waypoints, dtype=float)
@@ -229,16 +229,19 @@ class NMPCPolicy:
         self._upper[:m] = upper[:m] - shift
 
     def _goal_integral_action(self, x_o: np.ndarray, index: int) -> None:
-        """Integral action near the last waypoint (``goal_integral_gain``): the position
-        reference of the horizon moves by -k_i I."""
+        """Integral action near the last waypoint (``goal_integral_gain``): the pose
+        reference of the horizon (position and Euler angles) moves by -k_i I."""
         s = self.settings
         if s.goal_integral_gain == 0 or index != len(self._wp) - 1:
             return
-        err = x_o.reshape(-1)[:3] - self._wp[index, :3]
-        if np.linalg.norm(err) < s.goal_integral_radius:
-            lim = s.goal_integral_limit / s.goal_integral_gain
+        pose = x_o.reshape(-1)
+        att = (pose[3:] - self._wp[index, 3:] + np.pi) % (2 * np.pi) - np.pi  # wrapped
+        err = np.concatenate([pose[:3] - self._wp[index, :3], att])
+        if np.linalg.norm(err[:3]) < s.goal_integral_radius:
+            lim = np.repeat([s.goal_integral_limit, s.goal_integral_angle_limit], 3)
+            lim = lim / s.goal_integral_gain
             self.goal_integral[:] = np.clip(self.goal_integral + s.period * err, -lim, lim)
-        self.solver.xd[:, :3] -= s.goal_integral_gain * self.goal_integral
+        self.solver.xd[:] -= s.goal_integral_gain * self.goal_integral
 
     def _waypoint_index(self, waypoint: np.ndarray) -> int:
         """Which of the mission's waypoints the observation's active waypoint is (float32

@@ -75,7 +75,9 @@ class NMPCSettings:
     goal_integral_radius: float = 0.5
     """The integral runs only while the object is this close to the last waypoint [m]."""
     goal_integral_limit: float = 2.0
-    """|k_i I| clip per axis [m] (anti-windup)."""
+    """|k_i I| clip per position axis [m] (anti-windup)."""
+    goal_integral_angle_limit: float = 0.3
+    """|k_i I| clip per Euler angle [rad] (anti-windup)."""
     slack_l1: float = 100.0
     """Exact-penalty weight (per unit of normalized violation) of the soft state constraints."""
     slack_l2: float = 10.0
@@ -112,7 +114,12 @@ class NMPCSettings:
             )
         if not 0 <= self.offset_gain <= 1:
             raise ValueError(f"offset_gain must lie in [0, 1], got {self.offset_gain}")
-        for name in ("goal_integral_gain", "goal_integral_radius", "goal_integral_limit"):
+        for name in (
+            "goal_integral_gain",
+            "goal_integral_radius",
+            "goal_integral_limit",
+            "goal_integral_angle_limit",
+        ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not self.offset_limit >= 0:

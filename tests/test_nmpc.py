@@ -280,16 +280,18 @@ def test_goal_integral_moves_the_reference_against_a_steady_offset(env):
     pol = NMPCPolicy(spec)
     s = pol.settings
     last = len(spec.waypoints) - 1
-    x_o = np.zeros(6)
-    x_o[:3] = spec.waypoints[last, :3] + np.array([0.2, -0.1, 0.0])
+    err = np.array([0.2, -0.1, 0.0, 0.05, 0.0, -0.02])  # position and Euler-angle error
+    x_o = spec.waypoints[last] + err
     for k in range(1, 4):
         pol.solver.xd[:] = 0.0
         pol._goal_integral_action(x_o, last)
-        expected = -s.goal_integral_gain * k * s.period * np.array([0.2, -0.1, 0.0])
-        np.testing.assert_allclose(pol.solver.xd[:, :3], np.tile(expected, (6, 1)))
+        expected = -s.goal_integral_gain * k * s.period * err
+        np.testing.assert_allclose(pol.solver.xd, np.tile(expected, (6, 1)), atol=1e-12)
     for _ in range(10_000):  # windup is clipped
         pol._goal_integral_action(x_o, last)
-    assert np.max(np.abs(s.goal_integral_gain * pol.goal_integral)) <= s.goal_integral_limit
+    shift = np.abs(s.goal_integral_gain * pol.goal_integral)
+    assert np.all(shift[:3] <= s.goal_integral_limit + 1e-12)
+    assert np.all(shift[3:] <= s.goal_integral_angle_limit + 1e-12)
     pol.reset()
     pol.solver.xd[:] = 0.0
     pol._goal_integral_action(x_o, 0)  # not the last waypoint: nothing happens
