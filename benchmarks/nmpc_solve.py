@@ -1,10 +1,12 @@
 """Per-agent decision time of the NMPC expert (one core), at N = 2, 4, 6 robots.
 
-    python benchmarks/nmpc_solve.py [--steps 150] [--solver rti] [--sizes 2 4 6]
+    python benchmarks/nmpc_solve.py [--steps 150] [--solver rti] [--sizes 2 4 6] [--random]
 
 Runs each case in closed loop on the environment (N = 2: the paper scenario; N = 4, 6:
-the random family, seed 0) with one policy per robot and times every ``act`` call (the
-whole decision: observation check, object estimate, reference, QP build and solve).
+the random family, seed 0; ``--random``: the random family for every N, so that the
+object model is the same ring-shaped kind at every size) with one policy per robot and
+times every ``act`` call (the whole decision: observation check, object estimate,
+reference, QP build and solve).
 The controllers are distributed, so the time per decision must not grow with N. The
 first run compiles the OCP of each object shape (~50 s each, cached on disk).
 """
@@ -24,8 +26,10 @@ from nmpc_expert import NMPCPolicy
 from uvms_env.policy import AgentSpec
 
 
-def measure(n: int, steps: int, solver: str) -> np.ndarray:
-    kwargs = {"scenario": "paper"} if n == 2 else {"scenario": "random", "n_agents": n, "seed": 0}
+def measure(n: int, steps: int, solver: str, random_only: bool = False) -> np.ndarray:
+    kwargs = {"scenario": "random", "n_agents": n, "seed": 0}
+    if n == 2 and not random_only:
+        kwargs = {"scenario": "paper"}
     env = uvms_env.parallel_env(**kwargs)
     obs, _ = env.reset(seed=0)
     pols = {
@@ -54,10 +58,11 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=150)
     ap.add_argument("--solver", default="rti", choices=["rti", "ipopt"])
     ap.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 6])
+    ap.add_argument("--random", action="store_true", help="random family at every N")
     args = ap.parse_args()
     print(f"{'N':>3} {'decisions':>9} {'median ms':>10} {'p95 ms':>8} {'max ms':>8}")
     for n in args.sizes:
-        t = measure(n, args.steps, args.solver)
+        t = measure(n, args.steps, args.solver, args.random)
         print(
             f"{n:>3} {len(t):>9} {np.median(t):>10.2f} {np.percentile(t, 95):>8.2f} {t.max():>8.2f}"
         )
