@@ -81,6 +81,58 @@ def test_beta_one_lets_the_expert_drive():
     assert np.array_equal(np.stack(streams[0].observations), [o["uvms_0"] for o in expert_obs])
 
 
+def test_gate_lets_the_learner_act_only_near_the_expert():
+    seed = 9
+    wide, _ = rollouts(_env, ScriptedPolicy, 1, seed, learner=Constant, beta=0.0, gate=2.0,
+                       progress=False)  # fmt: skip
+    assert all(all(s.learner_acted) for s in wide)  # actions differ by < 2 always
+    shut, _ = rollouts(_env, ScriptedPolicy, 1, seed, learner=Constant, beta=0.0, gate=0.05,
+                       progress=False)  # fmt: skip
+    # Constant differs from the scripted (arms idle) action by >= 0.2 in the arm inputs,
+    # so the expert drives throughout: the same states as a plain demonstration
+    assert not any(any(s.learner_acted) for s in shut)
+    expert_obs = _replay(seed, ScriptedPolicy())
+    assert np.array_equal(np.stack(shut[0].observations), [o["uvms_0"] for o in expert_obs])
+
+
+class Recording(ScriptedPolicy):
+    """The scripted expert, remembering what its ``executed`` hook was told."""
+
+    def __init__(self, spec=None) -> None:
+        super().__init__(spec)
+        self.told: list[np.ndarray] = []
+
+    def executed(self, action: np.ndarray) -> None:
+        self.told.append(np.array(action))
+
+
+def test_noise_perturbs_the_executed_action_but_not_the_label():
+    seed, noise = 5, 0.2
+    made: list[Recording] = []
+
+    def expert(spec):
+        made.append(Recording(spec))
+        return made[-1]
+
+    streams, _ = rollouts(_env, expert, 1, seed, noise=noise, progress=False)
+    clean = ScriptedPolicy()
+    for s, policy in zip(streams, made, strict=True):
+        assert not any(s.learner_acted)
+        # labels: the clean expert action in each visited state
+        for o, a in zip(s.observations[:-1], s.actions, strict=True):
+            assert np.array_equal(a, clean.act(o))
+        # the expert was told every perturbed input, each within the saturation
+        told = np.stack(policy.told)
+        assert told.shape == (STEPS, 8) and np.all(np.abs(told) <= 1)
+        diff = told - np.stack(s.actions)
+        assert 0.5 * noise < diff.std() < 1.5 * noise
+    # the visited states are the perturbed ones, not the clean expert's
+    expert_obs = _replay(seed, ScriptedPolicy())
+    assert not np.allclose(streams[0].observations[-1], expert_obs[-1]["uvms_0"], atol=1e-4)
+    with pytest.raises(ValueError, match="noise"):
+        rollouts(_env, ScriptedPolicy, 1, seed, noise=-0.1, progress=False)
+
+
 def test_cli_collect_bc_dagger_evaluate(tmp_path):
     from baselines.evaluate import evaluate
 
@@ -91,21 +143,30 @@ def test_cli_collect_bc_dagger_evaluate(tmp_path):
     obs, act, episodes = read_dataset(data.parent, data.name)
     assert len(episodes) == 2 and obs.shape == (2 * STEPS, 79) and act.shape == (2 * STEPS, 8)
     assert np.array_equal(episodes[0].infos["expert_iterations"][1:], np.ones(STEPS))
+    noisy = tmp_path / "data" / "noisy"
+    main(["collect", "--scenario", "short", "--episodes", "1", "--max-cycles", str(STEPS),
+          "--expert", expert, "--noise", "0.1", "--out", str(noisy)])  # fmt: skip
+    obs_n, _, _ = read_dataset(noisy.parent, noisy.name)
+    assert obs_n.shape == (2 * STEPS, 79) and not np.allclose(obs_n[-1], obs[-1], atol=1e-4)
 
     bc_out, dagger_out = tmp_path / "bc", tmp_path / "dagger"
     main(["bc", "--data", str(data), "--epochs", "2", "--hidden", "16", "16",
           "--out", str(bc_out)])  # fmt: skip
-    main(["dagger", "--data", str(data), "--scenario", "short", "--iterations", "1",
-          "--episodes-per-iteration", "1", "--max-cycles", str(STEPS), "--epochs", "2",
-          "--hidden", "16", "16", "--expert", expert, "--save-data",
-          "--out", str(dagger_out)])  # fmt: skip
+    main(["dagger", "--data", str(data), "--scenario", "short:1", "--iterations", "1",
+          "--episodes-per-iteration", "3", "--max-cycles", str(STEPS), "--epochs", "2",
+          "--hidden", "16", "16", "--expert", expert, "--save-data", "--lr-schedule", "cosine",
+          "--loss-scale", "std", "--out", str(dagger_out)])  # fmt: skip
     for out, log in ((bc_out, "bc_loss.csv"), (dagger_out, "dagger_loss.csv")):
         assert (out / "policy.pt").exists() and (out / "train.json").exists()
         rows = list(csv.DictReader(open(out / log)))
         assert rows and all(np.isfinite(float(r["train_loss"])) for r in rows)
     info = json.loads((dagger_out / "train.json").read_text())
-    assert info["samples"] == 4 * STEPS  # demonstrations + one relabelled rollout
+    # demonstrations + one relabelled rollout ("short:1" overrides the 3 per iteration)
+    assert info["samples"] == 4 * STEPS
+    assert info["history"][1]["rollouts_short"]["episodes"] == 1
     assert info["history"][1]["beta"] == 0.5
+    assert info["loss_scale"] == "std" and info["lr_schedule"] == "cosine"
+    assert len(info["history"][1]["learner_state_rmse"]) == 8  # per action component
     _, _, eps = read_dataset(dagger_out / "data", "iter_1")
     assert len(eps) == 2
 

@@ -70,9 +70,38 @@ def test_features_single_and_batched_agree_and_are_yaw_invariant():
     assert np.allclose(featurize(moved), batched, atol=1e-4)
 
 
+def test_std_loss_scale_weights_components_by_inverse_variance():
+    rng = np.random.default_rng(4)
+    act = rng.normal(size=(5000, 3)) * np.array([0.3, 0.1, 0.0])  # last: constant
+    w = bc.loss_weights(act, "std")
+    assert np.isclose(w.mean(), 1.0)
+    assert np.isclose(w[1] / w[0], 9.0, rtol=0.05)  # (0.3 / 0.1) ** 2
+    assert np.isclose(w[2] / w[0], (0.3 / bc.MIN_ACTION_STD) ** 2, rtol=0.05)
+    assert np.array_equal(bc.loss_weights(act, "none"), np.ones(3))
+
+
+def test_std_loss_scale_balances_the_relative_errors_of_small_and_large_components():
+    rng = np.random.default_rng(5)
+    obs = rng.normal(size=(4000, 6)).astype(np.float32)
+    act = np.stack([0.8 * np.tanh(obs[:, 0]), 0.05 * np.tanh(obs[:, 1])], 1).astype(np.float32)
+    rel = {}
+    for scale in bc.LOSS_SCALES:
+        net, _ = bc.fit(obs, act, epochs=30, lr=3e-3, hidden=(32, 32), loss_scale=scale,
+                        progress=False)  # fmt: skip
+        rel[scale] = np.sqrt(((net.predict(obs) - act) ** 2).mean(0)) / act.std(0)
+    # unweighted MSE neglects the small component; per-component 1/var weights do not
+    assert rel["none"][1] > 3 * rel["none"][0]
+    assert rel["std"][1] < 2 * rel["std"][0]
+    assert rel["std"][1] < rel["none"][1]
+
+
 def test_bc_rejects_mismatched_data():
     with pytest.raises(ValueError, match="must match"):
         bc.fit(np.zeros((10, 3)), np.zeros((9, 8)), progress=False)
+    with pytest.raises(ValueError, match="lr_schedule"):
+        bc.fit(np.zeros((10, 3)), np.zeros((10, 8)), lr_schedule="step", progress=False)
+    with pytest.raises(ValueError, match="loss_scale"):
+        bc.fit(np.zeros((10, 3)), np.zeros((10, 8)), loss_scale="max", progress=False)
 
 
 def test_dataset_round_trip(tmp_path):

@@ -20,6 +20,16 @@ every visited observation (it runs on every step, so its warm start follows the 
 states); the labelled rollouts join the aggregate, and the network is retrained from
 scratch on all of it (normalization refitted). ``--max-cycles`` caps the rollouts (the
 cloned policy ignores the time-fraction input, so the cap does not shift its inputs).
+``train.json`` records, per iteration, ``learner_state_rmse``: the previous network's
+per-component error on the states it drove into itself, before they were added.
+
+``--noise S`` (``collect`` and ``dagger``) adds Gaussian noise of std S to the executed
+actions while the labels stay the expert's (DART; see ``baselines.imitation.rollout``).
+Training options of ``bc`` and ``dagger``: ``--loss-scale std`` (per-component
+inverse-variance weights), ``--lr-schedule cosine``, ``--batch-size``. ``dagger --gate G``
+executes the learner's action only where it is within G of the expert's in every
+component (the expert's otherwise; ``learner_share`` reports how often it drove).
+``--scenario NAME:EPISODES`` overrides ``--episodes-per-iteration`` for one scenario.
 """
 
 from __future__ import annotations
@@ -94,12 +104,12 @@ def collect(args: argparse.Namespace) -> None:
         args.episodes,
         args.seed,
         desc="collect",
+        noise=args.noise,
     )
     root, name = dataset.split_path(args.out)
     obs_space, act_space = _spaces(args.scenario, overrides)
-    dataset_id = dataset.write_dataset(
-        streams, root, name, obs_space, act_space, algorithm=f"expert {args.expert}"
-    )
+    algorithm = f"expert {args.expert}" + (f", DART noise {args.noise}" if args.noise else "")
+    dataset_id = dataset.write_dataset(streams, root, name, obs_space, act_space, algorithm)
     summary = _summary(metrics)
     steps = sum(len(s.actions) for s in streams)
     solve = np.concatenate([s.solve_ms for s in streams]) if streams else np.zeros(0)
@@ -121,10 +131,33 @@ def _common(args: argparse.Namespace) -> dict[str, Any]:
         "epochs": args.epochs,
         "hidden": list(args.hidden),
         "lr": args.lr,
+        "lr_schedule": args.lr_schedule,
+        "batch_size": args.batch_size,
+        "loss_scale": args.loss_scale,
         "features": args.features,
         "seed": args.seed,
         "python": platform.python_version(),
     }
+
+
+def _scenario_episodes(entry: str, default: int) -> tuple[str, int]:
+    """``NAME`` or ``NAME:EPISODES`` (DAgger rollouts per iteration of that scenario)."""
+    name, _, count = entry.partition(":")
+    return name, int(count) if count else default
+
+
+def _fit_options(args: argparse.Namespace) -> dict[str, Any]:
+    return {
+        "batch_size": args.batch_size,
+        "loss_scale": args.loss_scale,
+        "lr_schedule": args.lr_schedule,
+    }
+
+
+def _rmse(net, obs: np.ndarray, act: np.ndarray) -> list[float]:
+    """Per-component RMSE of ``net`` against the (clipped) expert labels."""
+    err = net.predict(obs) - np.clip(act, -1, 1)
+    return [round(float(v), 4) for v in np.sqrt(np.mean(err**2, axis=0))]
 
 
 def train_bc(args: argparse.Namespace) -> None:
@@ -143,6 +176,7 @@ def train_bc(args: argparse.Namespace) -> None:
         val_fraction=0.05,
         log_path=log,
         stage="bc",
+        **_fit_options(args),
     )
     info = {
         "method": "bc",
@@ -176,6 +210,7 @@ def train_dagger(args: argparse.Namespace) -> None:
             val_fraction=0.05,
             log_path=log,
             stage=f"dagger_{k}",
+            **_fit_options(args),
         )
 
     net, losses = fit(obs, act, 0)
@@ -190,18 +225,21 @@ def train_dagger(args: argparse.Namespace) -> None:
         beta = args.beta**k
         row: dict[str, Any] = {"iteration": k, "beta": beta}
         new_streams = []
-        for j, scenario in enumerate(scenarios):
+        for j, entry in enumerate(scenarios):
+            scenario, episodes = _scenario_episodes(entry, args.episodes_per_iteration)
             overrides = env_overrides(scenario, args)
             if obs_space is None:
                 obs_space, act_space = _spaces(scenario, overrides)
             streams, metrics = rollouts(
                 _env_factory(scenario, overrides, args.max_cycles),
                 expert,
-                args.episodes_per_iteration,
+                episodes,
                 args.seed + 1000 * k + 100 * j,
                 learner=lambda spec, p=path: ClonedPolicy(spec, p),
                 beta=beta,
                 desc=f"dagger {k} {scenario}",
+                noise=args.noise,
+                gate=args.gate,
             )
             new_streams += streams
             row[f"rollouts_{scenario}"] = _summary(metrics)
@@ -216,7 +254,12 @@ def train_dagger(args: argparse.Namespace) -> None:
             )
         new_obs = np.concatenate([np.stack(s.observations[:-1]) for s in new_streams])
         new_act = np.concatenate([np.stack(s.actions) for s in new_streams])
-        learner_share = np.mean(np.concatenate([s.learner_acted for s in new_streams]))
+        acted = np.concatenate([s.learner_acted for s in new_streams])
+        learner_share = np.mean(acted)
+        # the quantity DAgger drives down: the current network's error on the states it
+        # visits itself (before they join the training data)
+        if acted.any():
+            row["learner_state_rmse"] = _rmse(net, new_obs[acted], new_act[acted])
         obs, act = np.concatenate([obs, new_obs]), np.concatenate([act, new_act])
         net, losses = fit(obs, act, k)
         row.update(
@@ -235,6 +278,8 @@ def train_dagger(args: argparse.Namespace) -> None:
         "iterations": args.iterations,
         "episodes_per_iteration": args.episodes_per_iteration,
         "beta_schedule": f"beta_k = {args.beta}**k",
+        "rollout_noise": args.noise,
+        "gate": args.gate,
         "max_cycles": args.max_cycles,
         "constraint_mode": args.constraint_mode,
         "n_agents": args.n_agents,
@@ -260,6 +305,11 @@ def _add_train_args(p: argparse.ArgumentParser, epochs: int) -> None:
     p.add_argument("--data", type=Path, action="append", required=True, help="data/NAME")
     p.add_argument("--epochs", type=int, default=epochs)
     p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--lr-schedule", default="constant", choices=bc.LR_SCHEDULES)
+    p.add_argument("--batch-size", type=int, default=256)
+    p.add_argument(
+        "--loss-scale", default="none", choices=bc.LOSS_SCALES, help="std: per-component 1/var"
+    )
     p.add_argument("--hidden", type=int, nargs="+", default=[256, 256])
     p.add_argument("--features", default="uvms-v1", choices=FEATURES)
     p.add_argument("--seed", type=int, default=0)
@@ -277,17 +327,31 @@ def main(argv: list[str] | None = None) -> None:
     c.add_argument("--episodes", type=int, default=4)
     c.add_argument("--seed", type=int, default=0)
     c.add_argument("--out", type=Path, required=True, help="data/NAME")
+    c.add_argument(
+        "--noise", type=float, default=0.0, help="std of Gaussian noise on executed actions (DART)"
+    )
     _add_env_args(c)
     b = sub.add_parser("bc", help="behaviour cloning")
     _add_train_args(b, epochs=50)
     b.add_argument("--out", type=Path, default=Path("runs/bc"))
     d = sub.add_parser("dagger", help="DAgger with the expert relabelling")
     _add_train_args(d, epochs=30)
-    d.add_argument("--scenario", action="append", default=None, help="repeatable; default short")
+    d.add_argument(
+        "--scenario",
+        action="append",
+        default=None,
+        help="NAME or NAME:EPISODES (per iteration); repeatable; default short",
+    )
     d.add_argument("--iterations", type=int, default=4)
     d.add_argument("--episodes-per-iteration", type=int, default=2, help="per scenario")
     d.add_argument("--beta", type=float, default=0.5, help="beta_k = beta**k")
     d.add_argument("--save-data", action="store_true", help="write each iteration's data")
+    d.add_argument(
+        "--noise", type=float, default=0.0, help="std of Gaussian noise on executed actions"
+    )
+    d.add_argument(
+        "--gate", type=float, default=None, help="learner acts only within this of the label"
+    )
     d.add_argument("--out", type=Path, default=Path("runs/dagger"))
     _add_env_args(d)
     args = ap.parse_args(argv)

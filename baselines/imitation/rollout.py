@@ -7,6 +7,19 @@ stateful expert (the NMPC warm-starts from its previous plan) sees the same obse
 stream as if it were in control, and its label is what it would do in the visited state;
 an expert with an ``executed(action)`` hook (the NMPC's rate-offset estimator) is told
 which action was applied.
+
+``noise > 0`` adds Gaussian noise of that standard deviation to every executed action
+(clipped to [-1, 1]; the label stays the expert's clean action): DART (Laskey et al.
+2017). The arms react to a torque error of a few hundredths within a few periods, so
+clean demonstrations never show the expert's answer to a joint-rate error of the size a
+learner makes at once; perturbed ones do, around the expert's own path.
+
+``gate`` (SafeDAgger-style, Zhang & Cho 2017): the learner's action is executed only
+when it is within ``gate`` of the expert's label in every component; otherwise the
+expert's is. A clone that has left the expert's state distribution spends the rest of a
+plain DAgger rollout in fast joint motion against the limits, and the aggregate fills
+with those (expert-saturated, hard to fit) states; gating keeps the visited states near
+the ones the learner has to master, yet reached by the learner's own small errors.
 """
 
 from __future__ import annotations
@@ -30,11 +43,15 @@ def rollouts(
     beta: float = 1.0,
     progress: bool = True,
     desc: str = "rollouts",
+    noise: float = 0.0,
+    gate: float | None = None,
 ) -> tuple[list[AgentStream], list[dict]]:
     """Per-robot streams (obs, expert label, reward, ...) and each episode's end metrics.
     Episode ``ep`` uses ``env_factory(seed + ep)`` reset with ``seed + ep``."""
     if not 0.0 <= beta <= 1.0:
         raise ValueError(f"beta must be in [0, 1], got {beta}")
+    if not noise >= 0.0:
+        raise ValueError(f"noise must be >= 0, got {noise}")
     rng = np.random.default_rng(seed)
     streams: list[AgentStream] = []
     metrics: list[dict] = []
@@ -66,7 +83,15 @@ def rollouts(
                 executed = label
                 use_learner = learners is not None and rng.random() >= beta
                 if use_learner:
-                    executed = np.asarray(learners[i].act(obs[a]), dtype=np.float32)
+                    proposal = np.asarray(learners[i].act(obs[a]), dtype=np.float32)
+                    if gate is None or np.max(np.abs(proposal - label)) <= gate:
+                        executed = proposal
+                    else:
+                        use_learner = False
+                if noise > 0.0:
+                    perturbed = executed + noise * rng.standard_normal(executed.shape)
+                    executed = np.clip(perturbed, -1.0, 1.0).astype(np.float32)
+                if use_learner or noise > 0.0:
                     # a stateful expert's memory must follow the applied input
                     hook = getattr(experts[i], "executed", None)
                     if hook is not None:
