@@ -38,7 +38,9 @@ class Scenario:
     team_radius: float  # R: ball around the object holding the whole team
     current: str = "none"
     damping_scale: float = 1.0
-    mismatch: float = 0.0  # relative perturbation of the truth model's parameters
+    # relative perturbation of the truth model: hydrodynamic coefficients by up to
+    # mismatch, weighed quantities (masses, displaced volumes) by up to mismatch / 10
+    mismatch: float = 0.0
     sensor_noise: float = 0.0  # scale of the sensor-noise model (0: perfect sensing)
     seed: int | None = None
     period: float = 0.12  # control period h [s]
