@@ -19,7 +19,7 @@ import casadi as cs
 import numpy as np
 
 from nmpc_expert.local_model import NTHETA, NX
-from nmpc_expert.ocp import NC, NW, OCPFunctions, node_terms
+from nmpc_expert.ocp import NC, NW, WEIGHT_OFFSETS, OCPFunctions, node_terms
 from nmpc_expert.settings import NMPCSettings
 from uvms_env.dynamics import NU
 from uvms_env.dynamics.compiled import BufferCall
@@ -140,8 +140,8 @@ class IpoptSolver:
         p = np.concatenate(
             [x0, self.theta, self.xd.ravel(), self.vd.ravel(), a_ref.ravel(), self.weights]
         )
-        o = 18 + NU + 2 * NC
-        lower, upper = self.weights[o : o + NC], self.weights[o + NC : o + 2 * NC]
+        lo, up = WEIGHT_OFFSETS["lower"], WEIGHT_OFFSETS["upper"]
+        lower, upper = self.weights[lo : lo + NC], self.weights[up : up + NC]
         lbg, ubg = self._lbg.copy(), self._ubg.copy()
         lbg[np.isnan(lbg)] = np.tile(lower, n)
         ubg[np.isnan(ubg)] = np.tile(upper, n)

@@ -137,6 +137,9 @@ class NMPCPolicy:
         self._upper = self.solver.weights[o["upper"] : o["upper"] + NC]
         self.rate_offset = np.zeros(NX // 2)  # e, filtered one-step error of zeta
         self.goal_integral = np.zeros(6)  # I, integral of the object's pose error at the goal
+        self._goal_integral_clip = np.repeat(  # |I| bound per axis from the |k_i I| limits
+            [s.goal_integral_limit, s.goal_integral_angle_limit], 3
+        ) / max(s.goal_integral_gain, 1e-12)
         self._predicted_zeta: np.ndarray | None = None
         self._x0 = np.zeros(NX)
         self._wp = np.ascontiguousarray(spec.waypoints, dtype=float)
@@ -238,8 +241,7 @@ class NMPCPolicy:
         att = (pose[3:] - self._wp[index, 3:] + np.pi) % (2 * np.pi) - np.pi  # wrapped
         err = np.concatenate([pose[:3] - self._wp[index, :3], att])
         if np.linalg.norm(err[:3]) < s.goal_integral_radius:
-            lim = np.repeat([s.goal_integral_limit, s.goal_integral_angle_limit], 3)
-            lim = lim / s.goal_integral_gain
+            lim = self._goal_integral_clip
             self.goal_integral[:] = np.clip(self.goal_integral + s.period * err, -lim, lim)
         self.solver.xd[:] -= s.goal_integral_gain * self.goal_integral
 

@@ -3,9 +3,8 @@
 Per decision: shift the previous plan (warm start), build the condensed QP around it
 with one compiled call (``ocp.qp_builder``: RK4 defects and sensitivities, residuals,
 soft constraints, condensing), solve it with DAQP (a dual active-set solver for small
-dense QPs), check the solution yourself
-(finite, status, feasibility of the hard bounds), take the full step and apply the first
-input.
+dense QPs), check the solution yourself (finite, status, feasibility of the hard bounds),
+take the full step and apply the first input.
 
 The soft constraints carry the same exact L1 + quadratic slack penalty as the IPOPT
 reference (``l1 s + l2 s^2`` per constraint), expressed as DAQP's per-row soft weights
@@ -30,7 +29,7 @@ import daqp
 import numpy as np
 
 from nmpc_expert.local_model import NX
-from nmpc_expert.ocp import NC, OCPFunctions
+from nmpc_expert.ocp import NC, WEIGHT_OFFSETS, OCPFunctions
 from uvms_env.dynamics import NU
 from uvms_env.dynamics.compiled import BufferCall
 
@@ -39,6 +38,7 @@ FEASIBILITY_TOL = 1e-6
 SOFT = 8  # DAQP's sense flag of a soft row
 # DAQP exit flags that mean "solved" (1: optimal, 2: optimal with soft rows violated)
 _SOLVED = {1: "optimal", 2: "soft_optimal"}
+_G_T, _E = 7, 8  # ``qp_builder`` outputs g_t and e (see ``ocp.build_qp_builder``)
 
 
 class RTISolver:
@@ -64,9 +64,9 @@ class RTISolver:
         self._upper = np.zeros(nz + nc)  # [box on da; soft rows], DAQP's layout
         self._lower = np.zeros(nz + nc)
         self._sense = np.concatenate([np.zeros(nz), np.full(nc, SOFT)]).astype(np.intc)
-        o = 18 + NU
-        l1 = np.tile(self.weights[o : o + NC], n)
-        l2 = np.tile(self.weights[o + NC : o + 2 * NC], n)
+        o1, o2 = WEIGHT_OFFSETS["slack_l1"], WEIGHT_OFFSETS["slack_l2"]
+        l1 = np.tile(self.weights[o1 : o1 + NC], n)
+        l2 = np.tile(self.weights[o2 : o2 + NC], n)
         if np.any(l2 <= 0):
             raise ValueError("slack_l2 must be > 0 (the soft rows need a quadratic penalty)")
         # one entry per DAQP constraint, the box rows included (hard: their entries unused)
@@ -139,7 +139,7 @@ class RTISolver:
         self.shift(x0, a_init)
         da, info = self.solve_qp()
         out = self._build.outputs
-        g_t, e = out[7], out[8]  # dx_1..dx_N = G da + e (G read row-major from G')
+        g_t, e = out[_G_T], out[_E]  # dx_1..dx_N = G da + e (G read row-major from G')
         dx = (g_t @ da + e.reshape(-1)).reshape(self.n, NX)
         self.xbar[1:] += dx
         self.abar += da.reshape(self.n, NU)
@@ -151,7 +151,7 @@ class RTISolver:
         """Gamma_0 = d x_1 / d a_0 (NX x NU) of the last linearization, None before any."""
         if not self.has_plan:
             return None
-        return self._build.outputs[7][:NX, :NU]
+        return self._build.outputs[_G_T][:NX, :NU]
 
     def fallback(self, x0: np.ndarray, a_hold: np.ndarray) -> np.ndarray:
         """The shifted previous plan's first input (already shifted by ``step``), or the

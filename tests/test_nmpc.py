@@ -13,6 +13,7 @@ import pytest
 import uvms_env
 from nmpc_expert import NMPCPolicy, make_policy
 from nmpc_expert.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
+from nmpc_expert.ocp import NC, WEIGHT_OFFSETS
 from uvms_env.policy import AgentSpec, Policy
 
 
@@ -249,8 +250,9 @@ def test_soft_rows_carry_the_l1_l2_slack_penalty(env, short_run):
     solver._build = lambda *a: build.outputs  # reuse the edited QP
     da, info = solver.solve_qp()
     assert info["slack_max"] > 1e-3  # the tightened rows are violated
-    l1 = np.tile(pol.weights[18 + 8 : 18 + 8 + 16], solver.n)
-    l2 = np.tile(pol.weights[18 + 8 + 16 : 18 + 8 + 32], solver.n)
+    o1, o2 = WEIGHT_OFFSETS["slack_l1"], WEIGHT_OFFSETS["slack_l2"]
+    l1 = np.tile(pol.weights[o1 : o1 + NC], solver.n)
+    l2 = np.tile(pol.weights[o2 : o2 + NC], solver.n)
     z, s = cs.SX.sym("z", da.size), cs.SX.sym("s", lbc.size)
     cost = 0.5 * cs.dot(z, cs.mtimes(cs.DM(h), z)) + cs.dot(cs.DM(f), z)
     cost += cs.dot(cs.DM(l1), s) + cs.dot(cs.DM(l2), s * s)
