@@ -79,7 +79,7 @@ def _sb3(algo: str) -> Callable[[str | None, int], PolicyFactory]:
 
 def _cloned(method: str) -> Callable[[str | None, int], PolicyFactory]:
     def build(arg: str | None, seed: int) -> PolicyFactory:
-        from baselines.imitation.network import ClonedPolicy
+        from baselines.imitation.policy import ClonedPolicy
 
         folder = Path(arg) if arg not in (None, "", "pretrained") else PRETRAINED / method
         path = folder if folder.suffix == ".pt" else folder / "policy.pt"

@@ -149,9 +149,13 @@ def test_cli_collect_bc_dagger_evaluate(tmp_path):
     obs_n, _, _ = read_dataset(noisy.parent, noisy.name)
     assert obs_n.shape == (2 * STEPS, 79) and not np.allclose(obs_n[-1], obs[-1], atol=1e-4)
 
-    bc_out, dagger_out = tmp_path / "bc", tmp_path / "dagger"
+    bc_out, dagger_out, ff_out = tmp_path / "bc", tmp_path / "dagger", tmp_path / "bc_ff"
     main(["bc", "--data", str(data), "--epochs", "2", "--hidden", "16", "16",
           "--out", str(bc_out)])  # fmt: skip
+    # the steady-input features read the object that collect recorded per stream
+    assert np.all(episodes[0].infos["object_ring_radius"] == 0.0)  # short carries the bar
+    main(["bc", "--data", str(data), "--epochs", "2", "--hidden", "16", "--features",
+          "uvms-v2", "--out", str(ff_out)])  # fmt: skip
     main(["dagger", "--data", str(data), "--scenario", "short:1", "--iterations", "1",
           "--episodes-per-iteration", "3", "--max-cycles", str(STEPS), "--epochs", "2",
           "--hidden", "16", "16", "--expert", expert, "--save-data", "--lr-schedule", "cosine",
@@ -171,7 +175,7 @@ def test_cli_collect_bc_dagger_evaluate(tmp_path):
     assert len(eps) == 2
 
     rows = evaluate(
-        [f"bc:{bc_out}", f"dagger:{dagger_out}"],
+        [f"bc:{bc_out}", f"dagger:{dagger_out}", f"bc:{ff_out}"],
         ["short"],
         episodes=1,
         seed=0,
@@ -179,6 +183,6 @@ def test_cli_collect_bc_dagger_evaluate(tmp_path):
         max_cycles=STEPS,
         progress=False,
     )
-    assert [r["error"] for r in rows] == ["", ""]
+    assert [r["error"] for r in rows] == ["", "", ""]
     assert all(r["episode_steps"] == STEPS for r in rows)
     assert all(r["policy_time_ms_median"] < 5 for r in rows)

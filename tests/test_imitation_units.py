@@ -7,14 +7,18 @@ import pytest
 from gymnasium.spaces import Box
 
 from baselines.imitation import bc, dataset
-from baselines.imitation.network import (
+from baselines.imitation.features import (
     FEATURE_DIM,
+    FEATURE_DIMS,
     FEATURES,
-    ClonedPolicy,
-    MLPPolicyNet,
+    FEEDFORWARD,
+    CompiledInputs,
     featurize,
-    featurize_one,
+    prepare,
 )
+from baselines.imitation.network import MLPPolicyNet
+from baselines.imitation.policy import ClonedPolicy, object_ring_radius
+from uvms_env.policy import AgentSpec
 
 
 def test_bc_fits_a_known_linear_expert():
@@ -31,28 +35,44 @@ def test_bc_fits_a_known_linear_expert():
     assert np.abs(pred - act[:100]).max() < 0.05
 
 
-def test_saved_network_reproduces_its_decisions(tmp_path):
+def _observations(rng: np.random.Generator, n: int, scale: float = 3.0) -> np.ndarray:
+    """Arbitrary observations with the layout's structure: half without obstacles (the
+    padding), the others with positive radii; unit-norm-ish grasp rotations do not
+    matter to the feature code."""
+    obs = rng.normal(size=(n, 79)) * scale
+    obs[::2, 50:65] = np.tile([100, 100, 0, 0, 0], 3)
+    obs[1::2, 53:65:5] = np.abs(obs[1::2, 53:65:5])
+    return obs
+
+
+@pytest.fixture(scope="module")
+def paper_spec(paper):
+    return AgentSpec.from_scenario(paper, 0)
+
+
+def test_saved_network_reproduces_its_decisions(tmp_path, paper_spec):
     rng = np.random.default_rng(1)
-    obs = rng.normal(size=(500, 79)).astype(np.float32)
+    obs = _observations(rng, 500, 1.0).astype(np.float32)
+    ring = object_ring_radius(paper_spec)
     for features in FEATURES:
-        net, _ = bc.fit(obs, np.tanh(obs[:, :8]), epochs=2, features=features, progress=False)
+        net, _ = bc.fit(obs, np.tanh(obs[:, :8]), epochs=2, features=features, progress=False,
+                        ring_radius=ring)  # fmt: skip
         net.save(tmp_path / "policy.pt")
-        policy = ClonedPolicy(spec=None, path=tmp_path / "policy.pt")
+        policy = ClonedPolicy(spec=paper_spec, path=tmp_path / "policy.pt")
         again = MLPPolicyNet.load(tmp_path / "policy.pt")
-        assert again.features == features
+        assert again.features == features and again.residual == (features in FEEDFORWARD)
         for o in obs[:20]:
-            a = policy.act(o)  # numpy inference
+            a = policy.act(o)  # compiled inputs + numpy layers
             assert a.shape == (8,) and np.all(np.abs(a) <= 1)
-            assert np.allclose(a, again.predict(o[None])[0], atol=1e-5)  # torch
+            assert np.allclose(a, again.predict(o[None], ring)[0], atol=1e-5)  # torch
 
 
-def test_features_single_and_batched_agree_and_are_yaw_invariant():
+def test_compiled_features_agree_with_numpy_and_are_yaw_invariant():
     rng = np.random.default_rng(3)
-    obs = rng.normal(size=(200, 79)) * 3
-    obs[::2, 50:65] = np.tile([100, 100, 0, 0, 0], 3)  # absent obstacles
-    obs[1::2, 53:65:5] = np.abs(obs[1::2, 53:65:5])  # radii > 0
+    obs = _observations(rng, 200)
     batched = featurize(obs)
-    single = np.stack([featurize_one(o) for o in obs])
+    unscaled = CompiledInputs("uvms-v1", np.zeros(FEATURE_DIM), np.ones(FEATURE_DIM), clip=1e30)
+    single = np.stack([unscaled(o)[:FEATURE_DIM].copy() for o in obs])
     assert batched.shape == (200, FEATURE_DIM)
     assert np.allclose(batched, single, atol=1e-5)
     # rotate the whole world about the vertical by 0.7 rad and shift it: same features
@@ -68,6 +88,60 @@ def test_features_single_and_batched_agree_and_are_yaw_invariant():
     pad = obs[:, 53] <= 0
     moved[pad, 50:52] = obs[pad, 50:52]  # padding is not a place
     assert np.allclose(featurize(moved), batched, atol=1e-4)
+
+
+def test_steady_input_feature_is_the_experts_own(paper):
+    """The a_ss the clone computes from its observation alone equals the expert's, which
+    takes the grasp, load share and object from the spec (an independent path)."""
+    import uvms_env
+    from nmpc_expert.local_model import ModelParams, build_local_model
+    from nmpc_expert.ocp import build_steady_input
+    from uvms_env.dynamics import ObjectModel
+    from uvms_env.dynamics.uvms import default_model
+
+    for scenario, kwargs in (("paper", {}), ("random", {"n_agents": 3})):
+        env = uvms_env.parallel_env(scenario=scenario, seed=4, **kwargs)
+        obs, _ = env.reset(seed=4)
+        for i, agent in enumerate(env.possible_agents):
+            spec = AgentSpec.from_scenario(env.scenario, i)
+            ring = object_ring_radius(spec)
+            obj = ObjectModel(spec.object_shape, spec.ring_radius)
+            steady = build_steady_input(
+                default_model(), obj, build_local_model(default_model(), obj)
+            )
+            theta = ModelParams(
+                spec.grasp_offset, spec.grasp_rotation, spec.load_share, obj.nominal_parameters()
+            ).pack()
+            o = obs[agent].astype(float)
+            want = np.asarray(steady(o[:20], theta, o[44:50])).ravel()
+            got = prepare(obs[agent][None], "uvms-v2", ring)[0, -8:]
+            assert np.allclose(got, want, atol=1e-5)
+            dim = FEATURE_DIMS["uvms-v2"]
+            compiled = CompiledInputs("uvms-v2", np.zeros(dim), np.ones(dim), ring, clip=1e30)
+            assert np.allclose(compiled(obs[agent])[dim + 1 :], want, atol=1e-9)
+            assert np.abs(want).max() > 0.01  # a real holding input, not zeros
+
+
+def test_feedforward_features_need_the_object():
+    obs = _observations(np.random.default_rng(6), 4)
+    with pytest.raises(ValueError, match="need the object"):
+        prepare(obs, "uvms-v2")
+    with pytest.raises(ValueError, match="did not record it"):
+        prepare(obs, "uvms-v2", np.array([0.0, np.nan, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="need the object"):
+        CompiledInputs("uvms-v2", np.zeros(84), np.ones(84))
+
+
+def test_residual_network_adds_its_output_to_the_steady_input():
+    rng = np.random.default_rng(8)
+    net = MLPPolicyNet(84, hidden=(16,), features="uvms-v2")
+    x = rng.normal(size=(50, 84)).astype(np.float32)
+    import torch
+
+    with torch.no_grad():
+        for p in net.body.parameters():
+            p.zero_()  # a network that outputs nothing: the action is a_ss itself
+        assert np.allclose(net(torch.as_tensor(x)).numpy(), x[:, -8:])
 
 
 def test_std_loss_scale_weights_components_by_inverse_variance():
@@ -108,7 +182,7 @@ def test_dataset_round_trip(tmp_path):
     rng = np.random.default_rng(2)
     streams = []
     for k in range(3):
-        s = dataset.AgentStream.start(rng.normal(size=79), seed=k)
+        s = dataset.AgentStream.start(rng.normal(size=79), seed=k, object_ring_radius=0.5 * k)
         for t in range(5 + k):
             s.actions.append(rng.uniform(-1, 1, 8).astype(np.float32))
             s.observations.append(rng.normal(size=79).astype(np.float32))
@@ -128,4 +202,7 @@ def test_dataset_round_trip(tmp_path):
         assert np.array_equal(ep.rewards, np.array(s.rewards))
         assert np.array_equal(ep.terminations, np.array(s.terminations))
         assert np.allclose(ep.infos["solve_ms"][1:], s.solve_ms)
+        assert np.all(ep.infos["object_ring_radius"] == s.object_ring_radius)
     assert obs.shape == (sum(len(s.actions) for s in streams), 79) and act.shape[1] == 8
+    _, _, ring, n = dataset.read_many([tmp_path / "roundtrip"])
+    assert n == 3 and np.array_equal(ring, np.repeat([0.0, 0.5, 1.0], [5, 6, 7]))

@@ -151,4 +151,7 @@ def test_pretrained_reproduces_recorded_evaluation(algo):
         assert first["seed"] == rec["seed"]
         assert bool(first["success"]) == rec["success"]
         assert first["episode_steps"] == rec["episode_steps"]
-        assert first["return"] == pytest.approx(rec["return"], rel=1e-6, abs=1e-6)
+        # bit for bit only on the machine that recorded it: the compiled physics is built
+        # with -march=native, and another CPU's rounding (seen: AVX-512 vs not) grows over
+        # hundreds of closed-loop steps, here by up to 1.5% of the return
+        assert first["return"] == pytest.approx(rec["return"], rel=0.05)

@@ -20,7 +20,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from baselines.imitation.network import MLPPolicyNet, prepare
+from baselines.imitation.features import prepare
+from baselines.imitation.network import MLPPolicyNet
 
 LOG_FIELDS = ["stage", "epoch", "samples", "train_loss", "val_loss"]
 LOSS_SCALES = ("none", "std")
@@ -55,9 +56,11 @@ def fit(
     progress: bool = True,
     loss_scale: str = "none",
     lr_schedule: str = "constant",
+    ring_radius: np.ndarray | float | None = None,
 ) -> tuple[MLPPolicyNet, list[float]]:
     """Train a new network (or continue training ``net``, keeping its normalization) and
-    return it with the per-epoch training losses (weighted as ``loss_scale`` says)."""
+    return it with the per-epoch training losses (weighted as ``loss_scale`` says).
+    ``ring_radius``: the object per sample, for features that need it."""
     if obs.ndim != 2 or act.ndim != 2 or len(obs) != len(act):
         raise ValueError(f"obs (M, D) and act (M, A) must match, got {obs.shape} and {act.shape}")
     if lr_schedule not in LR_SCHEDULES:
@@ -65,7 +68,7 @@ def fit(
     weight = torch.as_tensor(loss_weights(act, loss_scale))
     torch.manual_seed(seed)
     torch.set_num_threads(1)
-    x_all = prepare(obs, net.features if net is not None else features)
+    x_all = prepare(obs, net.features if net is not None else features, ring_radius)
     if net is None:
         net = MLPPolicyNet(x_all.shape[1], act.shape[1], hidden, features=features)
         net.set_normalization(x_all)

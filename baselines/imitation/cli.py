@@ -25,7 +25,9 @@ per-component error on the states it drove into itself, before they were added.
 
 ``--noise S`` (``collect`` and ``dagger``) adds Gaussian noise of std S to the executed
 actions while the labels stay the expert's (DART; see ``baselines.imitation.rollout``).
-Training options of ``bc`` and ``dagger``: ``--loss-scale std`` (per-component
+Training options of ``bc`` and ``dagger``: ``--features`` (default ``uvms-v2``: invariant
+features and the expert's steady input, which the network learns a residual on; see
+``baselines.imitation.features``), ``--hidden``, ``--loss-scale std`` (per-component
 inverse-variance weights), ``--lr-schedule cosine``, ``--batch-size``. ``dagger --gate G``
 executes the learner's action only where it is within G of the expert's in every
 component (the expert's otherwise; ``learner_share`` reports how often it drove).
@@ -47,7 +49,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from baselines.imitation import bc, dataset
-from baselines.imitation.network import FEATURES, ClonedPolicy
+from baselines.imitation.features import FEATURES
+from baselines.imitation.policy import ClonedPolicy
 from baselines.imitation.rollout import rollouts
 from baselines.policies import PolicySource
 
@@ -152,20 +155,21 @@ def _fit_options(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
-def _rmse(net, obs: np.ndarray, act: np.ndarray) -> list[float]:
+def _rmse(net, obs: np.ndarray, act: np.ndarray, ring: np.ndarray) -> list[float]:
     """Per-component RMSE of ``net`` against the (clipped) expert labels."""
-    err = net.predict(obs) - np.clip(act, -1, 1)
+    err = net.predict(obs, ring) - np.clip(act, -1, 1)
     return [round(float(v), 4) for v in np.sqrt(np.mean(err**2, axis=0))]
 
 
 def train_bc(args: argparse.Namespace) -> None:
     start = time.time()
-    obs, act, n_streams = dataset.read_many(args.data)
+    obs, act, ring, n_streams = dataset.read_many(args.data)
     log = args.out / "bc_loss.csv"
     log.unlink(missing_ok=True)
     net, losses = bc.fit(
         obs,
         act,
+        ring_radius=ring,
         epochs=args.epochs,
         lr=args.lr,
         hidden=tuple(args.hidden),
@@ -191,15 +195,16 @@ def train_bc(args: argparse.Namespace) -> None:
 
 def train_dagger(args: argparse.Namespace) -> None:
     start = time.time()
-    obs, act, n_streams = dataset.read_many(args.data)
+    obs, act, ring, n_streams = dataset.read_many(args.data)
     scenarios = args.scenario or ["short"]
     log = args.out / "dagger_loss.csv"
     log.unlink(missing_ok=True)
 
-    def fit(o: np.ndarray, a: np.ndarray, k: int):
+    def fit(o: np.ndarray, a: np.ndarray, r: np.ndarray, k: int):
         return bc.fit(
             o,
             a,
+            ring_radius=r,
             epochs=args.epochs,
             lr=args.lr,
             hidden=tuple(args.hidden),
@@ -211,7 +216,7 @@ def train_dagger(args: argparse.Namespace) -> None:
             **_fit_options(args),
         )
 
-    net, losses = fit(obs, act, 0)
+    net, losses = fit(obs, act, ring, 0)
     expert = PolicySource.parse(args.expert).factory(args.seed)
     history: list[dict[str, Any]] = [
         {"iteration": 0, "beta": 1.0, "samples": len(obs), "loss": losses[-1]}
@@ -252,14 +257,18 @@ def train_dagger(args: argparse.Namespace) -> None:
             )
         new_obs = np.concatenate([np.stack(s.observations[:-1]) for s in new_streams])
         new_act = np.concatenate([np.stack(s.actions) for s in new_streams])
+        new_ring = np.concatenate(
+            [np.full(len(s.actions), s.object_ring_radius) for s in new_streams]
+        )
         acted = np.concatenate([s.learner_acted for s in new_streams])
         learner_share = np.mean(acted)
         # the quantity DAgger drives down: the current network's error on the states it
         # visits itself (before they join the training data)
         if acted.any():
-            row["learner_state_rmse"] = _rmse(net, new_obs[acted], new_act[acted])
+            row["learner_state_rmse"] = _rmse(net, new_obs[acted], new_act[acted], new_ring[acted])
         obs, act = np.concatenate([obs, new_obs]), np.concatenate([act, new_act])
-        net, losses = fit(obs, act, k)
+        ring = np.concatenate([ring, new_ring])
+        net, losses = fit(obs, act, ring, k)
         row.update(
             samples=len(obs),
             new_samples=len(new_obs),
@@ -309,7 +318,7 @@ def _add_train_args(p: argparse.ArgumentParser, epochs: int) -> None:
         "--loss-scale", default="none", choices=bc.LOSS_SCALES, help="std: per-component 1/var"
     )
     p.add_argument("--hidden", type=int, nargs="+", default=[256, 256])
-    p.add_argument("--features", default="uvms-v1", choices=FEATURES)
+    p.add_argument("--features", default="uvms-v2", choices=FEATURES)
     p.add_argument("--seed", type=int, default=0)
 
 

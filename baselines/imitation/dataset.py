@@ -2,8 +2,10 @@
 
 Minari has no multi-agent support, so an episode of N robots becomes N episodes (its
 observations, the expert's actions, the shared reward, terminations, and per-step
-expert statistics in ``infos``: ``solve_ms``, ``expert_iterations``, ``expert_fallbacks``
-and ``learner_acted`` (DAgger); entry 0 belongs to the reset observation). Datasets live
+expert statistics in ``infos``: ``solve_ms``, ``expert_iterations``, ``expert_fallbacks``,
+``learner_acted`` (DAgger) and ``object_ring_radius`` (the object the robot carries, which
+it knows before the task: the ring's radius, 0 for the bar); entry 0 belongs to the reset
+observation). Datasets live
 under ``root`` (``MINARI_DATASETS_PATH``) with ids ``uvms/NAME-v0``.
 """
 
@@ -33,10 +35,14 @@ class AgentStream:
     iterations: list[int] = field(default_factory=list)  # expert solver iterations
     fallbacks: list[int] = field(default_factory=list)  # expert fallbacks so far
     learner_acted: list[bool] = field(default_factory=list)  # executed: learner (DAgger)
+    object_ring_radius: float = float("nan")  # the carried object; 0 for the bar
 
     @staticmethod
-    def start(obs: np.ndarray, seed: int) -> AgentStream:
-        return AgentStream([np.asarray(obs, np.float32)], [], [], [], [], [], seed)
+    def start(obs: np.ndarray, seed: int, object_ring_radius: float = float("nan")) -> AgentStream:
+        return AgentStream(
+            [np.asarray(obs, np.float32)], [], [], [], [], [], seed,
+            object_ring_radius=object_ring_radius,
+        )  # fmt: skip
 
 
 def _dataset_id(name: str) -> str:
@@ -61,6 +67,7 @@ def _infos(s: AgentStream) -> dict[str, np.ndarray]:
         "expert_iterations": col(s.iterations, np.int64, 0),
         "expert_fallbacks": col(s.fallbacks, np.int64, 0),
         "learner_acted": col(s.learner_acted, np.bool_, False),
+        "object_ring_radius": np.full(t + 1, s.object_ring_radius, dtype=np.float64),
     }
 
 
@@ -106,16 +113,20 @@ def write_dataset(
     return dataset_id
 
 
-def read_many(paths: list[Path]) -> tuple[np.ndarray, np.ndarray, int]:
-    """Concatenated (observations, actions) of several ``data/NAME`` datasets, and the
-    number of robot streams."""
-    obs, act, n = [], [], 0
+def read_many(paths: list[Path]) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Concatenated (observations, actions, object ring radius per sample; NaN where a
+    dataset did not record it) of several ``data/NAME`` datasets, and the number of
+    robot streams."""
+    obs, act, ring, n = [], [], [], 0
     for p in paths:
         o, a, eps = read_dataset(*split_path(p))
         obs.append(o)
         act.append(a)
+        ring += [
+            np.full(len(ep.actions), ep.infos.get("object_ring_radius", [np.nan])[0]) for ep in eps
+        ]
         n += len(eps)
-    return np.concatenate(obs), np.concatenate(act), n
+    return np.concatenate(obs), np.concatenate(act), np.concatenate(ring), n
 
 
 def read_dataset(root: Path, name: str) -> tuple[np.ndarray, np.ndarray, list]:

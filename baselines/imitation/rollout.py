@@ -31,6 +31,7 @@ import numpy as np
 from tqdm import tqdm
 
 from baselines.imitation.dataset import AgentStream
+from baselines.imitation.policy import object_ring_radius
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 
 
@@ -66,7 +67,8 @@ def rollouts(
         learners: list[Policy] | None = [learner(s) for s in specs] if learner else None
         for p in experts + (learners or []):
             p.reset()
-        ep_streams = {a: AgentStream.start(obs[a], ep_seed) for a in agents}
+        ring = object_ring_radius(specs[0])
+        ep_streams = {a: AgentStream.start(obs[a], ep_seed, ring) for a in agents}
         end: dict = {}
         steps = 0
         while env.agents:

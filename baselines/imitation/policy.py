@@ -1,0 +1,69 @@
+"""A saved ``policy.pt`` as a per-agent policy for the evaluator and DAgger rollouts.
+
+One decision: the compiled input function (features, normalization, clipping; see
+``features``) and the MLP's layers in numpy float32. The same network serves every
+robot; it is stateless, so ``reset`` does nothing. The object (for ``uvms-v2`` features)
+comes from the robot's ``AgentSpec``.
+
+May import: numpy, torch, ``uvms_env.policy`` and this package's network and features.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from baselines.imitation.features import CompiledInputs
+from baselines.imitation.network import MLPPolicyNet
+from uvms_env.policy import AgentSpec
+
+
+class ClonedPolicy:
+    """``act(obs)``: the network's action for one robot's observation, in [-1, 1]."""
+
+    def __init__(self, spec: AgentSpec | None, path: Path) -> None:
+        torch.set_num_threads(1)
+        self.spec = spec
+        self.net = MLPPolicyNet.load(path)
+        self.features = self.net.features
+        self._inputs = CompiledInputs(
+            self.features,
+            self.net.obs_mean.numpy(),
+            1.0 / self.net.obs_std.numpy(),
+            ring_radius=object_ring_radius(spec) if spec is not None else None,
+        )
+        # Each layer's bias rides as the last row of its weights, against a constant 1 at
+        # the end of its input: a decision is then ~2 numpy calls per layer (~0.5 us
+        # each). The first input, [z; 1; a_ss], comes whole from the compiled function.
+        layers = [np.vstack([w, b[None]]).astype(np.float32) for w, b in self.net.numpy_weights()]
+        self._hidden, self._last = layers[:-1], layers[-1]
+        n_in = len(layers[0])
+        self._first = np.ones(n_in + 8, dtype=np.float32)
+        self._x, self._steady = self._first[:n_in], self._first[n_in:]
+        self._buffers = [np.ones(len(w), dtype=np.float32) for w in layers[1:]]
+        self._residual = self.net.residual
+        self.stats: dict[str, Any] = {}
+
+    def reset(self) -> None:
+        pass
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        np.copyto(self._first, self._inputs(np.asarray(obs)), casting="same_kind")
+        h = self._x
+        for w, nxt in zip(self._hidden, self._buffers, strict=True):
+            np.tanh(h @ w, out=nxt[:-1])
+            h = nxt
+        out = h @ self._last
+        if self._residual:
+            out += self._steady
+            np.maximum(out, -1.0, out=out)
+            return np.minimum(out, 1.0, out=out)
+        return np.tanh(out, out=out)  # float32 tanh never leaves [-1, 1]
+
+
+def object_ring_radius(spec: AgentSpec) -> float:
+    """The object as the feature code names it: the ring's radius, 0 for the bar."""
+    return float(spec.ring_radius) if spec.object_shape == "ring" else 0.0
