@@ -54,9 +54,10 @@ def test_saved_network_reproduces_its_decisions(tmp_path, paper_spec):
     rng = np.random.default_rng(1)
     obs = _observations(rng, 500, 1.0).astype(np.float32)
     ring = object_ring_radius(paper_spec)
-    for features in FEATURES:
-        net, _ = bc.fit(obs, np.tanh(obs[:, :8]), epochs=2, features=features, progress=False,
-                        ring_radius=ring)  # fmt: skip
+    cases = [(f, (32, 32)) for f in FEATURES] + [("uvms-v2", ())]  # (): linear feedback
+    for features, hidden in cases:
+        net, _ = bc.fit(obs, np.tanh(obs[:, :8]), epochs=2, features=features, hidden=hidden,
+                        progress=False, ring_radius=ring)  # fmt: skip
         net.save(tmp_path / "policy.pt")
         policy = ClonedPolicy(spec=paper_spec, path=tmp_path / "policy.pt")
         again = MLPPolicyNet.load(tmp_path / "policy.pt")

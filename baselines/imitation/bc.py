@@ -46,7 +46,7 @@ def fit(
     epochs: int = 50,
     batch_size: int = 256,
     lr: float = 1e-3,
-    hidden: tuple[int, ...] = (256, 256),
+    hidden: tuple[int, ...] = (128, 128),
     seed: int = 0,
     net: MLPPolicyNet | None = None,
     features: str = "raw",

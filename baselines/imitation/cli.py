@@ -27,10 +27,12 @@ per-component error on the states it drove into itself, before they were added.
 actions while the labels stay the expert's (DART; see ``baselines.imitation.rollout``).
 Training options of ``bc`` and ``dagger``: ``--features`` (default ``uvms-v2``: invariant
 features and the expert's steady input, which the network learns a residual on; see
-``baselines.imitation.features``), ``--hidden``, ``--loss-scale std`` (per-component
-inverse-variance weights), ``--lr-schedule cosine``, ``--batch-size``. ``dagger --gate G``
-executes the learner's action only where it is within G of the expert's in every
-component (the expert's otherwise; ``learner_share`` reports how often it drove).
+``baselines.imitation.features``), ``--hidden W [W ...]`` (default 128 128; ``--hidden``
+alone: a linear map, on ``uvms-v2`` a linear feedback around a_ss), ``--loss-scale std``
+(per-component inverse-variance weights), ``--lr-schedule cosine``, ``--batch-size``.
+``dagger --gate G`` executes the learner's action only where it is within G of the
+expert's in every component (the expert's otherwise; ``learner_share`` reports how often
+it drove).
 ``--scenario NAME:EPISODES`` overrides ``--episodes-per-iteration`` for one scenario.
 """
 
@@ -317,7 +319,7 @@ def _add_train_args(p: argparse.ArgumentParser, epochs: int) -> None:
     p.add_argument(
         "--loss-scale", default="none", choices=bc.LOSS_SCALES, help="std: per-component 1/var"
     )
-    p.add_argument("--hidden", type=int, nargs="+", default=[256, 256])
+    p.add_argument("--hidden", type=int, nargs="*", default=[128, 128], help="widths; none: linear")
     p.add_argument("--features", default="uvms-v2", choices=FEATURES)
     p.add_argument("--seed", type=int, default=0)
 

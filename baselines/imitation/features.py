@@ -44,6 +44,7 @@ May import: numpy, casadi, ``uvms_env.dynamics`` and ``nmpc_expert.ocp`` /
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
 
 import casadi as cs
@@ -190,11 +191,7 @@ def features_sx(o: cs.SX, features: str, ring_radius: float) -> cs.SX:
     return cs.vertcat(base, steady_sx(o, ring_radius)) if features in FEEDFORWARD else base
 
 
-@functools.cache
-def input_function(features: str, ring_radius: float, dim: int = OBS_DIM) -> cs.Function:
-    """Compiled (obs, mean, inv_std, clip) -> [z; 1; a_ss]: the normalized clipped
-    features z, a constant 1 (the MLP's bias input, see ``policy``) and the steady input
-    (zeros for feature sets without it), in one vector so a decision copies it once."""
+def _inputs_sx(features: str, ring_radius: float, dim: int):
     o = cs.SX.sym("obs", dim)
     x = features_sx(o, features, ring_radius)
     n = x.numel()
@@ -202,8 +199,31 @@ def input_function(features: str, ring_radius: float, dim: int = OBS_DIM) -> cs.
     z = cs.fmin(clip, cs.fmax(-clip, (x - mean) * inv_std))
     ff = x[n - ACT_DIM :] if features in FEEDFORWARD else cs.DM.zeros(ACT_DIM)
     tag = f"{features}_{ring_radius:.4f}_{dim}".replace(".", "p").replace("-", "")
-    out = cs.vertcat(z, 1.0, ff)
-    fn = cs.Function(f"cloned_inputs_{tag}", [o, mean, inv_std, clip], [out], {"cse": True})
+    return [o, mean, inv_std, clip], z, ff, tag
+
+
+@functools.cache
+def input_function(features: str, ring_radius: float, dim: int = OBS_DIM) -> cs.Function:
+    """Compiled (obs, mean, inv_std, clip) -> [z; 1; a_ss]: the normalized clipped
+    features z, a constant 1 (the MLP's bias input, see ``policy``) and the steady input
+    (zeros for feature sets without it), in one vector so a decision copies it once."""
+    args, z, ff, tag = _inputs_sx(features, ring_radius, dim)
+    fn = cs.Function(f"cloned_inputs_{tag}", args, [cs.vertcat(z, 1.0, ff)], {"cse": True})
+    return compile_function(fn)
+
+
+def linear_decision_function(
+    features: str, ring_radius: float, weights: np.ndarray, residual: bool, dim: int = OBS_DIM
+) -> cs.Function:
+    """Compiled (obs, mean, inv_std, clip) -> action of a network without hidden layers:
+    clip(a_ss + W' [z; 1], -1, 1) (residual) or tanh(W' [z; 1]); ``weights`` (n + 1, 8)
+    with the bias as the last row. A few hundred multiply-adds: in C they cost less than
+    one numpy call, so the whole decision is one compiled call."""
+    args, z, ff, tag = _inputs_sx(features, ring_radius, dim)
+    out = cs.mtimes(cs.DM(np.asarray(weights, dtype=float).T), cs.vertcat(z, 1.0))
+    act = cs.fmin(1.0, cs.fmax(-1.0, ff + out)) if residual else cs.tanh(out)
+    digest = hashlib.sha256(np.ascontiguousarray(weights, dtype=float).tobytes()).hexdigest()
+    fn = cs.Function(f"cloned_linear_{tag}_{digest[:12]}", args, [act], {"cse": True})
     return compile_function(fn)
 
 
@@ -214,8 +234,11 @@ def _ring(ring_radius: float | None, features: str) -> float:
 
 
 class CompiledInputs:
-    """``__call__(obs) -> [z; 1; a_ss]`` (see ``input_function``) for one observation: a
-    float64 view of the output buffer, overwritten by the next call."""
+    """``__call__(obs)`` through a compiled function of one observation: by default
+    ``[z; 1; a_ss]`` (see ``input_function``); with ``head`` (the weights of a network
+    without hidden layers, bias as the last row), the action itself (see
+    ``linear_decision_function``). Returns a float64 view of the output buffer,
+    overwritten by the next call."""
 
     def __init__(
         self,
@@ -224,9 +247,17 @@ class CompiledInputs:
         inv_std: np.ndarray,
         ring_radius: float | None = None,
         clip: float = INPUT_CLIP,
+        head: np.ndarray | None = None,
+        residual: bool = False,
     ) -> None:
         dim = OBS_DIM if features != "raw" else len(mean)
-        self._call = BufferCall(input_function(features, _ring(ring_radius, features), dim))
+        ring = _ring(ring_radius, features)
+        fn = (
+            input_function(features, ring, dim)
+            if head is None
+            else linear_decision_function(features, ring, head, residual, dim)
+        )
+        self._call = BufferCall(fn)
         self._obs = np.zeros(dim)
         self._consts = (
             np.ascontiguousarray(mean, dtype=np.float64),

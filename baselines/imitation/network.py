@@ -30,13 +30,14 @@ MIN_STD = 1e-3  # features (nearly) constant in the data are centred, not scaled
 
 
 class MLPPolicyNet(nn.Module):
-    """MLP on (already prepared) inputs; ``features`` says how observations are prepared."""
+    """MLP on (already prepared) inputs; ``features`` says how observations are prepared.
+    ``hidden=()`` is a linear map (on ``uvms-v2``: a linear feedback around a_ss)."""
 
     def __init__(
         self,
         in_dim: int,
         act_dim: int = 8,
-        hidden: tuple[int, ...] = (256, 256),
+        hidden: tuple[int, ...] = (128, 128),
         features: str = "raw",
     ) -> None:
         super().__init__()

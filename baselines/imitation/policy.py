@@ -29,28 +29,37 @@ class ClonedPolicy:
         self.spec = spec
         self.net = MLPPolicyNet.load(path)
         self.features = self.net.features
-        self._inputs = CompiledInputs(
-            self.features,
-            self.net.obs_mean.numpy(),
-            1.0 / self.net.obs_std.numpy(),
-            ring_radius=object_ring_radius(spec) if spec is not None else None,
-        )
+        ring = object_ring_radius(spec) if spec is not None else None
+        mean, inv_std = self.net.obs_mean.numpy(), 1.0 / self.net.obs_std.numpy()
         # Each layer's bias rides as the last row of its weights, against a constant 1 at
         # the end of its input: a decision is then ~2 numpy calls per layer (~0.5 us
         # each). The first input, [z; 1; a_ss], comes whole from the compiled function.
-        layers = [np.vstack([w, b[None]]).astype(np.float32) for w, b in self.net.numpy_weights()]
+        # A network without hidden layers runs entirely in the compiled function.
+        layers = [np.vstack([w, b[None]]) for w, b in self.net.numpy_weights()]
+        self._residual = self.net.residual
+        self._linear = len(layers) == 1
+        self._inputs = CompiledInputs(
+            self.features,
+            mean,
+            inv_std,
+            ring_radius=ring,
+            head=layers[0] if self._linear else None,
+            residual=self._residual,
+        )
+        layers = [w.astype(np.float32) for w in layers]
         self._hidden, self._last = layers[:-1], layers[-1]
         n_in = len(layers[0])
         self._first = np.ones(n_in + 8, dtype=np.float32)
         self._x, self._steady = self._first[:n_in], self._first[n_in:]
         self._buffers = [np.ones(len(w), dtype=np.float32) for w in layers[1:]]
-        self._residual = self.net.residual
         self.stats: dict[str, Any] = {}
 
     def reset(self) -> None:
         pass
 
     def act(self, obs: np.ndarray) -> np.ndarray:
+        if self._linear:
+            return self._inputs(np.asarray(obs)).astype(np.float32)
         np.copyto(self._first, self._inputs(np.asarray(obs)), casting="same_kind")
         h = self._x
         for w, nxt in zip(self._hidden, self._buffers, strict=True):
