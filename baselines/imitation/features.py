@@ -34,8 +34,11 @@ Decisions: ``CompiledInputs`` evaluates features, normalization and clipping as 
 generated-C function through preallocated buffers (~2.5 us with a_ss, ~1 us without;
 the same feature code in Python costs 10-17 us). The MLP itself stays in numpy float32
 (BLAS): generated C of its dense products measured 10-15x slower (91 vs 6.8 us for
-256-256). The numpy ``featurize`` is the independent twin of ``featurize_sx``, and the
-expert's compiled a_ss that of ``steady_sx``; the tests check that they agree.
+256-256). A network without hidden layers (680 multiply-adds) is compiled into the same
+function, so its whole decision is one call (~4.5 us in a closed loop).
+
+The numpy ``featurize`` is the independent twin of ``featurize_sx``, and the expert's
+compiled a_ss that of ``steady_sx``; the tests check that they agree.
 
 May import: numpy, casadi, ``uvms_env.dynamics`` and ``nmpc_expert.ocp`` /
 ``nmpc_expert.local_model`` (the expert's model functions, not its controller).
