@@ -97,8 +97,9 @@ class NMPCPolicy:
         self.settings = s = settings or NMPCSettings()
         if abs(s.period - spec.period) > 1e-12:
             raise ValueError(f"settings.period {s.period} != scenario period {spec.period}")
-        ring = float(spec.ring_radius) if spec.object_shape == "ring" else 0.0
-        self.funcs = ocp_functions(spec.object_shape, ring, s.horizon, s.period, s.substeps)
+        self.funcs = ocp_functions(
+            spec.object_shape, spec.object_ring_radius, s.horizon, s.period, s.substeps
+        )
         obj = ObjectModel(spec.object_shape, spec.ring_radius)
         self.theta = ModelParams(
             spec.grasp_offset, spec.grasp_rotation, spec.load_share, obj.nominal_parameters()

@@ -17,7 +17,7 @@ from baselines.imitation.features import (
     prepare,
 )
 from baselines.imitation.network import MLPPolicyNet
-from baselines.imitation.policy import ClonedPolicy, object_ring_radius
+from baselines.imitation.policy import ClonedPolicy
 from uvms_env.policy import AgentSpec
 
 
@@ -53,7 +53,7 @@ def paper_spec(paper):
 def test_saved_network_reproduces_its_decisions(tmp_path, paper_spec):
     rng = np.random.default_rng(1)
     obs = _observations(rng, 500, 1.0).astype(np.float32)
-    ring = object_ring_radius(paper_spec)
+    ring = paper_spec.object_ring_radius
     cases = [(f, (32, 32)) for f in FEATURES] + [("uvms-v2", ())]  # (): linear feedback
     for features, hidden in cases:
         net, _ = bc.fit(obs, np.tanh(obs[:, :8]), epochs=2, features=features, hidden=hidden,
@@ -105,7 +105,7 @@ def test_steady_input_feature_is_the_experts_own(paper):
         obs, _ = env.reset(seed=4)
         for i, agent in enumerate(env.possible_agents):
             spec = AgentSpec.from_scenario(env.scenario, i)
-            ring = object_ring_radius(spec)
+            ring = spec.object_ring_radius
             obj = ObjectModel(spec.object_shape, spec.ring_radius)
             steady = build_steady_input(
                 default_model(), obj, build_local_model(default_model(), obj)

@@ -44,6 +44,12 @@ class AgentSpec:
     success_pos_tol: float
     success_att_tol: float
 
+    @property
+    def object_ring_radius(self) -> float:
+        """The object as the compiled model functions name it: the ring's radius, 0 for
+        the bar."""
+        return float(self.ring_radius) if self.object_shape == "ring" else 0.0
+
     @staticmethod
     def from_scenario(scenario: Scenario, index: int) -> AgentSpec:
         if not 0 <= index < scenario.n_agents:

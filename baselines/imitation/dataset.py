@@ -5,8 +5,8 @@ observations, the expert's actions, the shared reward, terminations, and per-ste
 expert statistics in ``infos``: ``solve_ms``, ``expert_iterations``, ``expert_fallbacks``,
 ``learner_acted`` (DAgger) and ``object_ring_radius`` (the object the robot carries, which
 it knows before the task: the ring's radius, 0 for the bar); entry 0 belongs to the reset
-observation). Datasets live
-under ``root`` (``MINARI_DATASETS_PATH``) with ids ``uvms/NAME-v0``.
+observation). Datasets live under ``root`` (``MINARI_DATASETS_PATH``) with ids
+``uvms/NAME-v0``.
 """
 
 from __future__ import annotations

@@ -64,7 +64,6 @@ FEATURE_DIM = FEATURE_DIMS["uvms-v1"]
 ACT_DIM = 8
 OBSTACLE_RANGE = 5.0  # m; obstacle offsets beyond this are scaled down to it
 INPUT_CLIP = 10.0  # normalized inputs are clipped to +-10 standard deviations
-NO_CLIP = 1e30
 
 
 def check_features(features: str) -> None:
@@ -311,6 +310,8 @@ def prepare(
 
 @functools.cache
 def _steady_batch(ring_radius: float) -> cs.Function:
+    """a_ss alone, for training batches: mapped over 50k samples it costs 0.8 s, the
+    whole input function 2.0 s (the features come from the numpy ``featurize``)."""
     o = cs.SX.sym("obs", OBS_DIM)
     name = f"cloned_steady_{ring_radius:.4f}".replace(".", "p")
     return compile_function(cs.Function(name, [o], [steady_sx(o, ring_radius)]))

@@ -29,7 +29,7 @@ class ClonedPolicy:
         self.spec = spec
         self.net = MLPPolicyNet.load(path)
         self.features = self.net.features
-        ring = object_ring_radius(spec) if spec is not None else None
+        ring = spec.object_ring_radius if spec is not None else None
         mean, inv_std = self.net.obs_mean.numpy(), 1.0 / self.net.obs_std.numpy()
         # Each layer's bias rides as the last row of its weights, against a constant 1 at
         # the end of its input: a decision is then ~2 numpy calls per layer (~0.5 us
@@ -71,8 +71,3 @@ class ClonedPolicy:
             np.maximum(out, -1.0, out=out)
             return np.minimum(out, 1.0, out=out)
         return np.tanh(out, out=out)  # float32 tanh never leaves [-1, 1]
-
-
-def object_ring_radius(spec: AgentSpec) -> float:
-    """The object as the feature code names it: the ring's radius, 0 for the bar."""
-    return float(spec.ring_radius) if spec.object_shape == "ring" else 0.0

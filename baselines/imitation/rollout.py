@@ -31,7 +31,6 @@ import numpy as np
 from tqdm import tqdm
 
 from baselines.imitation.dataset import AgentStream
-from baselines.imitation.policy import object_ring_radius
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 
 
@@ -67,7 +66,7 @@ def rollouts(
         learners: list[Policy] | None = [learner(s) for s in specs] if learner else None
         for p in experts + (learners or []):
             p.reset()
-        ring = object_ring_radius(specs[0])
+        ring = specs[0].object_ring_radius
         ep_streams = {a: AgentStream.start(obs[a], ep_seed, ring) for a in agents}
         end: dict = {}
         steps = 0
