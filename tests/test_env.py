@@ -34,6 +34,7 @@ from uvms_env.env.registration import register_gymnasium
 from uvms_env.env.wrench import InternalWrench
 from uvms_env.navigation import Cylinder, Sphere
 from uvms_env.scenarios import replace
+from uvms_env.sim.simulator import SimulationDiverged
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -436,11 +437,12 @@ def test_divergence_ends_the_episode_gracefully(env, monkeypatch):
     env.reset(seed=0)
 
     def boom(tau):
-        raise FloatingPointError("the simulation diverged (non-finite state)")
+        raise SimulationDiverged("the simulation diverged (non-finite state)")
 
     monkeypatch.setattr(env.sim, "step", boom)
     obs, _, term, _, infos = env.step(holding(env))
     assert term["uvms_0"] and infos["uvms_0"]["episode_end"] == "diverged"
+    assert infos["uvms_0"]["diverged_reason"] == "the simulation diverged (non-finite state)"
     assert np.all(np.isfinite(obs["uvms_0"]))
     assert infos["uvms_0"]["metrics"]["success"] is False
 

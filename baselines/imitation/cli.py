@@ -6,7 +6,8 @@
         --scenario short --scenario paper --iterations 4 --out runs/dagger
 
 ``collect`` writes one Minari dataset (one episode per robot; see
-``baselines.imitation.dataset``) under ``data/`` with id ``uvms/NAME-v0``. ``bc`` and
+``baselines.imitation.dataset``) in ``data/NAME`` (its own Minari root) with id
+``uvms/NAME-v0`` and the environment's spec (``load(...).recover_environment()``). ``bc`` and
 ``dagger`` read any number of them (``--data`` repeats) and write ``policy.pt`` (load it
 with ``python -m baselines.evaluate --policy bc:runs/bc``), the loss log (CSV, one row
 per epoch) and ``train.json`` (settings, data sizes, per-iteration results).
@@ -89,6 +90,15 @@ def _spaces(scenario: str, overrides: dict):
     return env.observation_space(agent), env.action_space(agent)
 
 
+def _env_spec(scenario: str, overrides: dict, cap: int | None = None):
+    """The Gymnasium ``EnvSpec`` the data came from (for Minari's ``recover_environment``):
+    the scenario, its overrides and the episode length actually used."""
+    kwargs = dict(overrides)
+    if cap:
+        kwargs["max_cycles"] = _env_factory(scenario, overrides, cap)(0).max_cycles
+    return dataset.env_spec(scenario, **kwargs)
+
+
 def _summary(metrics: list[dict]) -> dict[str, Any]:
     wins = sum(bool(m.get("success")) for m in metrics)
     steps = [m.get("episode_steps") for m in metrics if m.get("episode_steps") is not None]
@@ -114,12 +124,15 @@ def collect(args: argparse.Namespace) -> None:
     root, name = dataset.split_path(args.out)
     obs_space, act_space = _spaces(args.scenario, overrides)
     algorithm = f"expert {args.expert}" + (f", DART noise {args.noise}" if args.noise else "")
-    dataset_id = dataset.write_dataset(streams, root, name, obs_space, act_space, algorithm)
+    spec = _env_spec(args.scenario, overrides, args.max_cycles)
+    dataset_id = dataset.write_dataset(
+        streams, root, name, obs_space, act_space, algorithm, spec=spec
+    )
     summary = _summary(metrics)
     steps = sum(len(s.actions) for s in streams)
     solve = np.concatenate([s.solve_ms for s in streams]) if streams else np.zeros(0)
     print(
-        f"wrote Minari dataset {dataset_id} under {root}: {len(streams)} robot streams, "
+        f"wrote Minari dataset {dataset_id} under {args.out}: {len(streams)} robot streams, "
         f"{steps} steps, expert success {summary['success']}/{summary['episodes']}, "
         f"expert decision median {np.median(solve):.3f} ms, {time.time() - start:.0f} s"
     )
@@ -256,6 +269,10 @@ def train_dagger(args: argparse.Namespace) -> None:
                 obs_space,
                 act_space,
                 algorithm=f"DAgger iteration {k}, labels {args.expert}",
+                # one environment to recover only when the rollouts had one scenario
+                spec=_env_spec(scenario, overrides, args.max_cycles)
+                if len(scenarios) == 1
+                else None,
             )
         new_obs = np.concatenate([np.stack(s.observations[:-1]) for s in new_streams])
         new_act = np.concatenate([np.stack(s.actions) for s in new_streams])

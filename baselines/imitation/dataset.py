@@ -5,16 +5,28 @@ observations, the expert's actions, the shared reward, terminations, and per-ste
 expert statistics in ``infos``: ``solve_ms``, ``expert_iterations``, ``expert_fallbacks``,
 ``learner_acted`` (DAgger) and ``object_ring_radius`` (the object the robot carries, which
 it knows before the task: the ring's radius, 0 for the bar); entry 0 belongs to the reset
-observation). Datasets live under ``root`` (``MINARI_DATASETS_PATH``) with ids
-``uvms/NAME-v0``.
+observation). Dataset ``data/NAME`` is a Minari root of its own (``MINARI_DATASETS_PATH``
+= ``data/NAME``, holding only this dataset, id ``uvms/NAME-v0``), so other folders next to
+it never reach Minari's scan of its root. Datasets written before this layout
+(``data/uvms/NAME-v0``, root ``data``) are still read.
+
+Each dataset records the environment it came from as a Gymnasium ``EnvSpec`` of
+``uvms_env/CoopTransport-v0`` with the scenario and its overrides as kwargs, so
+``load(path).recover_environment()`` builds it. That is the centralized Gymnasium view
+(``uvms_env.env.gym_wrapper``): robot i's observation and action are the slices
+``[79 i, 79 (i + 1))`` and ``[8 i, 8 (i + 1))`` of its spaces, while the dataset's spaces
+are one robot's.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
+import shutil
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -54,6 +66,27 @@ def _use_root(root: Path) -> None:
     os.environ["MINARI_DATASETS_PATH"] = str(root.resolve())
 
 
+def _minari_root(root: Path, name: str) -> Path:
+    """The Minari root of dataset ``root/NAME``: ``root/NAME`` itself, or ``root`` for a
+    dataset written in the earlier layout (``root/uvms/NAME-v0``)."""
+    own = Path(root) / name
+    legacy = Path(root) / NAMESPACE / f"{name}-v0"
+    if not (own / NAMESPACE).exists() and (legacy / "data").exists():
+        return Path(root)
+    return own
+
+
+def env_spec(scenario: str, **kwargs: Any):
+    """The Gymnasium ``EnvSpec`` of ``uvms_env/CoopTransport-v0`` built with ``scenario``
+    and ``kwargs`` (scenario overrides and environment options; JSON-serializable)."""
+    import gymnasium
+
+    from uvms_env.env.registration import ENV_ID, register_gymnasium
+
+    register_gymnasium()
+    return dataclasses.replace(gymnasium.spec(ENV_ID), kwargs={"scenario": scenario, **kwargs})
+
+
 def _infos(s: AgentStream) -> dict[str, np.ndarray]:
     """Per-step expert statistics, aligned with the observations (entry 0: the reset)."""
     t = len(s.actions)
@@ -78,15 +111,20 @@ def write_dataset(
     obs_space,
     act_space,
     algorithm: str = "distributed NMPC expert",
+    spec=None,
 ) -> str:
-    """Write the streams as a Minari dataset (replacing one of the same name)."""
+    """Write the streams as Minari dataset ``root/NAME`` (replacing one of the same name).
+    ``spec``: the environment's ``EnvSpec`` (see ``env_spec``), for
+    ``recover_environment``; None records none."""
     import minari
     from minari.data_collector import EpisodeBuffer
 
-    _use_root(root)
+    own = Path(root) / name
+    _use_root(own)
     dataset_id = _dataset_id(name)
-    if dataset_id in minari.list_local_datasets():
-        minari.delete_dataset(dataset_id)
+    # no minari.list_local_datasets(): it parses every folder under the root as an id
+    if (own / NAMESPACE / f"{name}-v0").exists():
+        shutil.rmtree(own / NAMESPACE / f"{name}-v0")
     buffers = [
         EpisodeBuffer(
             id=k,
@@ -105,6 +143,7 @@ def write_dataset(
         minari.create_dataset_from_buffers(
             dataset_id,
             buffers,
+            env=spec,
             observation_space=obs_space,
             action_space=act_space,
             algorithm_name=algorithm,
@@ -129,12 +168,18 @@ def read_many(paths: list[Path]) -> tuple[np.ndarray, np.ndarray, np.ndarray, in
     return np.concatenate(obs), np.concatenate(act), np.concatenate(ring), n
 
 
-def read_dataset(root: Path, name: str) -> tuple[np.ndarray, np.ndarray, list]:
-    """(observations (M, D), actions (M, 8), episodes) over all steps with an action."""
+def load(path: Path):
+    """The ``minari.MinariDataset`` of dataset ``data/NAME``."""
     import minari
 
-    _use_root(root)
-    data = minari.load_dataset(_dataset_id(name))
+    root, name = split_path(path)
+    _use_root(_minari_root(root, name))
+    return minari.load_dataset(_dataset_id(name))
+
+
+def read_dataset(root: Path, name: str) -> tuple[np.ndarray, np.ndarray, list]:
+    """(observations (M, D), actions (M, 8), episodes) over all steps with an action."""
+    data = load(Path(root) / name)
     episodes = list(data.iterate_episodes())
     obs = np.concatenate([ep.observations[:-1] for ep in episodes]).astype(np.float32)
     act = np.concatenate([ep.actions for ep in episodes]).astype(np.float32)

@@ -12,6 +12,7 @@ Cache folder: ``$UVMS_ENV_CACHE`` or the user cache dir (``platformdirs``). Set
 
 from __future__ import annotations
 
+import copy
 import functools
 import hashlib
 import os
@@ -115,3 +116,39 @@ class BufferCall:
         rewritten in place since); results in ``outputs``. Saves the argument loop
         (~0.5 us) on hot paths that refill one input buffer per call."""
         self._eval()
+
+
+class RebuiltOnUnpickle:
+    """Pickling and deep copies for objects that hold compiled CasADi functions.
+
+    Compiled functions are SWIG objects that cannot be pickled, and a shallow copy would
+    share their bound buffers. The pickle holds the constructor's arguments
+    (``self._init_args``, set by the constructor) and the plain attributes, less those
+    named in ``_rebuilt``; unpickling calls the constructor again (the libraries come
+    from the disk cache, the symbolic graphs from the process cache) and restores the
+    attributes, copying arrays into the rebuilt ones in place, since compiled calls and
+    views are bound to those. ``copy.copy`` makes the same independent copy.
+    """
+
+    _init_args: tuple
+    _rebuilt: tuple[str, ...] = ()
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k not in self._rebuilt}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(*state["_init_args"])
+        for key, value in state.items():
+            current = self.__dict__.get(key)
+            if (
+                isinstance(current, np.ndarray)
+                and isinstance(value, np.ndarray)
+                and current.shape == value.shape
+                and current.dtype == value.dtype
+            ):
+                current[...] = value
+            else:
+                self.__dict__[key] = value
+
+    def __copy__(self):
+        return copy.deepcopy(self)

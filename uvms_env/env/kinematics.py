@@ -27,7 +27,7 @@ import casadi as cs
 import numpy as np
 
 from uvms_env.dynamics import NQ, NU, UVMSModel
-from uvms_env.dynamics.compiled import BufferCall, compile_function
+from uvms_env.dynamics.compiled import BufferCall, RebuiltOnUnpickle, compile_function
 from uvms_env.dynamics.spatial import rot_zyx
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.env.constraints import (
@@ -258,7 +258,7 @@ def grasp_matrix(scenario: Scenario) -> np.ndarray:
     return np.ascontiguousarray(np.hstack([scenario.grasp_offsets, rot]), dtype=float)
 
 
-class TeamKinematics:
+class TeamKinematics(RebuiltOnUnpickle):
     """Evaluates the kernel for one scenario; outputs are views overwritten by each call.
 
     ``layout`` is the observation's (name, size) list: the kernel fills every block it
@@ -274,6 +274,8 @@ class TeamKinematics:
     ``object_clearance`` and ``object_workspace_excess`` (m).
     """
 
+    _rebuilt = ("_call",)
+
     def __init__(
         self,
         scenario: Scenario,
@@ -281,6 +283,7 @@ class TeamKinematics:
         layout: Layout,
         far: Sequence[float],
     ) -> None:
+        self._init_args = (scenario, segments, layout, far)
         self.n = n = scenario.n_agents
         cyl = [o for o in scenario.obstacles if isinstance(o, Cylinder)]
         sph = [o for o in scenario.obstacles if not isinstance(o, Cylinder)]

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import casadi as cs
 import numpy as np
 
-from uvms_env.dynamics.compiled import BufferCall
+from uvms_env.dynamics.compiled import BufferCall, RebuiltOnUnpickle
 from uvms_env.env.kinematics import TeamKinematics
 from uvms_env.navigation import WaypointNavigator, WaypointSequencer, choose_k
 
@@ -181,7 +181,7 @@ def _nav_function(navigator: WaypointNavigator, n: int) -> cs.Function:
     )
 
 
-class Observer:
+class Observer(RebuiltOnUnpickle):
     """Builds the N local observations of one scenario each step (see module docstring).
 
     Owns each robot's waypoint sequencer (advanced from that robot's own estimate) and
@@ -189,7 +189,10 @@ class Observer:
     writes every block of the observation but the navigation twist, which depends on
     the scenario's navigation functions and is added here."""
 
+    _rebuilt = ("navigator", "_nav")
+
     def __init__(self, scenario: Scenario, kinematics: TeamKinematics) -> None:
+        self._init_args = (scenario, kinematics)
         self.scenario = scenario
         self.n = n = scenario.n_agents
         self.kin = kinematics
@@ -209,6 +212,10 @@ class Observer:
         self._waypoint = OBSERVATION_STRUCTURE["waypoint"]
         self._nav_slice = OBSERVATION_STRUCTURE["nav_velocity"]
         self._on_waypoint_change()
+
+    def __setstate__(self, state: dict) -> None:
+        super().__setstate__(state)
+        self._on_waypoint_change()  # the constructor reset the kernel's waypoints
 
     @property
     def noisy(self) -> bool:

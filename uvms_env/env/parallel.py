@@ -8,6 +8,7 @@ render).
 
 from __future__ import annotations
 
+import copy
 import math
 import warnings
 from collections import OrderedDict
@@ -35,18 +36,29 @@ from uvms_env.env.observation import (
 from uvms_env.env.registration import ENV_ID
 from uvms_env.env.reward import RewardWeights, TeamReward
 from uvms_env.env.wrench import InternalWrench
-from uvms_env.scenarios import COMMON_OVERRIDES, Scenario, make, replace
+from uvms_env.scenarios import Scenario, make, replace
+from uvms_env.scenarios.overrides import (
+    SCENARIO_OVERRIDES,
+    Option,
+    describe_options,
+    validate_options,
+    validate_overrides,
+)
 from uvms_env.sim import Simulator
+from uvms_env.sim.simulator import SimulationDiverged
 
 CONSTRAINT_MODES = ("penalize", "terminate")
-ENV_OPTIONS = (
-    "constraint_mode",
-    "max_cycles",
-    "reward_weights",
-    "reseed_geometry",
-    "internal_wrench_every",
-)
-SCENARIO_OVERRIDES = (*COMMON_OVERRIDES, "n_agents")
+# The environment's own keyword options (the scenario overrides: SCENARIO_OVERRIDES).
+ENV_OPTIONS: dict[str, Option] = {
+    "constraint_mode": Option("choice", "soft-constraint violations", choices=CONSTRAINT_MODES),
+    "max_cycles": Option("int", "truncation; None: the scenario's max_steps", low=1, optional=True),
+    "reward_weights": Option("weights", "overrides of RewardWeights", optional=True),
+    "reseed_geometry": Option("bool", "reset(seed=s) also sets a seeded family's geometry"),
+    "internal_wrench_every": Option("int", "internal wrench metric period, 0: never", low=0),
+}
+RESET_SEED = Option("int", "reset's seed", low=0, optional=True)
+# Action dtype kinds accepted: float, signed and unsigned int (not bool, complex, str, object).
+ACTION_KINDS = "fiu"
 # Seeded-family scenarios kept per geometry seed (each costs an IPOPT solve to build).
 GEOMETRY_CACHE_SIZE = 32
 _HARD = [CONSTRAINTS.index(c) for c in HARD_CONSTRAINTS]
@@ -64,6 +76,9 @@ class _World:
     wrench: InternalWrench
     renderer: Any = None
 
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "renderer": None}  # a window is no state; rebuilt on demand
+
 
 class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
     """Cooperative transport: N underwater vehicle-manipulator systems carry one object.
@@ -73,7 +88,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
     | Import | `uvms_env.parallel_env(scenario="paper", render_mode=None, **overrides)` |
     | PettingZoo | `pettingzoo.make("parallel", "uvms_env/CoopTransport-v0")` |
     | Gymnasium | `gymnasium.make("uvms_env/CoopTransport-v0")`: centralized view |
-    | Agents | `uvms_0 ... uvms_{N-1}`; paper scenario N = 2, random family N = 2..6 |
+    | Agents | `uvms_0 ... uvms_{N-1}`; paper, short N = 2; random N = 2..6 (default 2) |
     | Action space | `Box(-1, 1, (8,), float32)` per agent |
     | Observation space | `Box(79,)` float32 per agent, local only (layout below) |
     | State space | `Box(20 N + 19,)` float32, the global state for centralized critics only |
@@ -87,7 +102,9 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
 
     **Actions.** Normalized inputs of robot i, scaled by the saturation limits
     (`load_parameters().limits.tau_max`); values beyond [-1, 1] are clipped (the
-    simulator saturates) and reported by the `input` constraint.
+    simulator saturates) and reported by the `input` constraint. Float or integer
+    arrays (or lists); bool, complex, string and object arrays, NaN and inf raise
+    ValueError naming the agent.
 
     | index | input | unit | scale (saturation) |
     |---|---|---|---|
@@ -158,9 +175,12 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
 
     **Episode end.** Terminated: success (the true object within `success_pos_tol` =
     0.15 m and `success_att_tol` = 0.1 rad of the final waypoint), a collision, a
-    violation in "terminate" mode, or a diverged simulation (the state is kept, the
-    episode ends as a failure). Truncated: `max_cycles` periods. All agents end
-    together. The last infos carry `"episode_end"` (success, collision, constraint,
+    violation in "terminate" mode, or a diverged simulation: a period the simulator's
+    error control could not integrate to its accuracy even in 16 parts, or a state beyond
+    the model's physical envelope (`uvms_env.sim.simulator.SPEED_LIMITS`). The step is
+    refused, its observation is the last valid state's, the episode ends as a failure
+    and `infos[agent]["diverged_reason"]` says why. Truncated: `max_cycles` periods. All
+    agents end together. The last infos carry `"episode_end"` (success, collision, constraint,
     diverged, max_cycles) and `"metrics"` (`uvms_env.env.metrics`).
 
     **Infos.** Every step, per agent: `constraint_values` (dict), `cost`, `reward_terms`
@@ -183,22 +203,28 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
     |---|---|---|---|
     | scenario | str or Scenario | "paper" | family ("paper", "random", "short") or a Scenario |
     | render_mode | None, "rgb_array", "human" | None | "human" is headless-safe |
-    | n_agents | int | family's | random family: 2..6 |
+    | n_agents | int | 2 | random family: 2..6; paper and short: 2 |
     | current | str | "none" | ocean current preset: none, mild, strong |
-    | damping_scale | float | 1.0 | multiplies all damping |
-    | mismatch | float | 0.0 | relative truth-model perturbation, drawn per episode |
-    | sensor_noise | float | 0.0 | scale of the sensor noise above |
-    | seed | int or None | None | scenario seed: random geometry, default episode seed |
-    | max_steps, substeps, success_pos_tol, success_att_tol | | scenario's | scenario fields |
+    | damping_scale | float >= 0 | 1.0 | multiplies all damping |
+    | mismatch | float in [0, 0.5) | 0.0 | relative truth-model perturbation, per episode |
+    | sensor_noise | float >= 0 | 0.0 | scale of the sensor noise above |
+    | seed | None or int >= 0 | None | scenario seed: random geometry, default episode seed |
+    | max_steps, substeps | int >= 1 | scenario's | scenario fields |
+    | success_pos_tol, success_att_tol | float > 0 | scenario's | scenario fields |
     | constraint_mode | str | "penalize" | "penalize" or "terminate" |
-    | max_cycles | int | scenario max_steps | truncation (also settable as an attribute) |
-    | reward_weights | dict | {} | overrides of `RewardWeights` |
+    | max_cycles | None or int >= 1 | scenario max_steps | truncation (also an attribute) |
+    | reward_weights | dict str -> float | {} | overrides of `RewardWeights` |
     | reseed_geometry | bool | True | seeded families: `reset(seed=s)` uses geometry seed s |
-    | internal_wrench_every | int | 1 | internal wrench metric every k periods (0: never) |
+    | internal_wrench_every | int >= 0 | 1 | internal wrench metric every k periods (0: never) |
 
-    Unknown keywords raise ValueError listing the allowed ones.
+    Every keyword is checked against one typed table (`SCENARIO_OVERRIDES` in
+    `uvms_env.scenarios.overrides`, `ENV_OPTIONS` here): a wrong type raises TypeError
+    (no bools or strings for numbers, no floats for integers), a value out of range
+    (NaN and inf included) or an unknown keyword ValueError; the message names the
+    keyword and lists what is allowed.
 
-    **Seeding.** `reset(seed=s)` reseeds everything random in an episode: the truth
+    **Seeding.** `seed`: None or an int >= 0 (Python or numpy, not bool; else TypeError
+    or ValueError). `reset(seed=s)` reseeds everything random in an episode: the truth
     model's mismatch draws, the current and the sensor noise; `reset()` continues the
     sequence, so a seeded reset followed by the same actions replays an episode step
     for step. For the families whose geometry is seeded ("random", "short"; not
@@ -206,7 +232,9 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
     `make(family, seed=s, n_agents=N, ...)` (the last 32 are cached; the first build of
     a seed costs an IPOPT solve, ~0.2-1 s); `reset()` keeps the current geometry. With
     `reseed_geometry=False` the geometry stays the one built at construction (from the
-    `seed` override). The number of agents never changes.
+    `seed` override; without one it is a fresh draw). The number of agents never
+    changes and never depends on a seed: two environments built with the same
+    arguments and reset with the same seed are identical.
 
     **Version history.** v0 (2026-11): first version.
     """
@@ -221,13 +249,16 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
     def __init__(
         self, scenario: str | Scenario = "paper", render_mode: str | None = None, **overrides: Any
     ) -> None:
-        options = {k: overrides.pop(k) for k in ENV_OPTIONS if k in overrides}
-        unknown = sorted(set(overrides) - set(SCENARIO_OVERRIDES))
+        unknown = sorted(set(overrides) - set(SCENARIO_OVERRIDES) - set(ENV_OPTIONS), key=str)
         if unknown:
             raise ValueError(
                 f"unknown option(s) {unknown}; allowed: scenario overrides "
-                f"{sorted(SCENARIO_OVERRIDES)} and environment options {sorted(ENV_OPTIONS)}"
+                f"{describe_options(SCENARIO_OVERRIDES)}; environment options "
+                f"{describe_options(ENV_OPTIONS)}"
             )
+        options = {k: overrides.pop(k) for k in ENV_OPTIONS if k in overrides}
+        options = validate_options(options, ENV_OPTIONS, "environment option")
+        overrides = validate_overrides(overrides)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be None or one of {self.metadata['render_modes']}, "
@@ -235,17 +266,9 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             )
         self.render_mode = render_mode
         self.constraint_mode = options.get("constraint_mode", "penalize")
-        if self.constraint_mode not in CONSTRAINT_MODES:
-            raise ValueError(
-                f"constraint_mode must be one of {CONSTRAINT_MODES}, got {self.constraint_mode!r}"
-            )
         self.reward_weights = RewardWeights.from_mapping(options.get("reward_weights"))
-        self.reseed_geometry = bool(options.get("reseed_geometry", True))
-        self.internal_wrench_every = int(options.get("internal_wrench_every", 1))
-        if self.internal_wrench_every < 0:
-            raise ValueError(
-                f"internal_wrench_every must be >= 0 (0: never), got {self.internal_wrench_every}"
-            )
+        self.reseed_geometry = options.get("reseed_geometry", True)
+        self.internal_wrench_every = options.get("internal_wrench_every", 1)
 
         if isinstance(scenario, Scenario):
             if "n_agents" in overrides:
@@ -261,9 +284,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         # Every family but the paper's draws its geometry from the seed.
         self._seeded_geometry = self.reseed_geometry and self._family not in (None, "paper")
         max_cycles = options.get("max_cycles")
-        self.max_cycles = int(built.max_steps if max_cycles is None else max_cycles)
-        if self.max_cycles < 1:
-            raise ValueError(f"max_cycles must be >= 1, got {max_cycles}")
+        self.max_cycles = int(built.max_steps) if max_cycles is None else max_cycles
 
         n = built.n_agents
         self.n = n
@@ -322,6 +343,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
     ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
         """Start an episode (``options`` is accepted and unused)."""
         if seed is not None:
+            seed = RESET_SEED.check("seed", seed)
             self._seeder = np.random.default_rng(seed)
             if self._seeded_geometry:
                 self._world = self._world_for_seed(int(seed))
@@ -354,11 +376,11 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             raise RuntimeError("step() called on a finished episode: call reset() first")
         w = self._world
         a = self._parse_actions(actions)
-        diverged = False
+        diverged = ""
         try:
             info = w.sim.step(a * w.sim.tau_max)  # it saturates: clip(a) tau_max
-        except FloatingPointError:
-            diverged = True  # the simulator kept the last finite state
+        except SimulationDiverged as exc:
+            diverged = str(exc)  # the simulator kept the last valid state
         except ValueError as exc:  # NaN or inf: the simulator checks before it steps
             raise self._bad_actions(a) from exc
         self._steps += 1
@@ -367,7 +389,9 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         n_violated, action_sq = self._team[4], self._team[5]
         kinds = kin.kinds_violated.tolist()
         collision = any(kinds[k] for k in _HARD)
-        failed = diverged or collision or (self.constraint_mode == "terminate" and n_violated > 0)
+        failed = (
+            bool(diverged) or collision or (self.constraint_mode == "terminate" and n_violated > 0)
+        )
         x_o = self._x_o.tolist()
         success = not failed and w.reward.at_goal(x_o)
         terminated = success or failed
@@ -397,6 +421,8 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
                 end = "success"
             elif diverged:
                 end = "diverged"
+                for info_a in infos.values():
+                    info_a["diverged_reason"] = diverged
             elif collision:
                 end = "collision"
             elif failed:
@@ -475,6 +501,28 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             if world.renderer is not None:
                 world.renderer.close()
 
+    # -- copies ------------------------------------------------------------------------
+    def __getstate__(self) -> dict:
+        """Pickles (and deep copies) hold the current world and the episode's state; the
+        copy rebuilds its compiled functions from the disk cache and continues the same
+        episode bit for bit. Cached worlds of other geometry seeds are left out (each
+        would rebuild its compiled functions)."""
+        state = dict(self.__dict__)
+        state["_worlds"] = OrderedDict(
+            (seed, w) for seed, w in self._worlds.items() if w is self._world
+        )
+        for view in ("_q", "_zeta", "_x_o"):  # views into the simulator's state
+            state.pop(view, None)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._bind(self._world)
+
+    def __copy__(self) -> CoopTransportEnv:
+        """An independent copy: a shallow one would share the simulator."""
+        return copy.deepcopy(self)
+
     # -- internals ---------------------------------------------------------------------
     def _agent(self, agent: str) -> str:
         if agent not in self._index:
@@ -487,12 +535,15 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             raise ValueError(
                 f"actions must be a dict agent -> array of shape ({NU},), got {type(actions)}"
             )
-        try:  # fast path: one conversion for the whole team
-            a = np.array([actions[agent] for agent in self.possible_agents], dtype=float)
+        try:  # fast path: real (float or int) rows of shape (8,), one conversion for all
+            rows = [np.asarray(actions[agent]) for agent in self.possible_agents]
         except (KeyError, ValueError, TypeError):
-            a = None
-        if a is None or a.shape != (self.n, NU):
+            rows = None
+        if rows is None or not all(
+            [r.dtype.kind in ACTION_KINDS and r.shape == (NU,) for r in rows]
+        ):
             self._explain_bad_actions(actions)
+        a = np.array(rows, dtype=float)
         if len(actions) != self.n:
             unknown = sorted(set(actions) - set(self._index), key=str)
             raise ValueError(
@@ -514,11 +565,18 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
                 raise ValueError(f"no action for agent {agent!r}: every live agent must act")
             act = actions[agent]
             try:
-                shape = np.shape(np.asarray(act, dtype=float))
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f"action of agent {agent!r} is not numeric: {act!r}") from exc
-            if shape != (NU,):
-                raise ValueError(f"action of agent {agent!r} must have shape ({NU},), got {shape}")
+                arr = np.asarray(act)
+            except (TypeError, ValueError) as exc:  # e.g. ragged nested lists
+                raise ValueError(f"action of agent {agent!r} is not an array: {act!r}") from exc
+            if arr.dtype.kind not in ACTION_KINDS:
+                raise ValueError(
+                    f"action of agent {agent!r} is not numeric: dtype {arr.dtype} (allowed: "
+                    f"float or int; not bool, complex, str or object), got {act!r}"
+                )
+            if arr.shape != (NU,):
+                raise ValueError(
+                    f"action of agent {agent!r} must have shape ({NU},), got {arr.shape}"
+                )
         raise ValueError("actions could not be read")  # not reached: some agent is wrong
 
     def _bind(self, w: _World) -> None:

@@ -8,8 +8,9 @@ import numpy as np
 
 from uvms_env.models import load_parameters
 from uvms_env.navigation import Cylinder, Sphere, Workspace
+from uvms_env.scenarios.overrides import CURRENT_PRESETS, SCENARIO_FIELDS, SCENARIO_OVERRIDES
 
-CURRENT_PRESETS = ("none", "mild", "strong")
+__all__ = ["CURRENT_PRESETS", "Scenario", "obstacle_distance", "validate"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,7 +73,9 @@ def obstacle_distance(points: np.ndarray, obstacle: Cylinder | Sphere) -> np.nda
 
 
 def validate(s: Scenario) -> None:
-    """Raise ValueError naming the first inconsistency of the scenario."""
+    """Raise ValueError naming the first inconsistency of the scenario (TypeError for a
+    wrongly typed overridable field, e.g. ``sensor_noise="0.1"``; NaN and inf are values
+    out of range)."""
     n = s.n_agents
     if not isinstance(n, int | np.integer) or n < 2:
         raise ValueError(f"n_agents must be an integer >= 2, got {n!r}")
@@ -100,16 +103,10 @@ def validate(s: Scenario) -> None:
             f"grasp points {i} and {j} are too close: {d.min():.3f} m apart, the robots' "
             f"bounding spheres need >= 2 * robot_radius = {2 * s.robot_radius:.3f} m"
         )
-    if s.current not in CURRENT_PRESETS:
-        raise ValueError(f"current must be one of {CURRENT_PRESETS}, got {s.current!r}")
-    if not np.isfinite(s.damping_scale) or s.damping_scale < 0:
-        raise ValueError(f"damping_scale must be >= 0, got {s.damping_scale}")
-    if not 0 <= s.mismatch < 0.5:
-        raise ValueError(f"mismatch must lie in [0, 0.5), got {s.mismatch}")
-    if s.sensor_noise < 0:
-        raise ValueError(f"sensor_noise must be >= 0, got {s.sensor_noise}")
-    if s.period <= 0 or s.substeps < 1 or s.max_steps < 1:
-        raise ValueError("period must be > 0, substeps >= 1 and max_steps >= 1")
+    for name in SCENARIO_FIELDS:  # the overridable fields: one schema (overrides.py)
+        SCENARIO_OVERRIDES[name].check(name, getattr(s, name))
+    if not (np.isfinite(s.period) and s.period > 0):
+        raise ValueError(f"period must be a finite float > 0, got {s.period!r}")
     if abs(s.object_start[4]) >= np.pi / 2 - 0.1:
         raise ValueError("object_start pitch is too close to the Euler singularity |theta| = pi/2")
     for k, wp in enumerate(np.vstack([s.object_start[None], s.waypoints])):

@@ -19,19 +19,14 @@ from uvms_env.scenarios.geometry import (
     static_equilibrium,
     uvms_model,
 )
+from uvms_env.scenarios.overrides import SCENARIO_FIELDS, validate_overrides
 
-# Keys every family accepts as overrides of make(); families may accept more.
-COMMON_OVERRIDES = (
-    "current",
-    "damping_scale",
-    "mismatch",
-    "sensor_noise",
-    "seed",
-    "max_steps",
-    "substeps",
-    "success_pos_tol",
-    "success_att_tol",
-)
+# Keys every family accepts as overrides of make() (types and ranges: overrides.py);
+# families may accept more (n_agents).
+COMMON_OVERRIDES = SCENARIO_FIELDS
+# The random family's team size when n_agents is not given: fixed, so that an
+# environment built without it has the same agents every time.
+RANDOM_DEFAULT_AGENTS = 2
 
 
 def _configure(
@@ -135,6 +130,9 @@ def paper(**settings) -> Scenario:
 def random(**settings) -> Scenario:
     """Seeded random family: N = 2..6 robots around a ring, random start, goal, obstacles.
 
+    ``n_agents`` defaults to 2 (``RANDOM_DEFAULT_AGENTS``) whatever the seed: the team
+    size is never drawn. Without a ``seed`` the geometry is a fresh random draw.
+
     Robots face the ring's centre from outside at random angles (neighbours at least
     2 r_bar apart), with heterogeneous load shares in [0.5/N, 1.5/N]. One to three
     waypoints, two to five obstacles (vertical cylinders and spheres) kept clear of the
@@ -142,7 +140,8 @@ def random(**settings) -> Scenario:
     """
     seed = settings.get("seed")
     rng = np.random.default_rng(seed)
-    n = int(settings.pop("n_agents", rng.integers(2, 7)))
+    rng.integers(2, 7)  # formerly the default team size; still drawn: seeded geometries kept
+    n = settings.pop("n_agents", RANDOM_DEFAULT_AGENTS)
     if not 2 <= n <= 6:
         raise ValueError(f"the random family has 2..6 agents, got n_agents={n}")
     r_bar = robot_radius()
@@ -252,17 +251,17 @@ FAMILIES: dict[str, Callable[..., Scenario]] = {"paper": paper, "random": random
 def make(name: str = "paper", **overrides) -> Scenario:
     """Build a scenario of family ``name`` with keyword overrides (validated).
 
-    Common overrides: ``current`` ("none", "mild", "strong"), ``damping_scale``,
-    ``mismatch`` (relative truth-parameter perturbation), ``sensor_noise``, ``seed``,
-    ``max_steps``, ``substeps``; ``n_agents`` where the family allows it (random: 2..6).
+    Common overrides: ``current`` ("none", "mild", "strong"), ``damping_scale`` (>= 0),
+    ``mismatch`` (relative truth-parameter perturbation, [0, 0.5)), ``sensor_noise``
+    (>= 0), ``seed`` (None or int >= 0), ``max_steps``, ``substeps`` (ints >= 1),
+    ``success_pos_tol``, ``success_att_tol`` (> 0); ``n_agents`` where the family allows
+    it (random: 2..6, default 2; paper and short: 2). Types and ranges: the table in
+    ``uvms_env.scenarios.overrides``; a wrong type raises TypeError, a value out of range
+    or an unknown key ValueError, naming the key and what is allowed.
     """
-    if name not in FAMILIES:
+    if not isinstance(name, str) or name not in FAMILIES:
         raise ValueError(f"unknown scenario {name!r}; known: {sorted(FAMILIES)}")
-    allowed = (*COMMON_OVERRIDES, "n_agents")
-    unknown = sorted(set(overrides) - set(allowed))
-    if unknown:
-        raise ValueError(f"unknown scenario override(s) {unknown}; allowed: {sorted(allowed)}")
-    return FAMILIES[name](**overrides)
+    return FAMILIES[name](**validate_overrides(overrides))
 
 
 def replace(scenario: Scenario, **changes) -> Scenario:

@@ -1,0 +1,157 @@
+"""Is a scenario's ocean current within the team's reach? The team's top speed in still
+water, from the model's own damping.
+
+To hold its ground against a current of speed c, a team must push through the water at
+c: it can only if its top speed in still water exceeds c (necessary, not sufficient: it
+must also manoeuvre). ``team_top_speed`` is that speed for the scenario's start
+configuration: the team translates rigidly (no rotation, arms still) at speed V along a
+horizontal direction d, every vehicle pushes along d with its surge and sway at full
+saturation (the best a box-saturated thruster set gives along d: f_max (|x_i . d| +
+|y_i . d|), x_i and y_i its body axes; heave stays busy with the weight and yaw with the
+heading), and V solves
+
+    sum_i f_max (|x_i . d| + |y_i . d|) = P(V) / V,
+
+where P(V) is the power the water takes from the team: sum_i zeta_i . h_i(q_i, zeta_i) +
+v_O . h_O(x_O, v_O), with the project's own CasADi dynamics functions (``UVMSModel.bias``
+and ``ObjectModel.dynamics``), so drag of vehicles, arms and object have one source. The
+other terms of h do no work in this motion (Coriolis and Kirchhoff terms are power-free,
+a horizontal translation changes no potential). Nominal model with the scenario's
+``damping_scale``; ``mismatch`` is ignored.
+
+Paper scenario, nominal model: 0.202 m/s along the vehicles' surge axes (surge alone),
+0.287 m/s along the best direction (44 degrees off the surge axes, surge and sway both
+at full saturation). The mild preset (0.1 m/s) is within reach; the strong one (mean
+0.3 m/s) is not, whatever the controller. The rigid translation slightly overestimates:
+in the truth simulator, full thrust with the heading held (and the arms held by a joint
+PD) settles at 0.196 m/s along the surge axes and 0.275 m/s along the best direction,
+the passive vehicles pitched nose-up by ~0.35 rad (tests/test_reach.py).
+
+May import: numpy, scipy (when called), ``uvms_env.models``, ``uvms_env.dynamics``.
+"""
+
+from __future__ import annotations
+
+import weakref
+
+import numpy as np
+
+from uvms_env.dynamics import NQ, ObjectModel
+from uvms_env.dynamics.payload import OBJECT_PARAMETER_LAYOUT
+from uvms_env.dynamics.spatial import rot_zyx
+from uvms_env.dynamics.uvms import default_model, scale_damping
+from uvms_env.models import load_parameters
+from uvms_env.scenarios.config import Scenario
+
+__all__ = ["current_within_reach", "team_drag", "team_thrust", "team_top_speed"]
+
+_SWEEP = 36  # directions over a half turn (top speed along d and -d is the same)
+_V_MAX = 20.0  # m/s, bracket of the root search
+_cache: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _unit(direction) -> np.ndarray:
+    d = np.array([direction[0], direction[1], 0.0], dtype=float)
+    norm = np.linalg.norm(d)
+    if not np.isfinite(norm) or norm < 1e-12:
+        raise ValueError(f"direction must be a nonzero horizontal vector, got {direction!r}")
+    return d / norm
+
+
+def _heading(psi: float) -> np.ndarray:
+    return np.array([np.cos(psi), np.sin(psi), 0.0])
+
+
+class _Team:
+    """The scenario's start configuration and nominal model, evaluated once."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        self.uvms = default_model()
+        self.p = scale_damping(self.uvms.nominal_parameters(), scenario.damping_scale)
+        self.object = ObjectModel(scenario.object_shape, scenario.ring_radius)
+        self.po = self.object.nominal_parameters()
+        self.po[OBJECT_PARAMETER_LAYOUT["drag_scale"]] *= scenario.damping_scale
+        self.q = np.asarray(scenario.initial_q, dtype=float)
+        self.x_o = np.asarray(scenario.object_start, dtype=float)
+        self.rot = [np.array(rot_zyx(q[3:6])) for q in self.q]
+        self.f_max = load_parameters().limits.vehicle_force
+
+    def thrust(self, d: np.ndarray) -> float:
+        return float(sum(self.f_max * (abs(r[:, 0] @ d) + abs(r[:, 1] @ d)) for r in self.rot))
+
+    def drag(self, v: np.ndarray) -> float:
+        speed = float(np.linalg.norm(v))
+        if speed == 0.0:
+            return 0.0
+        still = np.zeros(3)
+        power = 0.0
+        for q, r in zip(self.q, self.rot, strict=True):
+            zeta = np.zeros(NQ)
+            zeta[:3] = r.T @ v  # body-fixed vehicle twist, arms still
+            power += zeta @ np.array(self.uvms.bias(q, zeta, still, self.p)).ravel()
+        v_o = np.concatenate([v, np.zeros(3)])
+        _, h_o = self.object.dynamics(self.x_o, v_o, still, self.po)
+        return float((power + v_o @ np.array(h_o).ravel()) / speed)
+
+    def speed_along(self, d: np.ndarray) -> float:
+        from scipy.optimize import brentq  # here: importing scenarios stays light
+
+        thrust = self.thrust(d)
+        if self.drag(_V_MAX * d) <= thrust:
+            return float("inf")  # no damping (damping_scale = 0) or beyond any real speed
+        return float(brentq(lambda v: self.drag(v * d) - thrust, 0.0, _V_MAX, xtol=1e-7))
+
+
+def team_thrust(scenario: Scenario, direction) -> float:
+    """Largest force [N] the vehicles' surge and sway push along the horizontal
+    ``direction`` (world, NED) in the start configuration."""
+    return _Team(scenario).thrust(_unit(direction))
+
+
+def team_drag(scenario: Scenario, velocity) -> float:
+    """Drag [N] along the motion of the team translating rigidly at ``velocity`` (world,
+    m/s) through still water in the start configuration: the power the water takes from
+    it divided by the speed."""
+    return _Team(scenario).drag(np.asarray(velocity, dtype=float))
+
+
+def team_top_speed(scenario: Scenario, direction=None) -> float:
+    """The team's top speed [m/s] in still water (see the module docstring).
+
+    ``direction``: a horizontal vector (world, NED; only x and y count) to push along; None:
+    the best direction (the largest speed over all horizontal directions). Cached per
+    scenario and direction."""
+    key = None if direction is None else tuple(np.round(_unit(direction), 12))
+    per_scenario = _cache.setdefault(scenario, {})
+    if key not in per_scenario:
+        team = _Team(scenario)
+        if direction is not None:
+            per_scenario[key] = team.speed_along(_unit(direction))
+        else:
+            angles = np.pi * np.arange(_SWEEP) / _SWEEP
+            speeds = [team.speed_along(_heading(a)) for a in angles]
+            k = int(np.argmax(speeds))
+            best = speeds[k]
+            if np.isfinite(best):
+                from scipy.optimize import minimize_scalar
+
+                step = np.pi / _SWEEP
+                res = minimize_scalar(
+                    lambda a: -team.speed_along(_heading(a)),
+                    bounds=(angles[k] - step, angles[k] + step),
+                    method="bounded",
+                    options={"xatol": 1e-4},
+                )
+                best = max(best, -float(res.fun))
+            per_scenario[key] = best
+    return per_scenario[key]
+
+
+def current_within_reach(scenario: Scenario) -> tuple[bool, float, float]:
+    """(within reach, current speed, top speed): the scenario's current preset's mean
+    speed [m/s] against the team's top speed along its best direction. False means no
+    controller can hold the team against that current (a failure there is not the
+    controller's)."""
+    current = load_parameters().currents[scenario.current].mean
+    top = team_top_speed(scenario)
+    return bool(current < top), float(current), float(top)
