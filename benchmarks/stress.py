@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import collections
 import os
+import re
 import sys
 import time
 import traceback
@@ -76,9 +77,8 @@ def run_case(family: str, overrides: dict, steps: int, rng: np.random.Generator)
                 if "episode_end" in info:
                     out["ends"][info["episode_end"]] += 1
                     if info["episode_end"] == "diverged":
-                        out["reasons"][
-                            info.get("diverged_reason", "?").split(":", 1)[-1][:120]
-                        ] += 1
+                        why = info.get("diverged_reason", "?").split(":", 1)[-1]
+                        out["reasons"][re.sub(r"-?[0-9.]+(e-?[0-9]+)?", "#", why)] += 1
             refinements += env.sim.refinements
             env.sim.refinements = 0
         except Exception:  # counting them is the point

@@ -90,6 +90,37 @@ class StepInfo:
     current: np.ndarray  # (3,) inertial current velocity during the period
 
 
+def draw_truth_parameters(
+    s: Scenario, nominal: np.ndarray, nominal_object: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """An episode's truth model: the robots' (N, NP) and the object's (NPO,) parameters,
+    perturbed by the scenario's ``mismatch`` and scaled by its ``damping_scale``."""
+    p = nominal.copy()
+    po = nominal_object.copy()
+    if s.mismatch > 0:
+        # Hydrodynamic coefficients (added mass, damping, drag scales, joint friction)
+        # are uncertain by +-mismatch. Masses and displaced volumes are weighed and
+        # trimmed before a dive, so they get a tenth of it: a 10% volume error would
+        # be 13 N of buoyancy on a 10 N heave saturation, a task no controller can do.
+        rel = np.full(p.shape[1], 1.0)
+        rel[PARAMETER_LAYOUT["vehicle_displaced_volume"]] = WEIGHED_FRACTION
+        p = p * (1 + s.mismatch * rel * rng.uniform(-1, 1, p.shape))
+        # the extra-mass entry is an absolute kg value around 0: perturb the vehicle mass
+        p[:, PARAMETER_LAYOUT["vehicle_extra_mass"]] = (
+            s.mismatch
+            * WEIGHED_FRACTION
+            * rng.uniform(-1, 1, (len(p), 1))
+            * default_model().params.vehicle.mass
+        )
+        rel_o = np.full(po.shape, 1.0)
+        rel_o[OBJECT_PARAMETER_LAYOUT["mass"]] = WEIGHED_FRACTION
+        rel_o[OBJECT_PARAMETER_LAYOUT["displaced_volume"]] = WEIGHED_FRACTION
+        po = po * (1 + s.mismatch * rel_o * rng.uniform(-1, 1, po.shape))
+    p = np.ascontiguousarray(np.stack([scale_damping(pi, s.damping_scale) for pi in p]))
+    po[3] *= s.damping_scale  # object drag scale
+    return p, np.ascontiguousarray(po)
+
+
 class SimulationDiverged(FloatingPointError):
     """A period could not be integrated to the promised accuracy, or left the model's
     physical envelope; the simulator kept the last valid state."""
@@ -165,32 +196,9 @@ class Simulator(RebuiltOnUnpickle):
         """Back to the scenario's start at rest; draws the truth model and the current."""
         s = self.scenario
         rng = np.random.default_rng(seed if seed is not None else s.seed)
-        p = self.nominal_parameters.copy()
-        po = self.nominal_object_parameters.copy()
-        if s.mismatch > 0:
-            # Hydrodynamic coefficients (added mass, damping, drag scales, joint friction)
-            # are uncertain by +-mismatch. Masses and displaced volumes are weighed and
-            # trimmed before a dive, so they get a tenth of it: a 10% volume error would
-            # be 13 N of buoyancy on a 10 N heave saturation, a task no controller can do.
-            rel = np.full(p.shape[1], 1.0)
-            rel[PARAMETER_LAYOUT["vehicle_displaced_volume"]] = WEIGHED_FRACTION
-            p = p * (1 + s.mismatch * rel * rng.uniform(-1, 1, p.shape))
-            # the extra-mass entry is an absolute kg value around 0: perturb the vehicle mass
-            p[:, PARAMETER_LAYOUT["vehicle_extra_mass"]] = (
-                s.mismatch
-                * WEIGHED_FRACTION
-                * rng.uniform(-1, 1, (self.n, 1))
-                * self.uvms.params.vehicle.mass
-            )
-            rel_o = np.full(po.shape, 1.0)
-            rel_o[OBJECT_PARAMETER_LAYOUT["mass"]] = WEIGHED_FRACTION
-            rel_o[OBJECT_PARAMETER_LAYOUT["displaced_volume"]] = WEIGHED_FRACTION
-            po = po * (1 + s.mismatch * rel_o * rng.uniform(-1, 1, po.shape))
-        self.parameters = np.ascontiguousarray(
-            np.stack([scale_damping(pi, s.damping_scale) for pi in p])
+        self.parameters, self.object_parameters = draw_truth_parameters(
+            s, self.nominal_parameters, self.nominal_object_parameters, rng
         )
-        po[3] *= s.damping_scale  # object drag scale
-        self.object_parameters = np.ascontiguousarray(po)
         self.current_model.reset(rng)
         self.set_state(s.initial_q, np.zeros((self.n, NQ)), s.object_start, np.zeros(6))
         self.t = 0.0

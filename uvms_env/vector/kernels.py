@@ -1,0 +1,321 @@
+"""Batched evaluation of a CasADi function: one generated C source, compiled for CPU lanes
+and threads or as a GPU kernel, cached on disk.
+
+The function is generated as C once (``casadi.CodeGenerator``, as for the single
+environment's libraries) and wrapped, not rewritten:
+
+* CPU: compiled as C++ with ``casadi_real`` a bundle of SIMD lanes (``lanes.hpp``), one
+  environment per lane, OpenMP threads over blocks of lanes. ``lanes=1`` is the scalar
+  build for CPUs without wide vectors.
+* CUDA: every generated function marked ``__device__``, one GPU thread per environment,
+  compiled at run time by NVRTC through CuPy (``kernels_cuda``).
+
+Layout (both targets): input and output ``i`` of the function is a C-contiguous array of
+shape (nnz_i, K): the environment index innermost, so that a SIMD lane block (CPU) or a
+GPU warp reads consecutive addresses. K is padded to a multiple of the lane count by the
+caller (``BatchedFunction.padded``).
+
+No hand-written C++ or CUDA library could be used instead: the physics is CasADi's
+generated code and must stay the single source of truth (ARCHITECTURE: one graph, three
+targets); this module only adds the loops around it.
+
+May import: numpy, casadi, and ``uvms_env.dynamics.compiled`` (cache folder, CPU
+identity).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import platform
+import re
+import shutil
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+
+import casadi as cs
+import numpy as np
+
+from uvms_env.dynamics.compiled import _cpu_identity, cache_dir
+
+HERE = Path(__file__).parent
+CXXFLAGS = ("-O3", "-march=native", "-fno-math-errno", "-fopenmp", "-fPIC", "-shared")
+DTYPES = {"float64": ("double", np.float64), "float32": ("float", np.float32)}
+# glibc's vector maths (libmvec) entry points: (x86 ISA letter, width, suffix).
+_MVEC_ISA = {"avx512f": "e", "avx2": "d", "sse2": "b"}
+
+
+@dataclass(frozen=True)
+class Signature:
+    """What the wrappers need to know about the generated function."""
+
+    name: str
+    nnz_in: tuple[int, ...]
+    nnz_out: tuple[int, ...]
+    sz_arg: int
+    sz_res: int
+    sz_iw: int
+    sz_w: int
+
+    @staticmethod
+    def of(fn: cs.Function) -> Signature:
+        return Signature(
+            fn.name(),
+            tuple(fn.nnz_in(i) for i in range(fn.n_in())),
+            tuple(fn.nnz_out(i) for i in range(fn.n_out())),
+            fn.sz_arg(),
+            fn.sz_res(),
+            fn.sz_iw(),
+            fn.sz_w(),
+        )
+
+
+def generated_source(fn: cs.Function) -> str:
+    """CasADi's C for ``fn`` and everything it calls, as for the scalar libraries."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cg = cs.CodeGenerator(f"{fn.name()}.c", {"with_header": False})
+        cg.add(fn)
+        cg.generate(tmp + os.sep)
+        return (Path(tmp) / f"{fn.name()}.c").read_text()
+
+
+def cpu_features() -> set[str]:
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("flags"):
+                    return set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    return set()
+
+
+def default_lanes(dtype: str) -> int:
+    """Lanes of the widest vector unit this CPU has for ``dtype`` (1 off x86-64)."""
+    flags = cpu_features()
+    bits = 512 if "avx512f" in flags else 256 if "avx2" in flags else 128
+    if platform.machine() not in ("x86_64", "AMD64"):
+        return 1
+    return bits // (64 if dtype == "float64" else 32)
+
+
+def _mvec_defines(dtype: str, lanes: int) -> list[str]:
+    """-D flags naming libmvec's sin/cos/tan for this width, or [] (lane-by-lane maths)."""
+    flags = cpu_features()
+    bits = lanes * (64 if dtype == "float64" else 32)
+    isa = {512: "avx512f", 256: "avx2", 128: "sse2"}.get(bits)
+    if lanes == 1 or isa is None or isa not in flags or platform.system() != "Linux":
+        return []
+    letter, suffix = _MVEC_ISA[isa], "" if dtype == "float64" else "f"
+    return [f"-DUVMS_{f.upper()}=_ZGV{letter}N{lanes}v_{f}{suffix}" for f in ("sin", "cos", "tan")]
+
+
+def _cpu_driver(sig: Signature, lanes: int) -> str:
+    """The batch loop around the generated function (appended to its source)."""
+    n_in, n_out = len(sig.nnz_in), len(sig.nnz_out)
+    nnz_in = ", ".join(map(str, sig.nnz_in))
+    nnz_out = ", ".join(map(str, sig.nnz_out))
+    return f"""
+// Batch driver: K environments, input/output i laid out (nnz_i, K), K % {lanes} == 0.
+#include <omp.h>
+#include <string.h>
+static const long uvms_nnz_in[{n_in}] = {{{nnz_in}}};
+static const long uvms_nnz_out[{n_out}] = {{{nnz_out}}};
+extern "C" int uvms_batch(const lane_t* const* in, lane_t* const* out, long k, int threads) {{
+  const long blocks = k / {lanes};
+  int fail = 0;
+  #pragma omp parallel num_threads(threads) reduction(|:fail)
+  {{
+    vreal in_buf[{sum(sig.nnz_in) + 1}], out_buf[{sum(sig.nnz_out) + 1}];
+    vreal* w = new vreal[{sig.sz_w + 1}];
+    casadi_int iw[{sig.sz_iw + 1}];
+    const vreal* arg[{max(sig.sz_arg, n_in)}];
+    vreal* res[{max(sig.sz_res, n_out)}];
+    #pragma omp for schedule(static)
+    for (long b = 0; b < blocks; ++b) {{
+      const long lane0 = b * {lanes};
+      vreal* p = in_buf;
+      for (int i = 0; i < {n_in}; ++i) {{
+        for (long j = 0; j < uvms_nnz_in[i]; ++j)
+          memcpy(&p[j], in[i] + j * k + lane0, sizeof(vreal));
+        arg[i] = p;
+        p += uvms_nnz_in[i];
+      }}
+      vreal* q = out_buf;
+      for (int i = 0; i < {n_out}; ++i) {{ res[i] = q; q += uvms_nnz_out[i]; }}
+      fail |= {sig.name}(arg, res, iw, w, 0);
+      q = out_buf;
+      for (int i = 0; i < {n_out}; ++i) {{
+        for (long j = 0; j < uvms_nnz_out[i]; ++j)
+          memcpy(out[i] + j * k + lane0, &q[j], sizeof(vreal));
+        q += uvms_nnz_out[i];
+      }}
+    }}
+    delete[] w;
+  }}
+  return fail;
+}}
+"""
+
+
+def _compiler() -> str | None:
+    for cxx in (os.environ.get("CXX"), "g++", "c++", "clang++"):
+        if cxx and shutil.which(cxx):
+            return cxx
+    return None
+
+
+class BatchedFunction:
+    """``fn`` evaluated on K environments per call (CPU lanes and threads).
+
+    ``outputs = bf(inputs, threads)``: ``inputs`` is a list of (nnz_i, K) arrays of the
+    build's dtype, C-contiguous; outputs are written to preallocated arrays (``out=``)
+    or new ones. K must be a multiple of ``lanes`` (``padded(K)``)."""
+
+    def __init__(self, fn: cs.Function, dtype: str = "float64", lanes: int | None = None):
+        if dtype not in DTYPES:
+            raise ValueError(f"dtype must be one of {sorted(DTYPES)}, got {dtype!r}")
+        self.signature = Signature.of(fn)
+        self.dtype = dtype
+        self.np_dtype = DTYPES[dtype][1]
+        self.lanes = default_lanes(dtype) if lanes is None else int(lanes)
+        if self.lanes not in (1, 2, 4, 8, 16):
+            raise ValueError(f"lanes must be 1, 2, 4, 8 or 16, got {lanes}")
+        self._lib = _build_cpu(generated_source(fn), self.signature, dtype, self.lanes)
+        self._call = self._lib.uvms_batch
+        self._call.restype = ctypes.c_int
+        self._call.argtypes = [
+            ctypes.POINTER(ctypes.c_void_p),
+            ctypes.POINTER(ctypes.c_void_p),
+            ctypes.c_long,
+            ctypes.c_int,
+        ]
+
+    def padded(self, k: int) -> int:
+        return -(-k // self.lanes) * self.lanes
+
+    def __call__(
+        self,
+        inputs: list[np.ndarray],
+        threads: int = 1,
+        out: list[np.ndarray] | None = None,
+    ) -> list[np.ndarray]:
+        sig = self.signature
+        if len(inputs) != len(sig.nnz_in):
+            raise ValueError(f"{sig.name} takes {len(sig.nnz_in)} inputs, got {len(inputs)}")
+        k = inputs[0].shape[1]
+        if k % self.lanes:
+            raise ValueError(f"K = {k} must be a multiple of {self.lanes} lanes (pad it)")
+        for i, (a, nnz) in enumerate(zip(inputs, sig.nnz_in, strict=True)):
+            if a.shape != (nnz, k) or a.dtype != self.np_dtype or not a.flags.c_contiguous:
+                raise ValueError(
+                    f"input {i} of {sig.name} must be a C-contiguous {self.dtype} array of "
+                    f"shape ({nnz}, {k}), got {a.dtype} {a.shape}"
+                )
+        if out is None:
+            out = [np.empty((nnz, k), self.np_dtype) for nnz in sig.nnz_out]
+        ins = (ctypes.c_void_p * len(inputs))(*[a.ctypes.data for a in inputs])
+        outs = (ctypes.c_void_p * len(out))(*[a.ctypes.data for a in out])
+        if self._call(ins, outs, k, int(threads)):
+            raise RuntimeError(f"{sig.name} failed in its batched evaluation")
+        return out
+
+
+@cache
+def _build_cpu(source: str, sig: Signature, dtype: str, lanes: int) -> ctypes.CDLL:
+    cxx = _compiler()
+    if cxx is None:
+        raise RuntimeError("the batched CPU backend needs a C++ compiler (g++ or clang++)")
+    real = DTYPES[dtype][0]
+    defines = [f"-DUVMS_REAL={real}", f"-DUVMS_LANES={lanes}", *_mvec_defines(dtype, lanes)]
+    header = (HERE / "lanes.hpp").read_text()
+    code = f'#include "lanes.hpp"\n#define casadi_real vreal\n{source}\n{_cpu_driver(sig, lanes)}'
+    flags = [*CXXFLAGS, *defines]
+    key = hashlib.sha256(
+        (code + header + " ".join(flags) + cs.__version__).encode() + _cpu_identity()
+    ).hexdigest()[:16]
+    lib = cache_dir() / f"{sig.name}_batch_{dtype}x{lanes}_{key}.so"
+    if not lib.exists():
+        with tempfile.TemporaryDirectory() as tmp:
+            src = Path(tmp) / "batch.cpp"
+            src.write_text(code)
+            (Path(tmp) / "lanes.hpp").write_text(header)
+            part = lib.with_suffix(f".{os.getpid()}.part")
+            libs = ["-lmvec"] if any("UVMS_SIN" in d for d in defines) else []
+            subprocess.run([cxx, *flags, "-w", str(src), "-o", str(part), *libs, "-lm"], check=True)
+            part.replace(lib)  # atomic: parallel workers never load a half-written library
+    return ctypes.CDLL(str(lib))
+
+
+def cuda_source(fn: cs.Function, real: str = "double") -> tuple[str, Signature]:
+    """CUDA C++ for ``fn``: the generated functions as device code, plus a kernel
+    ``uvms_batch_kernel(const real* in[], real* out[], long k)`` with one thread per
+    environment and the (nnz_i, K) layout. Compiled by ``kernels_cuda`` (CuPy/NVRTC)."""
+    sig = Signature.of(fn)
+    full = generated_source(fn)
+    top = _top_function(full, sig.name)
+    src = full[: full.index(f"CASADI_SYMBOL_EXPORT int {sig.name}(")]  # host API from here
+    lines, skipping = [], False
+    device_function = re.compile(
+        r"^(static )?(const )?(casadi_real|casadi_int|void|int)\s+\*?casadi_\w+\("
+    )
+    for line in src.split("\n"):
+        if skipping:  # inside a host API function of several lines
+            skipping = not line.startswith("}")
+            continue
+        if line.startswith("CASADI_SYMBOL_EXPORT"):
+            skipping = not line.rstrip().endswith("}")
+            continue
+        if line.startswith("#include <math.h>"):
+            continue  # NVRTC has the maths built in
+        if device_function.match(line) or re.match(r"^static const casadi_(int|real) ", line):
+            line = "__device__ " + line
+        lines.append(line)
+    body = "\n".join(lines)
+    # the generated code closes its extern "C" block at the end of the file
+    n_in, n_out = len(sig.nnz_in), len(sig.nnz_out)
+    kernel = f"""
+}} /* extern "C" */
+extern "C" __global__ void uvms_batch_kernel(const casadi_real* const* in,
+                                             casadi_real* const* out, long k) {{
+  const long e = (long)blockIdx.x * blockDim.x + threadIdx.x;
+  if (e >= k) return;
+  casadi_real in_buf[{sum(sig.nnz_in) + 1}], out_buf[{sum(sig.nnz_out) + 1}];
+  casadi_real w[{sig.sz_w + 1}];
+  casadi_int iw[{sig.sz_iw + 1}];
+  const casadi_real* arg[{max(sig.sz_arg, n_in)}];
+  casadi_real* res[{max(sig.sz_res, n_out)}];
+  const long nnz_in[{n_in}] = {{{", ".join(map(str, sig.nnz_in))}}};
+  const long nnz_out[{n_out}] = {{{", ".join(map(str, sig.nnz_out))}}};
+  casadi_real* p = in_buf;
+  for (int i = 0; i < {n_in}; ++i) {{
+    for (long j = 0; j < nnz_in[i]; ++j) p[j] = in[i][j * k + e];
+    arg[i] = p;
+    p += nnz_in[i];
+  }}
+  casadi_real* q = out_buf;
+  for (int i = 0; i < {n_out}; ++i) {{ res[i] = q; q += nnz_out[i]; }}
+  {top}(arg, res, iw, w, 0);
+  q = out_buf;
+  for (int i = 0; i < {n_out}; ++i) {{
+    for (long j = 0; j < nnz_out[i]; ++j) out[i][j * k + e] = q[j];
+    q += nnz_out[i];
+  }}
+}}
+"""
+    prelude = f"#define casadi_real {real}\n#define casadi_int long long int\n"
+    return prelude + body + kernel, sig
+
+
+def _top_function(src: str, name: str) -> str:
+    """The internal name (casadi_fN) that the host API function ``name`` calls."""
+    found = re.search(
+        rf"CASADI_SYMBOL_EXPORT int {name}\(.*?\{{\s*return (casadi_f\d+)\(", src, flags=re.S
+    )
+    if not found:
+        raise RuntimeError(f"no generated function found for {name}")
+    return found.group(1)

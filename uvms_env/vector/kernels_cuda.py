@@ -1,0 +1,154 @@
+"""The GPU target of ``kernels``: the generated function as a CUDA kernel, one thread per
+environment, compiled at run time by NVRTC through CuPy (``pip install -e ".[gpu]"``).
+
+The kernel is compiled once per machine and GPU architecture and cached on disk: with
+``nvcc`` (when on PATH) as a cubin in the project's cache folder under a hash of the
+source, the architecture and the flags, like the CPU libraries; otherwise by NVRTC
+through CuPy, which caches it itself (``~/.cupy/kernel_cache``). Either takes minutes
+for the N = 2 period step; ``python -m uvms_env.vector.kernels_cuda --arch 90`` builds
+the cubins ahead of time, on any machine with nvcc (no GPU needed). The kernel reads and
+writes device arrays in the (nnz_i, K) layout of ``kernels``, so torch tensors on the
+same GPU pass through without a copy (CUDA array interface / DLPack).
+
+May import: numpy, casadi, cupy (imported here, so that nothing else needs it),
+``uvms_env.vector.kernels``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import casadi as cs
+import numpy as np
+
+from uvms_env.dynamics.compiled import cache_dir
+from uvms_env.vector.kernels import DTYPES, Signature, cuda_source
+
+# Threads per block. Measured on an H100 for the N = 2 period step: see the README.
+BLOCK = 128
+# The generated functions keep hundreds of scalars live; spilled, they need a deep
+# per-thread stack (measured: the default 1 KiB overflows).
+STACK_BYTES = 32 * 1024
+NVCC_FLAGS = ("-O3", "-std=c++17", "-diag-suppress", "177")
+
+
+def cubin_path(source: str, sig: Signature, dtype: str, arch: str) -> Path:
+    key = hashlib.sha256(
+        (source + arch + " ".join(NVCC_FLAGS) + cs.__version__).encode()
+    ).hexdigest()[:16]
+    return cache_dir() / f"{sig.name}_cuda_{dtype}_sm{arch}_{key}.cubin"
+
+
+def build_cubin(fn: cs.Function, dtype: str, arch: str) -> Path | None:
+    """The cached cubin of ``fn`` for ``arch`` (e.g. "90"), compiled with nvcc if it is
+    not there yet; None when nvcc is not on PATH."""
+    source, sig = cuda_source(fn, DTYPES[dtype][0])
+    path = cubin_path(source, sig, dtype, arch)
+    if path.exists():
+        return path
+    nvcc = shutil.which("nvcc")
+    if nvcc is None:
+        return None
+    src = path.with_suffix(f".{os.getpid()}.cu")
+    part = path.with_suffix(f".{os.getpid()}.part")
+    src.write_text(source)
+    try:
+        subprocess.run(
+            [nvcc, *NVCC_FLAGS, f"-arch=sm_{arch}", "-cubin", "-o", str(part), str(src)],
+            check=True,
+        )
+        part.replace(path)  # atomic, as for the CPU libraries
+    finally:
+        src.unlink(missing_ok=True)
+    return path
+
+
+def cupy_module():
+    """CuPy, or an ImportError that says how to get it."""
+    try:
+        import cupy
+    except ImportError as exc:  # pragma: no cover - depends on the machine
+        raise ImportError(
+            "the CUDA backend needs CuPy: pip install -e '.[gpu]' (and a CUDA GPU)"
+        ) from exc
+    return cupy
+
+
+class CudaBatchedFunction:
+    """``fn`` evaluated on K environments per launch, one GPU thread each.
+
+    ``outputs = bf(inputs, out=None)``: ``inputs`` are (nnz_i, K) C-contiguous device
+    arrays of the build's dtype (CuPy arrays, or anything CuPy takes without a copy,
+    such as torch CUDA tensors); outputs are written to ``out`` or new CuPy arrays."""
+
+    def __init__(self, fn: cs.Function, dtype: str = "float64", device: int = 0) -> None:
+        if dtype not in DTYPES:
+            raise ValueError(f"dtype must be one of {sorted(DTYPES)}, got {dtype!r}")
+        cp = cupy_module()
+        self.cp = cp
+        self.dtype = dtype
+        self.np_dtype = DTYPES[dtype][1]
+        self.device = cp.cuda.Device(device)
+        source, self.signature = cuda_source(fn, DTYPES[dtype][0])
+        with self.device:
+            try:
+                cp.cuda.runtime.deviceSetLimit(0x00, STACK_BYTES)  # cudaLimitStackSize
+            except Exception:  # older CuPy: the default stays
+                pass
+            major, minor = self.device.compute_capability[:-1], self.device.compute_capability[-1]
+            cubin = build_cubin(fn, dtype, major + minor)
+            if cubin is not None:
+                module = cp.RawModule(path=str(cubin))
+            else:
+                module = cp.RawModule(code=source, options=("-std=c++17",))
+            self._kernel = module.get_function("uvms_batch_kernel")
+
+    def padded(self, k: int) -> int:
+        return k
+
+    def __call__(self, inputs: list, out: list | None = None, block: int = BLOCK) -> list:
+        cp, sig = self.cp, self.signature
+        with self.device:
+            arrays = [cp.asarray(a) for a in inputs]
+            k = arrays[0].shape[1]
+            for i, (a, nnz) in enumerate(zip(arrays, sig.nnz_in, strict=True)):
+                if a.shape != (nnz, k) or a.dtype != self.np_dtype or not a.flags.c_contiguous:
+                    raise ValueError(
+                        f"input {i} of {sig.name} must be a C-contiguous {self.dtype} device "
+                        f"array of shape ({nnz}, {k}), got {a.dtype} {a.shape}"
+                    )
+            if out is None:
+                out = [cp.empty((nnz, k), self.np_dtype) for nnz in sig.nnz_out]
+            outs = [cp.asarray(a) for a in out]
+            ins_ptr = cp.asarray(np.array([a.data.ptr for a in arrays], np.uint64))
+            outs_ptr = cp.asarray(np.array([a.data.ptr for a in outs], np.uint64))
+            grid = (k + block - 1) // block
+            self._kernel((grid,), (block,), (ins_ptr, outs_ptr, np.int64(k)))
+        return out
+
+
+def main() -> None:
+    """Build the period step's cubins ahead of time (nvcc, no GPU needed)."""
+    from uvms_env.scenarios import make
+    from uvms_env.sim.simulator import _chain
+
+    ap = argparse.ArgumentParser(description=main.__doc__)
+    ap.add_argument("--arch", default="90", help="compute capability, e.g. 80, 89, 90")
+    ap.add_argument("--n-agents", type=int, nargs="+", default=[2])
+    ap.add_argument("--dtype", nargs="+", default=["float64", "float32"])
+    args = ap.parse_args()
+    for n in args.n_agents:
+        s = make("paper") if n == 2 else make("random", n_agents=n, seed=0)
+        chain, _ = _chain(n, s.object_shape, float(s.ring_radius), s.period, s.substeps)
+        for dtype in args.dtype:
+            path = build_cubin(chain.step, dtype, args.arch)
+            print(path if path else "nvcc not found: the kernel will be compiled by NVRTC")
+
+
+if __name__ == "__main__":
+    main()
