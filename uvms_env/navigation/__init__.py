@@ -6,6 +6,8 @@
   ``-grad phi``; CasADi version for MPC; empirical choice of ``k``.
 * :mod:`.waypoints`: waypoint sequencing and the desired object twist
   ``[v_d; ZYX Euler-angle rates]``.
+* :mod:`.parametric`: the same twist with the scene as inputs, branch-free, so that
+  environments of different geometries share one compiled (batched) function.
 
 Dependencies: this package may import numpy and casadi only.
 """
@@ -22,9 +24,19 @@ from .field import (
     sample_free_points,
     wrap_angle,
 )
+from .parametric import (
+    N_CYLINDERS,
+    N_SPHERES,
+    field_parameters,
+    parametric_twist_function,
+    parametric_velocity,
+    twist_parameters,
+)
 from .waypoints import WaypointNavigator, WaypointSequencer, euler_rates_to_body_rates
 
 __all__ = [
+    "N_CYLINDERS",
+    "N_SPHERES",
     "Cylinder",
     "NavigationField",
     "Obstacle",
@@ -36,6 +48,10 @@ __all__ = [
     "choose_k",
     "descend",
     "euler_rates_to_body_rates",
+    "field_parameters",
+    "parametric_twist_function",
+    "parametric_velocity",
     "sample_free_points",
+    "twist_parameters",
     "wrap_angle",
 ]

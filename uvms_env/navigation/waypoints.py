@@ -211,6 +211,16 @@ class WaypointNavigator:
             for wp in self.sequencer.waypoints
         )
 
+    @property
+    def att_gain(self) -> float:
+        """``K_att`` [1/s] of the attitude law."""
+        return self._att_gain
+
+    @property
+    def max_att_rate(self) -> float:
+        """Saturation of each Euler-angle rate [rad/s]."""
+        return self._max_att_rate
+
     def twist(self, x_o: ArrayLike, index: int | None = None) -> FloatArray:
         """Desired twist towards waypoint ``index`` (default: the active one), no switching.
 

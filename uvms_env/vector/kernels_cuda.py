@@ -86,7 +86,10 @@ class CudaBatchedFunction:
     arrays of the build's dtype (CuPy arrays, or anything CuPy takes without a copy,
     such as torch CUDA tensors); outputs are written to ``out`` or new CuPy arrays."""
 
-    def __init__(self, fn: cs.Function, dtype: str = "float64", device: int = 0) -> None:
+    def __init__(
+        self, fn: cs.Function, dtype: str = "float64", device: int = 0, block: int = BLOCK
+    ) -> None:
+        self.block = int(block)
         if dtype not in DTYPES:
             raise ValueError(f"dtype must be one of {sorted(DTYPES)}, got {dtype!r}")
         cp = cupy_module()
@@ -111,7 +114,7 @@ class CudaBatchedFunction:
     def padded(self, k: int) -> int:
         return k
 
-    def __call__(self, inputs: list, out: list | None = None, block: int = BLOCK) -> list:
+    def __call__(self, inputs: list, out: list | None = None) -> list:
         cp, sig = self.cp, self.signature
         with self.device:
             arrays = [cp.asarray(a) for a in inputs]
@@ -127,8 +130,8 @@ class CudaBatchedFunction:
             outs = [cp.asarray(a) for a in out]
             ins_ptr = cp.asarray(np.array([a.data.ptr for a in arrays], np.uint64))
             outs_ptr = cp.asarray(np.array([a.data.ptr for a in outs], np.uint64))
-            grid = (k + block - 1) // block
-            self._kernel((grid,), (block,), (ins_ptr, outs_ptr, np.int64(k)))
+            grid = (k + self.block - 1) // self.block
+            self._kernel((grid,), (self.block,), (ins_ptr, outs_ptr, np.int64(k)))
         return out
 
 

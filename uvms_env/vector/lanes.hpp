@@ -58,3 +58,52 @@ UVMS_LANEWISE(sin, ::sin)
 UVMS_LANEWISE(cos, ::cos)
 UVMS_LANEWISE(tan, ::tan)
 #endif
+
+// Comparisons and logic, lane by lane, as C gives them: 0 or 1 in each lane (no lane
+// ever branches; a select in the generated code is arithmetic on these). A GCC vector
+// comparison gives an integer mask of the same width (-1 where true), and masking the bit
+// pattern of 1.0 with it gives 1.0 or 0.0.
+typedef decltype(lanes_t{} < lanes_t{}) uvms_mask_t;
+static inline vreal uvms_from_mask(uvms_mask_t m) {
+  return vreal((lanes_t)(m & (uvms_mask_t)(lanes_t{} + (lane_t)1)));
+}
+static inline lanes_t uvms_blend(uvms_mask_t m, lanes_t a, lanes_t b) {  // m ? a : b
+  return (lanes_t)((m & (uvms_mask_t)a) | (~m & (uvms_mask_t)b));
+}
+static inline vreal operator<(const vreal& a, const vreal& b) { return uvms_from_mask(a.v < b.v); }
+static inline vreal operator<=(const vreal& a, const vreal& b) { return uvms_from_mask(a.v <= b.v); }
+static inline vreal operator>(const vreal& a, const vreal& b) { return uvms_from_mask(a.v > b.v); }
+static inline vreal operator>=(const vreal& a, const vreal& b) { return uvms_from_mask(a.v >= b.v); }
+static inline vreal operator==(const vreal& a, const vreal& b) { return uvms_from_mask(a.v == b.v); }
+static inline vreal operator!=(const vreal& a, const vreal& b) { return uvms_from_mask(a.v != b.v); }
+static inline vreal operator!(const vreal& a) { return uvms_from_mask(a.v == lanes_t{}); }
+// Both operands are always evaluated (as everything in SX-generated code is).
+static inline vreal operator&&(const vreal& a, const vreal& b) {
+  return uvms_from_mask((a.v != lanes_t{}) & (b.v != lanes_t{}));
+}
+static inline vreal operator||(const vreal& a, const vreal& b) {
+  return uvms_from_mask((a.v != lanes_t{}) | (b.v != lanes_t{}));
+}
+
+// C's fmin / fmax: the smaller / larger operand, or the one that is not NaN.
+static inline vreal fmin(const vreal& x, const vreal& y) {
+  return vreal(uvms_blend((x.v < y.v) | (y.v != y.v), x.v, y.v));
+}
+static inline vreal fmax(const vreal& x, const vreal& y) {
+  return vreal(uvms_blend((x.v > y.v) | (y.v != y.v), x.v, y.v));
+}
+UVMS_LANEWISE(floor, __builtin_floor)
+UVMS_LANEWISE(ceil, __builtin_ceil)
+
+// CasADi's helpers casadi_fmin, casadi_fmax and casadi_fabs pick their body by
+// __STDC_VERSION__: before C99 a ternary on a comparison (`x<y ? x : y`, which lanes
+// cannot take), else the C99 call (`fmin(x, y)`, overloaded above). C++ leaves the macro
+// undefined, so it is set here to C99; the system headers the build includes are
+// included first so that none of them sees it (glibc's only tests are for >= C99 or C11
+// features, and features.h / sys/cdefs.h came with math.h above).
+#include <omp.h>
+#include <stddef.h>
+#include <string.h>
+#ifndef __STDC_VERSION__
+#define __STDC_VERSION__ 199901L
+#endif

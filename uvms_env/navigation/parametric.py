@@ -1,0 +1,214 @@
+r"""The navigator's twist with the scene as inputs: one branch-free CasADi function for
+every geometry, so that environments of different scenes share one compiled (batched)
+call.
+
+:meth:`WaypointNavigator.casadi_function` bakes the goal, the workspace, the obstacles,
+the team radius and the gains in as constants and selects with ``if_else``; this module
+builds the same formulas (:meth:`NavigationField.casadi_velocity` and the attitude law
+of :func:`~uvms_env.navigation.field.attitude_rate`) with all of them as inputs:
+
+=============  ============  ==========================================================
+input          shape         contents
+=============  ============  ==========================================================
+``x``          (6, 1)        object pose estimate ``[p; phi, theta, psi]``
+``goal``       (6, 1)        waypoint ``[p_d; Theta_d]``
+``workspace``  (4, 1)        ``[c_ws; r_ws - R]`` (centre, radius deflated by the team)
+``cylinders``  (n_cyl, 4)    rows ``[x, y, r + R, present]``
+``spheres``    (n_sph, 5)    rows ``[cx, cy, cz, r + R, present]``
+``gains``      (5, 1)        ``[k, K_NF, v_max, K_att, w_max]``
+=============  ============  ==========================================================
+
+output ``twist_d`` (6, 1) = ``[v_d; Euler-angle rates]``, as ``nav_twist``. Matrix inputs
+are column-major in CasADi's nonzeros (all x, then all y, ...): ``a.ravel(order="F")``.
+:func:`twist_parameters` packs a navigator's waypoint into these arrays.
+
+Padding. A row with ``present == 0`` is replaced, before anything else, by the neutral
+factor ``beta = 1``, ``grad beta = 0``: it keeps the free-space test true, adds exactly
+0 to ``S = sum grad beta / beta`` and to the recovery direction, so the result is the
+same (bit for bit) as without the row. ``present`` must be exactly 0 or 1 and padding
+rows finite (zeros): the neutral value is selected arithmetically.
+
+Branch-free. ``if_else`` generates ``c ? a : 0`` in C, which a bundle of SIMD lanes
+(``uvms_env/vector/lanes.hpp``) cannot evaluate. Every selection here is
+``c * a + (1 - c) * b`` with ``c`` a 0/1 comparison, which is exact (``1 * a + 0 * b ==
+a``) when both ``a`` and ``b`` are finite; as in the constant version, the values that
+could be infinite are never selected but substituted before the operation that would
+make them so (``g / select(free, beta, 1)``, never ``select(free, g / beta, 0)``). The
+generated C uses comparisons (``<``, ``<=``), ``fmin``/``fmax`` (``casadi_fmin``),
+``floor`` and ``sqrt`` only.
+
+Dependencies: this package may import numpy and casadi only.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+from numpy.typing import NDArray
+
+from .field import EPS, NavigationField, _wrap_angle_ca
+from .waypoints import WaypointNavigator
+
+__all__ = [
+    "N_CYLINDERS",
+    "N_SPHERES",
+    "field_parameters",
+    "parametric_twist_function",
+    "parametric_velocity",
+    "twist_parameters",
+]
+
+#: Obstacle slots of the shared function: the random family draws at most five
+#: obstacles (cylinders or spheres), the paper scenario has three cylinders.
+N_CYLINDERS = 5
+N_SPHERES = 5
+
+FloatArray = NDArray[np.float64]
+
+
+def _select(c: ca.SX, a: ca.SX, b: ca.SX) -> ca.SX:
+    """``a`` where ``c == 1``, ``b`` where ``c == 0``; exact when ``a`` and ``b`` are finite."""
+    return c * a + (1.0 - c) * b
+
+
+def parametric_velocity(
+    p: ca.SX,
+    goal: ca.SX,
+    workspace: ca.SX,
+    cylinders: ca.SX,
+    spheres: ca.SX,
+    k: ca.SX,
+    gain: ca.SX,
+    max_speed: ca.SX,
+) -> ca.SX:
+    """:meth:`NavigationField.casadi_velocity` with the scene as symbols, branch-free.
+
+    Parameters
+    ----------
+    p, goal : casadi.SX, 3x1
+        Object position and goal position.
+    workspace : casadi.SX, 4x1
+        ``[c_ws; r_ws - R]``.
+    cylinders : casadi.SX, n_cyl x 4
+        Rows ``[x, y, r + R, present]``.
+    spheres : casadi.SX, n_sph x 5
+        Rows ``[cx, cy, cz, r + R, present]``.
+    k, gain, max_speed : casadi.SX, scalars
+        Exponent, ``K_NF`` and ``v_max``.
+
+    Returns
+    -------
+    casadi.SX, 3x1
+        Desired object velocity.
+    """
+    e = p - goal
+    gamma = ca.dot(e, e)
+    d0 = p - workspace[0:3]
+    betas: list[ca.SX] = [workspace[3] * workspace[3] - ca.dot(d0, d0)]
+    grads: list[ca.SX] = [-2.0 * d0]
+    for j in range(cylinders.size1()):
+        dx = p[0] - cylinders[j, 0]
+        dy = p[1] - cylinders[j, 1]
+        present = cylinders[j, 3]
+        b = dx * dx + dy * dy - cylinders[j, 2] * cylinders[j, 2]
+        betas.append(_select(present, b, 1.0))
+        grads.append(present * ca.vertcat(2.0 * dx, 2.0 * dy, 0.0))
+    for j in range(spheres.size1()):
+        ds = p - spheres[j, 0:3].T
+        present = spheres[j, 4]
+        b = ca.dot(ds, ds) - spheres[j, 3] * spheres[j, 3]
+        betas.append(_select(present, b, 1.0))
+        grads.append(present * (2.0 * ds))
+
+    free = ca.SX(1)
+    for b in betas:
+        free = free * (b > 0.0)
+    s = ca.SX.zeros(3, 1)
+    rec = ca.SX.zeros(3, 1)
+    for b, g in zip(betas, grads, strict=True):
+        # the neutral beta (1) outside the free space keeps the unused branch finite
+        s += g / _select(free, b, 1.0)
+        rec += (b <= 0.0) * (g / ca.sqrt(ca.dot(g, g) + EPS**2))
+    rec = rec / ca.sqrt(ca.dot(rec, rec) + EPS**2)
+
+    n = -(e - gamma * s / (2.0 * k))
+    speed = ca.fmin(max_speed, gain * ca.sqrt(gamma + EPS**2))
+    v = n * (speed / ca.sqrt(ca.dot(n, n) + EPS**2))
+    return _select(free, v, max_speed * rec)
+
+
+def parametric_twist_function(n_cyl: int = N_CYLINDERS, n_sph: int = N_SPHERES) -> ca.Function:
+    """CasADi function ``nav_twist_param`` (SX, branch-free): ``(x, goal, workspace,
+    cylinders, spheres, gains) -> twist_d`` (see the module doc for the layout).
+
+    Equal to ``WaypointNavigator.casadi_function(i)`` of any scene with at most ``n_cyl``
+    cylinders and ``n_sph`` spheres, given :func:`twist_parameters` of that waypoint.
+    """
+    if n_cyl < 0 or n_sph < 0:
+        raise ValueError(f"obstacle counts must be >= 0, got {n_cyl}, {n_sph}")
+    x = ca.SX.sym("x", 6, 1)
+    goal = ca.SX.sym("goal", 6, 1)
+    workspace = ca.SX.sym("workspace", 4, 1)
+    cylinders = ca.SX.sym("cylinders", n_cyl, 4)
+    spheres = ca.SX.sym("spheres", n_sph, 5)
+    gains = ca.SX.sym("gains", 5, 1)
+    v = parametric_velocity(
+        x[0:3], goal[0:3], workspace, cylinders, spheres, gains[0], gains[1], gains[2]
+    )
+    # _attitude_rate_ca with symbolic goal, gain and saturation
+    raw = -gains[3] * _wrap_angle_ca(x[3:6] - goal[3:6])
+    w = ca.fmin(ca.fmax(raw, -gains[4]), gains[4])
+    return ca.Function(
+        "nav_twist_param",
+        [x, goal, workspace, cylinders, spheres, gains],
+        [ca.vertcat(v, w)],
+        ["x", "goal", "workspace", "cylinders", "spheres", "gains"],
+        ["twist_d"],
+    )
+
+
+def field_parameters(
+    field: NavigationField, n_cyl: int = N_CYLINDERS, n_sph: int = N_SPHERES
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``workspace`` (4,), ``cylinders`` (n_cyl, 4) and ``spheres`` (n_sph, 5) of a field,
+    obstacles inflated and the workspace deflated by its team radius, zero padded.
+
+    Raises
+    ------
+    ValueError
+        If the field has more cylinders or spheres than slots.
+    """
+    cyl_xy, cyl_r = field._cyl_xy, field._cyl_r
+    sph_c, sph_r = field._sph_c, field._sph_r
+    if cyl_r.size > n_cyl or sph_r.size > n_sph:
+        raise ValueError(
+            f"the scene has {cyl_r.size} cylinders and {sph_r.size} spheres; the function "
+            f"has slots for {n_cyl} and {n_sph}"
+        )
+    workspace = np.append(field._ws_center, field._ws_radius)
+    cylinders = np.zeros((n_cyl, 4))
+    cylinders[: cyl_r.size] = np.c_[cyl_xy, cyl_r, np.ones(cyl_r.size)]
+    spheres = np.zeros((n_sph, 5))
+    spheres[: sph_r.size] = np.c_[sph_c, sph_r, np.ones(sph_r.size)]
+    return workspace, cylinders, spheres
+
+
+def twist_parameters(
+    navigator: WaypointNavigator,
+    index: int,
+    n_cyl: int = N_CYLINDERS,
+    n_sph: int = N_SPHERES,
+) -> list[FloatArray]:
+    """The inputs of :func:`parametric_twist_function` after ``x`` for waypoint ``index``
+    of ``navigator``: ``[goal (6,), workspace (4,), cylinders (n_cyl, 4), spheres
+    (n_sph, 5), gains (5,)]``; flatten matrices with ``order="F"`` for a (nnz, K) batch.
+    """
+    if not 0 <= index < len(navigator.sequencer):
+        raise ValueError(f"waypoint index {index} out of range 0..{len(navigator.sequencer) - 1}")
+    field = navigator.fields[index]
+    workspace, cylinders, spheres = field_parameters(field, n_cyl, n_sph)
+    goal = navigator.sequencer.waypoints[index].copy()
+    gains = np.array(
+        [field.k, field.gain, field.max_speed, navigator.att_gain, navigator.max_att_rate]
+    )
+    return [goal, workspace, cylinders, spheres, gains]
