@@ -10,9 +10,11 @@ depends only on (policy, scenario, seed), never on the number of workers. A poli
 raises ends its episode as a failure with the error recorded, not the evaluation.
 
 Writes ``episodes.csv`` (one row per episode), ``results.json`` and ``results.md``
-(success with a Wilson 95% interval, means with bootstrap 95% intervals, violations per
-kind, decision time median and p95), and plots (success by scenario, decision time on a
-log scale, the object's path per policy on the paper scenario).
+(success and clean success, i.e. success with no violation period, with Wilson 95%
+intervals, means with bootstrap 95% intervals, violations per kind, decision time median
+and p95, and for ``+filter`` policies the safety filter's intervention rate), and plots
+(success by scenario, decision time on a log scale, the object's path per policy on the
+paper scenario).
 """
 
 from __future__ import annotations
@@ -78,6 +80,7 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
     }
     times: list[float] = []
     path: list[list[float]] = []
+    filtered, interventions, deviation = 0, 0, 0.0  # safety-filter decisions (``+filter``)
     total_reward = 0.0
     try:
         kwargs = dict(job.overrides)
@@ -99,6 +102,11 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
                 start = time.perf_counter()
                 actions[agent] = policies[agent].act(obs[agent])
                 times.append(time.perf_counter() - start)
+                stats = policies[agent].stats
+                if "intervened" in stats:
+                    filtered += 1
+                    interventions += bool(stats["intervened"])
+                    deviation += float(stats["intervention"])
             obs, rewards, _, _, infos = env.step(actions)
             total_reward += float(next(iter(rewards.values()))) if rewards else 0.0
             if job.record_path:
@@ -113,6 +121,13 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
         row["traceback"] = traceback.format_exc(limit=5)
         row["success"] = False
     row["return"] = total_reward
+    kinds = [row.get(f"violations_{kind}", 0) or 0 for kind in VIOLATION_KINDS]
+    row["violation_periods"] = int(sum(kinds))
+    row["clean_success"] = bool(row.get("success")) and row["violation_periods"] == 0
+    row["interventions"] = interventions
+    row["filtered_decisions"] = filtered
+    row["intervention_rate"] = interventions / filtered if filtered else None
+    row["intervention_mean"] = deviation / filtered if filtered else None
     ms = np.array(times) * 1e3
     row["policy_time_ms_median"] = float(np.median(ms)) if len(ms) else float("nan")
     row["policy_time_ms_p95"] = float(np.quantile(ms, 0.95)) if len(ms) else float("nan")
@@ -145,6 +160,7 @@ def aggregate(rows: list[dict[str, Any]], seed: int) -> list[dict[str, Any]]:
         n = len(group)
         wins = sum(bool(r.get("success")) for r in group)
         lo, hi = wilson_interval(wins, n)
+        clean = sum(bool(r.get("clean_success")) for r in group)
         summary: dict[str, Any] = {
             "policy": policy,
             "scenario": scenario,
@@ -152,6 +168,8 @@ def aggregate(rows: list[dict[str, Any]], seed: int) -> list[dict[str, Any]]:
             "errors": sum(bool(r["error"]) for r in group),
             "success_rate": wins / n,
             "success_ci95": [lo, hi],
+            "clean_success_rate": clean / n,
+            "clean_success_ci95": list(wilson_interval(clean, n)),
         }
         for key in MEAN_METRICS:
             vals = np.array([r.get(key, np.nan) for r in group], dtype=float)
@@ -162,6 +180,18 @@ def aggregate(rows: list[dict[str, Any]], seed: int) -> list[dict[str, Any]]:
             kind: int(sum(r.get(f"violations_{kind}", 0) or 0 for r in group))
             for kind in VIOLATION_KINDS
         }
+        decided = sum(r.get("filtered_decisions", 0) for r in group)
+        # the safety filter's share of decisions changed by more than its tolerance,
+        # pooled over the episodes' decisions (None: no filter)
+        summary["intervention_rate"] = (
+            sum(r.get("interventions", 0) for r in group) / decided if decided else None
+        )
+        summary["intervention_mean"] = (
+            sum((r.get("intervention_mean") or 0.0) * r.get("filtered_decisions", 0) for r in group)
+            / decided
+            if decided
+            else None
+        )
         ms = np.concatenate([np.asarray(r["_decision_ms"], float) for r in group] or [[]])
         summary["policy_time_ms"] = {
             "median": float(np.median(ms)) if len(ms) else None,
@@ -181,9 +211,10 @@ def markdown_table(summaries: list[dict[str, Any]]) -> str:
         )
 
     lines = [
-        "| policy | scenario | episodes | success [95% CI] | final pos. error m | "
-        "min clearance m | violations (total) | decision ms median / p95 | errors |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| policy | scenario | episodes | success [95% CI] | clean success | "
+        "final pos. error m | min clearance m | violations (total) | intervention rate | "
+        "decision ms median / p95 | errors |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in summaries:
         lo, hi = s["success_ci95"]
@@ -191,9 +222,10 @@ def markdown_table(summaries: list[dict[str, Any]]) -> str:
         lines.append(
             f"| {s['policy']} | {s['scenario']} | {s['episodes']} | "
             f"{s['success_rate']:.2f} [{fmt(lo)}, {fmt(hi)}] | "
+            f"{fmt(s.get('clean_success_rate'))} | "
             f"{fmt(s.get('final_pos_error_m'))} | {fmt(s.get('min_obstacle_clearance_m'))} | "
-            f"{sum(s['violations'].values())} | {fmt(t['median'], 3)} / {fmt(t['p95'], 3)} | "
-            f"{s['errors']} |"
+            f"{sum(s['violations'].values())} | {fmt(s.get('intervention_rate'), 3)} | "
+            f"{fmt(t['median'], 3)} / {fmt(t['p95'], 3)} | {s['errors']} |"
         )
     kinds = " | ".join(VIOLATION_KINDS)
     lines += ["", f"| policy | scenario | {kinds} |", "|---|---|" + "---|" * len(VIOLATION_KINDS)]
@@ -341,7 +373,11 @@ def main(argv: list[str] | None = None) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument(
-        "--policy", action="append", required=True, help="nmpc, random, zero, pkg.mod:factory"
+        "--policy",
+        action="append",
+        required=True,
+        help="nmpc, random, zero, ppo:PATH, sac:PATH, bc:PATH, dagger:PATH, pkg.mod:factory; "
+        "suffix +filter: inside the expert's safety filter",
     )
     ap.add_argument("--scenario", action="append", default=None, help="paper, random (repeatable)")
     ap.add_argument("--episodes", type=int, default=20)

@@ -5,7 +5,9 @@ Known names: ``nmpc`` (the expert, ``nmpc:ipopt`` for its reference solver), ``r
 ``module:factory`` (a user's ``factory(spec) -> Policy`` importable as
 ``package.module:factory``), ``ppo:PATH`` / ``sac:PATH`` (an SB3 run folder, or
 ``pretrained`` for the committed model), ``bc:PATH`` / ``dagger:PATH`` (a folder with
-``policy.pt``, or ``pretrained``).
+``policy.pt``, or ``pretrained``). Any of them with the suffix ``+filter`` (e.g.
+``dagger:pretrained+filter``) runs inside the expert's safety filter
+(``nmpc_expert.SafetyFilter``).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import numpy as np
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 
 PRETRAINED = Path(__file__).resolve().parent / "pretrained"
+FILTER_SUFFIX = "+filter"
 
 
 class RandomPolicy:
@@ -114,28 +117,41 @@ BUILTIN: dict[str, Callable[[str | None, int], PolicyFactory]] = {
 
 @dataclass(frozen=True)
 class PolicySource:
-    """A parsed ``--policy`` argument: a label for tables and a way to build factories."""
+    """A parsed ``--policy`` argument: a label for tables and a way to build factories;
+    ``filtered``: wrapped in the safety filter (suffix ``+filter``)."""
 
     label: str
     name: str
     arg: str | None
+    filtered: bool = False
 
     @staticmethod
     def parse(text: str) -> PolicySource:
-        name, _, arg = text.partition(":")
+        base = text.removesuffix(FILTER_SUFFIX)
+        filtered = base != text
+        name, _, arg = base.partition(":")
         if name in BUILTIN:
-            return PolicySource(text, name, arg or None)
+            return PolicySource(text, name, arg or None, filtered)
         if arg and "." in name:  # package.module:factory
-            return PolicySource(text, "module", text)
+            return PolicySource(text, "module", base, filtered)
         known = ", ".join(sorted(BUILTIN))
-        raise ValueError(f"unknown policy {text!r}: use one of {known}, or package.module:factory")
+        raise ValueError(
+            f"unknown policy {text!r}: use one of {known}, or package.module:factory, "
+            f"each optionally with the suffix {FILTER_SUFFIX}"
+        )
 
     def factory(self, episode_seed: int) -> PolicyFactory:
         """The per-agent factory for one episode (random policies are seeded by it)."""
         if self.name == "module":
             module, _, attr = self.arg.partition(":")  # type: ignore[union-attr]
-            return _user(module, attr)(None, episode_seed)
-        return BUILTIN[self.name](self.arg, episode_seed)
+            inner = _user(module, attr)(None, episode_seed)
+        else:
+            inner = BUILTIN[self.name](self.arg, episode_seed)
+        if not self.filtered:
+            return inner
+        from nmpc_expert import make_filter  # the expert is optional at import time
+
+        return make_filter(inner)
 
 
 def check_policy(policy: Policy) -> None:

@@ -1,12 +1,14 @@
 """nmpc_expert: the distributed NMPC of Heshmati-alamdari, Karras and Kyriakopoulos, one
 controller per robot, behind the shared policy interface (``uvms_env.policy``).
 
-    from nmpc_expert import NMPCPolicy, make_policy
+    from nmpc_expert import NMPCPolicy, SafetyFilter, make_policy
     policy = NMPCPolicy(AgentSpec.from_scenario(scenario, i), solver="rti")   # or "ipopt"
+    safe = SafetyFilter(spec, other_policy)   # the expert's constraints around any policy
 
 Modules (one job each): ``local_model`` (MODEL section 5 prediction model), ``ocp`` (the
 OCP's compiled pieces and the RTI's QP), ``rti`` (fast default solver), ``ipopt_solver``
-(reference solver), ``reference`` (navigation-function reference over the horizon),
+(reference solver), ``safety_filter`` (the expert's constraints around any
+policy), ``reference`` (navigation-function reference over the horizon),
 ``observation`` (reading the own observation), ``settings``, ``policy``, ``rollout``
 (closed loop + metrics), ``figures``, ``__main__`` (the main job).
 
@@ -14,6 +16,14 @@ May import: numpy, scipy, casadi, matplotlib, tqdm and ``uvms_env``. Never ``bas
 """
 
 from nmpc_expert.policy import NMPCPolicy, make_policy
+from nmpc_expert.safety_filter import SafetyFilter, make_filter
 from nmpc_expert.settings import MANIPULABILITY_EPS, NMPCSettings
 
-__all__ = ["MANIPULABILITY_EPS", "NMPCPolicy", "NMPCSettings", "make_policy"]
+__all__ = [
+    "MANIPULABILITY_EPS",
+    "NMPCPolicy",
+    "NMPCSettings",
+    "SafetyFilter",
+    "make_filter",
+    "make_policy",
+]

@@ -16,9 +16,12 @@ dependence (damping, Coriolis, the object's share) and the input matrix. The def
 (F(x_k, a_k) - x_{k+1}) are exact, so the RTI converges to a dynamically consistent plan;
 the exact AD Jacobian would cost ~11x more per call and ~200 s of compilation.
 
-Soft constraints (NC = 16 per node, normalized by their limits so one penalty fits all):
+Soft constraints (NC = 17 per node, normalized by their limits so one penalty fits all):
 body twist of the vehicle (6), joint rates (4), joint angles (4), object pitch (1),
-manipulability (1). They apply to x_1..x_N, never to the measured x_0.
+vehicle pitch (1), manipulability (1). They apply to x_1..x_N, never to the measured x_0.
+The vehicle pitch is the environment's other representation constraint; it is passive
+(the arm's reaction tilts the vehicle) and never nears its bound under the expert, but a
+cloned policy inside the safety filter tilted a vehicle past it (``safety_filter``).
 
 May import: numpy, casadi, ``uvms_env.dynamics`` and this package's ``local_model``.
 """
@@ -37,12 +40,13 @@ from uvms_env.dynamics.compiled import compile_function
 from uvms_env.dynamics.spatial import rot_zyx, skew
 from uvms_env.dynamics.uvms import default_model
 
-NC = 16  # soft constraints per node
+NC = 17  # soft constraints per node
 CONSTRAINT_NAMES = (
     *(f"vehicle_speed_{a}" for a in ("u", "v", "w", "p", "q", "r")),
     *(f"joint_speed_{k}" for k in range(1, 5)),
     *(f"joint_position_{k}" for k in range(1, 5)),
     "object_pitch",
+    "vehicle_pitch",
     "manipulability",
 )
 NW = 6 + 6 + 6 + NU + 5 * NC + 1  # weight/bound vector: see ``weight_vector``
@@ -158,10 +162,11 @@ def build_interval(model: LocalModel, f_jac: cs.Function, period: float, substep
 
 def node_terms(model: LocalModel, x, theta, xd, vd):
     """Unweighted residual [pose error (angles wrapped); twist error] and the NC
-    constraint values [zeta (10); q_m (4); theta_O; det(Jbar Jbar^T)] at one node."""
+    constraint values [zeta (10); q_m (4); theta_O; theta_i; det(Jbar Jbar^T)] at one
+    node (theta_i = q[4], the vehicle's ZYX pitch)."""
     x_o, v_o = model.object_state(x, theta)
     r = cs.vertcat(x_o[:3] - xd[:3], wrap(x_o[3:] - xd[3:]), v_o - vd)
-    c = cs.vertcat(x[NQ:], x[6:NQ], x_o[4], model.manipulability(x))
+    c = cs.vertcat(x[NQ:], x[6:NQ], x_o[4], x[4], model.manipulability(x))
     return r, c
 
 
@@ -207,7 +212,7 @@ def build_qp_builder(
         min 0.5 da' H da + f' da   s.t.  lb <= da <= ub (saturation, hard),
                                          lbc <= C da <= ubc (soft, per node k = 1..N)
 
-    With N = 5 it has 40 variables and 80 soft rows, small enough for a dense active-set
+    With N = 5 it has 40 variables and 85 soft rows, small enough for a dense active-set
     solver; condensing here (compiled) costs microseconds. The soft rows are the
     normalized constraint values of x_1..x_N; their L1 + L2 slack penalties are the
     solver's business (``rti``).

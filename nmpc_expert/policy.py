@@ -5,6 +5,10 @@
     action = policy.act(obs_i)    # (8,) normalized inputs in [-1, 1]
     policy.stats                  # solve_time_ms, iterations, status, fallbacks, ...
 
+``LocalController`` holds what the expert shares with the safety filter
+(``safety_filter``): the local model, the constraints with the rate-offset estimator, the
+solver and the ``executed`` hook.
+
 Built only from what robot i knows before the task (its ``AgentSpec``: grasp, load
 share, object shape, waypoints, obstacles, workspace, team radius) and fed only its own
 observation; nothing is shared between instances except read-only compiled functions.
@@ -72,7 +76,7 @@ def constraint_bounds(settings: NMPCSettings) -> tuple[np.ndarray, np.ndarray, n
         + [v_ang] * 3
         + [settings.joint_speed] * 4
         + [settings.joint_position] * 4
-        + [np.pi / 2 - settings.pitch_margin]
+        + [np.pi / 2 - settings.pitch_margin] * 2  # object and vehicle pitch
     )
     scale = np.concatenate([limit, [settings.manipulability_eps]])
     back = np.full(len(limit), b)
@@ -82,14 +86,18 @@ def constraint_bounds(settings: NMPCSettings) -> tuple[np.ndarray, np.ndarray, n
     return lower, upper, scale
 
 
-class NMPCPolicy:
-    """Distributed NMPC of one robot (see module docstring)."""
+class LocalController:
+    """What the expert and the safety filter (``safety_filter``) share: one robot's local
+    prediction model, its soft constraints with the rate-offset estimator, a solver over
+    the horizon, the ``executed`` hook and the counters. Built only from the robot's
+    ``AgentSpec``; ``_measure`` reads the robot's own observation."""
 
     def __init__(
         self,
         spec: AgentSpec,
         solver: str = "rti",
         settings: NMPCSettings | None = None,
+        cost: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         if solver not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
@@ -117,15 +125,12 @@ class NMPCPolicy:
             scale,
             s.input_reference == "steady_state",
         )
-        self.navigator = navigator_for(spec)
-        self.reference = HorizonReference(
-            self.navigator, s.horizon, s.period, s.attitude_from_waypoint
-        )
-        self._object_state = BufferCall(self.funcs.object_state)
         self._steady = BufferCall(self.funcs.steady_input)
         if solver == "rti":
-            self.solver = RTISolver(self.funcs, self.theta, self.weights)
+            self.solver = RTISolver(self.funcs, self.theta, self.weights, cost=cost)
         else:
+            if cost is not None:
+                raise ValueError("a fixed QP cost needs the rti solver")
             from nmpc_expert.ipopt_solver import IpoptSolver
 
             self.solver = IpoptSolver(self.funcs, self.theta, self.weights, s)
@@ -137,36 +142,104 @@ class NMPCPolicy:
         self._lower = self.solver.weights[o["lower"] : o["lower"] + NC]
         self._upper = self.solver.weights[o["upper"] : o["upper"] + NC]
         self.rate_offset = np.zeros(NX // 2)  # e, filtered one-step error of zeta
-        self.goal_integral = np.zeros(6)  # I, integral of the object's pose error at the goal
-        self._goal_integral_clip = np.repeat(  # |I| bound per axis from the |k_i I| limits
-            [s.goal_integral_limit, s.goal_integral_angle_limit], 3
-        ) / max(s.goal_integral_gain, 1e-12)
         self._predicted_zeta: np.ndarray | None = None
         self._x0 = np.zeros(NX)
-        self._wp = np.ascontiguousarray(spec.waypoints, dtype=float)
         self.stats: dict[str, Any] = {}
         self.fallbacks = 0
         self.decisions = 0
 
-    # -- Policy protocol -----------------------------------------------------------------
     def reset(self) -> None:
         self.solver.reset()
         self.rate_offset[:] = 0.0
-        self.goal_integral[:] = 0.0
         self._predicted_zeta = None
         self._lower[:], self._upper[:] = self._bounds[0], self._bounds[1]
         self.stats = {}
         self.fallbacks = 0
         self.decisions = 0
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        start = time.perf_counter()
+    def _measure(self, obs: np.ndarray) -> np.ndarray:
+        """The checked observation (float64); the model state ``_x0`` = [q; zeta] from it,
+        and the rate-offset estimate updated against the last one-step prediction."""
         o = check_observation(obs)
         st = OBSERVATION_STRUCTURE
         self._x0[: NX // 2] = o[st["q"]]
         self._x0[NX // 2 :] = o[st["zeta"]]
-        index = self._waypoint_index(o[st["waypoint"]])
         self._update_rate_offset()
+        return o
+
+    def _hold(self) -> np.ndarray:
+        """The nominal input that holds the robot (and its share of the object) at rest."""
+        return self._steady(self._x0, self.theta, np.zeros(6))[0].ravel()
+
+    def executed(self, action: np.ndarray) -> None:
+        """The input actually applied after the last ``act``, when another policy drove
+        (DAgger rollouts, a filter's correction). The one-step prediction that feeds the
+        rate-offset estimator is corrected to first order, zeta_1 += Gamma_0 (a_applied -
+        a_planned), so the estimator keeps measuring model error, not the other policy's
+        choice. Only the RTI solver has Gamma_0 at hand; with IPOPT the prediction is
+        dropped instead (the estimate holds for one period)."""
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (NU,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"executed action must be {NU} finite numbers, got {a.shape}")
+        if self._predicted_zeta is None:
+            return
+        gain = self.solver.input_sensitivity() if self.solver_name == "rti" else None
+        if gain is None:
+            self._predicted_zeta = None
+            return
+        delta = np.clip(a, -1.0, 1.0) - self.solver.abar[0]
+        self._predicted_zeta = self._predicted_zeta + gain[NX // 2 :] @ delta
+
+    def _update_rate_offset(self) -> None:
+        """e <- e + L (zeta - zeta_pred - e), clipped; then bounds on the speed rows
+        (the first 10 soft constraints, c = zeta) shift by -e: zeta_pred + e within limits."""
+        s = self.settings
+        if self._predicted_zeta is None or s.offset_gain == 0:
+            return
+        err = self._x0[NX // 2 :] - self._predicted_zeta
+        self.rate_offset += s.offset_gain * (err - self.rate_offset)
+        lower, upper, scale = self._bounds
+        m = NX // 2
+        shift = np.clip(self.rate_offset / scale[:m], -s.offset_limit, s.offset_limit)
+        self._lower[:m] = lower[:m] - shift
+        self._upper[:m] = upper[:m] - shift
+
+    def predicted_plan(self) -> tuple[np.ndarray, np.ndarray]:
+        """The current plan: states (N+1, 20) and normalized inputs (N, 8) (copies)."""
+        return self.solver.xbar.copy(), self.solver.abar.copy()
+
+
+class NMPCPolicy(LocalController):
+    """Distributed NMPC of one robot (see module docstring)."""
+
+    def __init__(
+        self,
+        spec: AgentSpec,
+        solver: str = "rti",
+        settings: NMPCSettings | None = None,
+    ) -> None:
+        super().__init__(spec, solver, settings)
+        s = self.settings
+        self.navigator = navigator_for(spec)
+        self.reference = HorizonReference(
+            self.navigator, s.horizon, s.period, s.attitude_from_waypoint
+        )
+        self._object_state = BufferCall(self.funcs.object_state)
+        self.goal_integral = np.zeros(6)  # I, integral of the object's pose error at the goal
+        self._goal_integral_clip = np.repeat(  # |I| bound per axis from the |k_i I| limits
+            [s.goal_integral_limit, s.goal_integral_angle_limit], 3
+        ) / max(s.goal_integral_gain, 1e-12)
+        self._wp = np.ascontiguousarray(spec.waypoints, dtype=float)
+
+    # -- Policy protocol -----------------------------------------------------------------
+    def reset(self) -> None:
+        super().reset()
+        self.goal_integral[:] = 0.0
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        start = time.perf_counter()
+        o = self._measure(obs)
+        index = self._waypoint_index(o[OBSERVATION_STRUCTURE["waypoint"]])
         x_o, _ = self._object_state(self._x0, self.theta)
         xd, vd = self.reference(x_o, index)
         self.solver.xd[:] = xd
@@ -181,8 +254,7 @@ class NMPCPolicy:
         except Exception as err:  # a failed solve must never stop the robot
             self.fallbacks += 1
             status = f"fallback: {type(err).__name__}: {err}"
-            hold = self._steady(self._x0, self.theta, np.zeros(6))[0].ravel()
-            action = self.solver.fallback(self._x0, hold)
+            action = self.solver.fallback(self._x0, self._hold())
             self._predicted_zeta = None
         self.decisions += 1
         elapsed = (time.perf_counter() - start) * 1e3
@@ -198,40 +270,8 @@ class NMPCPolicy:
         }
         return np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
 
-    def executed(self, action: np.ndarray) -> None:
-        """The input actually applied after the last ``act``, when another policy drove
-        (DAgger rollouts). The one-step prediction that feeds the rate-offset estimator is
-        corrected to first order, zeta_1 += Gamma_0 (a_applied - a_planned), so the
-        estimator keeps measuring model error, not the other policy's choice. Only the
-        RTI solver has Gamma_0 at hand; with IPOPT the prediction is dropped instead
-        (the estimate holds for one period)."""
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != (NU,) or not np.all(np.isfinite(a)):
-            raise ValueError(f"executed action must be {NU} finite numbers, got {a.shape}")
-        if self._predicted_zeta is None:
-            return
-        gain = self.solver.input_sensitivity() if self.solver_name == "rti" else None
-        if gain is None:
-            self._predicted_zeta = None
-            return
-        delta = np.clip(a, -1.0, 1.0) - self.solver.abar[0]
-        self._predicted_zeta = self._predicted_zeta + gain[NX // 2 :] @ delta
-
     # -- helpers ----------------------------------------------------------------------------
-    def _update_rate_offset(self) -> None:
-        """e <- e + L (zeta - zeta_pred - e), clipped; then bounds on the speed rows
-        (the first 10 soft constraints, c = zeta) shift by -e: zeta_pred + e within limits."""
-        s = self.settings
-        if self._predicted_zeta is None or s.offset_gain == 0:
-            return
-        err = self._x0[NX // 2 :] - self._predicted_zeta
-        self.rate_offset += s.offset_gain * (err - self.rate_offset)
-        lower, upper, scale = self._bounds
-        m = NX // 2
-        shift = np.clip(self.rate_offset / scale[:m], -s.offset_limit, s.offset_limit)
-        self._lower[:m] = lower[:m] - shift
-        self._upper[:m] = upper[:m] - shift
-
+    # -- helpers ----------------------------------------------------------------------------
     def _goal_integral_action(self, x_o: np.ndarray, index: int) -> None:
         """Integral action near the last waypoint (``goal_integral_gain``): the pose
         reference of the horizon (position and Euler angles) moves by -k_i I."""
@@ -257,10 +297,6 @@ class NMPCPolicy:
                 "mission's waypoints"
             )
         return k
-
-    def predicted_plan(self) -> tuple[np.ndarray, np.ndarray]:
-        """The current plan: states (N+1, 20) and normalized inputs (N, 8) (copies)."""
-        return self.solver.xbar.copy(), self.solver.abar.copy()
 
 
 def make_policy(solver: str = "rti", **settings: Any) -> Callable[[AgentSpec], NMPCPolicy]:

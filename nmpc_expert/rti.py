@@ -46,7 +46,16 @@ class RTISolver:
 
     name = "rti"
 
-    def __init__(self, funcs: OCPFunctions, theta: np.ndarray, weights: np.ndarray) -> None:
+    def __init__(
+        self,
+        funcs: OCPFunctions,
+        theta: np.ndarray,
+        weights: np.ndarray,
+        cost: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> None:
+        """``cost``: a fixed (H, f) of the QP in place of the builder's Gauss-Newton
+        tracking cost (the safety filter's input-only cost); the dynamics, constraints
+        and bounds are the builder's either way."""
         self.funcs = funcs
         n = funcs.horizon
         self.n = n
@@ -73,6 +82,7 @@ class RTISolver:
         pad = np.zeros(nz)
         self._soft = (np.concatenate([pad, 1.0 / (2.0 * l2)]), np.concatenate([pad, l1]))
         self._qp: daqp.Model | None = None
+        self.cost = cost
 
     def reset(self) -> None:
         self.has_plan = False
@@ -97,6 +107,8 @@ class RTISolver:
             self.xbar, self.abar, self.theta, self.xd, self.vd, self.weights
         )
         f, lb, ub, lbc, ubc = (v.reshape(-1) for v in (f, lb, ub, lbc, ubc))  # views
+        if self.cost is not None:
+            h, f = self.cost
         nz = self._nz
         self._lower[:nz], self._upper[:nz] = lb, ub
         self._lower[nz:], self._upper[nz:] = lbc, ubc
@@ -137,6 +149,11 @@ class RTISolver:
     def step(self, x0: np.ndarray, a_init: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
         """One real-time iteration from the measured state x0; returns (a_0, info)."""
         self.shift(x0, a_init)
+        return self.iterate()
+
+    def iterate(self) -> tuple[np.ndarray, dict[str, Any]]:
+        """Solve the QP around the current (xbar, abar) (already shifted), take the full
+        step and return (a_0, info); raises RuntimeError if the QP failed."""
         da, info = self.solve_qp()
         out = self._build.outputs
         g_t, e = out[_G_T], out[_E]  # dx_1..dx_N = G da + e (G read row-major from G')

@@ -92,7 +92,8 @@ class NMPCSettings:
     joint_position: float = 2.0
     """|q_m| [rad] (paper)."""
     pitch_margin: float = 0.2
-    """|theta_O| <= pi/2 - pitch_margin [rad] (representation singularity)."""
+    """|theta_O|, |theta_i| <= pi/2 - pitch_margin [rad] (object and vehicle pitch, the
+    representation singularity)."""
     manipulability_eps: float = MANIPULABILITY_EPS
     """Lower bound of det(Jbar Jbar^T)."""
     backoff: float = 0.85

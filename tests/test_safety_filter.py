@@ -1,0 +1,184 @@
+"""Safety filter: a safe proposal passes unchanged, an unsafe one is corrected to a safe
+prediction, locality (built from the robot's own spec and observation), fallback, and the
+evaluator's ``+filter`` policies. Observations come from the environment."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import uvms_env
+from baselines.evaluate import evaluate, markdown_table, write_outputs
+from baselines.policies import PolicySource, RandomPolicy
+from nmpc_expert import NMPCPolicy, SafetyFilter
+from nmpc_expert.local_model import NX
+from uvms_env.policy import AgentSpec, Policy
+
+JOINT_RATES = slice(NX // 2 + 6, NX)  # the 4 joint rates in the model state [q; zeta]
+
+
+class Constant:
+    """A policy that always proposes the same action."""
+
+    def __init__(self, action: np.ndarray) -> None:
+        self.action = np.asarray(action, dtype=np.float64)
+        self.stats: dict = {}
+
+    def reset(self) -> None:
+        pass
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return self.action.copy()
+
+
+@pytest.fixture(scope="module")
+def env():
+    return uvms_env.parallel_env(scenario="paper")
+
+
+def _spec(env, i: int) -> AgentSpec:
+    return AgentSpec.from_scenario(env.scenario, i)
+
+
+def _holding_input(env, obs) -> np.ndarray:
+    """Robot 0's nominal holding input at the observed state (the expert's function)."""
+    probe = SafetyFilter(_spec(env, 0), Constant(np.zeros(8)))
+    probe._measure(obs)
+    return np.clip(probe._hold(), -1.0, 1.0)
+
+
+def _rollout_joint_rates(filt: SafetyFilter, x0: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+    """Joint rates (N, 4) of the nonlinear local model driven by ``inputs`` from x0."""
+    x, rates = x0.copy(), []
+    for a in inputs:
+        x = filt.funcs.interval(x, a, filt.theta)[0].full().ravel()
+        rates.append(x[JOINT_RATES])
+    return np.array(rates)
+
+
+def test_expert_actions_pass_unchanged(env):
+    """Around the expert's own actions: every period whose proposal (with the filter's
+    backup tail) keeps all predicted constraints returns the proposal to 1e-6, and the
+    others differ by less than the intervention tolerance (the expert rides its active
+    constraints; the filter's node 1 is the exact model, the expert's plan linearized)."""
+    obs, _ = env.reset(seed=0)
+    filt = SafetyFilter(_spec(env, 0), NMPCPolicy(_spec(env, 0)))
+    assert isinstance(filt, Policy)
+    other = NMPCPolicy(_spec(env, 1))
+    filt.reset()
+    other.reset()
+    safe = 0
+    for _ in range(40):
+        act = {"uvms_0": filt.act(obs["uvms_0"]), "uvms_1": other.act(obs["uvms_1"])}
+        lbc, ubc = (filt.solver._build.outputs[k].ravel() for k in (5, 6))
+        if lbc.max() <= 0.0 <= ubc.min():  # da = 0 keeps every soft row
+            safe += 1
+            assert filt.stats["intervention"] < 1e-6
+        assert not filt.stats["intervened"]
+        obs, *_ = env.step(act)
+    assert safe >= 3
+    assert filt.stats["fallbacks"] == 0 and filt.stats["interventions"] == 0
+
+
+def test_unsafe_joint_torque_is_corrected_to_a_safe_prediction(env):
+    """Full torque on joint 1, held: the model predicts the joint rate past its limit
+    within the horizon. The filter changes it, its plan's nonlinear prediction keeps every
+    joint rate within the limit, and in closed loop the joint-rate limit holds."""
+    obs, _ = env.reset(seed=0)
+    proposal = _holding_input(env, obs["uvms_0"])
+    proposal[4] = 1.0  # joint 1 torque, normalized
+    filt = SafetyFilter(_spec(env, 0), Constant(proposal))
+    filt.reset()
+    out = filt.act(obs["uvms_0"])
+    x0 = filt._x0.copy()
+    limit = filt.settings.joint_speed
+    held = _rollout_joint_rates(filt, x0, np.tile(proposal, (filt.solver.n, 1)))
+    assert np.abs(held).max() > limit  # unsafe as proposed
+    assert filt.stats["intervened"] and np.abs(out - proposal).max() > 0.1
+    planned = _rollout_joint_rates(filt, x0, filt.solver.abar)
+    assert np.abs(planned).max() < limit
+
+    other = NMPCPolicy(_spec(env, 1))
+    for filtered in (True, False):
+        obs, _ = env.reset(seed=0)
+        robot0 = filt if filtered else Constant(proposal)
+        robot0.reset()
+        other.reset()
+        worst = -np.inf
+        for _ in range(20):
+            act = {"uvms_0": robot0.act(obs["uvms_0"]), "uvms_1": other.act(obs["uvms_1"])}
+            obs, _, _, _, infos = env.step(act)
+            worst = max(worst, infos["uvms_0"]["constraint_values"]["joint_speed"])
+        assert (worst <= 0) == filtered, (filtered, worst)
+
+
+def test_replay_reproduces_outputs_no_shared_state(env):
+    """Robot 1's filter, rebuilt alone from its spec and fed robot 1's recorded
+    observations only, reproduces its outputs: nothing passes between the filters."""
+    factory = PolicySource.parse("random+filter").factory(3)
+    pols = {a: factory(_spec(env, i)) for i, a in enumerate(env.possible_agents)}
+    for p in pols.values():
+        p.reset()
+    obs, _ = env.reset(seed=0)
+    stream, outputs = [], []
+    for _ in range(25):
+        act = {a: p.act(obs[a]) for a, p in pols.items()}
+        stream.append(obs["uvms_1"].copy())
+        outputs.append(act["uvms_1"].copy())
+        obs, *_ = env.step(act)
+    assert pols["uvms_1"].stats["interventions"] > 0  # random proposals get corrected
+    alone = SafetyFilter(_spec(env, 1), RandomPolicy(_spec(env, 1), 3))
+    alone.reset()
+    replay = np.array([alone.act(o) for o in stream])
+    np.testing.assert_allclose(replay, np.array(outputs), atol=1e-9)
+
+
+def test_failed_qp_falls_back_to_the_backup_plan(env, monkeypatch):
+    obs, _ = env.reset(seed=0)
+    filt = SafetyFilter(_spec(env, 0), Constant(_holding_input(env, obs["uvms_0"])))
+    filt.reset()
+    filt.act(obs["uvms_0"])
+    backup = filt.solver.abar[1].copy()
+
+    def boom(*_args, **_kw):
+        raise RuntimeError("QP solver failed (test)")
+
+    monkeypatch.setattr(filt.solver, "solve_qp", boom)
+    out = filt.act(obs["uvms_0"])
+    np.testing.assert_allclose(out, backup)
+    assert filt.stats["fallbacks"] == 1 and "fallback" in filt.stats["status"]
+
+
+def test_filter_suffix_parsing():
+    src = PolicySource.parse("dagger:pretrained+filter")
+    assert (src.name, src.arg, src.filtered, src.label) == (
+        "dagger",
+        "pretrained",
+        True,
+        "dagger:pretrained+filter",
+    )
+    assert PolicySource.parse("random+filter").filtered
+    assert not PolicySource.parse("ppo:pretrained").filtered
+    mod = PolicySource.parse("tests.test_evaluate:raising_factory+filter")
+    assert (mod.name, mod.arg, mod.filtered) == (
+        "module",
+        "tests.test_evaluate:raising_factory",
+        True,
+    )
+    with pytest.raises(ValueError, match="unknown policy"):
+        PolicySource.parse("nonsense+filter")
+
+
+def test_evaluator_reports_interventions_and_clean_success(tmp_path):
+    rows = evaluate(
+        ["random+filter", "zero"], ["short"], 1, 0, workers=1, max_cycles=5, progress=False
+    )
+    filtered, plain = rows
+    assert filtered["error"] == "" and filtered["filtered_decisions"] == 10
+    assert 0.0 < filtered["intervention_rate"] <= 1.0
+    assert plain["intervention_rate"] is None and plain["clean_success"] is False
+    summaries = write_outputs(rows, 0, tmp_path)
+    assert summaries[0]["intervention_rate"] == filtered["intervention_rate"]
+    assert summaries[1]["intervention_rate"] is None
+    assert "clean_success_rate" in summaries[0]
+    assert "intervention rate" in markdown_table(summaries)
