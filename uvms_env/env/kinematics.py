@@ -13,6 +13,26 @@ The compiled function depends only on the number of robots, of object segments, 
 the scenario geometry (grasps, obstacles, workspace, object segments, waypoints) enters
 as inputs, so a new random scenario with the same team size reuses it.
 
+Padding. An obstacle row with ``present == 0`` changes nothing, whatever its (finite)
+geometry and however many there are: it never enters the nearest obstacles nor the
+ranks of the real ones, and its clearance is replaced by +inf, the neutral element of
+the min (its radius by -inf, see ``_clearance_geometry``), so an obstacle-free scenario
+reads +inf with or without padding rows. A repeated object segment changes nothing
+either (a min and a max over the segments). So every scenario of a team size and
+sensing fits one function with ``BATCH_CYLINDERS`` / ``BATCH_SPHERES`` obstacle slots
+and as many segments as the largest object (``obstacle_inputs``, ``segment_inputs``):
+what a batched build over different geometries needs. The single environment pads
+less (``_padded``): same results, less work.
+
+Branch-free. The symbolic kernel (``team_function``) generates C without a select on a
+value (no ``if_else``, whose C is ``c ? a : 0``), so it also compiles with
+``casadi_real`` a bundle of SIMD lanes or as a CUDA kernel (``uvms_env.vector.kernels``):
+selections are products of 0/1 comparisons with values that are finite for a finite
+state (exact: ``1 * x == x``, ``0 * x == 0``), the substitutions that involve infinities
+are ``fmin``. Its maths: arithmetic, comparisons, ``fmin``/``fmax``/``fabs``, ``sqrt``,
+``sin``/``cos``/``tan``, ``asin``, ``atan2``. Obstacle ``present`` flags must be exactly
+0 or 1.
+
 May import: numpy, casadi, ``uvms_env.dynamics``, ``uvms_env.navigation`` (obstacle
 types), ``uvms_env.scenarios`` (types) and ``uvms_env.env.constraints``.
 """
@@ -48,6 +68,10 @@ NG = 12  # grasp per robot: offset l_i (3), R_Oi column-major (9); the simulator
 # constraints), so a few compiled kernels serve every scenario of a team size; longer
 # lists are used as they are.
 PADDED_SIZES = (0, 2, 5)
+#: Obstacle slots of a kernel shared by every geometry (batched environments): the random
+#: family draws at most five obstacles, the paper scenario has three cylinders.
+BATCH_CYLINDERS = 5
+BATCH_SPHERES = 5
 NS = 13  # per robot, known a priori: load share, grasp offset, R_Oi row-major
 NK = len(CONSTRAINTS)
 Layout = tuple[tuple[str, int], ...]  # the observation's (name, size) blocks, in order
@@ -65,22 +89,48 @@ def _euler_zyx(r: cs.SX) -> cs.SX:
 def _nearest(
     features: list[cs.SX], dist: list[cs.SX], valid: list[cs.SX], count: int, far: cs.DM
 ) -> cs.SX:
-    """The ``count`` features of smallest distance, nearest first (ties by index); a slot
-    whose obstacle is padding holds ``far``. Rank counting: O(M^2) comparisons, cheap in C."""
+    """The ``count`` valid features of smallest distance, nearest first (ties by index);
+    a slot left without one holds ``far``. Rank counting: a feature's rank is the number
+    of valid ones nearer, O(M^2) comparisons, cheap in C; padding rows count nowhere,
+    wherever they are.
+
+    Branch-free: slot ``s`` adds ``[rank_j == s] * valid_j * (feature_j - far)`` over the
+    obstacles, exactly the feature's offset or zero (features are finite, padding rows
+    too; ``valid`` is 0 or 1)."""
     m = len(features)
     rank = [
-        sum((dist[k] < dist[j]) if k > j else (dist[k] <= dist[j]) for k in range(m) if k != j)
+        sum(
+            (
+                valid[k] * ((dist[k] < dist[j]) if k > j else (dist[k] <= dist[j]))
+                for k in range(m)
+                if k != j
+            ),
+            cs.SX(0.0),
+        )
         for j in range(m)
     ]
     slots = []
     for s in range(count):
         slot = cs.SX(far)  # stays far unless a real obstacle has rank s
         for j in range(m):
-            slot += cs.if_else(
-                cs.logic_and(rank[j] == s, valid[j]), features[j] - far, cs.SX.zeros(far.shape)
-            )
+            slot += ((rank[j] == s) * valid[j]) * (features[j] - far)
         slots.append(slot)
     return cs.vertcat(*slots)
+
+
+def _clearance_geometry(cyl: cs.SX, sph: cs.SX) -> tuple[cs.SX, cs.SX]:
+    """The obstacles as ``capsule_clearance`` takes them (cylinders 3 x C, spheres 4 x P)
+    with the radius of an absent obstacle (``present == 0``) replaced by -inf, so that its
+    clearance is +inf and never the min. Branch-free and exact: ``fmin(r, +inf) == r``,
+    ``fmin(r, -inf) == -inf`` (``(2 present - 1) inf`` is +-inf, never NaN)."""
+
+    def radius(r: cs.SX, present: cs.SX) -> cs.SX:
+        return cs.fmin(r, (2.0 * present - 1.0) * np.inf)
+
+    return (
+        cs.vertcat(cyl[:2, :], radius(cyl[2, :], cyl[3, :])),
+        cs.vertcat(sph[:3, :], radius(sph[3, :], sph[4, :])),
+    )
 
 
 def robot_function(
@@ -153,7 +203,7 @@ def robot_function(
     manip = uvms.manipulability(q)
     pts = uvms.body_points(q)
     r_veh, r_tube = prm.vehicle.bounding_radius, prm.arm.tube_radius
-    cyl_g, sph_g = cyl[:3, :], sph[:4, :]
+    cyl_g, sph_g = _clearance_geometry(cyl, sph)
     own = capsule_clearance(pts[:, 0], pts[:, 0], r_veh, cyl_g, sph_g)
     for k in range(1, pts.shape[1] - 1):
         own = cs.fmin(own, capsule_clearance(pts[:, k], pts[:, k + 1], r_tube, cyl_g, sph_g))
@@ -188,11 +238,12 @@ def object_function(radius: float, n_seg: int, n_cyl: int, n_sph: int) -> cs.Fun
     cyl, sph = cs.SX.sym("cylinders", 4, n_cyl), cs.SX.sym("spheres", 5, n_sph)
     ws = cs.SX.sym("workspace", 4)
     rot = rot_zyx(x_o[3:])
+    cyl_g, sph_g = _clearance_geometry(cyl, sph)
     clearance, balls = cs.SX(np.inf), []
     for k in range(n_seg):
         a = x_o[:3] + rot @ seg[:3, k]
         b = x_o[:3] + rot @ seg[3:, k]
-        clearance = cs.fmin(clearance, capsule_clearance(a, b, radius, cyl[:3, :], sph[:4, :]))
+        clearance = cs.fmin(clearance, capsule_clearance(a, b, radius, cyl_g, sph_g))
         balls += [(a, radius), (b, radius)]
     return cs.Function(
         "env_object",
@@ -203,7 +254,7 @@ def object_function(radius: float, n_seg: int, n_cyl: int, n_sph: int) -> cs.Fun
 
 
 @cache
-def team_kernel(
+def team_function(
     n: int,
     n_seg: int,
     n_cyl: int,
@@ -212,8 +263,16 @@ def team_kernel(
     far: tuple[float, ...],
     noisy: bool,
 ) -> cs.Function:
-    """The compiled kernel for n robots (built and compiled once per process and size;
-    the compiled library is cached on disk)."""
+    """The symbolic kernel for n robots (MX around the per-robot SX function, mapped;
+    branch-free, see the module doc): what ``team_kernel`` compiles, and what a batched
+    build (``uvms_env.vector.kernels``) generates its code from.
+
+    Inputs, in order (CasADi shapes; ``TeamKinematics.__call__`` passes each as the
+    C-contiguous transpose): a (8, n), q, zeta, q_meas, zeta_meas (10, n), x_O (6,),
+    grasp (12, n), static (13, n), waypoint (6, n), goal (6,), time_fraction (1,),
+    segments (6, n_seg), cylinders (4, n_cyl), spheres (5, n_sph), workspace (4,).
+    Outputs: observation (size, n), pose (6, n), constraints (8, n), scalars (6, n),
+    team (16,)."""
     uvms = default_model()
     robot = robot_function(uvms, n_cyl, n_sph, layout, far, noisy).map(n, "serial")
     obj = object_function(uvms.params.object.tube_radius, n_seg, n_cyl, n_sph)
@@ -239,16 +298,60 @@ def team_kernel(
         cs.sum2(g > 0.0) > 0.0,  # per kind: violated by any robot
         obj_terms,
     )
-    fn = cs.Function(
+    return cs.Function(
         f"env_kernel_n{n}_s{n_seg}_c{n_cyl}_p{n_sph}{'_noisy' if noisy else ''}",
         [a, q, zeta, qm, zm, x_o, grasp, static, wp, goal, tf, seg, cyl, sph, ws],
         [obs, pose, g, scalars, team],
     )
-    return compile_function(fn)
+
+
+@cache
+def team_kernel(
+    n: int,
+    n_seg: int,
+    n_cyl: int,
+    n_sph: int,
+    layout: Layout,
+    far: tuple[float, ...],
+    noisy: bool,
+) -> cs.Function:
+    """The compiled kernel for n robots (built and compiled once per process and size;
+    the compiled library is cached on disk): ``team_function`` compiled."""
+    return compile_function(team_function(n, n_seg, n_cyl, n_sph, layout, far, noisy))
 
 
 def _padded(count: int) -> int:
     return next((size for size in PADDED_SIZES if size >= count), count)
+
+
+def obstacle_inputs(scenario: Scenario, n_cyl: int, n_sph: int) -> tuple[np.ndarray, np.ndarray]:
+    """The kernel's ``cylinders`` (n_cyl, 4) rows ``[x, y, r, present]`` and ``spheres``
+    (n_sph, 5) rows ``[cx, cy, cz, r, present]`` of a scenario, padded with absent rows
+    (far-away stand-ins, ``present = 0``). Raises ValueError if it has more obstacles of
+    a kind than slots."""
+    cyl = [o for o in scenario.obstacles if isinstance(o, Cylinder)]
+    sph = [o for o in scenario.obstacles if not isinstance(o, Cylinder)]
+    if len(cyl) > n_cyl or len(sph) > n_sph:
+        raise ValueError(
+            f"the scenario has {len(cyl)} cylinders and {len(sph)} spheres; the kernel has "
+            f"slots for {n_cyl} and {n_sph}"
+        )
+    cylinders = np.array([(*PAD_CYLINDER, 0.0)] * n_cyl).reshape(n_cyl, 4)
+    for k, c in enumerate(cyl):
+        cylinders[k] = (c.x, c.y, c.radius, 1.0)
+    spheres = np.array([(*PAD_SPHERE, 0.0)] * n_sph).reshape(n_sph, 5)
+    for k, sp in enumerate(sph):
+        spheres[k] = (*sp.center, sp.radius, 1.0)
+    return cylinders, spheres
+
+
+def segment_inputs(segments: Sequence[tuple[np.ndarray, np.ndarray]], n_seg: int) -> np.ndarray:
+    """The kernel's ``segments`` (n_seg, 6) rows ``[a, b]``, the last segment repeated up
+    to ``n_seg`` (neutral: the object terms are a min and a max over segments)."""
+    if not 1 <= len(segments) <= n_seg:
+        raise ValueError(f"{len(segments)} segments do not fit {n_seg} slots (at least one)")
+    rows = [np.concatenate([a, b]) for a, b in segments]
+    return np.ascontiguousarray(rows + [rows[-1]] * (n_seg - len(rows)), dtype=float)
 
 
 def grasp_matrix(scenario: Scenario) -> np.ndarray:
@@ -282,22 +385,22 @@ class TeamKinematics(RebuiltOnUnpickle):
         segments: Sequence[tuple[np.ndarray, np.ndarray]],
         layout: Layout,
         far: Sequence[float],
+        slots: tuple[int, int] | None = None,
     ) -> None:
-        self._init_args = (scenario, segments, layout, far)
+        """``slots``: (cylinders, spheres) of the kernel; default: the scenario's counts
+        padded to ``PADDED_SIZES`` (the results are the same with any padding)."""
+        self._init_args = (scenario, segments, layout, far, slots)
         self.n = n = scenario.n_agents
-        cyl = [o for o in scenario.obstacles if isinstance(o, Cylinder)]
-        sph = [o for o in scenario.obstacles if not isinstance(o, Cylinder)]
-        n_cyl, n_sph = _padded(len(cyl)), _padded(len(sph))
+        if slots is None:
+            n_cyl = _padded(sum(isinstance(o, Cylinder) for o in scenario.obstacles))
+            n_sph = _padded(sum(not isinstance(o, Cylinder) for o in scenario.obstacles))
+        else:
+            n_cyl, n_sph = slots
+        self.cylinders, self.spheres = obstacle_inputs(scenario, n_cyl, n_sph)
         noisy = scenario.sensor_noise > 0
         kernel = team_kernel(n, len(segments), n_cyl, n_sph, layout, tuple(far), noisy)
         self._call = BufferCall(kernel)
-        self.cylinders = np.array([(*PAD_CYLINDER, 0.0)] * n_cyl).reshape(n_cyl, 4)
-        for k, c in enumerate(cyl):
-            self.cylinders[k] = (c.x, c.y, c.radius, 1.0)
-        self.spheres = np.array([(*PAD_SPHERE, 0.0)] * n_sph).reshape(n_sph, 5)
-        for k, sp in enumerate(sph):
-            self.spheres[k] = (*sp.center, sp.radius, 1.0)
-        self.segments = np.ascontiguousarray([np.concatenate([a, b]) for a, b in segments])
+        self.segments = segment_inputs(segments, len(segments))
         self.workspace = np.array([*scenario.workspace.center, scenario.workspace.radius])
         self.grasp = grasp_matrix(scenario)
         self.static = np.ascontiguousarray(

@@ -58,6 +58,13 @@ UVMS_LANEWISE(sin, ::sin)
 UVMS_LANEWISE(cos, ::cos)
 UVMS_LANEWISE(tan, ::tan)
 #endif
+// asin and atan2 (Euler angles of a rotation matrix) lane by lane: libm's results.
+UVMS_LANEWISE(asin, ::asin)
+static inline vreal atan2(const vreal& y, const vreal& x) {
+  vreal r;
+  for (int i = 0; i < UVMS_LANES; ++i) r.v[i] = ::atan2(y.v[i], x.v[i]);
+  return r;
+}
 
 // Comparisons and logic, lane by lane, as C gives them: 0 or 1 in each lane (no lane
 // ever branches; a select in the generated code is arithmetic on these). A GCC vector
