@@ -45,7 +45,7 @@ MAX_REFINEMENTS = 4  # halvings: down to 1/16 of a period (128 substeps at the d
 # a period that fails there is reported as reaching the representation's singularity.
 SINGULARITY_MARGIN = 0.1  # rad
 # What the simulator promises at the end of every period (README): the grasp pose error
-# after the projection. Newton from an accepted drift lands at ~1e-12.
+# after the projection. One Newton step from an accepted drift lands at ~1e-9 or below.
 GRASP_TOL = 1e-6  # m and rad
 # The physical envelope: no input the saturations admit drives a UVMS or the object near
 # these speeds with the model's damping (measured under saturated bang-bang inputs: vehicle

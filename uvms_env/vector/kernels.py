@@ -251,10 +251,28 @@ def _build_cpu(source: str, sig: Signature, dtype: str, lanes: int) -> ctypes.CD
     return ctypes.CDLL(str(lib))
 
 
-def cuda_source(fn: cs.Function, real: str = "double") -> tuple[str, Signature]:
+@dataclass(frozen=True)
+class Refinement:
+    """In-kernel error control for a period step laid out as the chain's (inputs ...,
+    h last; outputs state, drift 12 x N, error 6 x N): the same test and the same
+    recursive halving as ``Simulator._refine``, run by the thread of each environment
+    that needs it, so that a few refined environments cost no extra launches. The
+    kernel then writes one more output, (1, K): 0 accurate, 1 refined, 2 refused."""
+
+    n_agents: int
+    tol_pose: float
+    tol_twist: float
+    grasp_tol: float
+    max_levels: int
+
+
+def cuda_source(
+    fn: cs.Function, real: str = "double", refine: Refinement | None = None
+) -> tuple[str, Signature]:
     """CUDA C++ for ``fn``: the generated functions as device code, plus a kernel
     ``uvms_batch_kernel(const real* in[], real* out[], long k)`` with one thread per
-    environment and the (nnz_i, K) layout. Compiled by ``kernels_cuda`` (CuPy/NVRTC)."""
+    environment and the (nnz_i, K) layout, optionally with in-kernel error control
+    (``Refinement``). Compiled by ``kernels_cuda`` (nvcc or NVRTC)."""
     sig = Signature.of(fn)
     full = generated_source(fn)
     top = _top_function(full, sig.name)
@@ -278,8 +296,15 @@ def cuda_source(fn: cs.Function, real: str = "double") -> tuple[str, Signature]:
     body = "\n".join(lines)
     # the generated code closes its extern "C" block at the end of the file
     n_in, n_out = len(sig.nnz_in), len(sig.nnz_out)
+    control = "" if refine is None else _refinement_source(refine, sig, top)
+    call = (
+        f"{top}(arg, res, iw, w, 0);"
+        if refine is None
+        else "out[" + str(n_out) + "][e] = uvms_controlled_step(arg, res, iw, w);"
+    )
     kernel = f"""
 }} /* extern "C" */
+{control}
 extern "C" __global__ void uvms_batch_kernel(const casadi_real* const* in,
                                              casadi_real* const* out, long k) {{
   const long e = (long)blockIdx.x * blockDim.x + threadIdx.x;
@@ -299,7 +324,7 @@ extern "C" __global__ void uvms_batch_kernel(const casadi_real* const* in,
   }}
   casadi_real* q = out_buf;
   for (int i = 0; i < {n_out}; ++i) {{ res[i] = q; q += nnz_out[i]; }}
-  {top}(arg, res, iw, w, 0);
+  {call}
   q = out_buf;
   for (int i = 0; i < {n_out}; ++i) {{
     for (long j = 0; j < nnz_out[i]; ++j) out[i][j * k + e] = q[j];
@@ -309,6 +334,65 @@ extern "C" __global__ void uvms_batch_kernel(const casadi_real* const* in,
 """
     prelude = f"#define casadi_real {real}\n#define casadi_int long long int\n"
     return prelude + body + kernel, sig
+
+
+def _refinement_source(r: Refinement, sig: Signature, top: str) -> str:
+    """Device code of ``Refinement``: the accuracy test, then the halving of refused
+    parts (``max_levels`` deep at most), in the thread of the environment."""
+    nx, h_index = sig.nnz_in[0], len(sig.nnz_in) - 1
+    if sig.nnz_out[:3] != (nx, 12 * r.n_agents, 6 * r.n_agents) or sig.nnz_in[-1] != 1:
+        raise ValueError(f"{sig.name} is not laid out as a period step for Refinement")
+    return f"""
+__device__ static bool uvms_accurate(casadi_real* const* res) {{
+  for (int j = 0; j < {12 * r.n_agents}; ++j) {{
+    const casadi_real tol = (j % 12) < 6 ? {r.tol_pose!r} : {r.tol_twist!r};
+    if (!(fabs(res[1][j]) <= tol)) return false;  /* NaN fails */
+  }}
+  for (int j = 0; j < {6 * r.n_agents}; ++j)
+    if (!(fabs(res[2][j]) <= {r.grasp_tol!r})) return false;
+  for (int j = 0; j < {nx}; ++j)
+    if (!isfinite(res[0][j])) return false;
+  return true;
+}}
+__device__ static bool uvms_eval(const casadi_real** arg, casadi_real** res, casadi_int* iw,
+                                 casadi_real* w, const casadi_real* x0, casadi_real h) {{
+  arg[0] = x0;
+  arg[{h_index}] = &h;
+  {top}(arg, res, iw, w, 0);
+  return uvms_accurate(res);
+}}
+/* The period from arg[0] over arg[{h_index}]: 0 accurate at once, 1 refined, 2 refused; the
+   state lands in res[0]. A refused part is halved, down to {r.max_levels} levels: the
+   recursion of Simulator._refine, unrolled into a stack of pending parts (recursion would
+   need a stack depth the compiler cannot bound). */
+__device__ static casadi_real uvms_controlled_step(const casadi_real** arg,
+    casadi_real** res, casadi_int* iw, casadi_real* w) {{
+  casadi_real x[{nx}];
+  for (int j = 0; j < {nx}; ++j) x[j] = arg[0][j];
+  const casadi_real period = arg[{h_index}][0];
+  if (uvms_eval(arg, res, iw, w, x, period)) return 0;
+  casadi_real part_h[{2 * r.max_levels + 2}];
+  int part_level[{2 * r.max_levels + 2}];
+  int top = 0;
+  part_h[top] = period / 2; part_level[top++] = 1;  /* second half, done last */
+  part_h[top] = period / 2; part_level[top++] = 1;  /* first half */
+  bool ok = true;
+  while (top > 0) {{
+    const casadi_real h = part_h[--top];
+    const int level = part_level[top];
+    const bool part_ok = uvms_eval(arg, res, iw, w, x, h);
+    if (part_ok || level >= {r.max_levels}) {{
+      for (int j = 0; j < {nx}; ++j) x[j] = res[0][j];
+      ok = ok && part_ok;
+    }} else {{
+      part_h[top] = h / 2; part_level[top++] = level + 1;
+      part_h[top] = h / 2; part_level[top++] = level + 1;
+    }}
+  }}
+  for (int j = 0; j < {nx}; ++j) res[0][j] = x[j];
+  return ok ? 1 : 2;
+}}
+"""
 
 
 def _top_function(src: str, name: str) -> str:

@@ -27,7 +27,7 @@ import casadi as cs
 import numpy as np
 
 from uvms_env.dynamics.compiled import cache_dir
-from uvms_env.vector.kernels import DTYPES, Signature, cuda_source
+from uvms_env.vector.kernels import DTYPES, Refinement, Signature, cuda_source
 
 # Threads per block. Measured on an H100 for the N = 2 period step: see the README.
 BLOCK = 128
@@ -44,10 +44,12 @@ def cubin_path(source: str, sig: Signature, dtype: str, arch: str) -> Path:
     return cache_dir() / f"{sig.name}_cuda_{dtype}_sm{arch}_{key}.cubin"
 
 
-def build_cubin(fn: cs.Function, dtype: str, arch: str) -> Path | None:
+def build_cubin(
+    fn: cs.Function, dtype: str, arch: str, refine: Refinement | None = None
+) -> Path | None:
     """The cached cubin of ``fn`` for ``arch`` (e.g. "90"), compiled with nvcc if it is
     not there yet; None when nvcc is not on PATH."""
-    source, sig = cuda_source(fn, DTYPES[dtype][0])
+    source, sig = cuda_source(fn, DTYPES[dtype][0], refine)
     path = cubin_path(source, sig, dtype, arch)
     if path.exists():
         return path
@@ -84,10 +86,17 @@ class CudaBatchedFunction:
 
     ``outputs = bf(inputs, out=None)``: ``inputs`` are (nnz_i, K) C-contiguous device
     arrays of the build's dtype (CuPy arrays, or anything CuPy takes without a copy,
-    such as torch CUDA tensors); outputs are written to ``out`` or new CuPy arrays."""
+    such as torch CUDA tensors); outputs are written to ``out`` or new CuPy arrays. With
+    ``refine``, one more output (1, K) carries each environment's error-control status
+    (``Refinement``)."""
 
     def __init__(
-        self, fn: cs.Function, dtype: str = "float64", device: int = 0, block: int = BLOCK
+        self,
+        fn: cs.Function,
+        dtype: str = "float64",
+        device: int = 0,
+        block: int = BLOCK,
+        refine: Refinement | None = None,
     ) -> None:
         self.block = int(block)
         if dtype not in DTYPES:
@@ -97,14 +106,15 @@ class CudaBatchedFunction:
         self.dtype = dtype
         self.np_dtype = DTYPES[dtype][1]
         self.device = cp.cuda.Device(device)
-        source, self.signature = cuda_source(fn, DTYPES[dtype][0])
+        source, self.signature = cuda_source(fn, DTYPES[dtype][0], refine)
+        self.nnz_out = self.signature.nnz_out + ((1,) if refine else ())
         with self.device:
             try:
                 cp.cuda.runtime.deviceSetLimit(0x00, STACK_BYTES)  # cudaLimitStackSize
             except Exception:  # older CuPy: the default stays
                 pass
             major, minor = self.device.compute_capability[:-1], self.device.compute_capability[-1]
-            cubin = build_cubin(fn, dtype, major + minor)
+            cubin = build_cubin(fn, dtype, major + minor, refine)
             if cubin is not None:
                 module = cp.RawModule(path=str(cubin))
             else:
@@ -126,13 +136,22 @@ class CudaBatchedFunction:
                         f"array of shape ({nnz}, {k}), got {a.dtype} {a.shape}"
                     )
             if out is None:
-                out = [cp.empty((nnz, k), self.np_dtype) for nnz in sig.nnz_out]
+                out = [cp.empty((nnz, k), self.np_dtype) for nnz in self.nnz_out]
             outs = [cp.asarray(a) for a in out]
             ins_ptr = cp.asarray(np.array([a.data.ptr for a in arrays], np.uint64))
             outs_ptr = cp.asarray(np.array([a.data.ptr for a in outs], np.uint64))
             grid = (k + self.block - 1) // self.block
             self._kernel((grid,), (self.block,), (ins_ptr, outs_ptr, np.int64(k)))
         return out
+
+
+def period_refinement(n: int) -> Refinement:
+    """The single simulator's error control, for the period step of ``n`` robots."""
+    from uvms_env.sim import simulator as sim
+
+    return Refinement(
+        n, sim.DRIFT_TOL_POSE, sim.DRIFT_TOL_TWIST, sim.GRASP_TOL, sim.MAX_REFINEMENTS
+    )
 
 
 def main() -> None:
@@ -149,7 +168,7 @@ def main() -> None:
         s = make("paper") if n == 2 else make("random", n_agents=n, seed=0)
         chain, _ = _chain(n, s.object_shape, float(s.ring_radius), s.period, s.substeps)
         for dtype in args.dtype:
-            path = build_cubin(chain.step, dtype, args.arch)
+            path = build_cubin(chain.step, dtype, args.arch, period_refinement(n))
             print(path if path else "nvcc not found: the kernel will be compiled by NVRTC")
 
 

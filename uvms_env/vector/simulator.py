@@ -84,9 +84,13 @@ class BatchedSimulator:
             self._fn: Any = BatchedFunction(self.chain.step, dtype, lanes)
             self.xp: Any = np
         else:
-            from uvms_env.vector.kernels_cuda import CudaBatchedFunction
+            from uvms_env.vector.kernels_cuda import CudaBatchedFunction, period_refinement
 
-            self._fn = CudaBatchedFunction(self.chain.step, dtype, device)
+            # the error control runs inside the kernel, in the thread of each environment
+            # that needs it: refining a few environments costs no extra launches
+            self._fn = CudaBatchedFunction(
+                self.chain.step, dtype, device, refine=period_refinement(n)
+            )
             self.xp = self._fn.cp
         xp, real = self.xp, DTYPES[dtype][1]
         self._real = real
@@ -105,7 +109,8 @@ class BatchedSimulator:
         self._tau = xp.zeros((NU * n, kp), real)
         self._vc = xp.zeros((3, kp), real)
         self._h = xp.full((1, kp), s.period, real)
-        self._out = [xp.zeros((m, kp), real) for m in self._fn.signature.nnz_out]
+        nnz_out = self._fn.nnz_out if backend == "cuda" else self._fn.signature.nnz_out
+        self._out = [xp.zeros((m, kp), real) for m in nnz_out]
         self.scenarios: list[Scenario] = [s] * k
         self.refinements = 0  # environment-periods integrated in parts (diagnostics)
         self.set_scenario(np.arange(k), s)
@@ -198,7 +203,7 @@ class BatchedSimulator:
                 raise ValueError(f"current must have shape ({k}, 3), got {current.shape}")
             self._vc[:, :k] = current.T
         self._h[:] = self.scenario.period
-        x_next, drift, error = self._fn(
+        outputs = self._fn(
             [
                 self.x,
                 self._tau,
@@ -211,13 +216,19 @@ class BatchedSimulator:
             **self._call_options(),
             out=self._out,
         )
+        x_next, drift, error = outputs[:3]
         code = xp.zeros(self._kp, np.int8)
-        bad = xp.flatnonzero(~self._accurate(drift, error, x_next)[:k])
-        if len(bad):
-            self.refinements += len(bad)
-            x_end, ok = self._integrate(bad, self.x[:, bad], self.scenario.period, 1)
-            x_next[:, bad] = x_end
-            code[bad[~ok]] = INACCURATE
+        if self.backend == "cuda":  # refined in the kernel; its status says how it went
+            status = outputs[3][0]
+            self.refinements += int((status[:k] > 0).sum())
+            code[status == 2] = INACCURATE
+        else:
+            bad = np.flatnonzero(~self._accurate(drift, error, x_next)[:k])
+            if len(bad):
+                self.refinements += len(bad)
+                x_end, ok = self._integrate(bad, self.x[:, bad], self.scenario.period, 1)
+                x_next[:, bad] = x_end
+                code[bad[~ok]] = INACCURATE
         code[(code == OK) & ~self._within_envelope(x_next)] = ENVELOPE
         keep = code[:k] == OK
         self.x[:, :k] = xp.where(keep[None, :], x_next[:, :k], self.x[:, :k])
