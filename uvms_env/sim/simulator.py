@@ -226,17 +226,7 @@ class Simulator(RebuiltOnUnpickle):
         saturated = np.abs(tau) > self.tau_max
         np.clip(tau, -self.tau_max, self.tau_max, out=self._tau)
         self._vc[:] = self.current_model.step(self.scenario.period)
-        self._h[0] = self.scenario.period
-        self._step(
-            self._x,
-            self._tau,
-            self._vc,
-            self.parameters,
-            self.object_parameters,
-            self._grasp,
-            self._h,
-        )
-        if not self._accurate():
+        if not self._evaluate(self._x, self.scenario.period):
             self.refinements += 1
             self._x_part[:] = self._x
             reason = self._refine(self._x_part, self.scenario.period, 1)
@@ -246,6 +236,15 @@ class Simulator(RebuiltOnUnpickle):
         self._x[:] = self._x_next
         self.t += self.scenario.period
         return StepInfo(self._tau.copy(), saturated, self._vc.copy())
+
+    def _evaluate(self, x: np.ndarray, h: float) -> bool:
+        """One compiled call: the period part of length ``h`` from ``x`` (results in
+        ``_x_next``, ``_drift``, ``_error``); whether it passed the error control."""
+        self._h[0] = h
+        self._step(
+            x, self._tau, self._vc, self.parameters, self.object_parameters, self._grasp, self._h
+        )
+        return self._accurate()
 
     def _accurate(self) -> bool:
         """The last compiled call's error control (see DRIFT_TOL_POSE). Few numpy calls:
@@ -266,17 +265,7 @@ class Simulator(RebuiltOnUnpickle):
         if level > MAX_REFINEMENTS:
             return self._failure_reason(x)
         for _ in range(2):
-            self._h[0] = h / 2
-            self._step(
-                x,
-                self._tau,
-                self._vc,
-                self.parameters,
-                self.object_parameters,
-                self._grasp,
-                self._h,
-            )
-            if not self._accurate():
+            if not self._evaluate(x, h / 2):
                 reason = self._refine(x, h / 2, level + 1)
                 if reason:
                     return reason
