@@ -161,6 +161,9 @@ class Simulator(RebuiltOnUnpickle):
         self._h = np.array([s.period])
         self.refinements = 0  # periods integrated in parts (diagnostics)
         self._drift_abs = np.zeros_like(self._drift)
+        lin, ang, joint = (SPEED_LIMITS[k] for k in ("linear", "angular", "joint"))
+        self._zeta_limits = np.tile(np.r_[[lin] * 3, [ang] * 3, [joint] * 4], self.n)
+        self._object_speed_limits = np.r_[[lin] * 3, [ang] * 3]
         self._drift_tol = np.tile(np.r_[[DRIFT_TOL_POSE] * 6, [DRIFT_TOL_TWIST] * 6], (self.n, 1))
         self._internal: BufferCall | None = None
         self._tau_wrench = np.zeros((self.n, NU))
@@ -289,9 +292,14 @@ class Simulator(RebuiltOnUnpickle):
         return text
 
     def _check_envelope(self) -> None:
-        n = self.n
-        zeta = self._x_next[NQ * n : 2 * NQ * n].reshape(n, NQ)
-        v_o = self._x_next[2 * NQ * n + 6 :]
+        n, x = self.n, self._x_next
+        # every period: two comparisons against per-entry limits; the message only on failure
+        if (np.abs(x[NQ * n : 2 * NQ * n]) <= self._zeta_limits).all() and (
+            np.abs(x[2 * NQ * n + 6 :]) <= self._object_speed_limits
+        ).all():
+            return
+        zeta = x[NQ * n : 2 * NQ * n].reshape(n, NQ)
+        v_o = x[2 * NQ * n + 6 :]
         speeds = {
             "linear": max(np.abs(zeta[:, :3]).max(), np.abs(v_o[:3]).max()),
             "angular": max(np.abs(zeta[:, 3:6]).max(), np.abs(v_o[3:]).max()),
