@@ -36,7 +36,7 @@ def _returned_periods_hold_the_grasp(env, actions_for_step, steps: int) -> dict:
     return info
 
 
-def test_grasp_held_every_period_in_the_reviewed_bang_bang_episode():
+def test_grasp_held_every_period_in_the_bang_bang_episode_that_broke_it():
     """`short` seed 145 drifted 0.026 m at step 39 unflagged. The bar then turns to a
     vertical pitch, where the state's Euler angles are singular: the period is refused
     and the episode ends as diverged with that reason, never returning a bad state."""
@@ -146,8 +146,9 @@ def test_projection_lands_on_the_manifold_with_the_least_kinetic_energy_correcti
 
 @pytest.mark.parametrize("substeps", [8, 1])
 def test_divergence_ends_the_episode_on_the_step_it_happens(substeps):
-    """No damping and one held +-1 action: the review saw a grasp error of 1.3e13 m and
-    rewards of -1e14 (with substeps=1: inf observations) before any flag."""
+    """No damping and one held +-1 action: without divergence detection this returned a
+    grasp error of 1.3e13 m and rewards of -1e14 (with substeps=1: inf observations)
+    before any flag."""
     env = uvms_env.parallel_env("short", damping_scale=0.0, substeps=substeps)
     obs, _ = env.reset(seed=3)
     rng = np.random.default_rng(3)
