@@ -653,38 +653,18 @@ class NavigationField:
         casadi.SX, 3x1
             Desired object velocity.
         """
-        e = p - ca.DM(self._goal)
-        gamma = ca.dot(e, e)
-        betas: list[ca.SX] = []
-        grads: list[ca.SX] = []
-        d0 = p - ca.DM(self._ws_center)
-        betas.append(self._ws_radius**2 - ca.dot(d0, d0))
-        grads.append(-2.0 * d0)
-        for (cx, cy), rho in zip(self._cyl_xy, self._cyl_r, strict=True):
-            dx = p[0] - float(cx)
-            dy = p[1] - float(cy)
-            betas.append(dx * dx + dy * dy - float(rho) ** 2)
-            grads.append(ca.vertcat(2.0 * dx, 2.0 * dy, 0.0))
-        for c, rho in zip(self._sph_c, self._sph_r, strict=True):
-            ds = p - ca.DM(c)
-            betas.append(ca.dot(ds, ds) - float(rho) ** 2)
-            grads.append(2.0 * ds)
-
-        free = ca.SX(1)
-        for b in betas:
-            free = ca.logic_and(free, b > 0.0)
-        s = ca.SX.zeros(3, 1)
-        rec = ca.SX.zeros(3, 1)
-        for b, g in zip(betas, grads, strict=True):
-            # same neutral beta as in NumPy so that no branch divides by <= 0
-            s += g / ca.if_else(free, b, 1.0)
-            rec += ca.if_else(b <= 0.0, g / ca.sqrt(ca.dot(g, g) + EPS**2), ca.SX.zeros(3, 1))
-        rec = rec / ca.sqrt(ca.dot(rec, rec) + EPS**2)
-
-        n = -(e - gamma * s / (2.0 * self._k))
-        speed = ca.fmin(self._max_speed, self._gain * ca.sqrt(gamma + EPS**2))
-        v = n * (speed / ca.sqrt(ca.dot(n, n) + EPS**2))
-        return ca.if_else(free, v, self._max_speed * rec)
+        cylinders = ca.DM(np.c_[self._cyl_xy, self._cyl_r, np.ones(self._cyl_r.size)])
+        spheres = ca.DM(np.c_[self._sph_c, self._sph_r, np.ones(self._sph_r.size)])
+        return scene_velocity(
+            p,
+            ca.DM(self._goal),
+            ca.DM(np.append(self._ws_center, self._ws_radius)),
+            ca.reshape(cylinders, self._cyl_r.size, 4),
+            ca.reshape(spheres, self._sph_r.size, 5),
+            self._k,
+            self._gain,
+            self._max_speed,
+        )
 
     def casadi_function(self) -> ca.Function:
         """CasADi function ``nav_velocity``: ``p`` (3x1) -> ``v_d`` (3x1), SX-built.
@@ -868,3 +848,76 @@ def choose_k(
                 f"{samples} starts fail at k = {k})"
             )
         k = min(k * factor, k_max)
+
+
+def _select(c: ca.SX, a: ca.SX, b: ca.SX) -> ca.SX:
+    """``a`` where ``c == 1``, ``b`` where ``c == 0``; exact when ``a`` and ``b`` are finite."""
+    return c * a + (1.0 - c) * b
+
+
+def scene_velocity(
+    p: ca.SX,
+    goal: ca.SX,
+    workspace: ca.SX,
+    cylinders: ca.SX,
+    spheres: ca.SX,
+    k: ca.SX,
+    gain: ca.SX,
+    max_speed: ca.SX,
+) -> ca.SX:
+    """The navigation velocity of ``NavigationField`` with the scene as arguments (SX
+    symbols for a function shared by every scene, or numbers), branch-free: the one
+    symbolic form of the formulas, which ``casadi_velocity`` calls with its own scene.
+
+    Parameters
+    ----------
+    p, goal : casadi.SX, 3x1
+        Object position and goal position.
+    workspace : casadi.SX, 4x1
+        ``[c_ws; r_ws - R]``.
+    cylinders : casadi.SX, n_cyl x 4
+        Rows ``[x, y, r + R, present]``.
+    spheres : casadi.SX, n_sph x 5
+        Rows ``[cx, cy, cz, r + R, present]``.
+    k, gain, max_speed : casadi.SX, scalars
+        Exponent, ``K_NF`` and ``v_max``.
+
+    Returns
+    -------
+    casadi.SX, 3x1
+        Desired object velocity.
+    """
+    e = p - goal
+    gamma = ca.dot(e, e)
+    d0 = p - workspace[0:3]
+    betas: list[ca.SX] = [workspace[3] * workspace[3] - ca.dot(d0, d0)]
+    grads: list[ca.SX] = [-2.0 * d0]
+    for j in range(cylinders.size1()):
+        dx = p[0] - cylinders[j, 0]
+        dy = p[1] - cylinders[j, 1]
+        present = cylinders[j, 3]
+        b = dx * dx + dy * dy - cylinders[j, 2] * cylinders[j, 2]
+        betas.append(_select(present, b, 1.0))
+        grads.append(present * ca.vertcat(2.0 * dx, 2.0 * dy, 0.0))
+    for j in range(spheres.size1()):
+        ds = p - spheres[j, 0:3].T
+        present = spheres[j, 4]
+        b = ca.dot(ds, ds) - spheres[j, 3] * spheres[j, 3]
+        betas.append(_select(present, b, 1.0))
+        grads.append(present * (2.0 * ds))
+
+    free = ca.SX(1)
+    for b in betas:
+        free = free * (b > 0.0)
+    s = ca.SX.zeros(3, 1)
+    rec = ca.SX.zeros(3, 1)
+    for b, g in zip(betas, grads, strict=True):
+        # the neutral beta (1) outside the free space keeps the unused branch finite
+        s += g / _select(free, b, 1.0)
+        rec += (b <= 0.0) * (g / ca.sqrt(ca.dot(g, g) + EPS**2))
+    rec = rec / ca.sqrt(ca.dot(rec, rec) + EPS**2)
+
+    n = -(e - gamma * s / (2.0 * k))
+    speed = ca.fmin(max_speed, gain * ca.sqrt(gamma + EPS**2))
+    v = n * (speed / ca.sqrt(ca.dot(n, n) + EPS**2))
+    return _select(free, v, max_speed * rec)

@@ -46,8 +46,10 @@ import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
-from .field import EPS, NavigationField, _wrap_angle_ca
+from .field import NavigationField, _wrap_angle_ca, scene_velocity
 from .waypoints import WaypointNavigator
+
+parametric_velocity = scene_velocity  # the name this module exports
 
 __all__ = [
     "N_CYLINDERS",
@@ -66,77 +68,6 @@ N_SPHERES = 5
 FloatArray = NDArray[np.float64]
 
 
-def _select(c: ca.SX, a: ca.SX, b: ca.SX) -> ca.SX:
-    """``a`` where ``c == 1``, ``b`` where ``c == 0``; exact when ``a`` and ``b`` are finite."""
-    return c * a + (1.0 - c) * b
-
-
-def parametric_velocity(
-    p: ca.SX,
-    goal: ca.SX,
-    workspace: ca.SX,
-    cylinders: ca.SX,
-    spheres: ca.SX,
-    k: ca.SX,
-    gain: ca.SX,
-    max_speed: ca.SX,
-) -> ca.SX:
-    """:meth:`NavigationField.casadi_velocity` with the scene as symbols, branch-free.
-
-    Parameters
-    ----------
-    p, goal : casadi.SX, 3x1
-        Object position and goal position.
-    workspace : casadi.SX, 4x1
-        ``[c_ws; r_ws - R]``.
-    cylinders : casadi.SX, n_cyl x 4
-        Rows ``[x, y, r + R, present]``.
-    spheres : casadi.SX, n_sph x 5
-        Rows ``[cx, cy, cz, r + R, present]``.
-    k, gain, max_speed : casadi.SX, scalars
-        Exponent, ``K_NF`` and ``v_max``.
-
-    Returns
-    -------
-    casadi.SX, 3x1
-        Desired object velocity.
-    """
-    e = p - goal
-    gamma = ca.dot(e, e)
-    d0 = p - workspace[0:3]
-    betas: list[ca.SX] = [workspace[3] * workspace[3] - ca.dot(d0, d0)]
-    grads: list[ca.SX] = [-2.0 * d0]
-    for j in range(cylinders.size1()):
-        dx = p[0] - cylinders[j, 0]
-        dy = p[1] - cylinders[j, 1]
-        present = cylinders[j, 3]
-        b = dx * dx + dy * dy - cylinders[j, 2] * cylinders[j, 2]
-        betas.append(_select(present, b, 1.0))
-        grads.append(present * ca.vertcat(2.0 * dx, 2.0 * dy, 0.0))
-    for j in range(spheres.size1()):
-        ds = p - spheres[j, 0:3].T
-        present = spheres[j, 4]
-        b = ca.dot(ds, ds) - spheres[j, 3] * spheres[j, 3]
-        betas.append(_select(present, b, 1.0))
-        grads.append(present * (2.0 * ds))
-
-    free = ca.SX(1)
-    for b in betas:
-        free = free * (b > 0.0)
-    s = ca.SX.zeros(3, 1)
-    rec = ca.SX.zeros(3, 1)
-    for b, g in zip(betas, grads, strict=True):
-        # the neutral beta (1) outside the free space keeps the unused branch finite
-        s += g / _select(free, b, 1.0)
-        rec += (b <= 0.0) * (g / ca.sqrt(ca.dot(g, g) + EPS**2))
-    rec = rec / ca.sqrt(ca.dot(rec, rec) + EPS**2)
-
-    n = -(e - gamma * s / (2.0 * k))
-    speed = ca.fmin(max_speed, gain * ca.sqrt(gamma + EPS**2))
-    v = n * (speed / ca.sqrt(ca.dot(n, n) + EPS**2))
-    return _select(free, v, max_speed * rec)
-
-
 def parametric_twist_function(n_cyl: int = N_CYLINDERS, n_sph: int = N_SPHERES) -> ca.Function:
     """CasADi function ``nav_twist_param`` (SX, branch-free): ``(x, goal, workspace,
     cylinders, spheres, gains) -> twist_d`` (see the module doc for the layout).
@@ -152,7 +83,7 @@ def parametric_twist_function(n_cyl: int = N_CYLINDERS, n_sph: int = N_SPHERES) 
     cylinders = ca.SX.sym("cylinders", n_cyl, 4)
     spheres = ca.SX.sym("spheres", n_sph, 5)
     gains = ca.SX.sym("gains", 5, 1)
-    v = parametric_velocity(
+    v = scene_velocity(
         x[0:3], goal[0:3], workspace, cylinders, spheres, gains[0], gains[1], gains[2]
     )
     # _attitude_rate_ca with symbolic goal, gain and saturation
