@@ -41,7 +41,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from functools import cache
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import casadi as cs
 import numpy as np
@@ -306,18 +306,10 @@ def team_function(
 
 
 @cache
-def team_kernel(
-    n: int,
-    n_seg: int,
-    n_cyl: int,
-    n_sph: int,
-    layout: Layout,
-    far: tuple[float, ...],
-    noisy: bool,
-) -> cs.Function:
-    """The compiled kernel for n robots (built and compiled once per process and size;
-    the compiled library is cached on disk): ``team_function`` compiled."""
-    return compile_function(team_function(n, n_seg, n_cyl, n_sph, layout, far, noisy))
+def team_kernel(*args: Any) -> cs.Function:
+    """``team_function(*args)`` compiled (once per process and size; the library is
+    cached on disk): the kernel the single environment calls."""
+    return compile_function(team_function(*args))
 
 
 def _padded(count: int) -> int:

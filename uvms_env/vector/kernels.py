@@ -162,6 +162,21 @@ extern "C" int uvms_batch(const lane_t* const* in, lane_t* const* out, long k, i
 """
 
 
+def check_inputs(sig: Signature, inputs: list, dtype: str) -> int:
+    """K, after checking that ``inputs`` are ``sig``'s, each a C-contiguous (nnz_i, K)
+    array of ``dtype`` (numpy or CuPy); ValueError naming the input otherwise."""
+    if len(inputs) != len(sig.nnz_in):
+        raise ValueError(f"{sig.name} takes {len(sig.nnz_in)} inputs, got {len(inputs)}")
+    k = inputs[0].shape[1]
+    for i, (a, nnz) in enumerate(zip(inputs, sig.nnz_in, strict=True)):
+        if a.shape != (nnz, k) or a.dtype != DTYPES[dtype][1] or not a.flags.c_contiguous:
+            raise ValueError(
+                f"input {i} of {sig.name} must be a C-contiguous {dtype} array of shape "
+                f"({nnz}, {k}), got {a.dtype} {a.shape}"
+            )
+    return k
+
+
 def _compiler() -> str | None:
     for cxx in (os.environ.get("CXX"), "g++", "c++", "clang++"):
         if cxx and shutil.which(cxx):
@@ -205,17 +220,9 @@ class BatchedFunction:
         out: list[np.ndarray] | None = None,
     ) -> list[np.ndarray]:
         sig = self.signature
-        if len(inputs) != len(sig.nnz_in):
-            raise ValueError(f"{sig.name} takes {len(sig.nnz_in)} inputs, got {len(inputs)}")
-        k = inputs[0].shape[1]
+        k = check_inputs(sig, inputs, self.dtype)
         if k % self.lanes:
             raise ValueError(f"K = {k} must be a multiple of {self.lanes} lanes (pad it)")
-        for i, (a, nnz) in enumerate(zip(inputs, sig.nnz_in, strict=True)):
-            if a.shape != (nnz, k) or a.dtype != self.np_dtype or not a.flags.c_contiguous:
-                raise ValueError(
-                    f"input {i} of {sig.name} must be a C-contiguous {self.dtype} array of "
-                    f"shape ({nnz}, {k}), got {a.dtype} {a.shape}"
-                )
         if out is None:
             out = [np.empty((nnz, k), self.np_dtype) for nnz in sig.nnz_out]
         ins = (ctypes.c_void_p * len(inputs))(*[a.ctypes.data for a in inputs])

@@ -27,7 +27,13 @@ import casadi as cs
 import numpy as np
 
 from uvms_env.dynamics.compiled import cache_dir
-from uvms_env.vector.kernels import DTYPES, Refinement, Signature, cuda_source
+from uvms_env.vector.kernels import (
+    DTYPES,
+    Refinement,
+    Signature,
+    check_inputs,
+    cuda_source,
+)
 
 # Threads per block. Measured on an H100 for the N = 2 period step: see the README.
 BLOCK = 128
@@ -128,13 +134,7 @@ class CudaBatchedFunction:
         cp, sig = self.cp, self.signature
         with self.device:
             arrays = [cp.asarray(a) for a in inputs]
-            k = arrays[0].shape[1]
-            for i, (a, nnz) in enumerate(zip(arrays, sig.nnz_in, strict=True)):
-                if a.shape != (nnz, k) or a.dtype != self.np_dtype or not a.flags.c_contiguous:
-                    raise ValueError(
-                        f"input {i} of {sig.name} must be a C-contiguous {self.dtype} device "
-                        f"array of shape ({nnz}, {k}), got {a.dtype} {a.shape}"
-                    )
+            k = check_inputs(sig, arrays, self.dtype)
             if out is None:
                 out = [cp.empty((nnz, k), self.np_dtype) for nnz in self.nnz_out]
             outs = [cp.asarray(a) for a in out]
