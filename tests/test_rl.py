@@ -13,7 +13,7 @@ pytest.importorskip("stable_baselines3")
 import uvms_env
 from baselines.evaluate import evaluate
 from baselines.rl.policy import PRETRAINED_DIR
-from baselines.rl.train import find_resume, train
+from baselines.rl.train import find_resume, main, make_vec_env, train
 from baselines.rl.vec_env import ParallelVecEnv
 
 SEED = 7
@@ -127,6 +127,43 @@ def test_train_save_resume_evaluate(tmp_path):
     assert (out / "progress.part0.csv").exists()
     rows = evaluate([f"ppo:{out}"], ["short"], 1, 0, 1, max_cycles=20, progress=False)
     assert rows[0]["error"] == "" and rows[0]["episode_steps"] == 20
+
+
+def test_make_vec_env_paths():
+    from uvms_env.vector.sb3 import VectorVecEnv
+
+    vector = make_vec_env("short", 3, 0, {"max_cycles": 10})
+    assert isinstance(vector.venv, VectorVecEnv) and vector.num_envs == 6
+    inner = vector.venv.vector_env
+    assert (inner.dtype, inner.geometry_pool, inner.threads) == ("float32", 1024, 1)
+    assert inner.internal_wrench_every == 0  # TRAIN_ENV_DEFAULTS reach the batched env
+    paper = make_vec_env("paper", 1, 0, {}, dtype="float64", geometry_pool=1024)
+    assert paper.venv.vector_env.geometry_pool is None  # a fixed geometry: no pool
+    single = make_vec_env("short", 2, 0, {"max_cycles": 10}, vec_env="single")
+    assert isinstance(single.venv, ParallelVecEnv) and single.num_envs == 4
+    for venv in (vector, paper, single):
+        assert venv.reset().shape == (venv.num_envs, 79)
+        venv.close()
+    with pytest.raises(ValueError, match="vec_env"):
+        make_vec_env("short", 1, 0, {}, vec_env="subproc")
+
+
+@pytest.mark.parametrize("vec_env", ["vector", "single"])
+def test_cli_records_the_env_path(tmp_path, vec_env):
+    out = tmp_path / vec_env
+    argv = ["--algo", "ppo", "--total-timesteps", "64", "--n-envs", "2", "--out", str(out)]
+    argv += ["--vec-env", vec_env, "--dtype", "float64", "--geometry-pool", "8"]
+    argv += ["--env-option", "max_cycles=10", "--no-progress", "--checkpoint-every", "1000"]
+    argv += ["--hp", "n_steps=16", "--hp", "batch_size=32", "--hp", "n_epochs=1"]
+    main(argv)
+    config = json.loads((out / "config.json").read_text())
+    expected = {
+        "vector": {"vec_env": "vector", "dtype": "float64", "geometry_pool": 8, "env_threads": 1},
+        "single": {"vec_env": "single", "dtype": None, "geometry_pool": None, "env_threads": None},
+    }[vec_env]
+    assert {key: config[key] for key in expected} == expected
+    assert config["timesteps_done"] == 64 and config["robot_sub_envs"] == 4
+    assert len(config["eval"]["episodes"]) == 2  # evaluated on single envs after training
 
 
 @pytest.mark.parametrize("algo", ["ppo", "sac"])

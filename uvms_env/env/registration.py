@@ -6,6 +6,11 @@
   prior import ``gymnasium.make("uvms_env:uvms_env/CoopTransport-v0")``. The package
   also declares a ``gymnasium.envs`` entry point (``register_gymnasium``) for Gymnasium
   versions that load plugins (0.26 - 0.29; 1.x no longer reads that group).
+* Gymnasium's vector API: ``gymnasium.make_vec("uvms_env/CoopTransport-v0", num_envs=K,
+  **kwargs)`` builds the batched ``uvms_env.vector.gym_vector.CoopTransportVectorEnv``
+  (the ``vector_entry_point``, Gymnasium's default mode when one is registered; kwargs as
+  ``uvms_env.vector.VectorEnv``: ``scenario``, ``dtype``, ``threads``, overrides);
+  ``vectorization_mode="sync"`` or ``"async"`` steps K single environments instead.
 
 Entry points are strings, so registering imports nothing heavy. Registering twice is a
 no-op (no "overriding" warnings). May import: gymnasium, pettingzoo.
@@ -19,6 +24,7 @@ import pettingzoo
 ENV_ID = "uvms_env/CoopTransport-v0"
 PARALLEL_ENTRY_POINT = "uvms_env.env.parallel:parallel_env"
 GYMNASIUM_ENTRY_POINT = "uvms_env.env.gym_wrapper:CoopTransportGymEnv"
+VECTOR_ENTRY_POINT = "uvms_env.vector.gym_vector:CoopTransportVectorEnv"
 
 
 def register_pettingzoo() -> None:
@@ -28,7 +34,9 @@ def register_pettingzoo() -> None:
 
 def register_gymnasium() -> None:
     if ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=ENV_ID, entry_point=GYMNASIUM_ENTRY_POINT)
+        gymnasium.register(
+            id=ENV_ID, entry_point=GYMNASIUM_ENTRY_POINT, vector_entry_point=VECTOR_ENTRY_POINT
+        )
 
 
 def register_all() -> None:

@@ -141,9 +141,11 @@ class BatchedSimulator:
             self.scenarios[i] = s
         self._fill_padding()
 
-    def reset(self, env_ids: Any, seeds: Any) -> None:
+    def reset(self, env_ids: Any, seeds: Any) -> list[np.random.Generator]:
         """Environments ``env_ids`` back to their scenario's start at rest, with the truth
-        model drawn from ``seeds`` (one per environment) exactly as ``Simulator.reset``."""
+        model drawn from ``seeds`` (one per environment) exactly as ``Simulator.reset``.
+        Returns each environment's generator after those draws: ``Simulator.reset`` goes
+        on to draw the ocean current from it, and so does a caller that keeps currents."""
         ids = np.atleast_1d(np.asarray(env_ids))
         seeds = list(seeds) if np.ndim(seeds) else [seeds] * len(ids)
         if len(seeds) != len(ids):
@@ -151,10 +153,12 @@ class BatchedSimulator:
         x = np.zeros((state_size(self.n), len(ids)))
         p = np.zeros((NP * self.n, len(ids)))
         po = np.zeros((NPO, len(ids)))
+        generators = []
         for col, (i, seed) in enumerate(zip(ids.tolist(), seeds, strict=True)):
             s = self.scenarios[i]
             rng = np.random.default_rng(seed if seed is not None else s.seed)
             pi, poi = draw_truth_parameters(s, *self._nominal, rng)
+            generators.append(rng)
             p[:, col], po[:, col] = pi.reshape(-1), poi
             x[:, col] = np.concatenate(
                 [s.initial_q.reshape(-1), np.zeros(NQ * self.n), s.object_start, np.zeros(6)]
@@ -164,6 +168,7 @@ class BatchedSimulator:
         self.parameters[:, cols] = xp.asarray(p, self._real)
         self.object_parameters[:, cols] = xp.asarray(po, self._real)
         self._fill_padding()
+        return generators
 
     def _fill_padding(self) -> None:
         """The lanes past K (padding to the lane count) mirror environment 0, so that

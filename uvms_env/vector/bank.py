@@ -1,0 +1,196 @@
+"""Pre-built geometries of the seeded scenario families, kept on disk, so that resetting a
+batched environment copies a start instead of solving for one.
+
+Building a geometry of the ``random`` family costs ~0.5 s (an inverse-kinematics and a
+static-equilibrium NLP, and the navigation gain search of ``make_navigator``); ``short``
+~0.02 s. A ``VectorEnv`` that auto-resets thousands of environments cannot pay that in a
+step, so each geometry is built once per (family, team size, seed), stored here and read
+back (~1 ms):
+
+    bank = GeometryBank("random", n_agents=4)
+    g = bank.get(17)              # Geometry(scenario, navigation), built on first use
+    bank.fill(range(1024))        # or ahead of time:
+    python -m uvms_env.vector.bank random --n-agents 4 --seeds 0:1024 --workers 2
+
+A geometry depends on the family, the team size and the seed only; every other scenario
+override (current, mismatch, noise, tolerances, ...) is a field laid over it with
+``scenarios.replace``, so one bank serves every such setting (``Geometry.scenario_with``
+gives the same scenario as ``make(family, seed=s, n_agents=N, **overrides)``). Entries
+are keyed by a hash of the code that builds them (the scenario and navigation modules
+and the model parameters): a change there starts a new bank instead of serving stale
+geometries.
+
+May import: numpy, ``uvms_env.scenarios``, ``uvms_env.navigation``, ``uvms_env.env``
+(the navigator every robot uses) and ``uvms_env.dynamics.compiled`` (the cache folder).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import pickle
+from collections.abc import Iterable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from uvms_env.dynamics.compiled import cache_dir
+from uvms_env.env.observation import make_navigator
+from uvms_env.navigation.parametric import N_CYLINDERS, N_SPHERES, twist_parameters
+from uvms_env.scenarios import Scenario, make, replace
+
+#: Entries of one waypoint's navigation parameters (``parametric_twist_function``'s inputs
+#: after ``x``, matrices column-major): goal 6, workspace 4, cylinders 4 x 5, spheres
+#: 5 x 5, gains 5.
+NAV_PARAMETERS = 6 + 4 + 4 * N_CYLINDERS + 5 * N_SPHERES + 5
+SEEDED_FAMILIES = ("random", "short")
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """One pre-built task geometry: the scenario (family defaults, its seed and team size)
+    and its navigation parameters, one (NAV_PARAMETERS,) row per waypoint."""
+
+    scenario: Scenario
+    navigation: np.ndarray
+
+    def scenario_with(self, overrides: dict[str, Any]) -> Scenario:
+        """The scenario with the non-geometry ``overrides`` laid over it."""
+        rest = {k: v for k, v in overrides.items() if k not in ("seed", "n_agents")}
+        return replace(self.scenario, **rest) if rest else self.scenario
+
+
+def navigation_table(scenario: Scenario) -> np.ndarray:
+    """(waypoints, NAV_PARAMETERS): each waypoint's parameters of the shared navigation
+    function, from the navigator every robot of ``scenario`` uses."""
+    nav = make_navigator(scenario)
+    rows = []
+    for i in range(len(scenario.waypoints)):
+        parts = twist_parameters(nav, i, N_CYLINDERS, N_SPHERES)
+        rows.append(np.concatenate([np.ravel(p, order="F") for p in parts]))
+    return np.array(rows)
+
+
+def build_geometry(family: str, n_agents: int, seed: int | None) -> Geometry:
+    scenario = make(family, seed=seed, n_agents=n_agents)
+    return Geometry(scenario, navigation_table(scenario))
+
+
+@cache
+def _code_key() -> str:
+    """Hash of the sources a geometry is built from."""
+    root = Path(__file__).resolve().parent.parent
+    files = sorted((root / "scenarios").glob("*.py")) + sorted((root / "navigation").glob("*.py"))
+    files += [root / "models" / "parameters.toml", root / "env" / "observation.py"]
+    digest = hashlib.sha256()
+    for f in files:
+        digest.update(f.read_bytes())
+    return digest.hexdigest()[:12]
+
+
+class GeometryBank:
+    """Geometries of one seeded family and team size: in memory, on disk, or built."""
+
+    def __init__(self, family: str, n_agents: int, folder: Path | None = None) -> None:
+        if family not in SEEDED_FAMILIES:
+            raise ValueError(f"only seeded families have a bank {SEEDED_FAMILIES}, got {family!r}")
+        self.family, self.n_agents = family, int(n_agents)
+        base = Path(folder) if folder is not None else cache_dir() / "geometry_bank"
+        self.folder = base / f"{family}_n{self.n_agents}_{_code_key()}"
+        self._memory: dict[int, Geometry] = {}
+
+    def path(self, seed: int) -> Path:
+        return self.folder / f"{seed}.pkl"
+
+    def get(self, seed: int) -> Geometry:
+        """The geometry of ``seed``, built and stored on first use."""
+        seed = int(seed)
+        if seed in self._memory:
+            return self._memory[seed]
+        path = self.path(seed)
+        geometry = None
+        if path.exists():
+            try:
+                geometry = pickle.loads(path.read_bytes())
+            except (OSError, EOFError, pickle.UnpicklingError, AttributeError):
+                geometry = None  # a damaged entry is rebuilt
+        if geometry is None:
+            geometry = build_geometry(self.family, self.n_agents, seed)
+            self._store(path, geometry)
+        self._memory[seed] = geometry
+        return geometry
+
+    def missing(self, seeds: Iterable[int]) -> list[int]:
+        return [int(s) for s in seeds if int(s) not in self._memory and not self.path(s).exists()]
+
+    def fill(self, seeds: Iterable[int], workers: int = 1, progress: bool = False) -> int:
+        """Build every missing geometry of ``seeds`` (in ``workers`` processes); returns
+        how many were built."""
+        todo = self.missing(seeds)
+        if not todo:
+            return 0
+        bar = _progress(len(todo), f"{self.family} N={self.n_agents}") if progress else None
+        if workers <= 1:
+            for seed in todo:
+                self._store(self.path(seed), build_geometry(self.family, self.n_agents, seed))
+                if bar is not None:
+                    bar.update()
+        else:
+            with ProcessPoolExecutor(workers) as pool:
+                jobs = [(self.family, self.n_agents, s) for s in todo]
+                for seed, geometry in zip(todo, pool.map(_build, jobs), strict=True):
+                    self._store(self.path(seed), geometry)
+                    if bar is not None:
+                        bar.update()
+        if bar is not None:
+            bar.close()
+        return len(todo)
+
+    def _store(self, path: Path, geometry: Geometry) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        part = path.with_suffix(f".{os.getpid()}.part")
+        part.write_bytes(pickle.dumps(geometry))
+        part.replace(path)  # atomic: a parallel reader never sees half an entry
+
+
+def _build(job: tuple[str, int, int]) -> Geometry:
+    return build_geometry(*job)
+
+
+def _progress(total: int, what: str) -> Any:
+    try:
+        from tqdm import tqdm
+    except ImportError:  # tqdm is in the learn extra; the bank works without it
+        return None
+    return tqdm(total=total, desc=f"geometries {what}", unit="geometry")
+
+
+def _seed_range(text: str) -> range:
+    start, _, stop = text.partition(":")
+    if not stop:
+        return range(int(start), int(start) + 1)
+    return range(int(start), int(stop))
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="python -m uvms_env.vector.bank",
+        description="Build the geometries of a seeded scenario family ahead of training.",
+    )
+    parser.add_argument("family", choices=SEEDED_FAMILIES)
+    parser.add_argument("--n-agents", type=int, default=2)
+    parser.add_argument("--seeds", type=_seed_range, default=range(0, 256), help="start:stop")
+    parser.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)))
+    args = parser.parse_args(argv)
+    bank = GeometryBank(args.family, args.n_agents)
+    built = bank.fill(args.seeds, workers=args.workers, progress=True)
+    print(f"{built} built, {len(args.seeds) - built} already there: {bank.folder}")
+
+
+if __name__ == "__main__":
+    main()

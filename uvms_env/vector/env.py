@@ -1,0 +1,841 @@
+"""K cooperative-transport environments stepped together: the single environment, batched.
+
+    from uvms_env.vector import VectorEnv
+    venv = VectorEnv("paper", num_envs=256, dtype="float32")
+    obs, infos = venv.reset(seed=0)                  # obs (K, N, 79) float32
+    obs, reward, terminated, truncated, infos = venv.step(actions)   # actions (K, N, 8)
+
+Environment k is ``parallel_env(scenario, **overrides)`` reset with seed ``seed + k``
+(``reset(seed=[s_0, ...])``: one seed each), stepped with ``actions[k]``: in float64 the
+same observations, rewards, constraint values, terminations and metrics step for step
+(the tests hold it to 1e-9, automatic resets included). The class docstring lists what
+differs and what is returned.
+
+One step is a few compiled calls over all K environments, with the environment index
+innermost (``uvms_env.vector.kernels``: SIMD lanes, threads over cores): the period
+step of the truth simulator (``BatchedSimulator``), the kinematics kernel of the single
+environment (``env.kinematics.team_function``: observations, pose estimates, constraint
+values, team reductions), the navigation twist at each robot's active waypoint
+(``navigation.parametric``) and, when sampled, the internal wrench (the chain's own
+function). The rest (sequencing, reward, termination, metrics) is numpy over arrays of
+K. Python runs per environment only where an environment's own random generator must
+be drawn from (sensor noise, ocean current: a loop over K when they are switched on, so
+that every draw is the single environment's) and for environments whose episode ended
+(their metrics dict and their reset).
+
+May import: numpy, gymnasium (spaces), ``uvms_env`` below ``vector`` and the ``env``
+modules whose kernels and constants it batches.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+from collections.abc import Sequence
+from typing import Any, ClassVar
+
+import numpy as np
+from gymnasium import spaces
+
+from uvms_env.dynamics import NQ, NU
+from uvms_env.env.constraints import CONSTRAINTS, HARD_CONSTRAINTS
+from uvms_env.env.kinematics import (
+    BATCH_CYLINDERS,
+    BATCH_SPHERES,
+    NK,
+    grasp_matrix,
+    obstacle_inputs,
+    segment_inputs,
+    team_function,
+)
+from uvms_env.env.metrics import goal_errors
+from uvms_env.env.observation import (
+    FAR_OBSTACLE,
+    NOISE_STD_Q,
+    NOISE_STD_ZETA,
+    OBSERVATION_LAYOUT,
+    OBSERVATION_SIZE,
+    OBSERVATION_STRUCTURE,
+    WAYPOINT_TOLERANCE,
+    observation_bounds,
+)
+from uvms_env.env.parallel import CONSTRAINT_MODES, ENV_OPTIONS, RESET_SEED, _make_scenario
+from uvms_env.env.reward import REWARD_TERMS, RewardWeights
+from uvms_env.navigation.parametric import parametric_twist_function
+from uvms_env.scenarios import Scenario
+from uvms_env.scenarios.overrides import (
+    SCENARIO_OVERRIDES,
+    Option,
+    describe_options,
+    validate_options,
+    validate_overrides,
+)
+from uvms_env.sim.current import OceanCurrent
+from uvms_env.vector.bank import NAV_PARAMETERS, SEEDED_FAMILIES, GeometryBank, navigation_table
+from uvms_env.vector.kernels import BatchedFunction
+from uvms_env.vector.simulator import ENVELOPE, INACCURATE, OK, BatchedSimulator
+
+VECTOR_OPTIONS: dict[str, Option] = {
+    "geometry_pool": Option(
+        "int", "seeded families: episodes cycle through this many bank seeds", low=1, optional=True
+    ),
+}
+ACTION_KINDS = "fiu"
+EPISODE_ENDS = ("success", "collision", "constraint", "diverged", "max_cycles")
+DIVERGED_REASONS = {
+    INACCURATE: (
+        "a 1/16 part of the period still drifted from the grasps beyond the error "
+        "control's tolerance"
+    ),
+    ENVELOPE: "a speed went beyond the model's physical envelope (SPEED_LIMITS)",
+}
+_HARD = [CONSTRAINTS.index(c) for c in HARD_CONSTRAINTS]
+_WAYPOINT = OBSERVATION_STRUCTURE["waypoint"]
+_NAV = OBSERVATION_STRUCTURE["nav_velocity"]
+_SEED_LIMIT = 2**63
+
+
+def available_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+class VectorEnv:
+    """K environments of one scenario family and team size, stepped together.
+
+    Construct: ``VectorEnv(scenario="paper", num_envs=1, backend="cpu", dtype="float64",
+    threads=None, lanes=None, **overrides)``; the overrides are every keyword of
+    ``parallel_env`` (scenario overrides and environment options, with the same checks)
+    plus ``geometry_pool``.
+
+    | call | returns |
+    |---|---|
+    | `reset(seed=None)` | `obs` (K, N, 79) float32, `infos` (dict) |
+    | `step(actions)`: (K, N, 8) in [-1, 1] | `obs`, `reward`, `terminated`, `truncated`, `infos` |
+    | `state()` | (K, 20 N + 19) float32: each environment's `parallel_env.state()` |
+
+    **Seeding.** `reset(seed=s)`: environment k starts as `parallel_env(...).reset(seed=s + k)`;
+    `reset(seed=[s_0, ..., s_{K-1}])` gives each its seed; `reset()` continues every
+    environment's own sequence, as the single env's `reset()` does. For the seeded
+    families ("random", "short") environment k then has geometry `s + k`, built once
+    and kept on disk by `uvms_env.vector.bank` (`python -m uvms_env.vector.bank` builds
+    them ahead of time; a first build costs ~0.5 s per random geometry). The first
+    `reset()` without a seed uses the `seed` override (or 0) as `s`.
+
+    **Automatic reset** (same step, the Gymnasium `SAME_STEP` / SB3 convention): an
+    environment whose episode ends is reset inside `step`; the returned `obs` row is the
+    new episode's first observation and `infos["final_observation"]` holds the last
+    one. By default the new episode is the single env's `reset()`: the same geometry,
+    the next draws of the environment's own generator. With `geometry_pool=P` (seeded
+    families; training), episode e of environment k (e = 0 after `reset(seed=s)`) is
+    instead `reset(seed=(s + k + K e) % P)`: every episode a geometry from the bank's
+    first P seeds.
+
+    **Infos** (arrays over environments; a key is present every step):
+
+    | key | shape | meaning |
+    |---|---|---|
+    | constraint_values | (K, N, 8) | g <= 0 holds, order of `CONSTRAINTS` |
+    | cost | (K, N) | violated constraints per robot |
+    | reward_terms | dict name -> (K,) | the terms of the shared reward |
+    | success | (K,) bool | the episode succeeded this step |
+    | episode_end | (K,) object | "" or success, collision, constraint, diverged, max_cycles |
+    | final_observation | (K, N, 79) | last observation of the envs that ended (else zeros) |
+    | metrics | (K,) object | the ended episodes' metrics (`uvms_env.env.metrics`) or None |
+    | diverged_reason | (K,) object | why a step was refused ("" elsewhere) |
+
+    **Float32** (`dtype="float32"`): every compiled call in single precision, rewards and
+    metrics in float64 from its results; the fast mode. Its deviation from float64 is
+    measured in the tests and the README.
+
+    **Differences from K single envs.** No rendering. Per-environment geometries share
+    the team size, the object, the period and the substeps (always so within a family
+    and team size). `diverged_reason` names the kind of refusal but not the time and
+    value. Threads: `threads` (default: every core this process may use).
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": [], "autoreset_mode": "same_step"}
+
+    def __init__(
+        self,
+        scenario: str | Scenario = "paper",
+        num_envs: int = 1,
+        backend: str = "cpu",
+        dtype: str = "float64",
+        threads: int | None = None,
+        lanes: int | None = None,
+        **overrides: Any,
+    ) -> None:
+        if backend != "cpu":
+            raise ValueError(
+                f"VectorEnv runs on backend 'cpu' (the GPU backend steps the physics only: "
+                f"uvms_env.vector.BatchedSimulator(backend='cuda')), got {backend!r}"
+            )
+        if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer):
+            raise TypeError(f"num_envs must be an int >= 1, got {num_envs!r}")
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        tables = {**SCENARIO_OVERRIDES, **ENV_OPTIONS, **VECTOR_OPTIONS}
+        unknown = sorted(set(overrides) - set(tables), key=str)
+        if unknown:
+            raise ValueError(f"unknown option(s) {unknown}; allowed: {describe_options(tables)}")
+        options = {k: overrides.pop(k) for k in ENV_OPTIONS if k in overrides}
+        options = validate_options(options, ENV_OPTIONS, "environment option")
+        vector = {k: overrides.pop(k) for k in VECTOR_OPTIONS if k in overrides}
+        vector = validate_options(vector, VECTOR_OPTIONS, "vector option")
+        overrides = validate_overrides(overrides)
+        self.num_envs = k = int(num_envs)
+        self.dtype = dtype
+        self.threads = int(threads) if threads is not None else available_cores()
+        self.constraint_mode = options.get("constraint_mode", "penalize")
+        assert self.constraint_mode in CONSTRAINT_MODES
+        self.reward_weights = RewardWeights.from_mapping(options.get("reward_weights"))
+        self.internal_wrench_every = options.get("internal_wrench_every", 1)
+        self.geometry_pool: int | None = vector.get("geometry_pool")
+
+        if isinstance(scenario, Scenario):
+            if "n_agents" in overrides:
+                raise ValueError("n_agents cannot be overridden on a built Scenario")
+            from uvms_env.scenarios import replace
+
+            base = replace(scenario, **overrides) if overrides else scenario
+            self.family: str | None = None
+        elif isinstance(scenario, str):
+            from uvms_env.scenarios import FAMILIES
+
+            if scenario not in FAMILIES:
+                raise ValueError(f"unknown scenario family {scenario!r}; known: {list(FAMILIES)}")
+            self.family = scenario
+            base = None
+        else:
+            raise ValueError(f"scenario must be a family name or a Scenario, got {scenario!r}")
+        self._seeded = self.family in SEEDED_FAMILIES and options.get("reseed_geometry", True)
+        if self.geometry_pool is not None and not self._seeded:
+            raise ValueError(
+                "geometry_pool needs a seeded family (random, short) with reseed_geometry"
+            )
+        self._overrides = overrides
+        self._first_seed = int(overrides.get("seed") or 0)
+        self._bank: GeometryBank | None = None
+        if self._seeded:
+            assert self.family is not None
+            self._bank = GeometryBank(self.family, int(overrides.get("n_agents", 2)))
+            base = self._bank.get(self._first_seed).scenario_with(overrides)
+        elif base is None:
+            assert self.family is not None
+            base = _make_scenario(self.family, overrides)
+        self._base = base
+        self.n = n = base.n_agents
+        max_cycles = options.get("max_cycles")
+        self.max_cycles = int(base.max_steps) if max_cycles is None else int(max_cycles)
+        self.possible_agents = [f"uvms_{i}" for i in range(n)]
+        self.agents = list(self.possible_agents)
+        low, high = observation_bounds()
+        self.single_observation_space = spaces.Box(low, high, (OBSERVATION_SIZE,), np.float32)
+        self.single_action_space = spaces.Box(-1.0, 1.0, (NU,), np.float32)
+        self.observation_structure = dict(OBSERVATION_STRUCTURE)
+
+        # -- compiled calls -----------------------------------------------------------
+        self.sim = BatchedSimulator(base, k, "cpu", dtype, self.threads, lanes)
+        lanes = self.sim._fn.lanes
+        self._kp = kp = self.sim._kp
+        self._real = real = self.sim._real
+        self._noisy = base.sensor_noise > 0
+        segments = self.sim.object.segments
+        self._n_seg = len(segments)
+        self._kinematics = BatchedFunction(
+            team_function(
+                n,
+                self._n_seg,
+                BATCH_CYLINDERS,
+                BATCH_SPHERES,
+                OBSERVATION_LAYOUT,
+                tuple(FAR_OBSTACLE),
+                self._noisy,
+            ),
+            dtype,
+            lanes,
+        )
+        self._navigation = BatchedFunction(
+            parametric_twist_function(BATCH_CYLINDERS, BATCH_SPHERES), dtype, lanes
+        )
+        self._wrench = (
+            BatchedFunction(self.sim.chain.internal_wrench, dtype, lanes)
+            if self.internal_wrench_every > 0
+            else None
+        )
+
+        # -- per-environment inputs of the kinematics kernel, (nnz, K padded) ---------
+        z = lambda rows: np.zeros((rows, kp), real)  # noqa: E731
+        self._a = z(NU * n)
+        self._q_meas, self._zeta_meas = z(NQ * n), z(NQ * n)
+        self._static, self._waypoint_in = z(13 * n), z(6 * n)
+        self._goal, self._time_fraction = z(6), z(1)
+        self._segments = z(6 * self._n_seg)
+        self._cylinders, self._spheres = z(4 * BATCH_CYLINDERS), z(5 * BATCH_SPHERES)
+        self._workspace = z(4)
+        self._segments[:] = segment_inputs(segments, self._n_seg).reshape(-1, 1)
+        sig = self._kinematics.signature
+        self._kin_out = [np.zeros((m, kp), real) for m in sig.nnz_out]
+
+        # -- per-environment episode data (host, float64) --------------------------------
+        self.scenarios: list[Scenario] = [base] * k
+        self._geometry_set = np.zeros(k, bool)
+        self._by_seed: dict[int, Scenario] = {}  # geometry seed -> scenario with overrides
+        self._nav_tables: dict[int, np.ndarray] = {}  # id(scenario) -> navigation table
+        w_max = 3 if self.family == "random" else len(base.waypoints)
+        self._w_max = w_max
+        self._waypoints = np.zeros((k, w_max, 6))
+        self._waypoint_count = np.ones(k, np.int64)
+        self._nav_table = np.zeros((k, w_max, NAV_PARAMETERS))
+        self._has_obstacles = np.zeros(k, bool)
+        self._robot_index = np.zeros((k, n), np.int64)
+        self._robot_done = np.zeros((k, n), bool)
+        self._team_index = np.zeros(k, np.int64)
+        self._team_done = np.zeros(k, bool)
+        self._potential = np.zeros(k)
+        self._steps = np.zeros(k, np.int64)
+        self._episode = np.zeros(k, np.int64)
+        self._episode_base = np.zeros(k, np.int64)
+        self._seeders = [np.random.default_rng(self._first_seed + i) for i in range(k)]
+        self._seeds_now = np.full(k, -1)  # the seeds of the last seeded reset (-1: none)
+        self._noise_rngs = [np.random.default_rng(0) for _ in range(k)]
+        self._currents = [
+            OceanCurrent(self.sim.uvms.params.currents[base.current]) for _ in range(k)
+        ]
+        self._current_on = self._currents[0].preset.max > 0.0
+        self._noise_q = base.sensor_noise * NOISE_STD_Q
+        self._noise_zeta = base.sensor_noise * NOISE_STD_ZETA
+        self._metrics_reset(slice(None), init=True)
+        self._obs = np.zeros((k, n, OBSERVATION_SIZE), np.float32)
+        self._paper_geometry_set = False
+        self._started = False
+        self._set_geometry(np.arange(k), [base] * k)
+
+    # -- spaces and views ---------------------------------------------------------------
+    @property
+    def observation_space(self) -> spaces.Box:
+        low, high = observation_bounds()
+        shape = (self.num_envs, self.n, OBSERVATION_SIZE)
+        return spaces.Box(
+            np.broadcast_to(low, shape), np.broadcast_to(high, shape), shape, np.float32
+        )
+
+    @property
+    def action_space(self) -> spaces.Box:
+        return spaces.Box(-1.0, 1.0, (self.num_envs, self.n, NU), np.float32)
+
+    @property
+    def scenario(self) -> Scenario:
+        """Environment 0's scenario (every environment's: ``scenarios``)."""
+        return self.scenarios[0]
+
+    def state(self) -> np.ndarray:
+        """(K, 20 N + 19) float32: the true state, the team's waypoint and the time
+        fraction of every environment, as ``parallel_env.state()``."""
+        k = self.num_envs
+        x = self.sim.x[:, :k].T.astype(np.float64)
+        wp = self._waypoints[np.arange(k), self._team_index]
+        return np.concatenate(
+            [x, wp, (self._steps / self.max_cycles)[:, None]], axis=1, dtype=np.float32
+        )
+
+    # -- episodes -----------------------------------------------------------------------
+    def reset(
+        self, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Start an episode in every environment (see Seeding; ``options`` is unused)."""
+        k = self.num_envs
+        if seed is None and not self._started:
+            seed = self._first_seed
+        if seed is None and self.geometry_pool is not None:  # every env: its next episode
+            self._autoreset(np.arange(k))
+            return self._obs.copy(), {"episode_seed": self._pool_seeds(np.arange(k))}
+        if seed is not None:
+            seeds = self._seed_list(seed)
+            self._episode_base[:] = seeds
+            self._episode[:] = 0
+            if self.geometry_pool is not None:
+                seeds = self._pool_seeds(np.arange(k)).tolist()
+            self._seeders = [np.random.default_rng(s) for s in seeds]
+            self._seeds_now = np.array(seeds)
+            if self._seeded:
+                self._set_geometry(np.arange(k), self._geometries(seeds))
+        self._started = True
+        obs = self._reset_envs(np.arange(k))
+        return obs.copy(), {"episode_seed": self._seeds_now.copy()}
+
+    def _seed_list(self, seed: int | Sequence[int]) -> list[int]:
+        k = self.num_envs
+        if isinstance(seed, int | np.integer) and not isinstance(seed, bool):
+            base = RESET_SEED.check("seed", seed)
+            return [base + i for i in range(k)]
+        try:
+            seeds = list(seed)  # type: ignore[arg-type]
+        except TypeError:
+            raise TypeError(f"seed must be None, an int >= 0 or {k} ints, got {seed!r}") from None
+        if len(seeds) != k:
+            raise ValueError(f"reset got {len(seeds)} seeds for {k} environments")
+        return [RESET_SEED.check(f"seed of environment {i}", s) for i, s in enumerate(seeds)]
+
+    def _geometries(self, geometry_seeds: Sequence[int]) -> list[Scenario]:
+        assert self._bank is not None
+        out = []
+        for seed in geometry_seeds:
+            if seed not in self._by_seed:
+                self._by_seed[seed] = self._bank.get(seed).scenario_with(self._overrides)
+            out.append(self._by_seed[seed])
+        return out
+
+    def _navigation_table_of(self, s: Scenario) -> np.ndarray:
+        if self._bank is not None and s.seed is not None:
+            return self._bank.get(s.seed).navigation
+        if id(s) not in self._nav_tables:  # scenarios are kept in self.scenarios: ids stay
+            self._nav_tables[id(s)] = navigation_table(s)
+        return self._nav_tables[id(s)]
+
+    def _set_geometry(self, ids: np.ndarray, scenarios: Sequence[Scenario]) -> None:
+        """Environments ``ids`` take these scenarios' geometries (kernel inputs, waypoints,
+        navigation parameters, simulator grasps). Same-object checks: the simulator's."""
+        n = self.n
+        for i, s in zip(ids.tolist(), scenarios, strict=True):
+            if self.scenarios[i] is s and self._geometry_set[i]:
+                continue
+            if s.n_agents != n:
+                raise ValueError(f"environment {i}: {s.n_agents} agents, the batch has {n}")
+            self.sim.set_scenario([i], s)
+            self.scenarios[i] = s
+            self._geometry_set[i] = True
+            w = len(s.waypoints)
+            if w > self._w_max:
+                raise ValueError(
+                    f"environment {i}: {w} waypoints, the batch has room for {self._w_max}"
+                )
+            self._waypoints[i, :w] = s.waypoints
+            self._waypoint_count[i] = w
+            self._nav_table[i, :w] = self._navigation_table_of(s)
+            self._has_obstacles[i] = bool(s.obstacles)
+            cyl, sph = obstacle_inputs(s, BATCH_CYLINDERS, BATCH_SPHERES)
+            self._cylinders[:, i] = cyl.reshape(-1)
+            self._spheres[:, i] = sph.reshape(-1)
+            self._workspace[:, i] = [*s.workspace.center, s.workspace.radius]
+            self._goal[:, i] = s.waypoints[-1]
+            static = np.hstack(
+                [
+                    np.asarray(s.load_shares)[:, None],
+                    s.grasp_offsets,
+                    np.asarray(s.grasp_rotations).reshape(n, 9),
+                ]
+            )
+            self._static[:, i] = static.reshape(-1)
+            assert np.array_equal(
+                self.sim.grasp[:, i], grasp_matrix(s).reshape(-1).astype(self._real)
+            )
+        self._fill_padding()
+
+    def _fill_padding(self) -> None:
+        k = self.num_envs
+        for a in (
+            self._static,
+            self._goal,
+            self._cylinders,
+            self._spheres,
+            self._workspace,
+            self._waypoint_in,
+        ):
+            a[:, k:] = a[:, :1]
+
+    def _reset_envs(self, ids: np.ndarray) -> np.ndarray:
+        """The single env's ``reset()`` for environments ``ids``: new draws from each one's
+        generator, start state, sequencers, metrics, first observation. Returns the
+        observations of ``ids`` (also written into ``self._obs``)."""
+        sim_seeds = []
+        for i in ids.tolist():
+            rng = np.random.default_rng(self._seeders[i].integers(_SEED_LIMIT))
+            sim_seeds.append(int(rng.integers(_SEED_LIMIT)))
+            self._noise_rngs[i] = rng
+        generators = self.sim.reset(ids, sim_seeds)
+        for i, gen in zip(ids.tolist(), generators, strict=True):
+            self._currents[i].reset(gen)
+        if len(ids) == self.num_envs:  # all of them: the kernels' full path, no gathering
+            ids = slice(0, self.num_envs)
+        self._steps[ids] = 0
+        self._metrics_reset(ids)
+        self._robot_index[ids] = 0
+        self._robot_done[ids] = False
+        self._waypoint_in[:, ids] = np.tile(self._waypoints[ids, 0], (1, self.n)).T
+        self._fill_padding()
+        self._a[:, ids] = 0.0
+        self._evaluate(ids)
+        # the team's sequencer on the true object (TeamReward.reset)
+        self._team_index[ids] = 0
+        self._team_done[ids] = False
+        x_o = self._object_pose(ids)
+        self._advance_team(ids, x_o)
+        self._potential[ids] = self._potential_of(ids, x_o)
+        return self._obs[ids]
+
+    # -- stepping -------------------------------------------------------------------------
+    def step(
+        self, actions: Any
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        if not self._started:
+            raise RuntimeError("step() called before reset()")
+        k, n = self.num_envs, self.n
+        a = self._check_actions(actions)
+        current = None
+        if self._current_on:
+            current = np.array([c.step(self._base.period) for c in self._currents])
+        code = self.sim.step(a * self.sim.tau_max, current)
+        self._steps += 1
+        diverged = code != OK
+        self._a[:, :k] = a.reshape(k, n * NU).T
+        all_envs = slice(0, k)
+        self._evaluate(all_envs)
+        team = self._kin_out[4][:, :k].astype(np.float64)
+        kinds = team[6 : 6 + NK] > 0.0
+        n_violated, action_sq = team[4], team[5]
+        collision = kinds[_HARD].any(axis=0)
+        failed = diverged | collision
+        if self.constraint_mode == "terminate":
+            failed |= n_violated > 0
+        x_o = self._object_pose(all_envs)
+        success = ~failed & self._at_goal(x_o)
+        terminated = success | failed
+        truncated = ~terminated & (self._steps >= self.max_cycles)
+
+        wrench_sq = None
+        every = self.internal_wrench_every
+        if every > 0:
+            sampled = ~diverged & (self._steps % every == 0)
+            if sampled.any():
+                wrench_sq = np.where(sampled, self._internal_wrench_sq(), 0.0)
+                self._wrench_sq += wrench_sq
+                self._wrench_samples += sampled
+        self._m_steps += 1
+        self._effort += action_sq * self._base.period
+        self._violations += kinds.T
+
+        reward, terms = self._reward(x_o, action_sq / (n * NU), n_violated, success, failed)
+        g = self._kin_out[2][:, :k].reshape(n, NK, k).transpose(2, 0, 1).astype(np.float64)
+        cost = self._kin_out[3][:, :k].reshape(n, 6, k)[:, 4].T.astype(np.int64)
+        ended = terminated | truncated
+        infos: dict[str, Any] = {
+            "constraint_values": g,
+            "cost": cost,
+            "reward_terms": terms,
+            "success": success,
+            "episode_end": np.full(k, "", dtype=object),
+            "final_observation": np.zeros_like(self._obs),
+            "metrics": np.full(k, None, dtype=object),
+            "diverged_reason": np.full(k, "", dtype=object),
+        }
+        for i in np.flatnonzero(diverged).tolist():
+            infos["diverged_reason"][i] = DIVERGED_REASONS[int(code[i])]
+        obs = self._obs.copy()
+        if ended.any():
+            done = np.flatnonzero(ended)
+            infos["final_observation"][done] = obs[done]
+            for i in done.tolist():
+                infos["episode_end"][i] = _episode_end(
+                    bool(success[i]), bool(diverged[i]), bool(collision[i]), bool(failed[i])
+                )
+                infos["metrics"][i] = self._metrics_result(i, x_o[i], bool(success[i]))
+            self._autoreset(done)
+            obs[done] = self._obs[done]
+        return obs, reward, terminated, truncated, infos
+
+    def restart(self, env_ids: Any) -> np.ndarray:
+        """End the episodes of ``env_ids`` where they stand and start their next ones, as the
+        automatic reset does (a partial reset, e.g. for TorchRL's ``_reset`` mask); returns
+        their first observations (len(env_ids), N, 79). The other environments go on."""
+        if not self._started:
+            raise RuntimeError("restart() called before reset()")
+        ids = np.unique(np.asarray(env_ids, dtype=np.int64).reshape(-1))
+        if len(ids) and (ids[0] < 0 or ids[-1] >= self.num_envs):
+            raise ValueError(f"env_ids must lie in 0..{self.num_envs - 1}, got {env_ids!r}")
+        if len(ids):
+            self._autoreset(ids)
+        return self._obs[ids].copy()
+
+    def _autoreset(self, ids: np.ndarray) -> None:
+        self._episode[ids] += 1
+        if self.geometry_pool is not None:
+            seeds = self._pool_seeds(ids).tolist()
+            for i, s in zip(ids.tolist(), seeds, strict=True):
+                self._seeders[i] = np.random.default_rng(s)
+            self._set_geometry(ids, self._geometries(seeds))
+        self._reset_envs(ids)
+
+    def _pool_seeds(self, ids: np.ndarray) -> np.ndarray:
+        """The reset seeds of the current episodes of ``ids`` with a geometry pool."""
+        assert self.geometry_pool is not None
+        raw = self._episode_base[ids] + self.num_envs * self._episode[ids]
+        return raw % self.geometry_pool
+
+    def _check_actions(self, actions: Any) -> np.ndarray:
+        k, n = self.num_envs, self.n
+        try:
+            a = np.asarray(actions)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"actions must be an array of shape ({k}, {n}, {NU})") from exc
+        if a.shape != (k, n, NU):
+            hint = f" (num_envs is {k})" if a.ndim == 3 and a.shape[0] != k else ""
+            raise ValueError(f"actions must have shape ({k}, {n}, {NU}), got {a.shape}{hint}")
+        if a.dtype.kind not in ACTION_KINDS:
+            raise ValueError(
+                f"actions must be float or int (not bool, complex, str or object), got {a.dtype}"
+            )
+        a = a.astype(np.float64, copy=False)
+        if not np.isfinite(a.sum()):
+            env, robot, _ = np.argwhere(~np.isfinite(a))[0]
+            raise ValueError(
+                f"action of environment {env}, agent {self.possible_agents[robot]!r} contains "
+                "NaN or inf"
+            )
+        return a
+
+    # -- the per-step kernels ---------------------------------------------------------------
+    def _columns(self, ids: Any) -> tuple[Any, int]:
+        """(index into (nnz, K) arrays, count) for ``ids`` (an array of env indices or a slice
+        over all)."""
+        if isinstance(ids, slice):
+            return ids, self.num_envs
+        return ids, len(ids)
+
+    def _evaluate(self, ids: Any) -> None:
+        """Measure, run the kinematics kernel, note the state metrics, sequence each robot's
+        waypoints, add the navigation twist; the observations land in ``self._obs[ids]``."""
+        n, k = self.n, self.num_envs
+        full = isinstance(ids, slice)
+        self._time_fraction[0, ids] = self._steps[ids] / self.max_cycles
+        x = self.sim.x
+        q, zeta = x[: NQ * n], x[NQ * n : 2 * NQ * n]
+        if self._noisy:
+            self._measure(np.arange(k) if full else ids, q, zeta)
+        inputs = [
+            self._a,
+            q,
+            zeta,
+            self._q_meas,
+            self._zeta_meas,
+            x[2 * NQ * n : 2 * NQ * n + 6],
+            self.sim.grasp,
+            self._static,
+            self._waypoint_in,
+            self._goal,
+            self._time_fraction,
+            self._segments,
+            self._cylinders,
+            self._spheres,
+            self._workspace,
+        ]
+        if full:
+            out = self._kinematics(inputs, self.threads, out=self._kin_out)
+            m = k
+        else:
+            m = len(ids)
+            cols = _padded_columns(ids, self._kinematics.padded(m))
+            out = self._kinematics([np.ascontiguousarray(a[:, cols]) for a in inputs], self.threads)
+            for full_out, part in zip(self._kin_out, out, strict=True):
+                full_out[:, ids] = part[:, :m]
+        obs_rows, pose_rows, team = out[0][:, :m], out[1][:, :m], out[4][:, :m]
+        # state metrics (EpisodeMetrics.observe)
+        clearance = np.where(self._has_obstacles[ids], team[0], np.inf)
+        np.minimum(self._min_clearance[ids], clearance, out=clearance)
+        self._min_clearance[ids] = clearance
+        self._min_manip[ids] = np.minimum(self._min_manip[ids], team[1])
+        self._grasp_drift[ids] = np.maximum(self._grasp_drift[ids], team[2])
+        obs = obs_rows.reshape(n, OBSERVATION_SIZE, m).transpose(2, 0, 1).astype(np.float64)
+        pose = pose_rows.reshape(n, 6, m).transpose(2, 0, 1).astype(np.float64)  # (m, N, 6)
+        # each robot's own sequencer, on its own estimate (WaypointSequencer.update)
+        index, done = self._robot_index[ids], self._robot_done[ids]
+        env_rows = np.arange(k)[ids]
+        wp = self._waypoints[env_rows[:, None], index]
+        near = ~done & (np.linalg.norm(pose[:, :, :3] - wp[:, :, :3], axis=2) < WAYPOINT_TOLERANCE)
+        if near.any():
+            last = index + 1 >= self._waypoint_count[ids][:, None]
+            index = index + (near & ~last)
+            done = done | (near & last)
+            self._robot_index[ids], self._robot_done[ids] = index, done
+            wp = self._waypoints[env_rows[:, None], index]
+            self._waypoint_in[:, ids] = wp.reshape(m, n * 6).T
+            self._fill_padding()
+        obs[:, :, _WAYPOINT] = wp
+        obs[:, :, _NAV] = self._navigation_twist(env_rows, index, pose)
+        self._obs[ids] = obs
+
+    def _measure(self, ids: np.ndarray, q: np.ndarray, zeta: np.ndarray) -> None:
+        """Sensor noise from each environment's generator (the single env's draws)."""
+        n = self.n
+        noise = np.stack([self._noise_rngs[i].standard_normal((2, n, NQ)) for i in ids.tolist()])
+        qn = noise[:, 0] * self._noise_q  # (m, N, 10)
+        zn = noise[:, 1] * self._noise_zeta
+        self._q_meas[:, ids] = qn.reshape(len(ids), -1).T + q[:, ids]
+        self._zeta_meas[:, ids] = zn.reshape(len(ids), -1).T + zeta[:, ids]
+
+    def _navigation_twist(
+        self, env_rows: np.ndarray, index: np.ndarray, pose: np.ndarray
+    ) -> np.ndarray:
+        """(m, N, 6): each robot's navigation twist towards its active waypoint at its own
+        estimate: one batched call over the m N robots."""
+        m, n = index.shape
+        cols = m * n
+        cp = self._navigation.padded(cols)
+        params = self._nav_table[env_rows[:, None], index].reshape(cols, NAV_PARAMETERS)
+        x = pose.reshape(cols, 6)
+        if cp > cols:
+            params = np.concatenate([params, np.repeat(params[:1], cp - cols, axis=0)])
+            x = np.concatenate([x, np.repeat(x[:1], cp - cols, axis=0)])
+        x_in = np.ascontiguousarray(x.T, self._real)
+        p = np.ascontiguousarray(params.T, self._real)
+        bounds = np.cumsum([0, *self._navigation.signature.nnz_in[1:]])
+        inputs = [x_in] + [p[a:b] for a, b in itertools.pairwise(bounds)]
+        twist = self._navigation(inputs, self.threads)[0]
+        return twist[:, :cols].T.reshape(m, n, 6)
+
+    def _internal_wrench_sq(self) -> np.ndarray:
+        """(K,) squared Frobenius norm of the internal wrench after the step."""
+        assert self._wrench is not None
+        s = self.sim
+        out = self._wrench(
+            [s.x, s._tau, s._vc, s.parameters, s.object_parameters, s.grasp], self.threads
+        )[0][:, : self.num_envs].astype(np.float64)
+        return np.einsum("ij,ij->j", out, out)
+
+    # -- reward and sequencing of the team (TeamReward) ---------------------------------
+    def _object_pose(self, ids: Any) -> np.ndarray:
+        n = self.n
+        return self.sim.x[2 * NQ * n : 2 * NQ * n + 6, ids].T.astype(np.float64)
+
+    def _team_waypoint(self, ids: Any) -> np.ndarray:
+        return self._waypoints[np.arange(self.num_envs)[ids], self._team_index[ids]]
+
+    def _potential_of(self, ids: Any, x_o: np.ndarray) -> np.ndarray:
+        wp = self._team_waypoint(ids)
+        att = np.sqrt((_wrap(x_o[:, 3:] - wp[:, 3:]) ** 2).sum(axis=1))
+        dist = np.linalg.norm(x_o[:, :3] - wp[:, :3], axis=1)
+        return dist + self.reward_weights.attitude * att
+
+    def _advance_team(self, ids: Any, x_o: np.ndarray) -> np.ndarray:
+        """The team's sequencer passes its waypoint where the true object reached it;
+        returns where an intermediate waypoint was passed (index changed)."""
+        wp = self._team_waypoint(ids)
+        near = ~self._team_done[ids] & (
+            np.linalg.norm(x_o[:, :3] - wp[:, :3], axis=1) < WAYPOINT_TOLERANCE
+        )
+        last = self._team_index[ids] + 1 >= self._waypoint_count[ids]
+        passed = near & ~last
+        self._team_index[ids] = self._team_index[ids] + passed
+        self._team_done[ids] = self._team_done[ids] | (near & last)
+        return passed
+
+    def _reward(
+        self,
+        x_o: np.ndarray,
+        mean_sq_action: np.ndarray,
+        n_violated: np.ndarray,
+        success: np.ndarray,
+        failed: np.ndarray,
+    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        w, all_envs = self.reward_weights, slice(None)
+        potential = self._potential_of(all_envs, x_o)
+        progress = w.progress * (self._potential - potential)
+        passed = self._advance_team(all_envs, x_o)
+        if passed.any():
+            potential = np.where(passed, self._potential_of(all_envs, x_o), potential)
+        self._potential = potential
+        terms = {
+            "progress": progress,
+            "waypoint": np.where(passed, w.waypoint, 0.0),
+            "success": np.where(success, w.success, 0.0),
+            "violation": 0.0 - w.violation * n_violated / self.n - np.where(failed, w.failure, 0.0),
+            "effort": 0.0 - w.effort * mean_sq_action,
+        }
+        reward = np.zeros(self.num_envs)
+        for name in REWARD_TERMS:  # the single env's summation order
+            reward = reward + terms[name]
+        return reward, terms
+
+    def _at_goal(self, x_o: np.ndarray) -> np.ndarray:
+        s = self._base
+        goal = self._waypoints[np.arange(self.num_envs), self._waypoint_count - 1]
+        pos = np.linalg.norm(x_o[:, :3] - goal[:, :3], axis=1)
+        att = np.abs(_wrap(x_o[:, 3:] - goal[:, 3:])).max(axis=1)
+        return (pos < s.success_pos_tol) & (att < s.success_att_tol)
+
+    # -- metrics (EpisodeMetrics, as arrays) ------------------------------------------------
+    def _metrics_reset(self, ids: Any, init: bool = False) -> None:
+        if init:
+            k = self.num_envs
+            self._m_steps = np.zeros(k, np.int64)
+            self._min_clearance = np.zeros(k)
+            self._min_manip = np.zeros(k)
+            self._grasp_drift = np.zeros(k)
+            self._violations = np.zeros((k, NK), np.int64)
+            self._effort = np.zeros(k)
+            self._wrench_sq = np.zeros(k)
+            self._wrench_samples = np.zeros(k, np.int64)
+        self._m_steps[ids] = 0
+        self._min_clearance[ids] = np.inf
+        self._min_manip[ids] = np.inf
+        self._grasp_drift[ids] = 0.0
+        self._violations[ids] = 0
+        self._effort[ids] = 0.0
+        self._wrench_sq[ids] = 0.0
+        self._wrench_samples[ids] = 0
+
+    def _metrics_result(self, i: int, x_o: np.ndarray, success: bool) -> dict[str, Any]:
+        goal = self._waypoints[i, self._waypoint_count[i] - 1]
+        pos, att = goal_errors(x_o, goal)
+        samples = int(self._wrench_samples[i])
+        clearance = float(self._min_clearance[i])
+        period = self._base.period
+        return {
+            "success": success,
+            "episode_steps": int(self._m_steps[i]),
+            "sim_time_s": int(self._m_steps[i]) * period,
+            "final_pos_error_m": pos,
+            "final_att_error_rad": att,
+            "min_obstacle_clearance_m": clearance if math.isfinite(clearance) else None,
+            "min_manipulability": float(self._min_manip[i]),
+            "violations": {
+                c: int(v) for c, v in zip(CONSTRAINTS, self._violations[i].tolist(), strict=True)
+            },
+            "internal_wrench_rms": (
+                math.sqrt(float(self._wrench_sq[i]) / samples) if samples else None
+            ),
+            "control_effort": float(self._effort[i]),
+            "policy_time_ms": None,
+            "grasp_drift_max_m": float(self._grasp_drift[i]),
+        }
+
+    def close(self) -> None:
+        """Nothing to release (no windows, no processes); for the Gymnasium contract."""
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    """Wrapped into [-pi, pi]: IEEE remainder by 2 pi (``math.remainder``, as the single env)."""
+    return angle - 2 * np.pi * np.round(angle / (2 * np.pi))
+
+
+def _padded_columns(ids: np.ndarray, padded: int) -> np.ndarray:
+    ids = np.asarray(ids)
+    if padded == len(ids):
+        return ids
+    return np.concatenate([ids, np.full(padded - len(ids), ids[0])])
+
+
+def _episode_end(success: bool, diverged: bool, collision: bool, failed: bool) -> str:
+    if success:
+        return "success"
+    if diverged:
+        return "diverged"
+    if collision:
+        return "collision"
+    if failed:
+        return "constraint"
+    return "max_cycles"

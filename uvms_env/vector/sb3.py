@@ -1,0 +1,159 @@
+"""stable-baselines3's ``VecEnv`` over a ``VectorEnv``: one policy shared by every robot.
+
+    from uvms_env.vector import VectorEnv
+    from uvms_env.vector.sb3 import VectorVecEnv
+    venv = VectorVecEnv(VectorEnv("short", num_envs=64, dtype="float32"), seed=0)
+
+The K environments of N robots are K N sub-environments, ordered environment-major then
+by robot (environment 0's uvms_0, uvms_1, ..., environment 1's uvms_0, ...), as
+``baselines.rl.vec_env.ParallelVecEnv`` orders its copies: each sub-environment is one
+robot acting from its own observation with the team reward, and a team's sub-environments
+end their episode together. The step is the ``VectorEnv``'s, reshaped; Python builds one
+small info dict per sub-environment (SB3 wants a list) and nothing else per robot.
+
+May import: numpy, gymnasium, stable-baselines3 and ``uvms_env.vector.env``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
+
+from uvms_env.vector.env import VectorEnv
+
+# Attributes SB3 asks every sub-environment for that a VectorEnv does not define.
+_ATTRIBUTE_DEFAULTS: dict[str, Any] = {"render_mode": None}
+
+
+class VectorVecEnv(VecEnv):
+    """``VecEnv`` of ``K N`` robot sub-environments stepping one ``VectorEnv``.
+
+    | SB3 | here |
+    |---|---|
+    | observations | (K N, 79) float32 |
+    | actions | (K N, 8), clipped by SB3 to [-1, 1] |
+    | rewards | (K N,) float32: the team reward repeated for each robot |
+    | dones | (K N,): the team's episode ended (terminated or truncated) |
+    | infos | one dict per sub-environment: the robot's ``cost`` |
+
+    Where the episode ended, the infos also hold ``terminal_observation`` (the robot's last
+    observation), ``TimeLimit.truncated``, ``episode_end``, ``metrics`` (one dict shared by
+    the team's robots) and, when the step was refused, ``diverged_reason``.
+
+    The keys are ``ParallelVecEnv``'s except the per-robot ``constraint_values`` and
+    ``reward_terms`` dicts, which would cost K N dicts a step: the last step's batched
+    infos (arrays over environments) are in ``last_infos``.
+
+    **Seeding.** The first ``reset()`` is the ``VectorEnv``'s ``reset(seed=seed)`` (with
+    ``seed=None``: its own first seed); after ``seed(s)`` the next ``reset()`` is
+    ``reset(seed=s)``: environment k starts with seed ``s + k``, and its later episodes
+    follow the ``VectorEnv``'s automatic reset (its own generator, or the geometry
+    pool). Any other ``reset()`` continues every environment's sequence.
+
+    ``get_attr``, ``set_attr`` and ``env_method`` act on the one ``VectorEnv`` behind
+    every sub-environment (``env_method`` calls the method once and repeats its result
+    for each index asked for); nothing is wrapped (``env_is_wrapped``: all False).
+    """
+
+    def __init__(self, vector_env: VectorEnv, seed: int | None = None) -> None:
+        self.vector_env = vector_env
+        self.n_agents = vector_env.n
+        self.agents = list(vector_env.possible_agents)
+        super().__init__(
+            vector_env.num_envs * vector_env.n,
+            vector_env.single_observation_space,
+            vector_env.single_action_space,
+        )
+        self._next_seed = seed
+        self._actions: np.ndarray | None = None
+        self.last_infos: dict[str, Any] = {}
+
+    # -- SB3's VecEnv -------------------------------------------------------------------
+    def reset(self) -> np.ndarray:
+        obs, infos = self.vector_env.reset(seed=self._next_seed)
+        self._next_seed = None
+        self._reset_seeds()
+        self._reset_options()
+        seeds = np.repeat(np.asarray(infos["episode_seed"]), self.n_agents).tolist()
+        self.reset_infos = [{"episode_seed": s} for s in seeds]
+        self._actions = None
+        return obs.reshape(self.num_envs, -1)
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        if self._actions is None:
+            raise RuntimeError("step_wait called without step_async")
+        venv, n = self.vector_env, self.n_agents
+        try:
+            actions = self._actions.reshape(venv.num_envs, n, -1)
+        except ValueError:
+            raise ValueError(
+                f"actions must have shape ({self.num_envs}, {venv.single_action_space.shape[0]}), "
+                f"got {self._actions.shape}"
+            ) from None
+        self._actions = None
+        obs, reward, terminated, truncated, infos = venv.step(actions)
+        self.last_infos = infos
+        ended = terminated | truncated
+        rewards = np.repeat(reward.astype(np.float32), n)
+        dones = np.repeat(ended, n)
+        out = [{"cost": c} for c in infos["cost"].reshape(-1).tolist()]
+        if ended.any():
+            final = infos["final_observation"]
+            for k in np.flatnonzero(ended).tolist():
+                shared = {
+                    "TimeLimit.truncated": bool(truncated[k] and not terminated[k]),
+                    "episode_end": infos["episode_end"][k],
+                    "metrics": infos["metrics"][k],
+                }
+                if infos["diverged_reason"][k]:
+                    shared["diverged_reason"] = infos["diverged_reason"][k]
+                for a in range(n):
+                    info = out[k * n + a]
+                    info.update(shared)
+                    info["terminal_observation"] = final[k, a].copy()
+        return obs.reshape(self.num_envs, -1), rewards, dones, out
+
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """The next ``reset()`` starts environment k with seed ``seed + k`` (``None``: keep
+        the pending seed). Returns each sub-environment's pending seed (None: none)."""
+        if seed is not None:
+            self._next_seed = int(seed)
+        if self._next_seed is None:
+            return [None] * self.num_envs
+        return [self._next_seed + k for k in range(self.vector_env.num_envs) for _ in self.agents]
+
+    def close(self) -> None:
+        self.vector_env.close()
+
+    # -- attributes and methods: the VectorEnv's ------------------------------------------
+    def _count(self, indices: VecEnvIndices) -> int:
+        return len(list(self._get_indices(indices)))
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        if attr_name in _ATTRIBUTE_DEFAULTS:
+            value = getattr(self.vector_env, attr_name, _ATTRIBUTE_DEFAULTS[attr_name])
+        else:
+            value = getattr(self.vector_env, attr_name)
+        return [value] * self._count(indices)
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        setattr(self.vector_env, attr_name, value)
+
+    def env_method(
+        self,
+        method_name: str,
+        *method_args: Any,
+        indices: VecEnvIndices = None,
+        **method_kwargs: Any,
+    ) -> list[Any]:
+        result = getattr(self.vector_env, method_name)(*method_args, **method_kwargs)
+        return [result] * self._count(indices)
+
+    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
+        return [False] * self._count(indices)
