@@ -80,14 +80,20 @@ def _sb3(algo: str) -> Callable[[str | None, int], PolicyFactory]:
     return build
 
 
+def cloned_path(method: str, arg: str | None) -> Path:
+    """The ``policy.pt`` of ``bc:ARG`` / ``dagger:ARG``."""
+    folder = Path(arg) if arg not in (None, "", "pretrained") else PRETRAINED / method
+    path = folder if folder.suffix == ".pt" else folder / "policy.pt"
+    if not path.exists():
+        raise ValueError(f"no {method} policy at {path}")
+    return path
+
+
 def _cloned(method: str) -> Callable[[str | None, int], PolicyFactory]:
     def build(arg: str | None, seed: int) -> PolicyFactory:
         from baselines.imitation.policy import ClonedPolicy
 
-        folder = Path(arg) if arg not in (None, "", "pretrained") else PRETRAINED / method
-        path = folder if folder.suffix == ".pt" else folder / "policy.pt"
-        if not path.exists():
-            raise ValueError(f"no {method} policy at {path}")
+        path = cloned_path(method, arg)
         return lambda spec: ClonedPolicy(spec, path)
 
     return build

@@ -59,13 +59,14 @@ def test_saved_network_reproduces_its_decisions(tmp_path, paper_spec):
         net, _ = bc.fit(obs, np.tanh(obs[:, :8]), epochs=2, features=features, hidden=hidden,
                         progress=False, ring_radius=ring)  # fmt: skip
         net.save(tmp_path / "policy.pt")
-        policy = ClonedPolicy(spec=paper_spec, path=tmp_path / "policy.pt")
         again = MLPPolicyNet.load(tmp_path / "policy.pt")
         assert again.features == features and again.residual == (features in FEEDFORWARD)
-        for o in obs[:20]:
-            a = policy.act(o)  # compiled inputs + numpy layers
-            assert a.shape == (8,) and np.all(np.abs(a) <= 1)
-            assert np.allclose(a, again.predict(o[None], ring)[0], atol=1e-5)  # torch
+        for compiled in (True, False):  # the whole decision compiled, or numpy layers
+            policy = ClonedPolicy(paper_spec, tmp_path / "policy.pt", compiled=compiled)
+            for o in obs[:20]:
+                a = policy.act(o)
+                assert a.shape == (8,) and np.all(np.abs(a) <= 1)
+                assert np.allclose(a, again.predict(o[None], ring)[0], atol=1e-5)  # torch
 
 
 def test_compiled_features_agree_with_numpy_and_are_yaw_invariant():

@@ -32,10 +32,8 @@ faster per decision) reached 12/16 by BC and 10/16 after DAgger (``uvms-v2``: 15
 
 Decisions: ``CompiledInputs`` evaluates features, normalization and clipping as one
 generated-C function through preallocated buffers (~2.5 us with a_ss, ~1 us without;
-the same feature code in Python costs 10-17 us). The MLP itself stays in numpy float32
-(BLAS): generated C of its dense products measured 10-15x slower (91 vs 6.8 us for
-256-256). A network without hidden layers (680 multiply-adds) is compiled into the same
-function, so its whole decision is one call (~4.5 us in a closed loop).
+the same feature code in Python costs 10-17 us). ``decision`` builds the same function
+with the network's layers and output in it, so that a decision is one call.
 
 The numpy ``featurize`` is the independent twin of ``featurize_sx``, and the expert's
 compiled a_ss that of ``steady_sx``; the tests check that they agree.
@@ -47,7 +45,6 @@ May import: numpy, casadi, ``uvms_env.dynamics`` and ``nmpc_expert.ocp`` /
 from __future__ import annotations
 
 import functools
-import hashlib
 import math
 
 import casadi as cs
@@ -193,7 +190,11 @@ def features_sx(o: cs.SX, features: str, ring_radius: float) -> cs.SX:
     return cs.vertcat(base, steady_sx(o, ring_radius)) if features in FEEDFORWARD else base
 
 
-def _inputs_sx(features: str, ring_radius: float, dim: int):
+def inputs_sx(
+    features: str, ring_radius: float, dim: int
+) -> tuple[list[cs.SX], cs.SX, cs.SX | cs.DM, str]:
+    """Symbolic inputs [obs, mean, inv_std, clip], the normalized clipped features z, the
+    steady input (zeros for feature sets without it) and a tag for function names."""
     o = cs.SX.sym("obs", dim)
     x = features_sx(o, features, ring_radius)
     n = x.numel()
@@ -209,38 +210,28 @@ def input_function(features: str, ring_radius: float, dim: int = OBS_DIM) -> cs.
     """Compiled (obs, mean, inv_std, clip) -> [z; 1; a_ss]: the normalized clipped
     features z, a constant 1 (the MLP's bias input, see ``policy``) and the steady input
     (zeros for feature sets without it), in one vector so a decision copies it once."""
-    args, z, ff, tag = _inputs_sx(features, ring_radius, dim)
+    args, z, ff, tag = inputs_sx(features, ring_radius, dim)
     fn = cs.Function(f"cloned_inputs_{tag}", args, [cs.vertcat(z, 1.0, ff)], {"cse": True})
     return compile_function(fn)
 
 
-def linear_decision_function(
-    features: str, ring_radius: float, weights: np.ndarray, residual: bool, dim: int = OBS_DIM
-) -> cs.Function:
-    """Compiled (obs, mean, inv_std, clip) -> action of a network without hidden layers:
-    clip(a_ss + W' [z; 1], -1, 1) (residual) or tanh(W' [z; 1]); ``weights`` (n + 1, 8)
-    with the bias as the last row. A few hundred multiply-adds: in C they cost less than
-    one numpy call, so the whole decision is one compiled call."""
-    args, z, ff, tag = _inputs_sx(features, ring_radius, dim)
-    out = cs.mtimes(cs.DM(np.asarray(weights, dtype=float).T), cs.vertcat(z, 1.0))
-    act = cs.fmin(1.0, cs.fmax(-1.0, ff + out)) if residual else cs.tanh(out)
-    digest = hashlib.sha256(np.ascontiguousarray(weights, dtype=float).tobytes()).hexdigest()
-    fn = cs.Function(f"cloned_linear_{tag}_{digest[:12]}", args, [act], {"cse": True})
-    return compile_function(fn)
-
-
-def _ring(ring_radius: float | None, features: str) -> float:
+def object_ring(ring_radius: float | None, features: str) -> float:
+    """The object argument of the compiled functions (0 for the bar or unused)."""
     if features in FEEDFORWARD and ring_radius is None:
         raise ValueError(f"{features} features need the object (ring radius, 0 for the bar)")
     return float(ring_radius or 0.0)
 
 
+def input_dim(features: str, n_features: int) -> int:
+    """The observation length of the compiled functions (``raw`` takes any)."""
+    return OBS_DIM if features != "raw" else n_features
+
+
 class CompiledInputs:
-    """``__call__(obs)`` through a compiled function of one observation: by default
-    ``[z; 1; a_ss]`` (see ``input_function``); with ``head`` (the weights of a network
-    without hidden layers, bias as the last row), the action itself (see
-    ``linear_decision_function``). Returns a float64 view of the output buffer,
-    overwritten by the next call."""
+    """``__call__(obs)`` through a compiled function of (obs, mean, inv_std, clip): by
+    default ``[z; 1; a_ss]`` (``input_function``); ``fn``: another function of the same
+    inputs, e.g. a network's whole decision (``decision.decision_function``). Returns a
+    float64 view of the output buffer, overwritten by the next call."""
 
     def __init__(
         self,
@@ -249,16 +240,11 @@ class CompiledInputs:
         inv_std: np.ndarray,
         ring_radius: float | None = None,
         clip: float = INPUT_CLIP,
-        head: np.ndarray | None = None,
-        residual: bool = False,
+        fn: cs.Function | None = None,
     ) -> None:
-        dim = OBS_DIM if features != "raw" else len(mean)
-        ring = _ring(ring_radius, features)
-        fn = (
-            input_function(features, ring, dim)
-            if head is None
-            else linear_decision_function(features, ring, head, residual, dim)
-        )
+        dim = input_dim(features, len(mean))
+        if fn is None:
+            fn = input_function(features, object_ring(ring_radius, features), dim)
         self._call = BufferCall(fn)
         self._obs = np.zeros(dim)
         self._consts = (

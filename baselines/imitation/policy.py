@@ -1,11 +1,15 @@
 """A saved ``policy.pt`` as a per-agent policy for the evaluator and DAgger rollouts.
 
-One decision: the compiled input function (features, normalization, clipping; see
-``features``) and the MLP's layers in numpy float32. The same network serves every
-robot; it is stateless, so ``reset`` does nothing. The object (for ``uvms-v2`` features)
-comes from the robot's ``AgentSpec``.
+One decision is one call of a compiled function, observation to action: features,
+normalization, clipping, the layers and the output (``decision``). Where nothing is
+compiled (``UVMS_ENV_NO_COMPILE``, no C compiler), or with ``compiled=False``, a network
+with hidden layers runs its layers in numpy float32 after the compiled input function
+instead. The torch network (``MLPPolicyNet.predict``) is the reference both are tested
+against. The same network serves every robot; it is stateless, so ``reset`` does
+nothing. The object (for ``uvms-v2`` features) comes from the robot's ``AgentSpec``.
 
-May import: numpy, torch, ``uvms_env.policy`` and this package's network and features.
+May import: numpy, torch, ``uvms_env.policy`` and this package's network, features and
+decision.
 """
 
 from __future__ import annotations
@@ -16,49 +20,58 @@ from typing import Any
 import numpy as np
 import torch
 
-from baselines.imitation.features import CompiledInputs
+from baselines.imitation.decision import decision_function
+from baselines.imitation.features import CompiledInputs, input_dim, object_ring
 from baselines.imitation.network import MLPPolicyNet
 from uvms_env.policy import AgentSpec
 
 
 class ClonedPolicy:
-    """``act(obs)``: the network's action for one robot's observation, in [-1, 1]."""
+    """``act(obs)``: the network's action for one robot's observation, in [-1, 1];
+    ``compiled``: the whole decision as one compiled call (the default), or the numpy
+    layers (see the module docstring)."""
 
-    def __init__(self, spec: AgentSpec | None, path: Path) -> None:
+    def __init__(self, spec: AgentSpec | None, path: Path, compiled: bool = True) -> None:
         torch.set_num_threads(1)
-        self.spec = spec
+        self.spec, self.path = spec, Path(path)
         self.net = MLPPolicyNet.load(path)
         self.features = self.net.features
-        ring = spec.object_ring_radius if spec is not None else None
         mean, inv_std = self.net.obs_mean.numpy(), 1.0 / self.net.obs_std.numpy()
+        ring = spec.object_ring_radius if spec is not None else None
         # Each layer's bias rides as the last row of its weights, against a constant 1 at
-        # the end of its input: a decision is then ~2 numpy calls per layer (~0.5 us
-        # each). The first input, [z; 1; a_ss], comes whole from the compiled function.
-        # A network without hidden layers runs entirely in the compiled function.
+        # the end of its input (see ``input_function``).
         layers = [np.vstack([w, b[None]]) for w, b in self.net.numpy_weights()]
         self._residual = self.net.residual
-        self._linear = len(layers) == 1
-        self._inputs = CompiledInputs(
-            self.features,
-            mean,
-            inv_std,
-            ring_radius=ring,
-            head=layers[0] if self._linear else None,
-            residual=self._residual,
-        )
+        fn = None
+        if compiled or len(layers) == 1:  # a linear map is CasADi expressions: runs anywhere
+            fn = decision_function(
+                self.features,
+                object_ring(ring, self.features),
+                layers,
+                self._residual,
+                input_dim(self.features, len(mean)),
+            )
+        self.compiled = fn is not None
+        self._inputs = CompiledInputs(self.features, mean, inv_std, ring_radius=ring, fn=fn)
+        if not self.compiled:
+            self._numpy_layers(layers)
+        self.stats: dict[str, Any] = {}
+
+    def _numpy_layers(self, layers: list[np.ndarray]) -> None:
+        # ~2 numpy calls per layer (~0.5 us each); the first input, [z; 1; a_ss], comes
+        # whole from the compiled input function.
         layers = [w.astype(np.float32) for w in layers]
         self._hidden, self._last = layers[:-1], layers[-1]
         n_in = len(layers[0])
         self._first = np.ones(n_in + 8, dtype=np.float32)
         self._x, self._steady = self._first[:n_in], self._first[n_in:]
         self._buffers = [np.ones(len(w), dtype=np.float32) for w in layers[1:]]
-        self.stats: dict[str, Any] = {}
 
     def reset(self) -> None:
         pass
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        if self._linear:
+        if self.compiled:
             return self._inputs(np.asarray(obs)).astype(np.float32)
         np.copyto(self._first, self._inputs(np.asarray(obs)), casting="same_kind")
         h = self._x

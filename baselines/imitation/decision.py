@@ -1,0 +1,207 @@
+"""A cloned network's whole decision, observation to action, as one compiled function.
+
+One generated-C function of (obs, mean, inv_std, clip): the features with normalization
+and clipping (``features.inputs_sx``), the layers, and the output (clip(a_ss + out, -1,
+1) on ``uvms-v2``, tanh(out) otherwise), called through preallocated buffers
+(``features.CompiledInputs`` with ``fn``).
+
+The layers of a network without hidden layers (680 multiply-adds) are CasADi
+expressions. Hidden layers are a C loop nest generated here from the weights
+(``dense_c``), put in the CasADi function as a node that exists only as generated code
+(``casadi.Function.jit`` with ``jit`` off: nothing is compiled when it is built, and
+``compile_function`` compiles it with the rest). Why not CasADi expressions: for the
+128-128 MLP on ``uvms-v2`` (28,700 multiply-adds), alone with warm caches, the layers
+as SX took 30 us (one statement per multiply-add: ~300 kB of straight-line code), as MX
+dense products 35-55 us (CasADi's kernel accumulates every output through memory, one
+dependent multiply-add at a time) and as MX column updates 11 us, against 1.2 us for
+this loop nest. It keeps 128 partial sums in registers (a block of 32 outputs, 4
+interleaved sums each) while it streams the block's weights, in float32 (the weights as
+trained: 115 kB; the inputs come in as float64 and are rounded once), and the hidden
+tanh is a rational approximation (``tanh_approx``): glibc's tanh costs 10-14 ns a call,
+256 calls a decision. In a closed loop (``benchmarks/cloned_decision.py --numpy``) the
+whole decision took 9.6-11.3 us median, the same network with numpy layers 25-33 us.
+
+The node cannot run uncompiled: where nothing is compiled (``UVMS_ENV_NO_COMPILE``, no C
+compiler) ``decision_function`` returns None for networks with hidden layers and the
+policy keeps its numpy layers.
+
+May import: numpy, casadi, ``uvms_env.dynamics.compiled`` and this package's features.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import casadi as cs
+import numpy as np
+
+from baselines.imitation.features import ACT_DIM, inputs_sx
+from uvms_env.dynamics.compiled import compile_function
+
+# tanh(x) ~ x P(x^2) / Q(x^2) on [-9, 9], and +-tanh(9) beyond (1 - tanh(9) = 3e-8):
+# a least-squares fit of the linearized residual, reweighted towards the largest errors.
+# Max error 3.5e-8 in float64 arithmetic and 3.5e-7 in float32 (torch's float32 tanh:
+# ~1e-7); every coefficient is positive, so Q never nears zero.
+TANH_LIMIT = 9.0
+TANH_P = (0.9999999, 0.13373171, 0.0034865495, 2.0471294e-05, 1.318347e-08)
+TANH_Q = (1.0, 0.46706468, 0.025841856, 0.00032713322, 7.702357e-07)
+BLOCK = 32  # outputs per block of the generated layers (see dense_c)
+ACCUMULATORS = 128  # partial sums per block: 8 AVX-512 registers
+
+
+def tanh_approx(x: np.ndarray) -> np.ndarray:
+    """The generated code's tanh, in numpy float32 with the same operations."""
+    t = np.clip(np.asarray(x, dtype=np.float32), -TANH_LIMIT, TANH_LIMIT)
+    s = t * t
+    p, q = np.float32(0.0), np.float32(0.0)
+    for c in TANH_P[::-1]:
+        p = p * s + np.float32(c)
+    for c in TANH_Q[::-1]:
+        q = q * s + np.float32(c)
+    return t * p / q
+
+
+def _floats(values: np.ndarray) -> str:
+    # 9 significant digits identify a float32; the suffix rounds each straight to float
+    return ",".join(f"{v:.8e}f" for v in np.asarray(values, dtype=np.float32).tolist())
+
+
+def _horner(coefs: tuple[float, ...], var: str) -> str:
+    expr = f"{coefs[-1]!r}f"
+    for c in coefs[-2::-1]:
+        expr = f"{c!r}f+{var}*({expr})"
+    return expr
+
+
+def _pad(n: int, multiple: int) -> int:
+    return -(-n // multiple) * multiple
+
+
+def dense_c(layers: list[np.ndarray], x: str = "z", y: str = "y") -> str:
+    """C statements for an MLP from the double array ``x`` into the double array ``y``:
+    ``layers`` (n + 1, m) with the bias as the last row, tanh after every layer but the
+    last, float32 arithmetic.
+
+    Outputs go in blocks of up to ``BLOCK``; each block keeps ``ACCUMULATORS`` partial
+    sums in registers (``parts`` interleaved sums over the inputs per output, so that
+    enough independent multiply-add chains hide their latency) while it streams its
+    weights, stored block by block, input by input. Inputs are padded with zeros to a
+    multiple of ``parts``."""
+    widths = [len(layers[0]) - 1] + [w.shape[1] for w in layers]
+    if any(w.shape[0] != n + 1 for w, n in zip(layers, widths, strict=False)):
+        raise ValueError(f"layer shapes {[w.shape for w in layers]} do not chain")
+    blocks = [next(b for b in (BLOCK, 16, 8, 4, 2, 1) if m % b == 0) for m in widths[1:]]
+    parts = [max(1, ACCUMULATORS // b) for b in blocks]
+    padded = [_pad(n, p) for n, p in zip(widths, parts, strict=False)] + [widths[-1]]
+    code = ["{", "  int j0, j, k, p;", "  const float *w;"]
+    code += [f"  float h{i}[{n}];" for i, n in enumerate(padded)]
+    for i, (layer, b) in enumerate(zip(layers, blocks, strict=True)):
+        n, m = widths[i], widths[i + 1]
+        weights = np.zeros((padded[i], m), dtype=np.float32)
+        weights[:n] = layer[:n]
+        packed = weights.reshape(padded[i], m // b, b).transpose(1, 0, 2)
+        code += [
+            f"  static const float w{i}[{packed.size}] = {{{_floats(packed.ravel())}}};",
+            f"  static const float b{i}[{m}] = {{{_floats(layer[n])}}};",
+        ]
+    code.append(f"  for (k = 0; k < {widths[0]}; ++k) h0[k] = (float) {x}[k];")
+    code += [
+        f"  for (k = {n}; k < {pn}; ++k) h{i}[k] = 0;"
+        for i, (n, pn) in enumerate(zip(widths[:-1], padded[:-1], strict=True))
+        if pn > n
+    ]
+    for i, (b, np_) in enumerate(zip(blocks, parts, strict=True)):
+        m, last = widths[i + 1], i == len(layers) - 1
+        total = "+".join(f"a[{q * b} + j]" for q in range(np_))
+        if last:
+            store = f"h{i + 1}[j0 + j] = {total};"
+        else:
+            store = (
+                f"const float t0 = {total};\n"
+                f"      const float t = t0 > {TANH_LIMIT}f ? {TANH_LIMIT}f"
+                f" : (t0 < -{TANH_LIMIT}f ? -{TANH_LIMIT}f : t0);\n"
+                "      const float s = t * t;\n"
+                f"      h{i + 1}[j0 + j] = t * ({_horner(TANH_P, 's')}) / ({_horner(TANH_Q, 's')});"
+            )
+        code += [
+            f"  for (j0 = 0, w = w{i}; j0 < {m}; j0 += {b}) {{",
+            f"    float a[{np_ * b}];",
+            f"    for (j = 0; j < {b}; ++j) a[j] = b{i}[j0 + j];",
+            f"    for (j = {b}; j < {np_ * b}; ++j) a[j] = 0;",
+            f"    for (k = 0; k < {padded[i]}; k += {np_}, w += {np_ * b})",
+            f"      for (p = 0; p < {np_}; ++p)",
+            f"        for (j = 0; j < {b}; ++j) a[p * {b} + j] += w[p * {b} + j] * h{i}[k + p];",
+            f"    for (j = 0; j < {b}; ++j) {{",
+            f"      {store}",
+            "    }",
+            "  }",
+        ]
+    code.append(f"  for (j = 0; j < {widths[-1]}; ++j) {y}[j] = h{len(layers)}[j];")
+    code.append("}")
+    return "\n".join(code) + "\n"
+
+
+def _digest(layers: list[np.ndarray]) -> str:
+    h = hashlib.sha256()
+    for w in layers:
+        h.update(np.ascontiguousarray(w, dtype=float).tobytes())
+    return h.hexdigest()[:12]
+
+
+def linear_decision_function(
+    features: str, ring_radius: float, weights: np.ndarray, residual: bool, dim: int
+) -> cs.Function:
+    """Compiled (obs, mean, inv_std, clip) -> action of a network without hidden layers:
+    clip(a_ss + W' [z; 1], -1, 1) (residual) or tanh(W' [z; 1]); ``weights`` (n + 1, 8)
+    with the bias as the last row. A few hundred multiply-adds: as CasADi expressions
+    they cost less than one numpy call."""
+    args, z, ff, tag = inputs_sx(features, ring_radius, dim)
+    out = cs.mtimes(cs.DM(np.asarray(weights, dtype=float).T), cs.vertcat(z, 1.0))
+    act = cs.fmin(1.0, cs.fmax(-1.0, ff + out)) if residual else cs.tanh(out)
+    name = f"cloned_linear_{tag}_{_digest([weights])}"
+    return compile_function(cs.Function(name, args, [act], {"cse": True}))
+
+
+_MLP_CACHE: dict[tuple, cs.Function] = {}
+
+
+def mlp_decision_function(
+    features: str, ring_radius: float, layers: list[np.ndarray], residual: bool, dim: int
+) -> cs.Function | None:
+    """Compiled (obs, mean, inv_std, clip) -> action of an MLP (``layers`` as in
+    ``dense_c``; the last has 8 outputs), or None where nothing is compiled."""
+    key = (features, ring_radius, dim, residual, _digest(layers))
+    if key in _MLP_CACHE:  # generating and hashing the source again: ~0.25 s per robot
+        return _MLP_CACHE[key]
+    args, z, ff, tag = inputs_sx(features, ring_radius, dim)
+    name = f"cloned_mlp_{tag}_{key[-1]}"
+    front = cs.Function(f"{name}_inputs", args, [z, ff], {"cse": True})
+    sym = [cs.MX.sym(f"a{i}", front.sparsity_in(i)) for i in range(front.n_in())]
+    zz, ff_mx = front(*sym)
+    layers_fn = cs.Function.jit(
+        f"{name}_layers",
+        dense_c(layers),
+        ["z"],
+        ["y"],
+        [cs.Sparsity.dense(z.numel())],
+        [cs.Sparsity.dense(ACT_DIM)],
+        {"jit": False},  # generated code only: see the module docstring
+    )
+    out = layers_fn(zz)
+    act = cs.fmin(1.0, cs.fmax(-1.0, ff_mx + out)) if residual else cs.tanh(out)
+    fn = cs.Function(name, sym, [act])
+    compiled = compile_function(fn)
+    if compiled is fn:  # not compiled (see the module docstring)
+        return None
+    _MLP_CACHE[key] = compiled
+    return compiled
+
+
+def decision_function(
+    features: str, ring_radius: float, layers: list[np.ndarray], residual: bool, dim: int
+) -> cs.Function | None:
+    """The whole decision of a network given by its ``layers`` (see ``dense_c``): one
+    compiled function of (obs, mean, inv_std, clip), or None (see the module docstring)."""
+    if len(layers) == 1:
+        return linear_decision_function(features, ring_radius, layers[0], residual, dim)
+    return mlp_decision_function(features, ring_radius, layers, residual, dim)
