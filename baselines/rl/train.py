@@ -31,9 +31,7 @@ from baselines.rl.vec_env import ParallelVecEnv
 
 ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
     # PPO: SB3 defaults except a smaller rollout per sub-env (many sub-envs) and a
-    # small network. With the batched env the update (10 epochs of 256-sample minibatches,
-    # ~0.14 ms per sample on one core) takes 65-78% of the wall time; a larger batch_size
-    # (e.g. rollout size / 32) is 1.8-2.5x faster overall but changes learning: --hp.
+    # small network; on the vector path batch_size scales with the rollout (below).
     # SAC: SB3 defaults except a short warm-up, a replay buffer sized to
     # our budgets and one gradient step per collected robot-step (gradient_steps = the
     # number of sub-environments, set in ``train``).
@@ -46,6 +44,16 @@ ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
         "buffer_size": 50_000,
     },
 }
+# PPO on the vector path, batch_size not given: n_steps * sub-envs / 32 (32 minibatches per
+# epoch, as 256 had at 16 copies), at least 256; the single path keeps 256. With 256 the
+# update took 65-78% of the wall time at 64 copies. Measured (64 copies = 128 sub-envs,
+# short, 2M robot-steps, reward_weights={"violation": 0.05}, seeds 0 and 1; evaluate
+# --episodes 20 --seed 100): batch 256: 6,000-6,300 robot-steps/s, ep_rew_mean >= 50 after
+# 1.6-1.7M steps, eval 20/20, return 17; batch 1,024: 10,700-11,400 steps/s, >= 50 after
+# 1.1-1.4M, 20/20, return 26-36 (single path, 16 copies: 1,651 steps/s). At 400k steps
+# and the default reward nothing learned with either (eval 0/20, final error ~2.3 m).
+PPO_MINIBATCHES = 32
+PPO_MIN_BATCH = 256
 NET = [64, 64]
 # PPO starts with action std exp(-1) ~ 0.37 instead of 1: with std 1 nearly every step
 # violates the joint and vehicle speed limits and the penalties swamp the progress term.
@@ -248,6 +256,9 @@ def train(
         venv = VecNormalize(make_vec_env(scenario, n_envs, seed, overrides, **env), clip_obs=10.0)
         if algo == "sac":
             hp.setdefault("gradient_steps", venv.num_envs)
+        if algo == "ppo" and vec_env == "vector" and "batch_size" not in (hyperparameters or {}):
+            rollout = hp["n_steps"] * venv.num_envs
+            hp["batch_size"] = max(PPO_MIN_BATCH, rollout // PPO_MINIBATCHES)
         model = cls(
             "MlpPolicy",
             venv,
@@ -258,6 +269,8 @@ def train(
             **hp,
         )
         reset = True
+    if algo == "ppo":
+        hp["batch_size"] = model.batch_size  # the one used (a resumed model keeps its own)
     _keep_old_progress(out)
     model.set_logger(configure(str(out), ["csv", "tensorboard"]))
     config = {
