@@ -148,7 +148,9 @@ def test_make_vec_env_paths():
         make_vec_env("short", 1, 0, {}, vec_env="subproc")
 
 
-@pytest.mark.parametrize("vec_env", ["vector", "single"])
+@pytest.mark.parametrize(
+    "vec_env", ["vector", pytest.param("single", marks=pytest.mark.slow)]
+)  # the single path's VecEnv: test_make_vec_env_paths and the ParallelVecEnv tests above
 def test_cli_records_the_env_path(tmp_path, vec_env):
     out = tmp_path / vec_env
     argv = ["--algo", "ppo", "--total-timesteps", "64", "--n-envs", "2", "--out", str(out)]
