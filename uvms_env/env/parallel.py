@@ -249,16 +249,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
     def __init__(
         self, scenario: str | Scenario = "paper", render_mode: str | None = None, **overrides: Any
     ) -> None:
-        unknown = sorted(set(overrides) - set(SCENARIO_OVERRIDES) - set(ENV_OPTIONS), key=str)
-        if unknown:
-            raise ValueError(
-                f"unknown option(s) {unknown}; allowed: scenario overrides "
-                f"{describe_options(SCENARIO_OVERRIDES)}; environment options "
-                f"{describe_options(ENV_OPTIONS)}"
-            )
-        options = {k: overrides.pop(k) for k in ENV_OPTIONS if k in overrides}
-        options = validate_options(options, ENV_OPTIONS, "environment option")
-        overrides = validate_overrides(overrides)
+        overrides, options, _ = split_keywords(overrides)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be None or one of {self.metadata['render_modes']}, "
@@ -612,6 +603,33 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             if old.renderer is not None and old is not self._world:
                 old.renderer.close()
         return world
+
+
+def split_keywords(
+    keywords: Mapping[str, Any], extra: Mapping[str, Option] | None = None, extra_name: str = ""
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """``keywords`` split into (scenario overrides, environment options, ``extra`` options),
+    each checked against its table (``extra``: a caller's own, e.g. the vector env's); an
+    unknown keyword raises ValueError listing every allowed one."""
+    extra = extra or {}
+    unknown = sorted(
+        set(keywords) - set(SCENARIO_OVERRIDES) - set(ENV_OPTIONS) - set(extra), key=str
+    )
+    if unknown:
+        more = f"; {extra_name} options {describe_options(extra)}" if extra else ""
+        raise ValueError(
+            f"unknown option(s) {unknown}; allowed: scenario overrides "
+            f"{describe_options(SCENARIO_OVERRIDES)}; environment options "
+            f"{describe_options(ENV_OPTIONS)}{more}"
+        )
+    rest = dict(keywords)
+    options = {k: rest.pop(k) for k in ENV_OPTIONS if k in rest}
+    own = {k: rest.pop(k) for k in extra if k in rest}
+    return (
+        validate_overrides(rest),
+        validate_options(options, ENV_OPTIONS, "environment option"),
+        validate_options(own, extra, f"{extra_name} option") if extra else {},
+    )
 
 
 def _make_scenario(name: str, overrides: dict[str, Any]) -> Scenario:

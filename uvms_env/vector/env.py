@@ -60,17 +60,11 @@ from uvms_env.env.observation import (
     WAYPOINT_TOLERANCE,
     observation_bounds,
 )
-from uvms_env.env.parallel import CONSTRAINT_MODES, ENV_OPTIONS, RESET_SEED, _make_scenario
+from uvms_env.env.parallel import CONSTRAINT_MODES, RESET_SEED, _make_scenario, split_keywords
 from uvms_env.env.reward import REWARD_TERMS, RewardWeights
 from uvms_env.navigation.parametric import parametric_twist_function
 from uvms_env.scenarios import Scenario
-from uvms_env.scenarios.overrides import (
-    SCENARIO_OVERRIDES,
-    Option,
-    describe_options,
-    validate_options,
-    validate_overrides,
-)
+from uvms_env.scenarios.overrides import Option
 from uvms_env.sim.current import OceanCurrent
 from uvms_env.vector.bank import NAV_PARAMETERS, SEEDED_FAMILIES, GeometryBank, navigation_table
 from uvms_env.vector.kernels import BatchedFunction
@@ -178,15 +172,7 @@ class VectorEnv:
             raise TypeError(f"num_envs must be an int >= 1, got {num_envs!r}")
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-        tables = {**SCENARIO_OVERRIDES, **ENV_OPTIONS, **VECTOR_OPTIONS}
-        unknown = sorted(set(overrides) - set(tables), key=str)
-        if unknown:
-            raise ValueError(f"unknown option(s) {unknown}; allowed: {describe_options(tables)}")
-        options = {k: overrides.pop(k) for k in ENV_OPTIONS if k in overrides}
-        options = validate_options(options, ENV_OPTIONS, "environment option")
-        vector = {k: overrides.pop(k) for k in VECTOR_OPTIONS if k in overrides}
-        vector = validate_options(vector, VECTOR_OPTIONS, "vector option")
-        overrides = validate_overrides(overrides)
+        overrides, options, vector = split_keywords(overrides, VECTOR_OPTIONS, "vector")
         self.num_envs = k = int(num_envs)
         self.dtype = dtype
         self.threads = int(threads) if threads is not None else available_cores()
