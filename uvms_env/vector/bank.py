@@ -10,7 +10,7 @@ back (~1 ms):
     bank = GeometryBank("random", n_agents=4)
     g = bank.get(17)              # Geometry(scenario, navigation), built on first use
     bank.fill(range(1024))        # or ahead of time:
-    python -m uvms_env.vector.bank random --n-agents 4 --seeds 0:1024 --workers 2
+    python -m uvms_env.vector.build_bank random --n-agents 4 --seeds 0:1024 --workers 2
 
 A geometry depends on the family, the team size and the seed only; every other scenario
 override (current, mismatch, noise, tolerances, ...) is a field laid over it with
@@ -179,7 +179,7 @@ def _seed_range(text: str) -> range:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python -m uvms_env.vector.bank",
+        prog="python -m uvms_env.vector.build_bank",
         description="Build the geometries of a seeded scenario family ahead of training.",
     )
     parser.add_argument("family", choices=SEEDED_FAMILIES)

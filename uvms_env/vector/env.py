@@ -115,7 +115,7 @@ class VectorEnv:
     `reset(seed=[s_0, ..., s_{K-1}])` gives each its seed; `reset()` continues every
     environment's own sequence, as the single env's `reset()` does. For the seeded
     families ("random", "short") environment k then has geometry `s + k`, built once
-    and kept on disk by `uvms_env.vector.bank` (`python -m uvms_env.vector.bank` builds
+    and kept on disk by `uvms_env.vector.bank` (`python -m uvms_env.vector.build_bank` builds
     them ahead of time; a first build costs ~0.5 s per random geometry). The first
     `reset()` without a seed uses the `seed` override (or 0) as `s`.
 
