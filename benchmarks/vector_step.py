@@ -27,7 +27,7 @@ import numpy as np
 
 import uvms_env
 from uvms_env.vector import VectorEnv
-from uvms_env.vector.env import available_cores
+from uvms_env.vector.kernels import available_cores
 
 CASES = {"paper N=2": ("paper", {}), "random N=4": ("random", {"n_agents": 4})}
 POOL = {"random": {"geometry_pool": 32}}

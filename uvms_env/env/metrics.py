@@ -112,22 +112,55 @@ class EpisodeMetrics:
 
     def result(self, x_o: np.ndarray, goal: np.ndarray, success: bool) -> dict[str, Any]:
         """The metrics dict (plain Python types, JSON-ready) at the end of the episode."""
-        pos, att = goal_errors(x_o, goal)
-        n = self._wrench_samples
-        rms = math.sqrt(self._wrench_sq / n) if n else None  # None: never sampled
-        return {
-            "success": bool(success),
-            "episode_steps": self.steps,
-            "sim_time_s": self.steps * self.period,
-            "final_pos_error_m": pos,
-            "final_att_error_rad": att,
-            "min_obstacle_clearance_m": (
-                self.min_clearance if math.isfinite(self.min_clearance) else None
-            ),
-            "min_manipulability": self.min_manipulability,
-            "violations": {k: int(v) for k, v in zip(CONSTRAINTS, self.violations, strict=True)},
-            "internal_wrench_rms": rms,
-            "control_effort": self.effort,
-            "policy_time_ms": None,
-            "grasp_drift_max_m": self.grasp_drift,
-        }
+        return episode_result(
+            self.period,
+            self.steps,
+            x_o,
+            goal,
+            success,
+            self.min_clearance,
+            self.min_manipulability,
+            self.violations,
+            self._wrench_sq,
+            self._wrench_samples,
+            self.effort,
+            self.grasp_drift,
+        )
+
+
+def episode_result(
+    period: float,
+    steps: int,
+    x_o: Sequence[float],
+    goal: Sequence[float],
+    success: bool,
+    min_clearance: float,
+    min_manipulability: float,
+    violations: Sequence[int],
+    wrench_sq: float,
+    wrench_samples: int,
+    effort: float,
+    grasp_drift: float,
+) -> dict[str, Any]:
+    """The metrics dict of an ended episode from its accumulated quantities (plain Python
+    types, JSON-ready): ``EpisodeMetrics`` and the batched environment's arrays both end
+    here. ``min_clearance`` is inf without obstacles; no wrench sample gives None."""
+    pos, att = goal_errors(x_o, goal)
+    steps, wrench_samples = int(steps), int(wrench_samples)
+    clearance = float(min_clearance)
+    return {
+        "success": bool(success),
+        "episode_steps": steps,
+        "sim_time_s": steps * period,
+        "final_pos_error_m": pos,
+        "final_att_error_rad": att,
+        "min_obstacle_clearance_m": clearance if math.isfinite(clearance) else None,
+        "min_manipulability": float(min_manipulability),
+        "violations": {k: int(v) for k, v in zip(CONSTRAINTS, violations, strict=True)},
+        "internal_wrench_rms": (
+            math.sqrt(float(wrench_sq) / wrench_samples) if wrench_samples else None
+        ),
+        "control_effort": float(effort),
+        "policy_time_ms": None,
+        "grasp_drift_max_m": float(grasp_drift),
+    }

@@ -61,7 +61,7 @@ RESET_SEED = Option("int", "reset's seed", low=0, optional=True)
 ACTION_KINDS = "fiu"
 # Seeded-family scenarios kept per geometry seed (each costs an IPOPT solve to build).
 GEOMETRY_CACHE_SIZE = 32
-_HARD = [CONSTRAINTS.index(c) for c in HARD_CONSTRAINTS]
+HARD_KINDS = [CONSTRAINTS.index(c) for c in HARD_CONSTRAINTS]  # indices of HARD_CONSTRAINTS
 
 
 @dataclass
@@ -379,7 +379,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         kin = w.kinematics
         n_violated, action_sq = self._team[4], self._team[5]
         kinds = kin.kinds_violated.tolist()
-        collision = any(kinds[k] for k in _HARD)
+        collision = any(kinds[k] for k in HARD_KINDS)
         failed = (
             bool(diverged) or collision or (self.constraint_mode == "terminate" and n_violated > 0)
         )
@@ -408,18 +408,10 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             for i, agent in enumerate(agents)
         }
         if terminated or truncated:
-            if success:
-                end = "success"
-            elif diverged:
-                end = "diverged"
+            end = episode_end(success, bool(diverged), collision, failed)
+            if diverged:
                 for info_a in infos.values():
                     info_a["diverged_reason"] = diverged
-            elif collision:
-                end = "collision"
-            elif failed:
-                end = "constraint"
-            else:
-                end = "max_cycles"
             metrics = self.metrics.result(self._x_o, w.reward.goal, success)
             for info_a in infos.values():
                 info_a["episode_end"] = end
@@ -603,6 +595,18 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             if old.renderer is not None and old is not self._world:
                 old.renderer.close()
         return world
+
+
+def episode_end(success: bool, diverged: bool, collision: bool, failed: bool) -> str:
+    """How an ended episode ended (``infos["episode_end"]``), the first that applies of
+    success, diverged, collision, constraint (another failure), max_cycles."""
+    if success:
+        return "success"
+    if diverged:
+        return "diverged"
+    if collision:
+        return "collision"
+    return "constraint" if failed else "max_cycles"
 
 
 def split_keywords(

@@ -43,6 +43,7 @@ from uvms_env.dynamics.compiled import cache_dir
 from uvms_env.env.observation import make_navigator
 from uvms_env.navigation.parametric import N_CYLINDERS, N_SPHERES, twist_parameters
 from uvms_env.scenarios import Scenario, make, replace
+from uvms_env.vector.kernels import available_cores
 
 #: Entries of one waypoint's navigation parameters (``parametric_twist_function``'s inputs
 #: after ``x``, matrices column-major): goal 6, workspace 4, cylinders 4 x 5, spheres
@@ -185,7 +186,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("family", choices=SEEDED_FAMILIES)
     parser.add_argument("--n-agents", type=int, default=2)
     parser.add_argument("--seeds", type=_seed_range, default=range(0, 256), help="start:stop")
-    parser.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)))
+    parser.add_argument("--workers", type=int, default=available_cores())
     args = parser.parse_args(argv)
     bank = GeometryBank(args.family, args.n_agents)
     built = bank.fill(args.seeds, workers=args.workers, progress=True)

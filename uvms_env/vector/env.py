@@ -30,8 +30,6 @@ modules whose kernels and constants it batches.
 from __future__ import annotations
 
 import itertools
-import math
-import os
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
@@ -39,17 +37,15 @@ import numpy as np
 from gymnasium import spaces
 
 from uvms_env.dynamics import NQ, NU
-from uvms_env.env.constraints import CONSTRAINTS, HARD_CONSTRAINTS
 from uvms_env.env.kinematics import (
     BATCH_CYLINDERS,
     BATCH_SPHERES,
     NK,
-    grasp_matrix,
     obstacle_inputs,
     segment_inputs,
     team_function,
 )
-from uvms_env.env.metrics import goal_errors
+from uvms_env.env.metrics import episode_result
 from uvms_env.env.observation import (
     FAR_OBSTACLE,
     NOISE_STD_Q,
@@ -60,14 +56,22 @@ from uvms_env.env.observation import (
     WAYPOINT_TOLERANCE,
     observation_bounds,
 )
-from uvms_env.env.parallel import CONSTRAINT_MODES, RESET_SEED, _make_scenario, split_keywords
+from uvms_env.env.parallel import (
+    ACTION_KINDS,
+    CONSTRAINT_MODES,
+    HARD_KINDS,
+    RESET_SEED,
+    _make_scenario,
+    episode_end,
+    split_keywords,
+)
 from uvms_env.env.reward import REWARD_TERMS, RewardWeights
 from uvms_env.navigation.parametric import parametric_twist_function
 from uvms_env.scenarios import Scenario
 from uvms_env.scenarios.overrides import Option
 from uvms_env.sim.current import OceanCurrent
 from uvms_env.vector.bank import NAV_PARAMETERS, SEEDED_FAMILIES, GeometryBank, navigation_table
-from uvms_env.vector.kernels import BatchedFunction
+from uvms_env.vector.kernels import BatchedFunction, available_cores
 from uvms_env.vector.simulator import ENVELOPE, INACCURATE, OK, BatchedSimulator
 
 VECTOR_OPTIONS: dict[str, Option] = {
@@ -75,8 +79,6 @@ VECTOR_OPTIONS: dict[str, Option] = {
         "int", "seeded families: episodes cycle through this many bank seeds", low=1, optional=True
     ),
 }
-ACTION_KINDS = "fiu"
-EPISODE_ENDS = ("success", "collision", "constraint", "diverged", "max_cycles")
 DIVERGED_REASONS = {
     INACCURATE: (
         "a 1/16 part of the period still drifted from the grasps beyond the error "
@@ -84,17 +86,9 @@ DIVERGED_REASONS = {
     ),
     ENVELOPE: "a speed went beyond the model's physical envelope (SPEED_LIMITS)",
 }
-_HARD = [CONSTRAINTS.index(c) for c in HARD_CONSTRAINTS]
 _WAYPOINT = OBSERVATION_STRUCTURE["waypoint"]
 _NAV = OBSERVATION_STRUCTURE["nav_velocity"]
 _SEED_LIMIT = 2**63
-
-
-def available_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
 
 
 class VectorEnv:
@@ -297,7 +291,6 @@ class VectorEnv:
         self._noise_zeta = base.sensor_noise * NOISE_STD_ZETA
         self._metrics_reset(slice(None), init=True)
         self._obs = np.zeros((k, n, OBSERVATION_SIZE), np.float32)
-        self._paper_geometry_set = False
         self._started = False
         self._set_geometry(np.arange(k), [base] * k)
 
@@ -417,9 +410,6 @@ class VectorEnv:
                 ]
             )
             self._static[:, i] = static.reshape(-1)
-            assert np.array_equal(
-                self.sim.grasp[:, i], grasp_matrix(s).reshape(-1).astype(self._real)
-            )
         self._fill_padding()
 
     def _fill_padding(self) -> None:
@@ -453,7 +443,7 @@ class VectorEnv:
         self._robot_index[ids] = 0
         self._robot_done[ids] = False
         self._waypoint_in[:, ids] = np.tile(self._waypoints[ids, 0], (1, self.n)).T
-        self._fill_padding()
+        self._waypoint_in[:, self.num_envs :] = self._waypoint_in[:, :1]  # padding lanes
         self._a[:, ids] = 0.0
         self._evaluate(ids)
         # the team's sequencer on the true object (TeamReward.reset)
@@ -484,7 +474,7 @@ class VectorEnv:
         team = self._kin_out[4][:, :k].astype(np.float64)
         kinds = team[6 : 6 + NK] > 0.0
         n_violated, action_sq = team[4], team[5]
-        collision = kinds[_HARD].any(axis=0)
+        collision = kinds[HARD_KINDS].any(axis=0)
         failed = diverged | collision
         if self.constraint_mode == "terminate":
             failed |= n_violated > 0
@@ -526,7 +516,7 @@ class VectorEnv:
             done = np.flatnonzero(ended)
             infos["final_observation"][done] = obs[done]
             for i in done.tolist():
-                infos["episode_end"][i] = _episode_end(
+                infos["episode_end"][i] = episode_end(
                     bool(success[i]), bool(diverged[i]), bool(collision[i]), bool(failed[i])
                 )
                 infos["metrics"][i] = self._metrics_result(i, x_o[i], bool(success[i]))
@@ -585,13 +575,6 @@ class VectorEnv:
         return a
 
     # -- the per-step kernels ---------------------------------------------------------------
-    def _columns(self, ids: Any) -> tuple[Any, int]:
-        """(index into (nnz, K) arrays, count) for ``ids`` (an array of env indices or a slice
-        over all)."""
-        if isinstance(ids, slice):
-            return ids, self.num_envs
-        return ids, len(ids)
-
     def _evaluate(self, ids: Any) -> None:
         """Measure, run the kinematics kernel, note the state metrics, sequence each robot's
         waypoints, add the navigation twist; the observations land in ``self._obs[ids]``."""
@@ -649,7 +632,7 @@ class VectorEnv:
             self._robot_index[ids], self._robot_done[ids] = index, done
             wp = self._waypoints[env_rows[:, None], index]
             self._waypoint_in[:, ids] = wp.reshape(m, n * 6).T
-            self._fill_padding()
+            self._waypoint_in[:, k:] = self._waypoint_in[:, :1]  # padding lanes
         obs[:, :, _WAYPOINT] = wp
         obs[:, :, _NAV] = self._navigation_twist(env_rows, index, pose)
         self._obs[ids] = obs
@@ -775,29 +758,20 @@ class VectorEnv:
         self._wrench_samples[ids] = 0
 
     def _metrics_result(self, i: int, x_o: np.ndarray, success: bool) -> dict[str, Any]:
-        goal = self._waypoints[i, self._waypoint_count[i] - 1]
-        pos, att = goal_errors(x_o, goal)
-        samples = int(self._wrench_samples[i])
-        clearance = float(self._min_clearance[i])
-        period = self._base.period
-        return {
-            "success": success,
-            "episode_steps": int(self._m_steps[i]),
-            "sim_time_s": int(self._m_steps[i]) * period,
-            "final_pos_error_m": pos,
-            "final_att_error_rad": att,
-            "min_obstacle_clearance_m": clearance if math.isfinite(clearance) else None,
-            "min_manipulability": float(self._min_manip[i]),
-            "violations": {
-                c: int(v) for c, v in zip(CONSTRAINTS, self._violations[i].tolist(), strict=True)
-            },
-            "internal_wrench_rms": (
-                math.sqrt(float(self._wrench_sq[i]) / samples) if samples else None
-            ),
-            "control_effort": float(self._effort[i]),
-            "policy_time_ms": None,
-            "grasp_drift_max_m": float(self._grasp_drift[i]),
-        }
+        return episode_result(
+            self._base.period,
+            self._m_steps[i],
+            x_o.tolist(),
+            self._waypoints[i, self._waypoint_count[i] - 1].tolist(),
+            success,
+            self._min_clearance[i],
+            self._min_manip[i],
+            self._violations[i].tolist(),
+            self._wrench_sq[i],
+            self._wrench_samples[i],
+            self._effort[i],
+            self._grasp_drift[i],
+        )
 
     def close(self) -> None:
         """Nothing to release (no windows, no processes); for the Gymnasium contract."""
@@ -813,15 +787,3 @@ def _padded_columns(ids: np.ndarray, padded: int) -> np.ndarray:
     if padded == len(ids):
         return ids
     return np.concatenate([ids, np.full(padded - len(ids), ids[0])])
-
-
-def _episode_end(success: bool, diverged: bool, collision: bool, failed: bool) -> str:
-    if success:
-        return "success"
-    if diverged:
-        return "diverged"
-    if collision:
-        return "collision"
-    if failed:
-        return "constraint"
-    return "max_cycles"

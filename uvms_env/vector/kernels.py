@@ -83,6 +83,14 @@ def generated_source(fn: cs.Function) -> str:
         return (Path(tmp) / f"{fn.name()}.c").read_text()
 
 
+def available_cores() -> int:
+    """The cores this process may run on (its affinity, not the machine's count)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
 def cpu_features() -> set[str]:
     try:
         with open("/proc/cpuinfo") as fh:

@@ -27,7 +27,6 @@ May import: numpy (cupy for the CUDA backend), ``uvms_env.sim``, ``uvms_env.dyna
 
 from __future__ import annotations
 
-import os
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -45,7 +44,7 @@ from uvms_env.sim.simulator import (
     _chain,
     draw_truth_parameters,
 )
-from uvms_env.vector.kernels import DTYPES, BatchedFunction
+from uvms_env.vector.kernels import DTYPES, BatchedFunction, available_cores
 
 if TYPE_CHECKING:
     from uvms_env.scenarios import Scenario
@@ -78,7 +77,7 @@ class BatchedSimulator:
         self.n = n = s.n_agents
         self.num_envs = k = int(num_envs)
         self.backend, self.dtype = backend, dtype
-        self.threads = int(threads or os.cpu_count() or 1)
+        self.threads = int(threads or available_cores())
         self.chain, _ = _chain(n, s.object_shape, float(s.ring_radius), s.period, s.substeps)
         if backend == "cpu":
             self._fn: Any = BatchedFunction(self.chain.step, dtype, lanes)

@@ -81,35 +81,34 @@ class CoopTransportTorchRLEnv(EnvBase):
         robots = {f: Categorical(2, (k, n, 1), self.device, torch.bool) for f in flags}
         self.done_spec = Composite({**team, GROUP: Composite(robots, shape=(k, n))}, shape=(k,))
         self._next_seed: int | None = None
-        self._first_obs: dict[int, np.ndarray] = {}  # ended envs: their next episode's start
+        self._obs: np.ndarray | None = None  # each env's episode under way (None: not reset)
+        self._ended: set[int] = set()  # envs whose episode ended: already restarted inside
 
     # -- EnvBase ----------------------------------------------------------------------------
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
         venv = self.vector_env
         mask = None if tensordict is None else tensordict.get("_reset", None)
-        if mask is None or bool(mask.all()) or not venv._started:
-            obs, _ = venv.reset(seed=self._next_seed)
+        if mask is None or bool(mask.all()) or self._obs is None:
+            self._obs, _ = venv.reset(seed=self._next_seed)
             self._next_seed = None
-            self._first_obs.clear()
+            self._ended.clear()
         else:
-            obs = venv._obs.copy()
             ids = torch.nonzero(mask.reshape(-1)).reshape(-1).tolist()
-            fresh = [i for i in ids if i not in self._first_obs]
-            if fresh:
-                obs[fresh] = venv.restart(fresh)
-            for i in ids:
-                if i in self._first_obs:
-                    obs[i] = self._first_obs.pop(i)
-        return self._output(obs, None, np.zeros(venv.num_envs, bool), np.zeros(venv.num_envs, bool))
+            going_on = [i for i in ids if i not in self._ended]  # ended ones already restarted
+            if going_on:
+                self._obs[going_on] = venv.restart(going_on)
+            self._ended.difference_update(ids)
+        k = venv.num_envs
+        return self._output(self._obs, None, np.zeros(k, bool), np.zeros(k, bool))
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        venv = self.vector_env
         action = tensordict.get((GROUP, "action")).detach().cpu().numpy()
-        obs, reward, terminated, truncated, infos = venv.step(action)
+        obs, reward, terminated, truncated, infos = self.vector_env.step(action)
+        self._obs = obs  # the next episodes' starts where one ended
         ended = np.flatnonzero(terminated | truncated)
         if len(ended):
-            for i in ended.tolist():
-                self._first_obs[i] = obs[i].copy()
+            self._ended.update(ended.tolist())
+            obs = obs.copy()
             obs[ended] = infos["final_observation"][ended]
         return self._output(obs, reward, terminated, truncated)
 
@@ -135,7 +134,7 @@ class CoopTransportTorchRLEnv(EnvBase):
 
         done = terminated | truncated
         group: dict[str, torch.Tensor] = {
-            "observation": torch.as_tensor(obs, device=dev),
+            "observation": torch.tensor(obs, device=dev),  # a copy: _obs changes in place
             "done": flag(done, (k, n, 1)),
             "terminated": flag(terminated, (k, n, 1)),
             "truncated": flag(truncated, (k, n, 1)),
