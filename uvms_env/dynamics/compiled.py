@@ -50,8 +50,15 @@ def cache_dir() -> Path:
     return path
 
 
-def _compiler() -> str | None:
-    for cc in (os.environ.get("CC"), "gcc", "cc", "clang"):
+C_COMPILERS = ("CC", "gcc", "cc", "clang")
+CXX_COMPILERS = ("CXX", "g++", "c++", "clang++")
+
+
+def find_compiler(candidates: tuple[str, ...] = C_COMPILERS) -> str | None:
+    """The first of ``candidates`` on PATH: the first entry names an environment variable
+    the user may set (CC, CXX), the others are program names."""
+    env, *names = candidates
+    for cc in (os.environ.get(env), *names):
         if cc and shutil.which(cc):
             return cc
     return None
@@ -59,7 +66,7 @@ def _compiler() -> str | None:
 
 def compile_function(fn: cs.Function) -> cs.Function:
     """A compiled, cached equivalent of ``fn`` (same name, inputs and outputs)."""
-    cc = _compiler()
+    cc = find_compiler()
     if os.environ.get("UVMS_ENV_NO_COMPILE") or cc is None:
         return fn
     with tempfile.TemporaryDirectory() as tmp:

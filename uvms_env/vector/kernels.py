@@ -30,7 +30,6 @@ import hashlib
 import os
 import platform
 import re
-import shutil
 import subprocess
 import tempfile
 from dataclasses import dataclass
@@ -40,7 +39,7 @@ from pathlib import Path
 import casadi as cs
 import numpy as np
 
-from uvms_env.dynamics.compiled import _cpu_identity, cache_dir
+from uvms_env.dynamics.compiled import CXX_COMPILERS, _cpu_identity, cache_dir, find_compiler
 
 HERE = Path(__file__).parent
 CXXFLAGS = ("-O3", "-march=native", "-fno-math-errno", "-fopenmp", "-fPIC", "-shared")
@@ -195,13 +194,6 @@ def check_inputs(sig: Signature, inputs: list, dtype: str) -> int:
     return k
 
 
-def _compiler() -> str | None:
-    for cxx in (os.environ.get("CXX"), "g++", "c++", "clang++"):
-        if cxx and shutil.which(cxx):
-            return cxx
-    return None
-
-
 class BatchedFunction:
     """``fn`` evaluated on K environments per call (CPU lanes and threads).
 
@@ -252,7 +244,7 @@ class BatchedFunction:
 
 @cache
 def _build_cpu(source: str, sig: Signature, dtype: str, lanes: int) -> ctypes.CDLL:
-    cxx = _compiler()
+    cxx = find_compiler(CXX_COMPILERS)
     if cxx is None:
         raise RuntimeError("the batched CPU backend needs a C++ compiler (g++ or clang++)")
     real = DTYPES[dtype][0]
