@@ -18,11 +18,11 @@ from typing import Any
 import casadi as cs
 import numpy as np
 
-from nmpc_expert.local_model import NTHETA, NX
 from nmpc_expert.ocp import NC, NW, WEIGHT_OFFSETS, OCPFunctions, node_terms
 from nmpc_expert.settings import NMPCSettings
 from uvms_env.dynamics import NU
 from uvms_env.dynamics.compiled import BufferCall
+from uvms_env.dynamics.local_model import NTHETA, NX
 
 
 class IpoptSolver:

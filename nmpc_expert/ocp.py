@@ -23,7 +23,8 @@ The vehicle pitch is the environment's other representation constraint; it is pa
 (the arm's reaction tilts the vehicle) and never nears its bound under the expert, but a
 cloned policy inside the safety filter tilted a vehicle past it (``safety_filter``).
 
-May import: numpy, casadi, ``uvms_env.dynamics`` and this package's ``local_model``.
+May import: numpy, casadi and ``uvms_env.dynamics`` (the local model lives there:
+``uvms_env.dynamics.local_model``, shared with the environment's priors).
 """
 
 from __future__ import annotations
@@ -34,10 +35,17 @@ from functools import cache
 import casadi as cs
 import numpy as np
 
-from nmpc_expert.local_model import NTHETA, NX, LocalModel, build_local_model, euler_zyx, wrap
 from uvms_env.dynamics import NQ, NU, ObjectModel
 from uvms_env.dynamics.compiled import compile_function
-from uvms_env.dynamics.spatial import rot_zyx, skew
+from uvms_env.dynamics.local_model import (
+    NTHETA,
+    NX,
+    LocalModel,
+    build_local_model,
+    build_steady_input,
+    local_terms,
+    wrap,
+)
 from uvms_env.dynamics.uvms import default_model
 
 NC = 17  # soft constraints per node
@@ -91,29 +99,6 @@ class OCPFunctions:
     qp_builder: cs.Function  # see build_qp_builder
     object_state: cs.Function  # (x, theta) -> (x_O, v_O)
     steady_input: cs.Function  # (x, theta, v_d) -> a_ss (8)
-
-
-def local_terms(uvms, obj: ObjectModel, q, zeta, theta):
-    """(M_i + c_i A_i^T M_O A_i, -h_i - c_i A_i^T (M_O Adot_i zeta + h_O)) of the local model."""
-    offset, r_oi, share, p_o = theta[0:3], cs.reshape(theta[3:12], 3, 3), theta[12], theta[13:]
-    zero3 = cs.DM.zeros(3)
-    p_ee, r_ee = uvms.ee_pose(q)
-    r_o = r_ee @ r_oi.T
-    arm = r_o @ offset
-    x_o = cs.vertcat(p_ee - arm, euler_zyx(r_o))
-    jac = uvms.ee_jacobian(q)
-    v_ee = jac @ zeta
-    j_o_inv = cs.vertcat(
-        cs.horzcat(cs.DM.eye(3), skew(arm)), cs.horzcat(cs.DM.zeros(3, 3), cs.DM.eye(3))
-    )
-    a_i = j_o_inv @ jac
-    omega = v_ee[3:]
-    adz = j_o_inv @ uvms.ee_jdot_zeta(q, zeta) + cs.vertcat(
-        cs.cross(cs.cross(omega, arm), omega), zero3
-    )
-    mass, bias = uvms.dynamics(q, zeta, zero3, cs.DM(uvms.nominal_parameters()))
-    m_o, h_o = obj.dynamics(x_o, j_o_inv @ v_ee, zero3, p_o)
-    return mass + share * a_i.T @ m_o @ a_i, -bias - share * a_i.T @ (m_o @ adz + h_o)
 
 
 def build_f_jac(uvms, obj: ObjectModel) -> cs.Function:
@@ -181,22 +166,6 @@ def build_outputs(model: LocalModel):
         [r, cs.jacobian(r, x), c, cs.jacobian(c, x)],
         {"cse": True},
     )
-
-
-def build_steady_input(uvms, obj: ObjectModel, model: LocalModel) -> cs.Function:
-    """a_ss: the nominal input that keeps the robot moving rigidly with the object at the
-    desired twist v_d (arm joints still, vehicle twist from the rigid motion), balancing
-    drag, Coriolis and weight of the local model at zero acceleration. Roll and pitch are
-    passive: their rows are left to the restoring moments. Clipped to the saturation."""
-    x, theta, vd = cs.SX.sym("x", NX), cs.SX.sym("theta", NTHETA), cs.SX.sym("vd", 6)
-    q = x[:NQ]
-    x_o, _ = model.object_state(x, theta)
-    r_v = rot_zyx(q[3:6])
-    lin = vd[:3] + cs.cross(vd[3:], q[:3] - x_o[:3])
-    zeta_ss = cs.vertcat(r_v.T @ lin, r_v.T @ vd[3:], cs.DM.zeros(4))
-    _, r = local_terms(uvms, obj, q, zeta_ss, theta)
-    a_ss = (cs.DM(uvms.B).T @ -r) / cs.DM(uvms.params.limits.tau_max)
-    return cs.Function("nmpc_steady_input", [x, theta, vd], [cs.fmin(cs.fmax(a_ss, -1), 1)])
 
 
 def build_qp_builder(

@@ -26,7 +26,6 @@ from typing import Any
 
 import numpy as np
 
-from nmpc_expert.local_model import NX, ModelParams
 from nmpc_expert.observation import OBSERVATION_STRUCTURE, check_observation
 from nmpc_expert.ocp import NC, WEIGHT_OFFSETS, ocp_functions, weight_vector
 from nmpc_expert.reference import HorizonReference
@@ -34,6 +33,7 @@ from nmpc_expert.rti import RTISolver
 from nmpc_expert.settings import NMPCSettings
 from uvms_env.dynamics import NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall
+from uvms_env.dynamics.local_model import NX, ModelParams
 from uvms_env.env.observation import NAV_K_MAX, NAV_K_MIN, WAYPOINT_TOLERANCE
 from uvms_env.navigation import WaypointNavigator, choose_k
 from uvms_env.policy import AgentSpec

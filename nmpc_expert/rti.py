@@ -28,10 +28,10 @@ from typing import Any
 import daqp
 import numpy as np
 
-from nmpc_expert.local_model import NX
 from nmpc_expert.ocp import NC, WEIGHT_OFFSETS, OCPFunctions
 from uvms_env.dynamics import NU
 from uvms_env.dynamics.compiled import BufferCall
+from uvms_env.dynamics.local_model import NX
 
 # Accepted violation of the hard input bounds by the QP solution (normalized inputs).
 FEASIBILITY_TOL = 1e-6

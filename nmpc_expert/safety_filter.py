@@ -42,10 +42,10 @@ from typing import Any
 
 import numpy as np
 
-from nmpc_expert.local_model import NX
 from nmpc_expert.policy import LocalController
 from nmpc_expert.settings import NMPCSettings
 from uvms_env.dynamics import NU
+from uvms_env.dynamics.local_model import NX
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 
 # The filter's horizon: 3 periods (0.36 s) instead of the expert's 5. Its constraints are

@@ -13,11 +13,11 @@ from baselines.imitation.features import (
     FEATURES,
     FEEDFORWARD,
     CompiledInputs,
-    featurize,
     prepare,
 )
 from baselines.imitation.network import MLPPolicyNet
 from baselines.imitation.policy import ClonedPolicy
+from uvms_env.env.priors import featurize
 from uvms_env.policy import AgentSpec
 
 
@@ -96,9 +96,8 @@ def test_steady_input_feature_is_the_experts_own(paper):
     """The a_ss the clone computes from its observation alone equals the expert's, which
     takes the grasp, load share and object from the spec (an independent path)."""
     import uvms_env
-    from nmpc_expert.local_model import ModelParams, build_local_model
-    from nmpc_expert.ocp import build_steady_input
     from uvms_env.dynamics import ObjectModel
+    from uvms_env.dynamics.local_model import ModelParams, build_local_model, build_steady_input
     from uvms_env.dynamics.uvms import default_model
 
     for scenario, kwargs in (("paper", {}), ("random", {"n_agents": 3})):

@@ -11,7 +11,7 @@ import uvms_env
 from baselines.evaluate import evaluate, markdown_table, write_outputs
 from baselines.policies import PolicySource, RandomPolicy
 from nmpc_expert import NMPCPolicy, SafetyFilter
-from nmpc_expert.local_model import NX
+from uvms_env.dynamics.local_model import NX
 from uvms_env.policy import AgentSpec, Policy
 
 JOINT_RATES = slice(NX // 2 + 6, NX)  # the 4 joint rates in the model state [q; zeta]

@@ -5,6 +5,14 @@
 Top: success rate and mean return of the periodic evaluations (``baselines.evaluate``,
 fixed seeds, deterministic policy); bottom: the final position error of those
 evaluations and the training episodes' mean return (``rollout/ep_rew_mean``) when logged.
+
+    python -m baselines.rl.plot --group "PPO-Lag=runs/a0,runs/a1,runs/a2" --group ... \
+        --out docs/figures/learning_curves_seeds.png
+
+``--group NAME=RUN,RUN,...``: runs of one variant over training seeds, drawn as the mean
+and its 95% confidence band (Student t over the seeds) of the training episodes' return,
+their constraint cost per robot (``lagrangian/episode_cost``) and the evaluations'
+success and clean success on the training rung.
 """
 
 from __future__ import annotations
@@ -95,12 +103,119 @@ def plot(runs: list[Path], out: Path) -> None:
     plt.close(fig)
 
 
+def mean_band(xs: list[np.ndarray], ys: list[np.ndarray], grid: np.ndarray):
+    """Mean and 95% t-interval half-width over runs of y(x), interpolated onto ``grid``."""
+    from scipy import stats
+
+    table = np.array(
+        [np.interp(grid, x, y, left=np.nan, right=np.nan) for x, y in zip(xs, ys, strict=True)]
+    )
+    n = np.sum(np.isfinite(table), axis=0)
+    mean = np.nanmean(table, axis=0)
+    sd = np.nanstd(table, axis=0, ddof=1) if len(xs) > 1 else np.zeros_like(mean)
+    half = stats.t.ppf(0.975, np.maximum(n - 1, 1)) * sd / np.sqrt(np.maximum(n, 1))
+    return mean, np.where(n > 1, half, 0.0)
+
+
+def plot_groups(groups: dict[str, list[Path]], out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = [
+        ("training episodes: mean return", "return"),
+        ("training episodes: constraint cost per robot", "cost"),
+        ("evaluation: success (training rung)", "rate"),
+        ("evaluation: clean success (training rung)", "rate"),
+    ]
+    fig, axes = plt.subplots(2, 2, figsize=(9, 5.5))
+    for k, (name, runs) in enumerate(groups.items()):
+        color = f"C{k}"
+        series: list[list[tuple[np.ndarray, np.ndarray]]] = [[], [], [], []]
+        for run in runs:
+            p = progress(run)
+            t = p.get("time/total_timesteps")
+            for j, key in enumerate(("rollout/ep_rew_mean", "lagrangian/episode_cost")):
+                if t is not None and key in p:
+                    ok = np.isfinite(p[key])
+                    series[j].append((t[ok], p[key][ok]))
+            e = _rung_evaluations(run)
+            if e is not None:
+                series[2].append((e["timesteps"], e["success_rate"]))
+                series[3].append((e["timesteps"], e["clean_success_rate"]))
+        for ax, curves in zip(axes.flat, series, strict=True):
+            if not curves:
+                continue
+            top = max(float(c[0].max()) for c in curves)
+            grid = np.linspace(min(float(c[0].min()) for c in curves), top, 60)
+            mean, half = mean_band([c[0] for c in curves], [c[1] for c in curves], grid)
+            ax.plot(grid, mean, color=color, label=f"{name} ({len(curves)} seeds)")
+            ax.fill_between(grid, mean - half, mean + half, color=color, alpha=0.2)
+    for ax, (title, ylabel) in zip(axes.flat, panels, strict=True):
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel("robot-steps")
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+    axes[1, 0].set_ylim(-0.05, 1.05)
+    axes[1, 1].set_ylim(-0.05, 1.05)
+    axes[0, 0].legend(fontsize=8)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=80)
+    plt.close(fig)
+
+
+def _rung_evaluations(run: Path) -> dict[str, np.ndarray] | None:
+    """The evaluations on the run's training rung (the first rung of a ladder)."""
+    path = run / "evaluations.csv"
+    if not path.exists():
+        return None
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows or "clean_success_rate" not in rows[0]:
+        return None
+    config = json.loads((run / "config.json").read_text()) if (run / "config.json").exists() else {}
+    rung = _training_rung(config, rows[0].get("rung"))
+    rows = [r for r in rows if r.get("rung") == rung]
+    keys = ("timesteps", "success_rate", "clean_success_rate")
+    return {k: np.array([_num(r[k]) for r in rows]) for k in keys}
+
+
+def _training_rung(config: dict, first: str | None) -> str | None:
+    from baselines.rl.train import LADDER
+
+    n = config.get("overrides", {}).get("n_agents", 2)
+    for name, (scenario, overrides) in LADDER.items():
+        if scenario == config.get("scenario") and overrides.get("n_agents", 2) == n:
+            return name
+    return config.get("scenario", first)
+
+
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m baselines.rl.plot", description=__doc__)
-    ap.add_argument("runs", type=Path, nargs="+", help="run folders")
+    ap = argparse.ArgumentParser(
+        prog="python -m baselines.rl.plot",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("runs", type=Path, nargs="*", help="run folders")
+    ap.add_argument(
+        "--group", action="append", default=[], metavar="NAME=RUN,RUN", help="seeds of a variant"
+    )
     ap.add_argument("--out", type=Path, default=Path("docs/figures/learning_curves.png"))
     args = ap.parse_args(argv)
-    plot(args.runs, args.out)
+    if args.group:
+        groups = {}
+        for item in args.group:
+            name, sep, runs = item.partition("=")
+            if not sep:
+                raise SystemExit(f"expected NAME=RUN,RUN, got {item!r}")
+            groups[name] = [Path(r) for r in runs.split(",")]
+        plot_groups(groups, args.out)
+    elif args.runs:
+        plot(args.runs, args.out)
+    else:
+        raise SystemExit("give run folders or --group NAME=RUN,RUN")
     print(f"wrote {args.out}")
 
 

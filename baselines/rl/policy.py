@@ -1,11 +1,16 @@
 """A trained SB3 model as a per-agent policy (the shared parameters act for each robot).
 
 A saved run folder holds ``model.zip`` and ``vecnormalize.pkl``; the policy normalizes
-its own observation with the saved statistics and acts deterministically.
+its own observation with the saved statistics and acts deterministically. A model trained
+with the environment's ``action_mode`` / ``observation_mode`` options (recorded in the
+run's ``config.json``) applies the same ``uvms_env.env.priors.Priors`` itself, so it acts
+in any environment through the plain interface: it sees the raw observation and returns
+the normalized input.
 """
 
 from __future__ import annotations
 
+import json
 import pickle
 from functools import lru_cache
 from pathlib import Path
@@ -13,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from uvms_env.env.parallel import ENV_OPTIONS, priors_of
+from uvms_env.env.priors import Priors
 from uvms_env.policy import AgentSpec
 
 ALGOS = ("ppo", "sac")
@@ -63,21 +70,41 @@ def _load_cached(algo: str, folder: str, stamps: tuple) -> tuple[Any, Any]:
     return model, stats
 
 
+def run_priors(folder: Path) -> Priors:
+    """The action and observation modes a run trained with (plain without a config)."""
+    config = Path(folder) / "config.json"
+    if not config.exists():
+        return Priors()
+    overrides = json.loads(config.read_text()).get("overrides", {})
+    mine = ("action_mode", "observation_mode", "residual_scale")
+    return priors_of({k: ENV_OPTIONS[k].check(k, v) for k, v in overrides.items() if k in mine})
+
+
 class SB3Policy:
     def __init__(self, spec: AgentSpec, algo: str, folder: Path) -> None:
         if algo not in ALGOS:
             raise ValueError(f"unknown algorithm {algo!r}; expected one of {ALGOS}")
         self.spec = spec
         self.model, self._norm = _load(algo, str(folder))
+        self.priors = run_priors(folder)
+        self._ring = spec.object_ring_radius
+        # MAPPO: the actor reads only the first local_dim numbers; the critic's global
+        # state, which a robot does not have, is padded with zeros.
+        local = getattr(self.model.policy, "local_dim", None)
+        full = self.model.observation_space.shape[0]
+        self._pad = np.zeros(full - local, np.float32) if local is not None else None
         self.stats: dict[str, Any] = {}
 
     def reset(self) -> None:
         pass
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        x = np.asarray(obs, dtype=np.float32)
+        raw = np.asarray(obs, dtype=np.float32)
+        x = self.priors.observe(raw, self._ring)
+        if self._pad is not None:
+            x = np.concatenate([x, self._pad])
         if self._norm is not None:
             mean, std, clip = self._norm
             x = np.clip((x - mean) / std, -clip, clip).astype(np.float32)
         action, _ = self.model.predict(x, deterministic=True)
-        return np.clip(action, -1.0, 1.0)
+        return self.priors.command(raw, np.clip(action, -1.0, 1.0), self._ring)

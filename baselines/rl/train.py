@@ -12,6 +12,17 @@ local observations. By default the copies are one batched ``uvms_env.vector.Vect
 ``vecnormalize.pkl``, ``config.json``, checkpoints, tensorboard logs, ``progress.csv``
 and periodic evaluations through ``baselines.evaluate`` (``evaluations.csv``).
 ``--resume RUN`` continues a run from its last save.
+
+Constraint-aware training (``baselines.rl.lagrangian``): ``--cost magnitude`` (or
+``count``) subtracts lambda times each robot's own constraint cost from its reward;
+``--multiplier-lr`` > 0 makes lambda a Lagrange multiplier for ``--cost-limit`` per
+episode (PPO-Lagrangian), 0 a fixed penalty ``--cost-weight``. Priors are environment
+options: ``--env-option action_mode=residual --env-option observation_mode=features``.
+Smooth exploration: SB3's gSDE, ``--hp use_sde=true --hp sde_sample_freq=8``.
+``--central-critic``: MAPPO, the critic reads the global state (``baselines.rl.mappo``);
+without it, IPPO with parameter sharing.
+``--eval-ladder`` evaluates every checkpoint on the task ladder (``LADDER``) instead of
+the training scenario alone.
 """
 
 from __future__ import annotations
@@ -19,15 +30,21 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import time
+import warnings
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
+from baselines.rl.lagrangian import COSTS
 from baselines.rl.vec_env import ParallelVecEnv
+
+if TYPE_CHECKING:
+    from baselines.rl.lagrangian import CostSettings
 
 ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
     # PPO: SB3 defaults except a smaller rollout per sub-env (many sub-envs) and a
@@ -77,6 +94,13 @@ DEFAULT_GEOMETRY_POOL = 1024
 # both cores, so anything else running on this 2-core machine stalls the step 10-17x; on
 # an idle machine 2 threads saved 20% of the env time and lost more in the PPO update.
 DEFAULT_ENV_THREADS = 1
+# The task ladder, easiest first: (scenario, overrides) per rung.
+LADDER: dict[str, tuple[str, dict[str, Any]]] = {
+    "short": ("short", {}),
+    "random_n2": ("random", {"n_agents": 2}),
+    "paper": ("paper", {}),
+    "random_n3": ("random", {"n_agents": 3}),
+}
 
 
 def env_settings(
@@ -116,8 +140,11 @@ def make_vec_env(
     dtype: str = DEFAULT_DTYPE,
     geometry_pool: int | None = DEFAULT_GEOMETRY_POOL,
     env_threads: int | None = DEFAULT_ENV_THREADS,
+    cost: CostSettings | None = None,
+    central_critic: bool = False,
 ):
-    """``VecMonitor`` over ``n_envs`` env copies as ``n_envs * N`` robot sub-environments:
+    """``VecMonitor`` (over ``CostPenalty`` with ``cost``) over ``n_envs`` env copies as
+    ``n_envs * N`` robot sub-environments:
     one ``VectorEnv`` (``vec_env="vector"``: in ``dtype``, on ``env_threads`` threads, None:
     all cores; seeded families: episodes on the first ``geometry_pool`` bank geometries,
     0 or None: each copy keeps its first) or ``n_envs`` ``parallel_env`` (``"single"``,
@@ -149,6 +176,14 @@ def make_vec_env(
             return uvms_env.parallel_env(scenario=scenario, seed=seed + k, **kwargs)
 
         venv = ParallelVecEnv(factory, n_envs, seed=seed)
+    if central_critic:
+        from baselines.rl.mappo import CentralStateVecEnv
+
+        venv = CentralStateVecEnv(venv)
+    if cost is not None:
+        from baselines.rl.lagrangian import CostPenalty
+
+        venv = CostPenalty(venv, cost)
     # VecMonitor: raw (unnormalized) episode returns and lengths -> rollout/ep_rew_mean.
     return VecMonitor(venv)
 
@@ -205,11 +240,16 @@ def train(
     dtype: str = DEFAULT_DTYPE,
     geometry_pool: int | None = DEFAULT_GEOMETRY_POOL,
     env_threads: int | None = DEFAULT_ENV_THREADS,
+    cost: CostSettings | None = None,
+    eval_ladder: bool = False,
+    central_critic: bool = False,
 ) -> Path:
     """Train (or continue) until ``total_timesteps`` robot-steps in all; save; return the
     run folder. With ``resume``, the model, its statistics (and SAC's replay buffer) are
     loaded from there and ``total_timesteps`` counts the steps already done. ``vec_env``,
-    ``dtype``, ``geometry_pool``, ``env_threads``: see ``make_vec_env``."""
+    ``dtype``, ``geometry_pool``, ``env_threads``, ``cost``: see ``make_vec_env``; a
+    resumed run keeps its multiplier. ``eval_ladder``: evaluate on every rung of
+    ``LADDER``. ``central_critic`` (PPO, vector path): MAPPO (``baselines.rl.mappo``)."""
     import torch
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
@@ -219,6 +259,8 @@ def train(
     torch.set_num_threads(1)
     if algo not in ALGO_DEFAULTS:
         raise ValueError(f"unknown algorithm {algo!r}; expected ppo or sac")
+    if central_critic and (algo != "ppo" or vec_env != "vector"):
+        raise ValueError("a central critic (MAPPO) needs --algo ppo on the vector env")
     overrides = dict(overrides or {})
     hp = {**ALGO_DEFAULTS[algo], **(hyperparameters or {})}
     env: dict[str, Any] = {
@@ -240,8 +282,16 @@ def train(
         if old_config.exists():
             previous = json.loads(old_config.read_text())
         # New episode seeds, so a resumed run does not replay the first episodes.
+        if cost is not None and previous.get("cost"):
+            cost.multiplier = previous["cost"].get("final_multiplier", cost.multiplier)
         venv = make_vec_env(
-            scenario, n_envs, seed + 1_000_003 * (1 + previous.get("resumes", 0)), overrides, **env
+            scenario,
+            n_envs,
+            seed + 1_000_003 * (1 + previous.get("resumes", 0)),
+            overrides,
+            **env,
+            cost=cost,
+            central_critic=central_critic,
         )
         venv = VecNormalize.load(str(norm_path), venv)
         venv.training = True
@@ -253,18 +303,30 @@ def train(
         reset = False
         print(f"resuming {model_path} at {model.num_timesteps} timesteps")
     else:
-        venv = VecNormalize(make_vec_env(scenario, n_envs, seed, overrides, **env), clip_obs=10.0)
+        venv = VecNormalize(
+            make_vec_env(
+                scenario, n_envs, seed, overrides, **env, cost=cost, central_critic=central_critic
+            ),
+            clip_obs=10.0,
+        )
         if algo == "sac":
             hp.setdefault("gradient_steps", venv.num_envs)
         if algo == "ppo" and vec_env == "vector" and "batch_size" not in (hyperparameters or {}):
             rollout = hp["n_steps"] * venv.num_envs
             hp["batch_size"] = max(PPO_MIN_BATCH, rollout // PPO_MINIBATCHES)
+        policy: Any = "MlpPolicy"
+        policy_kwargs = {"net_arch": NET, **POLICY_KWARGS[algo]}
+        if central_critic:
+            from baselines.rl.mappo import CentralCriticPolicy, CentralStateVecEnv
+
+            policy = CentralCriticPolicy
+            policy_kwargs["local_dim"] = _find_layer(venv, CentralStateVecEnv).local_dim
         model = cls(
-            "MlpPolicy",
+            policy,
             venv,
             seed=seed,
             device="cpu",
-            policy_kwargs={"net_arch": NET, **POLICY_KWARGS[algo]},
+            policy_kwargs=policy_kwargs,
             verbose=0,
             **hp,
         )
@@ -288,6 +350,9 @@ def train(
         "policy_kwargs": POLICY_KWARGS[algo],
         "resumes": previous.get("resumes", -1) + 1 if resume is not None else 0,
         "torch_threads": torch.get_num_threads(),
+        "cost": cost.as_dict() if cost is not None else None,
+        "central_critic": central_critic,
+        "hardware": _hardware(),
     }
     _write_json(out / "config.json", config)
     callbacks: list[Any] = [
@@ -298,8 +363,14 @@ def train(
             save_replay_buffer=algo == "sac",
         )
     ]
+    from baselines.rl.lagrangian import CostPenalty, MultiplierCallback
+
+    penalty = _find_layer(venv, CostPenalty)
+    if penalty is not None:
+        callbacks.append(MultiplierCallback(penalty))
     if eval_every > 0:
-        callbacks.append(_EvalCallback(algo, out, scenario, eval_every, eval_episodes, seed))
+        rungs = LADDER if eval_ladder else {scenario: (scenario, _rung_overrides(overrides))}
+        callbacks.append(_EvalCallback(algo, out, rungs, eval_every, eval_episodes, seed))
     remaining = max(0, total_timesteps - (0 if reset else model.num_timesteps))
     start = time.perf_counter()
     model.learn(
@@ -314,6 +385,9 @@ def train(
         model.save_replay_buffer(out / "replay_buffer.pkl")
     config["wall_time_s"] = round(wall + previous.get("wall_time_s", 0.0), 1)
     config["timesteps_done"] = int(model.num_timesteps)
+    config["robot_steps_per_s"] = round(remaining / wall, 1) if wall > 0 else None
+    if penalty is not None:
+        config["cost"]["final_multiplier"] = penalty.multiplier
     if record_eval:
         # The per-episode result of the saved model on fixed seeds: a regression value
         # produced by running, checked by tests/test_rl.py for the pretrained models.
@@ -321,6 +395,30 @@ def train(
     _write_json(out / "config.json", config)
     venv.close()
     return out
+
+
+def _find_layer(venv: Any, cls: type) -> Any:
+    """The wrapper of type ``cls`` inside the VecEnv stack, or None."""
+    while venv is not None and not isinstance(venv, cls):
+        venv = getattr(venv, "venv", None)
+    return venv
+
+
+def _rung_overrides(overrides: dict[str, Any]) -> dict[str, Any]:
+    """The evaluation's scenario overrides from the training's: the team size only (the
+    evaluation plays the plain environment; the policy applies its own priors)."""
+    return {k: v for k, v in overrides.items() if k == "n_agents"}
+
+
+def _hardware() -> dict[str, Any]:
+    import platform
+
+    from uvms_env.vector.kernels import available_cores
+
+    return {
+        "machine": platform.machine(),
+        "cores": available_cores(),
+    }
 
 
 def record_evaluation(algo: str, folder: Path, scenario: str, episodes: int, seed: int):
@@ -362,12 +460,25 @@ def save(model, out: Path) -> None:
     model.get_vec_normalize_env().save(str(out / "vecnormalize.pkl"))
 
 
-def _EvalCallback(algo: str, out: Path, scenario: str, every: int, episodes: int, seed: int):
+def _EvalCallback(
+    algo: str,
+    out: Path,
+    rungs: dict[str, tuple[str, dict[str, Any]]],
+    every: int,
+    episodes: int,
+    seed: int,
+):
     """Every ``every`` timesteps: save, then evaluate the saved policy with the shared
-    evaluation code on fixed seeds; appends to ``evaluations.csv``."""
+    evaluation code on fixed seeds, on each rung (name -> scenario, overrides); appends
+    one row per rung to ``evaluations.csv``."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     from baselines.evaluate import aggregate, evaluate
+
+    columns = (
+        "timesteps,rung,success_rate,clean_success_rate,violation_periods,mean_return,"
+        "final_pos_error_m,episode_steps,errors\n"
+    )
 
     class EvalCallback(BaseCallback):
         def __init__(self) -> None:
@@ -385,26 +496,40 @@ def _EvalCallback(algo: str, out: Path, scenario: str, every: int, episodes: int
             self._next += every
             snap = out / "eval_snapshot"
             save(self.model, snap)
+            # the policy rebuilds the run's observation and action modes from it
+            shutil.copyfile(out / "config.json", snap / "config.json")
             start = time.perf_counter()
-            rows = evaluate([f"{algo}:{snap}"], [scenario], episodes, seed, 1, progress=False)
-            s = aggregate(rows, seed)[0]
-            row = [
-                self.num_timesteps,
-                s["success_rate"],
-                s.get("return", np.nan),
-                s.get("final_pos_error_m", np.nan),
-                s.get("episode_steps", np.nan),
-            ]
             path = out / "evaluations.csv"
-            if not path.exists():
-                path.write_text(
-                    "timesteps,success_rate,mean_return,final_pos_error_m,episode_steps\n"
+            if not path.exists() or not path.read_text().startswith(columns[:20]):
+                path.write_text(columns)
+            for rung, (scenario, overrides) in rungs.items():
+                rows = evaluate(
+                    [f"{algo}:{snap}"], [scenario], episodes, seed, 1, overrides, progress=False
                 )
-            with open(path, "a") as fh:
-                fh.write(",".join(str(x) for x in row) + "\n")
-            self.logger.record("eval/success_rate", s["success_rate"])
-            self.logger.record("eval/mean_return", s.get("return", np.nan))
-            self.logger.record("eval/final_pos_error_m", s.get("final_pos_error_m", np.nan))
+                s = aggregate(rows, seed)[0]
+                periods = float(np.mean([r["violation_periods"] for r in rows]))
+                row = [
+                    self.num_timesteps,
+                    rung,
+                    s["success_rate"],
+                    s["clean_success_rate"],
+                    periods,
+                    s.get("return", np.nan),
+                    s.get("final_pos_error_m", np.nan),
+                    s.get("episode_steps", np.nan),
+                    s["errors"],
+                ]
+                failed = [r["error"] for r in rows if r["error"]]
+                if failed:
+                    warnings.warn(
+                        f"evaluation on {rung}: {len(failed)} episodes failed: {failed[0]}",
+                        stacklevel=1,
+                    )
+                with open(path, "a") as fh:
+                    fh.write(",".join(str(x) for x in row) + "\n")
+                self.logger.record(f"eval/{rung}/success_rate", s["success_rate"])
+                self.logger.record(f"eval/{rung}/clean_success_rate", s["clean_success_rate"])
+                self.logger.record(f"eval/{rung}/violation_periods", periods)
             self.logger.record("eval/seconds", time.perf_counter() - start)
             return True
 
@@ -463,6 +588,25 @@ def main(argv: list[str] | None = None) -> None:
         default=DEFAULT_ENV_THREADS,
         help="threads of the batched step (vector path)",
     )
+    ap.add_argument(
+        "--cost",
+        choices=("none", *COSTS),
+        default="none",
+        help="per-robot constraint cost subtracted from its reward (baselines.rl.lagrangian)",
+    )
+    ap.add_argument("--cost-weight", type=float, default=0.1, help="starting multiplier")
+    ap.add_argument("--cost-limit", type=float, default=0.0, help="cost per episode and robot")
+    ap.add_argument(
+        "--multiplier-lr", type=float, default=0.0, help="dual step size (0: fixed penalty)"
+    )
+    ap.add_argument(
+        "--central-critic",
+        action="store_true",
+        help="MAPPO: the critic also reads the global state (PPO, vector env)",
+    )
+    ap.add_argument(
+        "--eval-ladder", action="store_true", help="evaluate on every rung of the task ladder"
+    )
     ap.add_argument("--checkpoint-every", type=int, default=50_000, help="timesteps")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     ap.add_argument("--out", type=Path, default=Path("runs/rl"))
@@ -485,8 +629,19 @@ def main(argv: list[str] | None = None) -> None:
         dtype=args.dtype,
         geometry_pool=args.geometry_pool,
         env_threads=args.env_threads,
+        cost=_cost(args),
+        eval_ladder=args.eval_ladder,
+        central_critic=args.central_critic,
     )
     print(f"saved {out / 'model.zip'} and {out / 'vecnormalize.pkl'}")
+
+
+def _cost(args: argparse.Namespace) -> CostSettings | None:
+    if args.cost == "none":
+        return None
+    from baselines.rl.lagrangian import CostSettings
+
+    return CostSettings(args.cost, args.cost_weight, args.cost_limit, args.multiplier_lr)
 
 
 def _pairs(items: list[str]) -> dict[str, Any]:

@@ -33,6 +33,7 @@ from uvms_env.env.observation import (
     Observer,
     observation_bounds,
 )
+from uvms_env.env.priors import ACTION_MODES, OBSERVATION_MODES, Priors, steady_inputs
 from uvms_env.env.registration import ENV_ID
 from uvms_env.env.reward import RewardWeights, TeamReward
 from uvms_env.env.wrench import InternalWrench
@@ -55,6 +56,17 @@ ENV_OPTIONS: dict[str, Option] = {
     "reward_weights": Option("weights", "overrides of RewardWeights", optional=True),
     "reseed_geometry": Option("bool", "reset(seed=s) also sets a seeded family's geometry"),
     "internal_wrench_every": Option("int", "internal wrench metric period, 0: never", low=0),
+    "action_mode": Option(
+        "choice", "torque: normalized inputs; residual: around own a_ss", choices=ACTION_MODES
+    ),
+    "observation_mode": Option(
+        "choice",
+        "raw: 79 numbers; features: heading-frame features and a_ss",
+        choices=OBSERVATION_MODES,
+    ),
+    "residual_scale": Option(
+        "float", "reach of a residual action", low=0.0, high=2.0, low_open=True
+    ),
 }
 RESET_SEED = Option("int", "reset's seed", low=0, optional=True)
 # Action dtype kinds accepted: float, signed and unsigned int (not bool, complex, str, object).
@@ -260,6 +272,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         self.reward_weights = RewardWeights.from_mapping(options.get("reward_weights"))
         self.reseed_geometry = options.get("reseed_geometry", True)
         self.internal_wrench_every = options.get("internal_wrench_every", 1)
+        self.priors = priors_of(options)
 
         if isinstance(scenario, Scenario):
             if "n_agents" in overrides:
@@ -282,10 +295,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         self.possible_agents = [f"uvms_{i}" for i in range(n)]
         self.agents: list[str] = []
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
-        low, high = observation_bounds()
-        self.observation_spaces = {
-            a: spaces.Box(low, high, (OBSERVATION_SIZE,), np.float32) for a in self.possible_agents
-        }
+        self.observation_spaces = {a: observation_space(self.priors) for a in self.possible_agents}
         self.action_spaces = {
             a: spaces.Box(-1.0, 1.0, (NU,), np.float32) for a in self.possible_agents
         }
@@ -301,6 +311,8 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         self._seeder = np.random.default_rng(built.seed)
         self.metrics = EpisodeMetrics(built.period)
         self._zero_action = np.zeros((n, NU))
+        self._raw_obs = np.zeros((n, OBSERVATION_SIZE), np.float32)  # what the robots saw last
+        self._steady: np.ndarray | None = None  # their a_ss, when the priors use it
         self._team: list[float] = []
         self._steps = 0
         self._path: list[np.ndarray] = []
@@ -346,7 +358,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         self.agents = self.possible_agents[:]
         self._steps = 0
         self.metrics.reset()
-        obs = self._evaluate(self._zero_action)
+        obs = self._observe(self._zero_action)
         w.reward.reset(self._x_o)
         self._path = [self._x_o[:3].copy()]
         return (
@@ -367,15 +379,17 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             raise RuntimeError("step() called on a finished episode: call reset() first")
         w = self._world
         a = self._parse_actions(actions)
+        ring = w.scenario.object_ring_radius
+        command = self.priors.command(self._raw_obs, a, ring, self._steady)
         diverged = ""
         try:
-            info = w.sim.step(a * w.sim.tau_max)  # it saturates: clip(a) tau_max
+            info = w.sim.step(command * w.sim.tau_max)  # it saturates: clip(a) tau_max
         except SimulationDiverged as exc:
             diverged = str(exc)  # the simulator kept the last valid state
         except ValueError as exc:  # NaN or inf: the simulator checks before it steps
             raise self._bad_actions(a) from exc
         self._steps += 1
-        obs = self._evaluate(a)
+        obs = self._observe(a)
         kin = w.kinematics
         n_violated, action_sq = self._team[4], self._team[5]
         kinds = kin.kinds_violated.tolist()
@@ -438,12 +452,19 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         self.metrics.observe(clearance, team[1], team[2])
         return w.observer.build(team[3])
 
+    def _observe(self, action: np.ndarray) -> np.ndarray:
+        """``_evaluate``, kept as the robots' last raw view, then the observation mode."""
+        self._raw_obs = raw = self._evaluate(action)
+        ring = self._world.scenario.object_ring_radius
+        self._steady = steady_inputs(raw, ring) if self.priors.needs_steady else None
+        return self.priors.observe(raw, ring, self._steady)
+
     def observe(self) -> dict[str, np.ndarray]:
         """Observations of the simulator's current state, e.g. after ``sim.set_state`` in a
         replay or a test. Measures like a step (draws sensor noise, may advance the
         robots' waypoint sequencers) but does not advance time or touch the reward."""
         self._bind(self._world)
-        obs = self._evaluate(self._zero_action)
+        obs = self._observe(self._zero_action)
         return {a: obs[i] for i, a in enumerate(self.possible_agents)}
 
     def constraint_values(self) -> dict[str, dict[str, float]]:
@@ -607,6 +628,24 @@ def episode_end(success: bool, diverged: bool, collision: bool, failed: bool) ->
     if collision:
         return "collision"
     return "constraint" if failed else "max_cycles"
+
+
+def priors_of(options: Mapping[str, Any]) -> Priors:
+    """The action and observation modes among checked environment ``options``."""
+    scale = options.get("residual_scale")
+    return Priors(
+        options.get("action_mode", "torque"),
+        options.get("observation_mode", "raw"),
+        *(() if scale is None else (scale,)),
+    )
+
+
+def observation_space(priors: Priors) -> spaces.Box:
+    """One robot's observation space: the raw layout's bounds, or unbounded features."""
+    if priors.observation_mode == "raw":
+        low, high = observation_bounds()
+        return spaces.Box(low, high, (OBSERVATION_SIZE,), np.float32)
+    return spaces.Box(-np.inf, np.inf, (priors.observation_size,), np.float32)
 
 
 def split_keywords(

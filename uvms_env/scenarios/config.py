@@ -54,6 +54,12 @@ class Scenario:
     def __post_init__(self) -> None:
         validate(self)
 
+    @property
+    def object_ring_radius(self) -> float:
+        """The object as the compiled model functions name it: the ring's radius, 0 for
+        the bar."""
+        return float(self.ring_radius) if self.object_shape == "ring" else 0.0
+
 
 def _shape(name: str, arr: np.ndarray, shape: tuple[int, ...]) -> None:
     if np.shape(arr) != shape:

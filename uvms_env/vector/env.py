@@ -54,7 +54,6 @@ from uvms_env.env.observation import (
     OBSERVATION_SIZE,
     OBSERVATION_STRUCTURE,
     WAYPOINT_TOLERANCE,
-    observation_bounds,
 )
 from uvms_env.env.parallel import (
     ACTION_KINDS,
@@ -63,8 +62,11 @@ from uvms_env.env.parallel import (
     RESET_SEED,
     _make_scenario,
     episode_end,
+    observation_space,
+    priors_of,
     split_keywords,
 )
+from uvms_env.env.priors import steady_inputs
 from uvms_env.env.reward import REWARD_TERMS, RewardWeights
 from uvms_env.navigation.parametric import parametric_twist_function
 from uvms_env.scenarios import Scenario
@@ -132,6 +134,7 @@ class VectorEnv:
     | success | (K,) bool | the episode succeeded this step |
     | episode_end | (K,) object | "" or success, collision, constraint, diverged, max_cycles |
     | final_observation | (K, N, 79) | last observation of the envs that ended (else zeros) |
+    | final_state | (K, 20 N + 19) or None | `state()` before the resets, when an env ended |
     | metrics | (K,) object | the ended episodes' metrics (`uvms_env.env.metrics`) or None |
     | diverged_reason | (K,) object | why a step was refused ("" elsewhere) |
 
@@ -174,6 +177,7 @@ class VectorEnv:
         assert self.constraint_mode in CONSTRAINT_MODES
         self.reward_weights = RewardWeights.from_mapping(options.get("reward_weights"))
         self.internal_wrench_every = options.get("internal_wrench_every", 1)
+        self.priors = priors_of(options)
         self.geometry_pool: int | None = vector.get("geometry_pool")
 
         if isinstance(scenario, Scenario):
@@ -208,13 +212,13 @@ class VectorEnv:
             assert self.family is not None
             base = _make_scenario(self.family, overrides)
         self._base = base
+        self._ring = base.object_ring_radius  # one object per VectorEnv (see Differences)
         self.n = n = base.n_agents
         max_cycles = options.get("max_cycles")
         self.max_cycles = int(base.max_steps) if max_cycles is None else int(max_cycles)
         self.possible_agents = [f"uvms_{i}" for i in range(n)]
         self.agents = list(self.possible_agents)
-        low, high = observation_bounds()
-        self.single_observation_space = spaces.Box(low, high, (OBSERVATION_SIZE,), np.float32)
+        self.single_observation_space = observation_space(self.priors)
         self.single_action_space = spaces.Box(-1.0, 1.0, (NU,), np.float32)
         self.observation_structure = dict(OBSERVATION_STRUCTURE)
 
@@ -291,16 +295,17 @@ class VectorEnv:
         self._noise_zeta = base.sensor_noise * NOISE_STD_ZETA
         self._metrics_reset(slice(None), init=True)
         self._obs = np.zeros((k, n, OBSERVATION_SIZE), np.float32)
+        self._steady: np.ndarray | None = None
         self._started = False
         self._set_geometry(np.arange(k), [base] * k)
 
     # -- spaces and views ---------------------------------------------------------------
     @property
     def observation_space(self) -> spaces.Box:
-        low, high = observation_bounds()
-        shape = (self.num_envs, self.n, OBSERVATION_SIZE)
+        one = self.single_observation_space
+        shape = (self.num_envs, self.n, *one.shape)
         return spaces.Box(
-            np.broadcast_to(low, shape), np.broadcast_to(high, shape), shape, np.float32
+            np.broadcast_to(one.low, shape), np.broadcast_to(one.high, shape), shape, np.float32
         )
 
     @property
@@ -332,7 +337,7 @@ class VectorEnv:
             seed = self._first_seed
         if seed is None and self.geometry_pool is not None:  # every env: its next episode
             self._autoreset(np.arange(k))
-            return self._obs.copy(), {"episode_seed": self._pool_seeds(np.arange(k))}
+            return self._view(self._obs), {"episode_seed": self._pool_seeds(np.arange(k))}
         if seed is not None:
             seeds = self._seed_list(seed)
             self._episode_base[:] = seeds
@@ -345,7 +350,7 @@ class VectorEnv:
                 self._set_geometry(np.arange(k), self._geometries(seeds))
         self._started = True
         obs = self._reset_envs(np.arange(k))
-        return obs.copy(), {"episode_seed": self._seeds_now.copy()}
+        return self._view(obs), {"episode_seed": self._seeds_now.copy()}
 
     def _seed_list(self, seed: int | Sequence[int]) -> list[int]:
         k = self.num_envs
@@ -465,7 +470,10 @@ class VectorEnv:
         current = None
         if self._current_on:
             current = np.array([c.step(self._base.period) for c in self._currents])
-        code = self.sim.step(a * self.sim.tau_max, current)
+        if self.priors.action_mode != "torque" and self._steady is None:
+            self._steady = steady_inputs(self._obs, self._ring)
+        command = self.priors.command(self._obs, a, self._ring, self._steady)
+        code = self.sim.step(command * self.sim.tau_max, current)
         self._steps += 1
         diverged = code != OK
         self._a[:, :k] = a.reshape(k, n * NU).T
@@ -505,7 +513,8 @@ class VectorEnv:
             "reward_terms": terms,
             "success": success,
             "episode_end": np.full(k, "", dtype=object),
-            "final_observation": np.zeros_like(self._obs),
+            "final_observation": np.zeros((k, n, *self.single_observation_space.shape), np.float32),
+            "final_state": None,
             "metrics": np.full(k, None, dtype=object),
             "diverged_reason": np.full(k, "", dtype=object),
         }
@@ -514,7 +523,8 @@ class VectorEnv:
         obs = self._obs.copy()
         if ended.any():
             done = np.flatnonzero(ended)
-            infos["final_observation"][done] = obs[done]
+            infos["final_observation"][done] = self._view(obs[done])
+            infos["final_state"] = self.state()  # before the reset, for central critics
             for i in done.tolist():
                 infos["episode_end"][i] = episode_end(
                     bool(success[i]), bool(diverged[i]), bool(collision[i]), bool(failed[i])
@@ -522,7 +532,7 @@ class VectorEnv:
                 infos["metrics"][i] = self._metrics_result(i, x_o[i], bool(success[i]))
             self._autoreset(done)
             obs[done] = self._obs[done]
-        return obs, reward, terminated, truncated, infos
+        return self._view(obs), reward, terminated, truncated, infos
 
     def restart(self, env_ids: Any) -> np.ndarray:
         """End the episodes of ``env_ids`` where they stand and start their next ones, as the
@@ -535,7 +545,7 @@ class VectorEnv:
             raise ValueError(f"env_ids must lie in 0..{self.num_envs - 1}, got {env_ids!r}")
         if len(ids):
             self._autoreset(ids)
-        return self._obs[ids].copy()
+        return self._view(self._obs[ids])
 
     def _autoreset(self, ids: np.ndarray) -> None:
         self._episode[ids] += 1
@@ -545,6 +555,16 @@ class VectorEnv:
                 self._seeders[i] = np.random.default_rng(s)
             self._set_geometry(ids, self._geometries(seeds))
         self._reset_envs(ids)
+
+    def _view(self, raw: np.ndarray) -> np.ndarray:
+        """A copy of raw observations in the observation mode (``priors``); keeps a_ss of
+        the whole batch's observations for the next step's residual actions."""
+        if self.priors.observation_mode == "raw":
+            return raw.copy()
+        steady = steady_inputs(raw, self._ring)
+        if raw.shape[0] == self.num_envs and np.array_equal(raw, self._obs):
+            self._steady = steady
+        return self.priors.observe(raw, self._ring, steady)
 
     def _pool_seeds(self, ids: np.ndarray) -> np.ndarray:
         """The reset seeds of the current episodes of ``ids`` with a geometry pool."""
@@ -636,6 +656,7 @@ class VectorEnv:
         obs[:, :, _WAYPOINT] = wp
         obs[:, :, _NAV] = self._navigation_twist(env_rows, index, pose)
         self._obs[ids] = obs
+        self._steady = None  # a_ss of self._obs, computed when the priors ask for it
 
     def _measure(self, ids: np.ndarray, q: np.ndarray, zeta: np.ndarray) -> None:
         """Sensor noise from each environment's generator (the single env's draws)."""

@@ -1,5 +1,8 @@
 """The local (distributed) prediction model of one UVMS and its object estimate.
 
+Used by the NMPC expert (its prediction model) and by the environment's priors (the
+steady input a_ss, ``uvms_env.env.priors``), so both read the same functions.
+
 MODEL section 5 (paper dec_dynamics, nominal_system): UVMS i assumes it carries the
 share c_i of the object's dynamics, with v_O = A_i zeta_i and A_i = J_Oi^-1 J_i:
 
@@ -27,7 +30,7 @@ import numpy as np
 
 from uvms_env.dynamics import NQ, NU, ObjectModel, UVMSModel
 from uvms_env.dynamics.payload import NPO
-from uvms_env.dynamics.spatial import skew
+from uvms_env.dynamics.spatial import rot_zyx, skew
 
 NX = 2 * NQ  # state of the prediction model: [q; zeta]
 NTHETA = 3 + 9 + 1 + NPO  # grasp offset, grasp rotation, load share, object parameters
@@ -126,3 +129,42 @@ def build_local_model(uvms: UVMSModel, obj: ObjectModel) -> LocalModel:
         manipulability=cs.Function("local_manipulability", [x], [uvms.manipulability(q)]),
         tau_max=tau_max,
     )
+
+
+def local_terms(uvms, obj: ObjectModel, q, zeta, theta):
+    """(M_i + c_i A_i^T M_O A_i, -h_i - c_i A_i^T (M_O Adot_i zeta + h_O)) of the local model."""
+    offset, r_oi, share, p_o = theta[0:3], cs.reshape(theta[3:12], 3, 3), theta[12], theta[13:]
+    zero3 = cs.DM.zeros(3)
+    p_ee, r_ee = uvms.ee_pose(q)
+    r_o = r_ee @ r_oi.T
+    arm = r_o @ offset
+    x_o = cs.vertcat(p_ee - arm, euler_zyx(r_o))
+    jac = uvms.ee_jacobian(q)
+    v_ee = jac @ zeta
+    j_o_inv = cs.vertcat(
+        cs.horzcat(cs.DM.eye(3), skew(arm)), cs.horzcat(cs.DM.zeros(3, 3), cs.DM.eye(3))
+    )
+    a_i = j_o_inv @ jac
+    omega = v_ee[3:]
+    adz = j_o_inv @ uvms.ee_jdot_zeta(q, zeta) + cs.vertcat(
+        cs.cross(cs.cross(omega, arm), omega), zero3
+    )
+    mass, bias = uvms.dynamics(q, zeta, zero3, cs.DM(uvms.nominal_parameters()))
+    m_o, h_o = obj.dynamics(x_o, j_o_inv @ v_ee, zero3, p_o)
+    return mass + share * a_i.T @ m_o @ a_i, -bias - share * a_i.T @ (m_o @ adz + h_o)
+
+
+def build_steady_input(uvms, obj: ObjectModel, model: LocalModel) -> cs.Function:
+    """a_ss: the nominal input that keeps the robot moving rigidly with the object at the
+    desired twist v_d (arm joints still, vehicle twist from the rigid motion), balancing
+    drag, Coriolis and weight of the local model at zero acceleration. Roll and pitch are
+    passive: their rows are left to the restoring moments. Clipped to the saturation."""
+    x, theta, vd = cs.SX.sym("x", NX), cs.SX.sym("theta", NTHETA), cs.SX.sym("vd", 6)
+    q = x[:NQ]
+    x_o, _ = model.object_state(x, theta)
+    r_v = rot_zyx(q[3:6])
+    lin = vd[:3] + cs.cross(vd[3:], q[:3] - x_o[:3])
+    zeta_ss = cs.vertcat(r_v.T @ lin, r_v.T @ vd[3:], cs.DM.zeros(4))
+    _, r = local_terms(uvms, obj, q, zeta_ss, theta)
+    a_ss = (cs.DM(uvms.B).T @ -r) / cs.DM(uvms.params.limits.tau_max)
+    return cs.Function("nmpc_steady_input", [x, theta, vd], [cs.fmin(cs.fmax(a_ss, -1), 1)])
