@@ -41,6 +41,7 @@ from uvms_env.env.constraints import CONSTRAINTS
 from uvms_env.env.metrics import METRICS
 
 VIOLATION_KINDS = CONSTRAINTS
+BACKENDS = ("process", "ray")
 # numeric per-episode metrics averaged with bootstrap intervals (same names as the env's)
 MEAN_METRICS = (
     *(m for m in METRICS if m not in ("success", "violations", "policy_time_ms")),
@@ -212,9 +213,9 @@ def markdown_table(summaries: list[dict[str, Any]]) -> str:
 
     lines = [
         "| policy | scenario | episodes | success [95% CI] | clean success | "
-        "final pos. error m | min clearance m | violations (total) | intervention rate | "
-        "decision ms median / p95 | errors |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "final pos. error m | min clearance m | violations (total) | violations / episode | "
+        "intervention rate | decision ms median / p95 | errors |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in summaries:
         lo, hi = s["success_ci95"]
@@ -224,7 +225,9 @@ def markdown_table(summaries: list[dict[str, Any]]) -> str:
             f"{s['success_rate']:.2f} [{fmt(lo)}, {fmt(hi)}] | "
             f"{fmt(s.get('clean_success_rate'))} | "
             f"{fmt(s.get('final_pos_error_m'))} | {fmt(s.get('min_obstacle_clearance_m'))} | "
-            f"{sum(s['violations'].values())} | {fmt(s.get('intervention_rate'), 3)} | "
+            f"{sum(s['violations'].values())} | "
+            f"{fmt(sum(s['violations'].values()) / s['episodes'], 1)} | "
+            f"{fmt(s.get('intervention_rate'), 3)} | "
             f"{fmt(t['median'], 3)} / {fmt(t['p95'], 3)} | {s['errors']} |"
         )
     kinds = " | ".join(VIOLATION_KINDS)
@@ -313,8 +316,19 @@ def evaluate(
     overrides: dict[str, Any] | None = None,
     max_cycles: int | None = None,
     progress: bool = True,
+    backend: str = "process",
+    address: str | None = None,
 ) -> list[dict[str, Any]]:
-    """Run every (policy, scenario, episode) and return the per-episode rows, sorted."""
+    """Run every (policy, scenario, episode) and return the per-episode rows, sorted.
+    ``backend``: ``process`` (a process pool of ``workers``; 1: in this process) or
+    ``ray`` (Ray tasks on a local Ray of ``workers`` CPUs, or on the cluster at
+    ``address``); the rows do not depend on it."""
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; expected one of {BACKENDS}")
+    if backend == "ray":
+        from baselines.distributed.ray_backend import require_ray
+
+        require_ray()  # before the warm-up episodes
     for p in policies:
         PolicySource.parse(p)  # fail fast on a typo, before any worker starts
     items = tuple(sorted((overrides or {}).items()))
@@ -326,7 +340,7 @@ def evaluate(
     ]
     rows: list[dict[str, Any]] = []
     bar = tqdm(total=len(jobs), desc="episodes", disable=not progress, unit="ep")
-    if workers <= 1:
+    if backend == "process" and workers <= 1:
         for job in jobs:
             rows.append(run_episode(job))
             bar.update()
@@ -338,10 +352,17 @@ def evaluate(
             if (job.policy, job.scenario) not in seen:
                 seen.add((job.policy, job.scenario))
                 run_episode(dataclasses.replace(job, max_cycles=1, record_path=False))
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            for fut in as_completed([pool.submit(run_episode, j) for j in jobs]):
-                rows.append(fut.result())
+        if backend == "ray":
+            from baselines.distributed.ray_backend import run_jobs
+
+            for row in run_jobs(run_episode, jobs, address, workers):
+                rows.append(row)
                 bar.update()
+        else:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                for fut in as_completed([pool.submit(run_episode, j) for j in jobs]):
+                    rows.append(fut.result())
+                    bar.update()
     bar.close()
     rows.sort(
         key=lambda r: (policies.index(r["policy"]), scenarios.index(r["scenario"]), r["episode"])
@@ -376,7 +397,8 @@ def main(argv: list[str] | None = None) -> None:
         "--policy",
         action="append",
         required=True,
-        help="nmpc, random, zero, ppo:PATH, sac:PATH, bc:PATH, dagger:PATH, pkg.mod:factory; "
+        help="nmpc, random, zero, ppo:PATH, sac:PATH, rllib:PATH, bc:PATH, dagger:PATH, "
+        "pkg.mod:factory; "
         "suffix +filter: inside the expert's safety filter",
     )
     ap.add_argument("--scenario", action="append", default=None, help="paper, random (repeatable)")
@@ -388,6 +410,28 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--current", default=None, choices=["none", "mild", "strong"])
     ap.add_argument("--mismatch", type=float, default=None)
     ap.add_argument("--out", type=Path, default=Path("runs/eval"))
+    ap.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="process",
+        help="process: a process pool of --workers; ray: Ray tasks (pip install -e "
+        '".[distributed]"), on a local Ray of --workers CPUs or the cluster at --address',
+    )
+    ap.add_argument("--address", default=None, help="Ray cluster to join (--backend ray)")
+    ap.add_argument(
+        "--marl-eval-json",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="also write (merge into) marl-eval's JSON: env uvms_coop, task = scenario, "
+        "algorithm = policy, run seed_SEED (baselines.distributed.marl_eval)",
+    )
+    ap.add_argument(
+        "--marl-eval-step-count",
+        type=int,
+        default=0,
+        help="the step_count recorded in the marl-eval JSON (e.g. the policy's training steps)",
+    )
     args = ap.parse_args(argv)
     overrides = {
         k: v
@@ -406,8 +450,21 @@ def main(argv: list[str] | None = None) -> None:
         args.workers,
         overrides,
         args.max_cycles,
+        backend=args.backend,
+        address=args.address,
     )
     summaries = write_outputs(rows, args.seed, args.out)
+    if args.marl_eval_json is not None:
+        from baselines.distributed import marl_eval
+
+        marl_eval.write(
+            args.marl_eval_json,
+            rows,
+            args.seed,
+            step_count=args.marl_eval_step_count,
+            overrides=overrides,
+        )
+        print(f"wrote {args.marl_eval_json} (marl-eval)")
     print(markdown_table(summaries))
     print(f"wrote {args.out}/episodes.csv, results.json, results.md and plots")
 

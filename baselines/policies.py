@@ -110,6 +110,12 @@ def _user(module: str, attr: str) -> Callable[[str | None, int], PolicyFactory]:
     return build
 
 
+def _rllib(arg: str | None, seed: int) -> PolicyFactory:
+    from baselines.distributed.rllib_policy import factory  # Ray is optional
+
+    return factory(arg)
+
+
 BUILTIN: dict[str, Callable[[str | None, int], PolicyFactory]] = {
     "nmpc": _nmpc,
     "random": _random,
@@ -118,6 +124,7 @@ BUILTIN: dict[str, Callable[[str | None, int], PolicyFactory]] = {
     "sac": _sb3("sac"),
     "bc": _cloned("bc"),
     "dagger": _cloned("dagger"),
+    "rllib": _rllib,
 }
 
 

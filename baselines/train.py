@@ -1,6 +1,26 @@
-"""Entry point: ``python -m baselines.train`` (see ``baselines.rl.train``)."""
+"""Entry point: ``python -m baselines.train [--engine {sb3,rllib}] ...``.
 
-from baselines.rl.train import main
+``sb3`` (default): stable-baselines3 on one machine (``baselines.rl.train``); ``rllib``:
+Ray RLlib, local or on a cluster (``baselines.distributed.rllib_train``). Every other
+argument goes to the chosen engine.
+"""
+
+import argparse
+import sys
+
+ENGINES = ("sb3", "rllib")
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(add_help=False)
+    ap.add_argument("--engine", choices=ENGINES, default="sb3")
+    args, rest = ap.parse_known_args(sys.argv[1:] if argv is None else argv)
+    if args.engine == "rllib":
+        from baselines.distributed.rllib_train import main as engine_main
+    else:
+        from baselines.rl.train import main as engine_main
+    engine_main(rest)
+
 
 if __name__ == "__main__":
     main()

@@ -62,8 +62,10 @@ def test_residual_and_features_are_the_plain_env_driven_through_a_ss():
         assert all(with_priors.observation_space(a).contains(obs_p[a]) for a in obs_p)
         r = rng.uniform(-1.3, 1.3, (2, 8))
         command = np.clip(steady + 0.3 * np.clip(r, -1, 1), -1, 1)
-        obs_p, _, _, _, info_p = with_priors.step(dict(zip(with_priors.possible_agents, r)))
-        obs_0, _, _, _, _ = plain.step(dict(zip(plain.possible_agents, command)))
+        obs_p, _, _, _, info_p = with_priors.step(
+            dict(zip(with_priors.possible_agents, r, strict=True))
+        )
+        obs_0, _, _, _, _ = plain.step(dict(zip(plain.possible_agents, command, strict=True)))
         # the expert's a_ss here runs in CasADi's VM, the env's in generated C: 1e-12 apart
         np.testing.assert_allclose(with_priors.sim.flat_state, plain.sim.flat_state, atol=1e-7)
         # the input constraint reports the policy's own action beyond its space
@@ -87,7 +89,7 @@ def test_vector_env_applies_the_same_priors_as_single_envs():
         r = rng.uniform(-1, 1, (k, 2, 8))
         obs_v, reward, _, truncated, infos = venv.step(r)
         for i, env in enumerate(singles):
-            o, rew, _, trunc, _ = env.step(dict(zip(env.possible_agents, r[i])))
+            o, rew, _, trunc, _ = env.step(dict(zip(env.possible_agents, r[i], strict=True)))
             assert reward[i] == pytest.approx(rew["uvms_0"], abs=1e-9)
             if trunc["uvms_0"]:
                 np.testing.assert_allclose(infos["final_observation"][i], _stack(o, env), atol=1e-6)
@@ -117,7 +119,8 @@ def test_sb3_policy_rebuilds_the_runs_priors(tmp_path):
     from uvms_env.vector.sb3 import VectorVecEnv
 
     modes = {**MODES, "residual_scale": 0.5}
-    model = PPO("MlpPolicy", VectorVecEnv(VectorEnv("short", 1, **modes)), n_steps=8, batch_size=16, seed=0)
+    venv = VectorVecEnv(VectorEnv("short", 1, **modes))
+    model = PPO("MlpPolicy", venv, n_steps=8, batch_size=16, seed=0)
     model.save(tmp_path / "model.zip")
     (tmp_path / "config.json").write_text(json.dumps({"overrides": modes}))
     env = uvms_env.parallel_env("short")

@@ -75,9 +75,13 @@ def run_priors(folder: Path) -> Priors:
     config = Path(folder) / "config.json"
     if not config.exists():
         return Priors()
-    overrides = json.loads(config.read_text()).get("overrides", {})
+    return priors_from_options(json.loads(config.read_text()).get("overrides", {}))
+
+
+def priors_from_options(options: dict[str, Any]) -> Priors:
+    """The priors among a run's recorded environment options (checked again)."""
     mine = ("action_mode", "observation_mode", "residual_scale")
-    return priors_of({k: ENV_OPTIONS[k].check(k, v) for k, v in overrides.items() if k in mine})
+    return priors_of({k: ENV_OPTIONS[k].check(k, v) for k, v in options.items() if k in mine})
 
 
 class SB3Policy:

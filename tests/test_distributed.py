@@ -1,0 +1,178 @@
+"""Scale-out: marl-eval JSON, the engine switch, the Ray evaluation backend and RLlib
+training evaluated through ``--policy rllib:PATH``.
+
+The Ray tests skip without Ray (``pip install -e ".[distributed]"``, not in the default
+CI install: ray[rllib] pins gymnasium 1.2.2); the 2-iteration, 2-runner RLlib run is
+``slow``. The BenchMARL task's test skips without BenchMARL (its own venv: it needs
+torchrl < 0.12)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from baselines.distributed import marl_eval
+from baselines.evaluate import evaluate, write_outputs
+from baselines.evaluate import main as evaluate_main
+from baselines.policies import PolicySource
+
+TIMING = ("policy_time_ms_median", "policy_time_ms_p95", "policy_time_ms_max")
+
+
+def _csv_rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return [{k: v for k, v in r.items() if k not in TIMING} for r in csv.DictReader(fh)]
+
+
+def _number(text: str) -> float:
+    if text in ("True", "False"):
+        return float(text == "True")
+    return float(text) if text else float("nan")
+
+
+def test_marl_eval_json_has_marl_eval_structure_and_the_episode_values(tmp_path):
+    out, path = tmp_path / "eval", tmp_path / "marl.json"
+    common = ["--scenario", "short", "--episodes", "2", "--max-cycles", "8", "--workers", "1"]
+    marl = ["--marl-eval-json", str(path), "--marl-eval-step-count", "1000"]
+    evaluate_main(["--policy", "zero", "--policy", "random", *common, "--out", str(out), *marl])
+    data = json.loads(path.read_text())
+    assert list(data) == ["uvms_coop"] and list(data["uvms_coop"]) == ["short"]
+    algos = data["uvms_coop"]["short"]
+    assert set(algos) == {"zero", "random"}
+    rows = _csv_rows(out / "episodes.csv")
+    for algo, runs in algos.items():
+        assert list(runs) == ["seed_0"]
+        run = runs["seed_0"]
+        assert list(run) == ["step_0", "absolute_metrics"]
+        step = run["step_0"]
+        assert step["step_count"] == 1000 and isinstance(step["elapsed_time"], float)
+        mine = [r for r in rows if r["policy"] == algo]
+        # the short scenario has no obstacles: no clearance, so no such metric
+        assert "min_obstacle_clearance_m" not in step
+        assert {"return", "success", "final_pos_error_m", "episode_steps"} <= set(step)
+        for metric in set(step) & set(marl_eval.METRICS):
+            expected = [_number(r[metric]) for r in mine]
+            assert step[metric] == pytest.approx(expected, rel=1e-12)
+            assert run["absolute_metrics"][metric] == step[metric]
+    # a second evaluation of the same run is its next logging step; absolute stays last
+    more = evaluate(["zero"], ["short"], 2, 0, 1, max_cycles=4, progress=False)
+    marl_eval.write(path, more, 0, step_count=2000, elapsed_time=1.5)
+    run = json.loads(path.read_text())["uvms_coop"]["short"]["zero"]["seed_0"]
+    assert list(run) == ["step_0", "step_1", "absolute_metrics"]
+    assert run["step_1"]["step_count"] == 2000
+    assert run["absolute_metrics"]["episode_steps"] == [4.0, 4.0]
+
+
+def test_task_names_carry_the_team_size_and_algorithm_names_no_commas():
+    assert marl_eval.task_name("random", {"n_agents": 3}) == "random_n3"
+    assert marl_eval.task_name("paper", {}) == "paper"
+    assert marl_eval.algo_name("pkg.mod:f,x") == "pkg.mod:f;x"
+
+
+def test_engine_switch_reaches_rllib_without_importing_ray(capsys):
+    from baselines.train import main as train_main
+
+    with pytest.raises(SystemExit):
+        train_main(["--engine", "rllib", "--help"])
+    assert "--num-env-runners" in capsys.readouterr().out
+
+
+def test_rllib_policy_source_rejects_a_missing_checkpoint(tmp_path):
+    source = PolicySource.parse(f"rllib:{tmp_path}")
+    assert source.name == "rllib"
+    with pytest.raises(ValueError, match="no RLlib checkpoint"):
+        source.factory(0)
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    ray = pytest.importorskip("ray")
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+def test_ray_backend_gives_the_process_pools_episodes_csv(local_ray, tmp_path):
+    args = (["random"], ["short"], 4, 0, 2)
+    pool = evaluate(*args, max_cycles=10, progress=False)
+    cluster = evaluate(*args, max_cycles=10, progress=False, backend="ray")
+    write_outputs(pool, 0, tmp_path / "pool")
+    write_outputs(cluster, 0, tmp_path / "ray")
+    assert _csv_rows(tmp_path / "ray" / "episodes.csv") == _csv_rows(
+        tmp_path / "pool" / "episodes.csv"
+    )
+    assert len(cluster) == 4 and all(r["error"] == "" for r in cluster)
+
+
+def _train_and_evaluate(tmp_path: Path, runners: int, iterations: int) -> list[dict]:
+    from baselines.train import main as train_main
+
+    run = tmp_path / "rllib_ppo"
+    train_main(
+        f"--engine rllib --algo ppo --scenario random --n-agents 2 --num-env-runners {runners}"
+        f" --iterations {iterations} --hp train_batch_size_per_learner=64"
+        " --hp minibatch_size=32 --hp num_epochs=1 --env-option max_cycles=16"
+        f" --geometry-pool 2 --num-envs-per-env-runner 2 --checkpoint-every 1 --no-progress"
+        f" --out {run}".split()
+    )
+    config = json.loads((run / "config.json").read_text())
+    assert config["iterations_done"] == iterations and config["num_env_runners"] == runners
+    assert config["env_options"]["max_cycles"] == 16
+    progress = list(csv.DictReader(open(run / "progress.csv")))
+    assert [int(r["iteration"]) for r in progress] == list(range(1, iterations + 1))
+    assert (run / "checkpoints" / f"iter_{iterations}").is_dir()
+    rows = evaluate([f"rllib:{run}"], ["random"], 2, 0, 1, {"n_agents": 2}, 6, progress=False)
+    assert all(r["error"] == "" and r["episode_steps"] == 6 for r in rows), rows
+    again = evaluate([f"rllib:{run}"], ["random"], 2, 0, 1, {"n_agents": 2}, 6, progress=False)
+    assert [r["return"] for r in again] == [r["return"] for r in rows]  # deterministic
+    return rows
+
+
+def test_rllib_sub_envs_cycle_through_their_own_geometries(local_ray):
+    pytest.importorskip("ray.rllib")
+    from ray.rllib.env.env_context import EnvContext
+
+    from baselines.distributed.rllib_env import make_env
+
+    config = {"scenario": "short", "seed": 10, "geometry_pool": 2, "envs_per_runner": 2}
+    context = EnvContext({**config, "overrides": {"max_cycles": 3}}, worker_index=1)
+    first, second = make_env(context), make_env(context)
+    seeds = [[env._next_seed() for _ in range(3)] for env in (first, second)]
+    # sub-env v of runner w: seed + (w V + v) P + e % P, whatever order RLlib resets in
+    assert {tuple(s) for s in seeds} == {(14, 15, 14), (16, 17, 16)}
+
+
+def test_rllib_ppo_smoke_on_the_local_runner(local_ray, tmp_path):
+    pytest.importorskip("ray.rllib")
+    _train_and_evaluate(tmp_path, runners=0, iterations=1)
+
+
+@pytest.mark.slow
+def test_rllib_ppo_two_iterations_two_env_runners_then_rllib_policy(local_ray, tmp_path):
+    pytest.importorskip("ray.rllib")
+    _train_and_evaluate(tmp_path, runners=2, iterations=2)
+    out = tmp_path / "eval"
+    evaluate_main(
+        f"--policy rllib:{tmp_path / 'rllib_ppo'} --scenario random --n-agents 2 --episodes 2"
+        f" --max-cycles 6 --workers 2 --backend ray --out {out}".split()
+    )
+    assert len(_csv_rows(out / "episodes.csv")) == 2
+
+
+def test_benchmarl_task_gives_one_envs_specs_and_steps():
+    """BenchMARL lives in its own venv (it needs torchrl < 0.12; README "Scale out")."""
+    pytest.importorskip("benchmarl.experiment")
+    from baselines.distributed.benchmarl_task import task
+
+    uvms = task("uvms/random_n2", {"max_cycles": 5})
+    env = uvms.get_env_fun(num_envs=3, continuous_actions=True, seed=0, device="cpu")()
+    assert uvms.group_map(env) == {"uvms": ["uvms_0", "uvms_1"]}
+    assert uvms.observation_spec(env)["uvms", "observation"].shape == (2, 79)
+    assert uvms.action_spec(env)["uvms", "action"].shape == (2, 8)
+    assert uvms.state_spec(env)["state"].shape[:-1] == ()
+    assert uvms.max_steps(env) == 5
+    td = env.rollout(5)
+    assert td["next", "uvms", "reward"].shape == (3, 5, 2, 1)
