@@ -95,6 +95,7 @@ def test_replay_reproduces_actions_no_shared_state(env, short_run):
     np.testing.assert_allclose(replay, np.array(actions[agent]), atol=1e-9)
 
 
+@pytest.mark.slow  # ~35 s, most of it building IPOPT's problem; CI's budget
 def test_rti_agrees_with_ipopt_on_recorded_problems(env, short_run):
     """Same warm start, same problem: the first input of one RTI step and of IPOPT's
     converged solution. Tolerance 0.01 of the saturation: the RTI is one Gauss-Newton

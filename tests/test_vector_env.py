@@ -168,6 +168,7 @@ def _pull_to_waypoint(obs: np.ndarray) -> np.ndarray:
     return np.clip(a, -1.0, 1.0)
 
 
+@pytest.mark.slow  # ~50 s and a float32 build of the paper kernels; CI's budget
 def test_float32_stays_within_its_documented_bound_over_1000_periods():
     """float32 is the fast mode: over 1,000 closed-loop periods of the paper scenario
     (truth models perturbed by 10 %; episodes ending in collisions and resetting on the

@@ -159,7 +159,7 @@ def plot_groups(groups: dict[str, list[Path]], out: Path) -> None:
         ax.grid(alpha=0.3)
     axes[1, 0].set_ylim(-0.05, 1.05)
     axes[1, 1].set_ylim(-0.05, 1.05)
-    axes[0, 0].legend(fontsize=8)
+    axes[0, 0].legend(fontsize=8, loc="lower right")
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=80)
