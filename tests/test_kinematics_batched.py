@@ -185,6 +185,7 @@ def test_inputs_refuse_what_does_not_fit():
     assert segment_inputs(seg, 3).shape == (3, 6)
 
 
+@pytest.mark.slow  # ~14 s of nvcc; CI's budget
 @pytest.mark.skipif(shutil.which("nvcc") is None, reason="needs nvcc")
 def test_cuda_source_compiles(tmp_path):
     source, sig = cuda_source(_shared())

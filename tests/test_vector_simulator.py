@@ -64,6 +64,7 @@ def test_float64_batch_equals_single_simulators_step_for_step(geometries):
     assert bsim.refinements == sum(sim.refinements for sim in sims) > 0  # control exercised
 
 
+@pytest.mark.slow  # ~20 s building the scalar library alone; CI's budget
 def test_scalar_build_equals_the_simd_build(geometries):
     simd, _ = _pair(geometries)
     scalar, _ = _pair(geometries, lanes=1)

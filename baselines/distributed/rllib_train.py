@@ -33,6 +33,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from baselines.options import add_option_arguments, key_value_pairs
+
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 ALGOS = ("ppo",)
@@ -317,19 +319,6 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
     path.write_text(json.dumps(data, indent=2, default=str) + "\n")
 
 
-def _pairs(items: list[str]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise SystemExit(f"expected KEY=VALUE, got {item!r}")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
-
-
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(
         prog="python -m baselines.train --engine rllib",
@@ -363,20 +352,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--rollout-fragment-length", default="auto", help="env steps per runner request"
     )
-    ap.add_argument(
-        "--env-option",
-        action="append",
-        default=[],
-        metavar="KEY=JSON",
-        help="environment option, e.g. max_cycles=200 or reward_weights='{\"effort\": 0.01}'",
-    )
-    ap.add_argument(
-        "--hp", action="append", default=[], metavar="KEY=JSON", help="PPOConfig.training()"
-    )
+    add_option_arguments(ap, "PPOConfig.training()")
     ap.add_argument("--no-progress", action="store_true")
     ap.add_argument("--out", type=Path, default=Path("runs/rllib_ppo"))
     args = ap.parse_args(argv)
-    overrides = _pairs(args.env_option)
+    overrides = key_value_pairs(args.env_option)
     if args.n_agents is not None:
         overrides["n_agents"] = args.n_agents
     fragment = args.rollout_fragment_length
@@ -389,7 +369,7 @@ def main(argv: list[str] | None = None) -> None:
         args.out,
         address=args.address,
         overrides=overrides,
-        hyperparameters=_pairs(args.hp),
+        hyperparameters=key_value_pairs(args.hp),
         iterations=args.iterations,
         checkpoint_every=args.checkpoint_every,
         eval_every=args.eval_every,

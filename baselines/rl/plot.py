@@ -21,6 +21,7 @@ import argparse
 import csv
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -61,6 +62,14 @@ def label(run: Path) -> str:
     return run.name
 
 
+def _label(axes: Any, titles: list[tuple[str, str]]) -> None:
+    for ax, (title, ylabel) in zip(axes.flat, titles, strict=True):
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel("robot-steps")
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+
+
 def plot(runs: list[Path], out: Path) -> None:
     import matplotlib
 
@@ -90,11 +99,7 @@ def plot(runs: list[Path], out: Path) -> None:
         ("eval final position error", "m"),
         ("training episodes: mean return (training reward)", "return"),
     ]
-    for ax, (title, ylabel) in zip(axes.flat, titles, strict=True):
-        ax.set_title(title, fontsize=10)
-        ax.set_xlabel("robot-steps")
-        ax.set_ylabel(ylabel)
-        ax.grid(alpha=0.3)
+    _label(axes, titles)
     axes[0, 0].set_ylim(-0.05, 1.05)
     axes[0, 0].legend(fontsize=8)
     fig.tight_layout()
@@ -152,11 +157,7 @@ def plot_groups(groups: dict[str, list[Path]], out: Path) -> None:
             mean, half = mean_band([c[0] for c in curves], [c[1] for c in curves], grid)
             ax.plot(grid, mean, color=color, label=f"{name} ({len(curves)} seeds)")
             ax.fill_between(grid, mean - half, mean + half, color=color, alpha=0.2)
-    for ax, (title, ylabel) in zip(axes.flat, panels, strict=True):
-        ax.set_title(title, fontsize=10)
-        ax.set_xlabel("robot-steps")
-        ax.set_ylabel(ylabel)
-        ax.grid(alpha=0.3)
+    _label(axes, panels)
     axes[1, 0].set_ylim(-0.05, 1.05)
     axes[1, 1].set_ylim(-0.05, 1.05)
     axes[0, 0].legend(fontsize=8, loc="lower right")

@@ -40,6 +40,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
+from baselines.options import add_option_arguments, key_value_pairs
 from baselines.rl.lagrangian import COSTS
 from baselines.rl.vec_env import ParallelVecEnv
 
@@ -556,16 +557,7 @@ def main(argv: list[str] | None = None) -> None:
         help="run folder (its model.zip or newest checkpoint) or checkpoint .zip to continue; "
         "--total-timesteps then counts the steps already done",
     )
-    ap.add_argument(
-        "--env-option",
-        action="append",
-        default=[],
-        metavar="KEY=JSON",
-        help="environment option, e.g. max_cycles=200 or reward_weights='{\"effort\": 0.01}'",
-    )
-    ap.add_argument(
-        "--hp", action="append", default=[], metavar="KEY=JSON", help="SB3 hyperparameter"
-    )
+    add_option_arguments(ap, "SB3 hyperparameter")
     ap.add_argument(
         "--vec-env",
         choices=VEC_ENVS,
@@ -621,9 +613,9 @@ def main(argv: list[str] | None = None) -> None:
         resume=args.resume,
         eval_every=args.eval_every,
         eval_episodes=args.eval_episodes,
-        overrides=_pairs(args.env_option),
+        overrides=key_value_pairs(args.env_option),
         progress=not args.no_progress,
-        hyperparameters=_pairs(args.hp),
+        hyperparameters=key_value_pairs(args.hp),
         checkpoint_every=args.checkpoint_every,
         vec_env=args.vec_env,
         dtype=args.dtype,
@@ -642,19 +634,6 @@ def _cost(args: argparse.Namespace) -> CostSettings | None:
     from baselines.rl.lagrangian import CostSettings
 
     return CostSettings(args.cost, args.cost_weight, args.cost_limit, args.multiplier_lr)
-
-
-def _pairs(items: list[str]) -> dict[str, Any]:
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise SystemExit(f"expected KEY=VALUE, got {item!r}")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
 
 
 if __name__ == "__main__":
