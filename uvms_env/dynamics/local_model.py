@@ -92,35 +92,10 @@ def build_local_model(uvms: UVMSModel, obj: ObjectModel) -> LocalModel:
     a = cs.SX.sym("a", NU)
     theta = cs.SX.sym("theta", NTHETA)
     q, zeta = x[:NQ], x[NQ:]
-    offset = theta[0:3]
-    r_oi = cs.reshape(theta[3:12], 3, 3)
-    share = theta[12]
-    p_o = theta[13 : 13 + NPO]
-    p_nom = cs.DM(uvms.nominal_parameters())
-    v_c = cs.DM.zeros(3)  # the controller does not know the current
     tau_max = np.asarray(uvms.params.limits.tau_max, float)
-
-    p_ee, r_ee = uvms.ee_pose(q)
-    r_o = r_ee @ r_oi.T
-    arm = r_o @ offset  # grasp offset in the inertial frame
-    x_o = cs.vertcat(p_ee - arm, euler_zyx(r_o))
-    jac = uvms.ee_jacobian(q)
-    v_ee = jac @ zeta
-    # J_Oi^-1 = [[I, S(R_O l_i)], [0, I]]  (J_Oi = [[I, -S(R_O l_i)], [0, I]])
-    j_o_inv = cs.vertcat(
-        cs.horzcat(cs.DM.eye(3), skew(arm)), cs.horzcat(cs.DM.zeros(3, 3), cs.DM.eye(3))
-    )
-    a_i = j_o_inv @ jac  # A_i (6x10)
-    v_o = j_o_inv @ v_ee
-    omega = v_ee[3:]
-    # Adot_i zeta = J_Oi^-1 Jdot zeta + d/dt(J_Oi^-1) J zeta, d/dt(S(r)) = S(omega x r)
-    adot_zeta = j_o_inv @ uvms.ee_jdot_zeta(q, zeta) + cs.vertcat(
-        cs.cross(cs.cross(omega, arm), omega), cs.DM.zeros(3)
-    )
-    mass, bias = uvms.dynamics(q, zeta, v_c, p_nom)
-    m_o, h_o = obj.dynamics(x_o, v_o, v_c, p_o)
-    m_loc = mass + share * a_i.T @ m_o @ a_i
-    rhs = cs.DM(uvms.B) @ (cs.DM(tau_max) * a) - bias - share * a_i.T @ (m_o @ adot_zeta + h_o)
+    x_o, v_o, *_ = _grasp_kinematics(uvms, q, zeta, theta)
+    m_loc, r = local_terms(uvms, obj, q, zeta, theta)
+    rhs = cs.DM(uvms.B) @ (cs.DM(tau_max) * a) + r
     zeta_dot = cs.solve(0.5 * (m_loc + m_loc.T), rhs)
     x_dot = cs.vertcat(uvms.qdot_map(q) @ zeta, zeta_dot)
     return LocalModel(
@@ -131,27 +106,37 @@ def build_local_model(uvms: UVMSModel, obj: ObjectModel) -> LocalModel:
     )
 
 
-def local_terms(uvms, obj: ObjectModel, q, zeta, theta):
-    """(M_i + c_i A_i^T M_O A_i, -h_i - c_i A_i^T (M_O Adot_i zeta + h_O)) of the local model."""
-    offset, r_oi, share, p_o = theta[0:3], cs.reshape(theta[3:12], 3, 3), theta[12], theta[13:]
-    zero3 = cs.DM.zeros(3)
+def _grasp_kinematics(uvms: UVMSModel, q, zeta, theta):
+    """The object as robot i sees it through its own arm and grasp: pose x_O (ZYX Euler),
+    twist v_O = A_i zeta, A_i = J_Oi^-1 J_i and Adot_i zeta."""
+    offset, r_oi = theta[0:3], cs.reshape(theta[3:12], 3, 3)
     p_ee, r_ee = uvms.ee_pose(q)
     r_o = r_ee @ r_oi.T
-    arm = r_o @ offset
+    arm = r_o @ offset  # grasp offset in the inertial frame
     x_o = cs.vertcat(p_ee - arm, euler_zyx(r_o))
     jac = uvms.ee_jacobian(q)
     v_ee = jac @ zeta
+    # J_Oi^-1 = [[I, S(R_O l_i)], [0, I]]  (J_Oi = [[I, -S(R_O l_i)], [0, I]])
     j_o_inv = cs.vertcat(
         cs.horzcat(cs.DM.eye(3), skew(arm)), cs.horzcat(cs.DM.zeros(3, 3), cs.DM.eye(3))
     )
-    a_i = j_o_inv @ jac
     omega = v_ee[3:]
-    adz = j_o_inv @ uvms.ee_jdot_zeta(q, zeta) + cs.vertcat(
-        cs.cross(cs.cross(omega, arm), omega), zero3
+    # Adot_i zeta = J_Oi^-1 Jdot zeta + d/dt(J_Oi^-1) J zeta, d/dt(S(r)) = S(omega x r)
+    adot_zeta = j_o_inv @ uvms.ee_jdot_zeta(q, zeta) + cs.vertcat(
+        cs.cross(cs.cross(omega, arm), omega), cs.DM.zeros(3)
     )
+    return x_o, j_o_inv @ v_ee, j_o_inv @ jac, adot_zeta
+
+
+def local_terms(uvms, obj: ObjectModel, q, zeta, theta):
+    """(M_i + c_i A_i^T M_O A_i, -h_i - c_i A_i^T (M_O Adot_i zeta + h_O)) of the local model
+    (nominal parameters; the controller does not know the current)."""
+    share, p_o = theta[12], theta[13 : 13 + NPO]
+    zero3 = cs.DM.zeros(3)
+    x_o, v_o, a_i, adot_zeta = _grasp_kinematics(uvms, q, zeta, theta)
     mass, bias = uvms.dynamics(q, zeta, zero3, cs.DM(uvms.nominal_parameters()))
-    m_o, h_o = obj.dynamics(x_o, j_o_inv @ v_ee, zero3, p_o)
-    return mass + share * a_i.T @ m_o @ a_i, -bias - share * a_i.T @ (m_o @ adz + h_o)
+    m_o, h_o = obj.dynamics(x_o, v_o, zero3, p_o)
+    return mass + share * a_i.T @ m_o @ a_i, -bias - share * a_i.T @ (m_o @ adot_zeta + h_o)
 
 
 def build_steady_input(uvms, obj: ObjectModel, model: LocalModel) -> cs.Function:

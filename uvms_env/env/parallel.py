@@ -33,7 +33,13 @@ from uvms_env.env.observation import (
     Observer,
     observation_bounds,
 )
-from uvms_env.env.priors import ACTION_MODES, OBSERVATION_MODES, Priors, steady_inputs
+from uvms_env.env.priors import (
+    ACTION_MODES,
+    DEFAULT_RESIDUAL_SCALE,
+    OBSERVATION_MODES,
+    Priors,
+    steady_inputs,
+)
 from uvms_env.env.registration import ENV_ID
 from uvms_env.env.reward import RewardWeights, TeamReward
 from uvms_env.env.wrench import InternalWrench
@@ -632,11 +638,10 @@ def episode_end(success: bool, diverged: bool, collision: bool, failed: bool) ->
 
 def priors_of(options: Mapping[str, Any]) -> Priors:
     """The action and observation modes among checked environment ``options``."""
-    scale = options.get("residual_scale")
     return Priors(
         options.get("action_mode", "torque"),
         options.get("observation_mode", "raw"),
-        *(() if scale is None else (scale,)),
+        options.get("residual_scale", DEFAULT_RESIDUAL_SCALE),
     )
 
 

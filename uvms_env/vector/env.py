@@ -76,6 +76,7 @@ from uvms_env.vector.bank import NAV_PARAMETERS, SEEDED_FAMILIES, GeometryBank, 
 from uvms_env.vector.kernels import BatchedFunction, available_cores
 from uvms_env.vector.simulator import ENVELOPE, INACCURATE, OK, BatchedSimulator
 
+ALL = slice(None)  # every environment, as an index
 VECTOR_OPTIONS: dict[str, Option] = {
     "geometry_pool": Option(
         "int", "seeded families: episodes cycle through this many bank seeds", low=1, optional=True
@@ -295,7 +296,8 @@ class VectorEnv:
         self._noise_zeta = base.sensor_noise * NOISE_STD_ZETA
         self._metrics_reset(slice(None), init=True)
         self._obs = np.zeros((k, n, OBSERVATION_SIZE), np.float32)
-        self._steady: np.ndarray | None = None
+        # a_ss of the robots' current observations, kept beside them when the priors use it
+        self._steady = np.zeros((k, n, NU))
         self._started = False
         self._set_geometry(np.arange(k), [base] * k)
 
@@ -337,7 +339,7 @@ class VectorEnv:
             seed = self._first_seed
         if seed is None and self.geometry_pool is not None:  # every env: its next episode
             self._autoreset(np.arange(k))
-            return self._view(self._obs), {"episode_seed": self._pool_seeds(np.arange(k))}
+            return self._view(ALL), {"episode_seed": self._pool_seeds(np.arange(k))}
         if seed is not None:
             seeds = self._seed_list(seed)
             self._episode_base[:] = seeds
@@ -349,8 +351,8 @@ class VectorEnv:
             if self._seeded:
                 self._set_geometry(np.arange(k), self._geometries(seeds))
         self._started = True
-        obs = self._reset_envs(np.arange(k))
-        return self._view(obs), {"episode_seed": self._seeds_now.copy()}
+        self._reset_envs(np.arange(k))
+        return self._view(ALL), {"episode_seed": self._seeds_now.copy()}
 
     def _seed_list(self, seed: int | Sequence[int]) -> list[int]:
         k = self.num_envs
@@ -429,10 +431,10 @@ class VectorEnv:
         ):
             a[:, k:] = a[:, :1]
 
-    def _reset_envs(self, ids: np.ndarray) -> np.ndarray:
+    def _reset_envs(self, ids: np.ndarray) -> None:
         """The single env's ``reset()`` for environments ``ids``: new draws from each one's
-        generator, start state, sequencers, metrics, first observation. Returns the
-        observations of ``ids`` (also written into ``self._obs``)."""
+        generator, start state, sequencers, metrics, first observation (into
+        ``self._obs``)."""
         sim_seeds = []
         for i in ids.tolist():
             rng = np.random.default_rng(self._seeders[i].integers(_SEED_LIMIT))
@@ -457,7 +459,6 @@ class VectorEnv:
         x_o = self._object_pose(ids)
         self._advance_team(ids, x_o)
         self._potential[ids] = self._potential_of(ids, x_o)
-        return self._obs[ids]
 
     # -- stepping -------------------------------------------------------------------------
     def step(
@@ -470,8 +471,6 @@ class VectorEnv:
         current = None
         if self._current_on:
             current = np.array([c.step(self._base.period) for c in self._currents])
-        if self.priors.action_mode != "torque" and self._steady is None:
-            self._steady = steady_inputs(self._obs, self._ring)
         command = self.priors.command(self._obs, a, self._ring, self._steady)
         code = self.sim.step(command * self.sim.tau_max, current)
         self._steps += 1
@@ -520,10 +519,9 @@ class VectorEnv:
         }
         for i in np.flatnonzero(diverged).tolist():
             infos["diverged_reason"][i] = DIVERGED_REASONS[int(code[i])]
-        obs = self._obs.copy()
         if ended.any():
             done = np.flatnonzero(ended)
-            infos["final_observation"][done] = self._view(obs[done])
+            infos["final_observation"][done] = self._view(done)
             infos["final_state"] = self.state()  # before the reset, for central critics
             for i in done.tolist():
                 infos["episode_end"][i] = episode_end(
@@ -531,8 +529,7 @@ class VectorEnv:
                 )
                 infos["metrics"][i] = self._metrics_result(i, x_o[i], bool(success[i]))
             self._autoreset(done)
-            obs[done] = self._obs[done]
-        return self._view(obs), reward, terminated, truncated, infos
+        return self._view(ALL), reward, terminated, truncated, infos
 
     def restart(self, env_ids: Any) -> np.ndarray:
         """End the episodes of ``env_ids`` where they stand and start their next ones, as the
@@ -545,7 +542,7 @@ class VectorEnv:
             raise ValueError(f"env_ids must lie in 0..{self.num_envs - 1}, got {env_ids!r}")
         if len(ids):
             self._autoreset(ids)
-        return self._view(self._obs[ids])
+        return self._view(ids)
 
     def _autoreset(self, ids: np.ndarray) -> None:
         self._episode[ids] += 1
@@ -556,15 +553,11 @@ class VectorEnv:
             self._set_geometry(ids, self._geometries(seeds))
         self._reset_envs(ids)
 
-    def _view(self, raw: np.ndarray) -> np.ndarray:
-        """A copy of raw observations in the observation mode (``priors``); keeps a_ss of
-        the whole batch's observations for the next step's residual actions."""
+    def _view(self, ids: np.ndarray | slice) -> np.ndarray:
+        """A copy of the current observations of ``ids`` in the observation mode."""
         if self.priors.observation_mode == "raw":
-            return raw.copy()
-        steady = steady_inputs(raw, self._ring)
-        if raw.shape[0] == self.num_envs and np.array_equal(raw, self._obs):
-            self._steady = steady
-        return self.priors.observe(raw, self._ring, steady)
+            return self._obs[ids].copy()
+        return self.priors.observe(self._obs[ids], self._ring, self._steady[ids])
 
     def _pool_seeds(self, ids: np.ndarray) -> np.ndarray:
         """The reset seeds of the current episodes of ``ids`` with a geometry pool."""
@@ -656,7 +649,8 @@ class VectorEnv:
         obs[:, :, _WAYPOINT] = wp
         obs[:, :, _NAV] = self._navigation_twist(env_rows, index, pose)
         self._obs[ids] = obs
-        self._steady = None  # a_ss of self._obs, computed when the priors ask for it
+        if self.priors.needs_steady:  # from the float32 observations, as the single env
+            self._steady[ids] = steady_inputs(self._obs[ids], self._ring)
 
     def _measure(self, ids: np.ndarray, q: np.ndarray, zeta: np.ndarray) -> None:
         """Sensor noise from each environment's generator (the single env's draws)."""
