@@ -2,6 +2,7 @@
 
     python benchmarks/vector_step.py [--num-envs 1 64 256 1024] [--threads 1 0]
                                      [--dtype float32 float64] [--seconds 1.5] [--json F]
+    python benchmarks/vector_step.py --backend cuda [--device 0]   # on a GPU
 
 A full environment step (physics with its error control, observations, constraint values,
 reward, termination, metrics and automatic resets), actions random in [-0.3, 0.3], on
@@ -11,6 +12,11 @@ the same run and every ratio is against it; threads ``0`` means every core this 
 may use; the scalar build (``lanes=1``, for CPUs without wide vectors) is measured at
 K = 256 with every core. Each figure is the median of three timed windows of
 ``--seconds``/3.
+
+``--backend cuda``: the same full step on a GPU (actions drawn on the GPU as torch
+tensors, every result left there; K defaults to 1,024, 16,384 and 65,536, cases paper
+N = 2, random N = 4 and N = 6). ``--device cpu`` runs the CUDA backend's kernels
+compiled for the host instead (a check of the path, not a speed figure).
 """
 
 from __future__ import annotations
@@ -29,7 +35,12 @@ import uvms_env
 from uvms_env.vector import VectorEnv
 from uvms_env.vector.kernels import available_cores
 
-CASES = {"paper N=2": ("paper", {}), "random N=4": ("random", {"n_agents": 4})}
+CASES = {
+    "paper N=2": ("paper", {}),
+    "random N=4": ("random", {"n_agents": 4}),
+    "random N=6": ("random", {"n_agents": 6}),
+}
+CPU_CASES = ["paper N=2", "random N=4"]
 POOL = {"random": {"geometry_pool": 32}}
 
 
@@ -72,24 +83,37 @@ def vector_rate(
     threads: int,
     lanes: int | None,
     seconds: float,
+    backend: str = "cpu",
+    device: int | str = 0,
 ) -> float:
+    gpu = {"backend": backend, "device": device} if backend == "cuda" else {"lanes": lanes}
     venv = VectorEnv(
         family,
         num_envs=k,
         dtype=dtype,
         threads=threads,
-        lanes=lanes,
+        **gpu,
         **overrides,
         **POOL.get(family, {}),
     )
     venv.reset(seed=0)
-    acts = np.random.default_rng(0).uniform(-0.3, 0.3, (4, k, venv.n, 8))
+    sync = lambda: None  # noqa: E731
+    if backend == "cuda":
+        import torch
+
+        where = "cpu" if device == "cpu" else f"cuda:{device}"
+        acts = torch.empty((4, k, venv.n, 8), device=where).uniform_(-0.3, 0.3)
+        if where != "cpu":
+            sync = torch.cuda.synchronize
+    else:
+        acts = np.random.default_rng(0).uniform(-0.3, 0.3, (4, k, venv.n, 8))
     step = [0]
 
     def run(m: int) -> int:
         for _ in range(m):
             venv.step(acts[step[0] % 4])
             step[0] += 1
+        sync()  # the GPU's queue drained before the clock is read
         return m * k
 
     run(2)
@@ -98,13 +122,19 @@ def vector_rate(
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--num-envs", type=int, nargs="+", default=[1, 64, 256, 1024])
+    parser.add_argument("--backend", choices=["cpu", "cuda"], default="cpu")
+    parser.add_argument("--device", default="0", help="GPU index, or cpu (emulated kernels)")
+    parser.add_argument("--num-envs", type=int, nargs="+")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 0])
     parser.add_argument("--dtype", nargs="+", default=["float32", "float64"])
-    parser.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
+    parser.add_argument("--cases", nargs="+", choices=list(CASES))
     parser.add_argument("--seconds", type=float, default=1.5)
     parser.add_argument("--json", help="also write the results here")
     args = parser.parse_args()
+    if args.backend == "cuda":
+        return cuda_main(args)
+    args.num_envs = args.num_envs or [1, 64, 256, 1024]
+    args.cases = args.cases or CPU_CASES
     cores = available_cores()
     results: list[dict[str, Any]] = []
     print(f"cores: {cores}")
@@ -141,6 +171,38 @@ def main() -> None:
     if args.json:
         with open(args.json, "w") as fh:
             json.dump({"cores": cores, "results": results}, fh, indent=1)
+
+
+def cuda_main(args: argparse.Namespace) -> None:
+    """The GPU table: env-steps/s per case, dtype and K (no single-env ratio: the GPU
+    figures compare with the CPU table of the same machine)."""
+    device = args.device if args.device == "cpu" else int(args.device)
+    results: list[dict[str, Any]] = []
+    for case in args.cases or list(CASES):
+        family, overrides = CASES[case]
+        print(f"\n{case}, backend cuda, device {device}")
+        print(f"{'dtype':>8} {'K':>7} {'env-steps/s':>12} {'robot-steps/s':>14}")
+        for dtype in args.dtype:
+            for k in args.num_envs or [1024, 16384, 65536]:
+                rate = vector_rate(
+                    family,
+                    overrides,
+                    k,
+                    dtype,
+                    available_cores(),
+                    None,
+                    args.seconds,
+                    "cuda",
+                    device,
+                )
+                n = overrides.get("n_agents", 2)
+                print(f"{dtype:>8} {k:>7} {rate:>12,.0f} {rate * n:>14,.0f}")
+                results.append(
+                    {"case": case, "dtype": dtype, "num_envs": k, "env_steps_per_s": rate}
+                )
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump({"backend": "cuda", "device": str(device), "results": results}, fh, indent=1)
 
 
 if __name__ == "__main__":

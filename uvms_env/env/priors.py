@@ -179,6 +179,16 @@ def _steady_one(ring_radius: float) -> cs.Function:
     return compile_function(cs.Function(name, [o], [steady_sx(o, ring_radius)]))
 
 
+@functools.cache
+def prior_functions(ring_radius: float) -> tuple[cs.Function, cs.Function]:
+    """(a_ss, features) of one (79,) observation as CasADi functions, for batched
+    kernels (the GPU backend evaluates them over every robot's column)."""
+    o = cs.SX.sym("obs", OBS_DIM)
+    tag = f"{ring_radius:.4f}".replace(".", "p")
+    steady = cs.Function(f"prior_steady_{tag}", [o], [steady_sx(o, ring_radius)])
+    return steady, cs.Function("prior_features", [o], [featurize_sx(o)])
+
+
 @functools.lru_cache(maxsize=16)
 def _steady_call(ring_radius: float, count: int) -> BufferCall:
     # The buffer interface: an ordinary call of the mapped function spent ~200 us in

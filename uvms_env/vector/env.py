@@ -23,8 +23,20 @@ be drawn from (sensor noise, ocean current: a loop over K when they are switched
 that every draw is the single environment's) and for environments whose episode ended
 (their metrics dict and their reset).
 
-May import: numpy, gymnasium (spaces), ``uvms_env`` below ``vector`` and the ``env``
-modules whose kernels and constants it batches.
+**GPU** (``backend="cuda"``, ``device=`` a GPU index): the same class with CuPy arrays in
+place of numpy ones and the same CasADi functions compiled as CUDA kernels
+(``kernels_cuda``; a_ss and the features too). States, observations, rewards, constraint
+values and the sequencing stay on the GPU; ``reset``/``step``/``state`` return torch
+tensors there (DLPack, no copy) and ``step`` takes torch CUDA tensors (or CuPy or numpy
+arrays). Per step the host reads a few flags (any refusal, any episode ended); the
+environments that ended come to the host for their metrics dicts and their resets (the
+truth-model draws of each environment's own generator). ``device="cpu"`` compiles the
+same kernel source for the host and runs this path on numpy arrays: how the tests check
+it, to rounding against the CPU backend, on machines without a GPU.
+
+May import: numpy, gymnasium (spaces), torch (only to return tensors on the CUDA
+backend), ``uvms_env`` below ``vector`` and the ``env`` modules whose kernels and
+constants it batches.
 """
 
 from __future__ import annotations
@@ -66,7 +78,7 @@ from uvms_env.env.parallel import (
     priors_of,
     split_keywords,
 )
-from uvms_env.env.priors import steady_inputs
+from uvms_env.env.priors import BASE_FEATURES, prior_functions, steady_inputs
 from uvms_env.env.reward import REWARD_TERMS, RewardWeights
 from uvms_env.navigation.parametric import parametric_twist_function
 from uvms_env.scenarios import Scenario
@@ -74,7 +86,7 @@ from uvms_env.scenarios.overrides import Option
 from uvms_env.sim.current import OceanCurrent
 from uvms_env.vector.bank import NAV_PARAMETERS, SEEDED_FAMILIES, GeometryBank, navigation_table
 from uvms_env.vector.kernels import BatchedFunction, available_cores
-from uvms_env.vector.simulator import ENVELOPE, INACCURATE, OK, BatchedSimulator
+from uvms_env.vector.simulator import BACKENDS, ENVELOPE, INACCURATE, OK, BatchedSimulator
 
 ALL = slice(None)  # every environment, as an index
 VECTOR_OPTIONS: dict[str, Option] = {
@@ -98,9 +110,12 @@ class VectorEnv:
     """K environments of one scenario family and team size, stepped together.
 
     Construct: ``VectorEnv(scenario="paper", num_envs=1, backend="cpu", dtype="float64",
-    threads=None, lanes=None, **overrides)``; the overrides are every keyword of
+    threads=None, lanes=None, device=0, **overrides)``; the overrides are every keyword of
     ``parallel_env`` (scenario overrides and environment options, with the same checks)
-    plus ``geometry_pool``.
+    plus ``geometry_pool``. ``backend="cuda"``: on GPU ``device`` (module docstring); the
+    arrays below are then torch tensors on that device, except the per-environment
+    objects of ``infos`` (``episode_end``, ``metrics``, ``diverged_reason``) and
+    ``episode_seed``, which stay numpy.
 
     | call | returns |
     |---|---|
@@ -159,13 +174,12 @@ class VectorEnv:
         dtype: str = "float64",
         threads: int | None = None,
         lanes: int | None = None,
+        device: int | str = 0,
         **overrides: Any,
     ) -> None:
-        if backend != "cpu":
-            raise ValueError(
-                f"VectorEnv runs on backend 'cpu' (the GPU backend steps the physics only: "
-                f"uvms_env.vector.BatchedSimulator(backend='cuda')), got {backend!r}"
-            )
+        if backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        self.backend = backend
         if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer):
             raise TypeError(f"num_envs must be an int >= 1, got {num_envs!r}")
         if num_envs < 1:
@@ -224,14 +238,16 @@ class VectorEnv:
         self.observation_structure = dict(OBSERVATION_STRUCTURE)
 
         # -- compiled calls -----------------------------------------------------------
-        self.sim = BatchedSimulator(base, k, "cpu", dtype, self.threads, lanes)
-        lanes = self.sim._fn.lanes
+        self.sim = BatchedSimulator(base, k, backend, dtype, self.threads, lanes, device)
+        self.xp = xp = self.sim.xp  # numpy, or CuPy on a GPU: the per-step arrays live there
+        self.device = device if backend == "cuda" else "cpu"
+        self._lanes = self.sim._fn.lanes if backend == "cpu" else 1
         self._kp = kp = self.sim._kp
         self._real = real = self.sim._real
         self._noisy = base.sensor_noise > 0
         segments = self.sim.object.segments
         self._n_seg = len(segments)
-        self._kinematics = BatchedFunction(
+        self._kinematics = self._kernel(
             team_function(
                 n,
                 self._n_seg,
@@ -240,21 +256,22 @@ class VectorEnv:
                 OBSERVATION_LAYOUT,
                 tuple(FAR_OBSTACLE),
                 self._noisy,
-            ),
-            dtype,
-            lanes,
+            )
         )
-        self._navigation = BatchedFunction(
-            parametric_twist_function(BATCH_CYLINDERS, BATCH_SPHERES), dtype, lanes
-        )
+        self._navigation = self._kernel(parametric_twist_function(BATCH_CYLINDERS, BATCH_SPHERES))
         self._wrench = (
-            BatchedFunction(self.sim.chain.internal_wrench, dtype, lanes)
-            if self.internal_wrench_every > 0
-            else None
+            self._kernel(self.sim.chain.internal_wrench) if self.internal_wrench_every > 0 else None
         )
+        # the priors' a_ss and features: host calls on the CPU backend (the single env's),
+        # kernels of the same CasADi expressions on the GPU, over the K N robots' columns
+        self._prior_kernels = (
+            prior_functions(self._ring) if backend == "cuda" and self.priors.needs_steady else None
+        )
+        if self._prior_kernels is not None:
+            self._prior_kernels = tuple(self._kernel(f) for f in self._prior_kernels)
 
         # -- per-environment inputs of the kinematics kernel, (nnz, K padded) ---------
-        z = lambda rows: np.zeros((rows, kp), real)  # noqa: E731
+        z = lambda rows: xp.zeros((rows, kp), real)  # noqa: E731
         self._a = z(NU * n)
         self._q_meas, self._zeta_meas = z(NQ * n), z(NQ * n)
         self._static, self._waypoint_in = z(13 * n), z(6 * n)
@@ -262,27 +279,29 @@ class VectorEnv:
         self._segments = z(6 * self._n_seg)
         self._cylinders, self._spheres = z(4 * BATCH_CYLINDERS), z(5 * BATCH_SPHERES)
         self._workspace = z(4)
-        self._segments[:] = segment_inputs(segments, self._n_seg).reshape(-1, 1)
+        self._segments[:] = xp.asarray(segment_inputs(segments, self._n_seg).reshape(-1, 1))
         sig = self._kinematics.signature
-        self._kin_out = [np.zeros((m, kp), real) for m in sig.nnz_out]
+        self._kin_out = [xp.zeros((m, kp), real) for m in sig.nnz_out]
 
-        # -- per-environment episode data (host, float64) --------------------------------
+        # -- per-environment episode data (float64; where the step runs) -----------------
         self.scenarios: list[Scenario] = [base] * k
         self._geometry_set = np.zeros(k, bool)
         self._by_seed: dict[int, Scenario] = {}  # geometry seed -> scenario with overrides
         self._nav_tables: dict[int, np.ndarray] = {}  # id(scenario) -> navigation table
         w_max = 3 if self.family == "random" else len(base.waypoints)
         self._w_max = w_max
-        self._waypoints = np.zeros((k, w_max, 6))
-        self._waypoint_count = np.ones(k, np.int64)
-        self._nav_table = np.zeros((k, w_max, NAV_PARAMETERS))
-        self._has_obstacles = np.zeros(k, bool)
-        self._robot_index = np.zeros((k, n), np.int64)
-        self._robot_done = np.zeros((k, n), bool)
-        self._team_index = np.zeros(k, np.int64)
-        self._team_done = np.zeros(k, bool)
-        self._potential = np.zeros(k)
-        self._steps = np.zeros(k, np.int64)
+        self._waypoints = xp.zeros((k, w_max, 6))
+        self._waypoint_count = xp.ones(k, np.int64)
+        self._nav_table = xp.zeros((k, w_max, NAV_PARAMETERS))
+        self._has_obstacles = xp.zeros(k, bool)
+        self._robot_index = xp.zeros((k, n), np.int64)
+        self._robot_done = xp.zeros((k, n), bool)
+        self._team_index = xp.zeros(k, np.int64)
+        self._team_done = xp.zeros(k, bool)
+        self._potential = xp.zeros(k)
+        self._steps = xp.zeros(k, np.int64)
+        self._hard_kinds = xp.asarray(HARD_KINDS)
+        # episode bookkeeping of the resets (host: read in Python per ended environment)
         self._episode = np.zeros(k, np.int64)
         self._episode_base = np.zeros(k, np.int64)
         self._seeders = [np.random.default_rng(self._first_seed + i) for i in range(k)]
@@ -295,11 +314,45 @@ class VectorEnv:
         self._noise_q = base.sensor_noise * NOISE_STD_Q
         self._noise_zeta = base.sensor_noise * NOISE_STD_ZETA
         self._metrics_reset(slice(None), init=True)
-        self._obs = np.zeros((k, n, OBSERVATION_SIZE), np.float32)
+        self._obs = xp.zeros((k, n, OBSERVATION_SIZE), np.float32)
         # a_ss of the robots' current observations, kept beside them when the priors use it
-        self._steady = np.zeros((k, n, NU))
+        self._steady = xp.zeros((k, n, NU))
         self._started = False
         self._set_geometry(np.arange(k), [base] * k)
+
+    # -- backends -----------------------------------------------------------------------
+    def _kernel(self, fn: Any) -> Any:
+        """``fn`` batched for this backend: CPU lanes and threads, or a CUDA kernel (on a
+        GPU, or with ``device="cpu"`` its source compiled for the host)."""
+        if self.backend == "cpu":
+            return BatchedFunction(fn, self.dtype, self._lanes)
+        from uvms_env.vector.kernels_cuda import cuda_function
+
+        return cuda_function(fn, self.dtype, self.device, self.threads)
+
+    def _call(self, kernel: Any, inputs: list, out: list | None = None) -> list:
+        if self.backend == "cpu":
+            return kernel(inputs, self.threads, out=out)
+        return kernel(inputs, out=out)
+
+    def _on_device(self, ids: Any) -> Any:
+        """Host indices as the step's arrays take them (slices pass through)."""
+        return ids if isinstance(ids, slice) or self.xp is np else self.xp.asarray(ids)
+
+    def _host(self, a: Any) -> np.ndarray:
+        """A numpy copy of a step array, for Python code and the caller's host data."""
+        return np.asarray(a) if self.xp is np else self.xp.asnumpy(a)
+
+    def _export(self, a: Any) -> Any:
+        """What ``reset``/``step`` return for a step array: numpy on the CPU backend,
+        torch tensors on the CUDA backend's device (zero-copy through DLPack)."""
+        if self.backend == "cpu" or a is None:
+            return a
+        import torch
+
+        if self.xp is np:  # the emulated device: torch on the host
+            return torch.from_numpy(np.ascontiguousarray(a))
+        return torch.from_dlpack(a)
 
     # -- spaces and views ---------------------------------------------------------------
     @property
@@ -319,15 +372,18 @@ class VectorEnv:
         """Environment 0's scenario (every environment's: ``scenarios``)."""
         return self.scenarios[0]
 
-    def state(self) -> np.ndarray:
+    def state(self) -> Any:
         """(K, 20 N + 19) float32: the true state, the team's waypoint and the time
-        fraction of every environment, as ``parallel_env.state()``."""
-        k = self.num_envs
+        fraction of every environment, as ``parallel_env.state()`` (a torch tensor on the
+        CUDA backend)."""
+        return self._export(self._state())
+
+    def _state(self) -> Any:
+        xp, k = self.xp, self.num_envs
         x = self.sim.x[:, :k].T.astype(np.float64)
-        wp = self._waypoints[np.arange(k), self._team_index]
-        return np.concatenate(
-            [x, wp, (self._steps / self.max_cycles)[:, None]], axis=1, dtype=np.float32
-        )
+        wp = self._waypoints[xp.arange(k), self._team_index]
+        full = xp.concatenate([x, wp, (self._steps / self.max_cycles)[:, None]], axis=1)
+        return full.astype(np.float32)
 
     # -- episodes -----------------------------------------------------------------------
     def reset(
@@ -339,7 +395,7 @@ class VectorEnv:
             seed = self._first_seed
         if seed is None and self.geometry_pool is not None:  # every env: its next episode
             self._autoreset(np.arange(k))
-            return self._view(ALL), {"episode_seed": self._pool_seeds(np.arange(k))}
+            return self._export(self._view(ALL)), {"episode_seed": self._pool_seeds(np.arange(k))}
         if seed is not None:
             seeds = self._seed_list(seed)
             self._episode_base[:] = seeds
@@ -352,7 +408,7 @@ class VectorEnv:
                 self._set_geometry(np.arange(k), self._geometries(seeds))
         self._started = True
         self._reset_envs(np.arange(k))
-        return self._view(ALL), {"episode_seed": self._seeds_now.copy()}
+        return self._export(self._view(ALL)), {"episode_seed": self._seeds_now.copy()}
 
     def _seed_list(self, seed: int | Sequence[int]) -> list[int]:
         k = self.num_envs
@@ -386,37 +442,58 @@ class VectorEnv:
     def _set_geometry(self, ids: np.ndarray, scenarios: Sequence[Scenario]) -> None:
         """Environments ``ids`` take these scenarios' geometries (kernel inputs, waypoints,
         navigation parameters, simulator grasps). Same-object checks: the simulator's."""
-        n = self.n
-        for i, s in zip(ids.tolist(), scenarios, strict=True):
-            if self.scenarios[i] is s and self._geometry_set[i]:
-                continue
+        n, w_max = self.n, self._w_max
+        changed = [
+            (i, s)
+            for i, s in zip(ids.tolist(), scenarios, strict=True)
+            if not (self.scenarios[i] is s and self._geometry_set[i])
+        ]
+        if not changed:
+            return
+        m = len(changed)
+        # gathered on the host, written with one copy per array (one transfer on a GPU)
+        waypoints, nav = np.zeros((m, w_max, 6)), np.zeros((m, w_max, NAV_PARAMETERS))
+        count, obstacles = np.zeros(m, np.int64), np.zeros(m, bool)
+        cylinders, spheres = np.zeros((4 * BATCH_CYLINDERS, m)), np.zeros((5 * BATCH_SPHERES, m))
+        workspace, goal, static = np.zeros((4, m)), np.zeros((6, m)), np.zeros((13 * n, m))
+        for row, (i, s) in enumerate(changed):
             if s.n_agents != n:
                 raise ValueError(f"environment {i}: {s.n_agents} agents, the batch has {n}")
+            w = len(s.waypoints)
+            if w > w_max:
+                raise ValueError(f"environment {i}: {w} waypoints, the batch has room for {w_max}")
             self.sim.set_scenario([i], s)
             self.scenarios[i] = s
             self._geometry_set[i] = True
-            w = len(s.waypoints)
-            if w > self._w_max:
-                raise ValueError(
-                    f"environment {i}: {w} waypoints, the batch has room for {self._w_max}"
-                )
-            self._waypoints[i, :w] = s.waypoints
-            self._waypoint_count[i] = w
-            self._nav_table[i, :w] = self._navigation_table_of(s)
-            self._has_obstacles[i] = bool(s.obstacles)
+            waypoints[row, :w] = s.waypoints
+            count[row] = w
+            nav[row, :w] = self._navigation_table_of(s)
+            obstacles[row] = bool(s.obstacles)
             cyl, sph = obstacle_inputs(s, BATCH_CYLINDERS, BATCH_SPHERES)
-            self._cylinders[:, i] = cyl.reshape(-1)
-            self._spheres[:, i] = sph.reshape(-1)
-            self._workspace[:, i] = [*s.workspace.center, s.workspace.radius]
-            self._goal[:, i] = s.waypoints[-1]
-            static = np.hstack(
+            cylinders[:, row], spheres[:, row] = cyl.reshape(-1), sph.reshape(-1)
+            workspace[:, row] = [*s.workspace.center, s.workspace.radius]
+            goal[:, row] = s.waypoints[-1]
+            static[:, row] = np.hstack(
                 [
                     np.asarray(s.load_shares)[:, None],
                     s.grasp_offsets,
                     np.asarray(s.grasp_rotations).reshape(n, 9),
                 ]
-            )
-            self._static[:, i] = static.reshape(-1)
+            ).reshape(-1)
+        xp, real = self.xp, self._real
+        cols = self._on_device(np.array([i for i, _ in changed]))
+        self._waypoints[cols] = xp.asarray(waypoints)
+        self._waypoint_count[cols] = xp.asarray(count)
+        self._nav_table[cols] = xp.asarray(nav)
+        self._has_obstacles[cols] = xp.asarray(obstacles)
+        for target, rows in (
+            (self._cylinders, cylinders),
+            (self._spheres, spheres),
+            (self._workspace, workspace),
+            (self._goal, goal),
+            (self._static, static),
+        ):
+            target[:, cols] = xp.asarray(rows, real)
         self._fill_padding()
 
     def _fill_padding(self) -> None:
@@ -445,11 +522,12 @@ class VectorEnv:
             self._currents[i].reset(gen)
         if len(ids) == self.num_envs:  # all of them: the kernels' full path, no gathering
             ids = slice(0, self.num_envs)
+        ids = self._on_device(ids)
         self._steps[ids] = 0
         self._metrics_reset(ids)
         self._robot_index[ids] = 0
         self._robot_done[ids] = False
-        self._waypoint_in[:, ids] = np.tile(self._waypoints[ids, 0], (1, self.n)).T
+        self._waypoint_in[:, ids] = self.xp.tile(self._waypoints[ids, 0], (1, self.n)).T
         self._waypoint_in[:, self.num_envs :] = self._waypoint_in[:, :1]  # padding lanes
         self._a[:, ids] = 0.0
         self._evaluate(ids)
@@ -466,13 +544,14 @@ class VectorEnv:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         if not self._started:
             raise RuntimeError("step() called before reset()")
-        k, n = self.num_envs, self.n
+        xp, k, n = self.xp, self.num_envs, self.n
         a = self._check_actions(actions)
         current = None
         if self._current_on:
-            current = np.array([c.step(self._base.period) for c in self._currents])
+            current = xp.asarray(np.array([c.step(self._base.period) for c in self._currents]))
+        # numpy's functions dispatch to CuPy's for CuPy arrays (NEP 18): one formula
         command = self.priors.command(self._obs, a, self._ring, self._steady)
-        code = self.sim.step(command * self.sim.tau_max, current)
+        code = self.sim.step(command * xp.asarray(self.sim.tau_max), current)
         self._steps += 1
         diverged = code != OK
         self._a[:, :k] = a.reshape(k, n * NU).T
@@ -481,7 +560,7 @@ class VectorEnv:
         team = self._kin_out[4][:, :k].astype(np.float64)
         kinds = team[6 : 6 + NK] > 0.0
         n_violated, action_sq = team[4], team[5]
-        collision = kinds[HARD_KINDS].any(axis=0)
+        collision = kinds[self._hard_kinds].any(axis=0)
         failed = diverged | collision
         if self.constraint_mode == "terminate":
             failed |= n_violated > 0
@@ -495,7 +574,7 @@ class VectorEnv:
         if every > 0:
             sampled = ~diverged & (self._steps % every == 0)
             if sampled.any():
-                wrench_sq = np.where(sampled, self._internal_wrench_sq(), 0.0)
+                wrench_sq = xp.where(sampled, self._internal_wrench_sq(), 0.0)
                 self._wrench_sq += wrench_sq
                 self._wrench_samples += sampled
         self._m_steps += 1
@@ -506,30 +585,46 @@ class VectorEnv:
         g = self._kin_out[2][:, :k].reshape(n, NK, k).transpose(2, 0, 1).astype(np.float64)
         cost = self._kin_out[3][:, :k].reshape(n, 6, k)[:, 4].T.astype(np.int64)
         ended = terminated | truncated
+        final_obs = xp.zeros((k, n, *self.single_observation_space.shape), np.float32)
         infos: dict[str, Any] = {
             "constraint_values": g,
             "cost": cost,
             "reward_terms": terms,
             "success": success,
             "episode_end": np.full(k, "", dtype=object),
-            "final_observation": np.zeros((k, n, *self.single_observation_space.shape), np.float32),
+            "final_observation": final_obs,
             "final_state": None,
             "metrics": np.full(k, None, dtype=object),
             "diverged_reason": np.full(k, "", dtype=object),
         }
-        for i in np.flatnonzero(diverged).tolist():
-            infos["diverged_reason"][i] = DIVERGED_REASONS[int(code[i])]
-        if ended.any():
-            done = np.flatnonzero(ended)
-            infos["final_observation"][done] = self._view(done)
-            infos["final_state"] = self.state()  # before the reset, for central critics
-            for i in done.tolist():
-                infos["episode_end"][i] = episode_end(
-                    bool(success[i]), bool(diverged[i]), bool(collision[i]), bool(failed[i])
-                )
-                infos["metrics"][i] = self._metrics_result(i, x_o[i], bool(success[i]))
+        if bool(diverged.any()):
+            refused = np.flatnonzero(self._host(diverged))
+            for i, c in zip(refused.tolist(), self._host(code)[refused].tolist(), strict=True):
+                infos["diverged_reason"][i] = DIVERGED_REASONS[int(c)]
+        if bool(ended.any()):
+            # the ended environments' flags and poses on the host, in one transfer each
+            done = np.flatnonzero(self._host(ended))
+            on = self._on_device(done)
+            infos["final_observation"][on] = self._view(on)
+            infos["final_state"] = self._state()  # before the reset, for central critics
+            flags = self._host(xp.stack([success[on], diverged[on], collision[on], failed[on]]))
+            for row, i in enumerate(done.tolist()):
+                infos["episode_end"][i] = episode_end(*(bool(f) for f in flags[:, row]))
+            infos["metrics"][done] = self._metrics_results(on, x_o[on], flags[0])
             self._autoreset(done)
-        return self._view(ALL), reward, terminated, truncated, infos
+        if self.backend == "cuda":
+            for key in ("constraint_values", "cost", "success", "final_observation", "final_state"):
+                infos[key] = self._export(infos[key])
+            infos["reward_terms"] = {
+                name: self._export(xp.broadcast_to(v, (k,)).copy()) for name, v in terms.items()
+            }
+        return (
+            self._export(self._view(ALL)),
+            self._export(reward),
+            self._export(terminated),
+            self._export(truncated),
+            infos,
+        )
 
     def restart(self, env_ids: Any) -> np.ndarray:
         """End the episodes of ``env_ids`` where they stand and start their next ones, as the
@@ -542,7 +637,7 @@ class VectorEnv:
             raise ValueError(f"env_ids must lie in 0..{self.num_envs - 1}, got {env_ids!r}")
         if len(ids):
             self._autoreset(ids)
-        return self._view(ids)
+        return self._export(self._view(self._on_device(ids)))
 
     def _autoreset(self, ids: np.ndarray) -> None:
         self._episode[ids] += 1
@@ -553,11 +648,22 @@ class VectorEnv:
             self._set_geometry(ids, self._geometries(seeds))
         self._reset_envs(ids)
 
-    def _view(self, ids: np.ndarray | slice) -> np.ndarray:
+    def _view(self, ids: Any) -> Any:
         """A copy of the current observations of ``ids`` in the observation mode."""
         if self.priors.observation_mode == "raw":
             return self._obs[ids].copy()
-        return self.priors.observe(self._obs[ids], self._ring, self._steady[ids])
+        if self._prior_kernels is None:
+            return self.priors.observe(self._obs[ids], self._ring, self._steady[ids])
+        raw = self._obs[ids]
+        features = self._robot_columns(self._prior_kernels[1], raw, BASE_FEATURES)
+        return self.xp.concatenate([features, self._steady[ids]], -1).astype(np.float32)
+
+    def _robot_columns(self, kernel: Any, raw: Any, size: int) -> Any:
+        """(m, N, size) float64: a prior's kernel over the m N robots' observations."""
+        m = raw.shape[0]
+        columns = self.xp.ascontiguousarray(raw.reshape(m * self.n, -1).T, self._real)
+        out = self._call(kernel, [columns])[0]
+        return out.T.reshape(m, self.n, size).astype(np.float64)
 
     def _pool_seeds(self, ids: np.ndarray) -> np.ndarray:
         """The reset seeds of the current episodes of ``ids`` with a geometry pool."""
@@ -565,10 +671,21 @@ class VectorEnv:
         raw = self._episode_base[ids] + self.num_envs * self._episode[ids]
         return raw % self.geometry_pool
 
-    def _check_actions(self, actions: Any) -> np.ndarray:
-        k, n = self.num_envs, self.n
+    def _as_array(self, actions: Any) -> Any:
+        """Actions as the step's array type: numpy, or on the GPU without a copy where they
+        are there already (torch CUDA tensors and CuPy arrays, through DLPack)."""
+        xp = self.xp
+        is_torch = type(actions).__module__.startswith("torch")
+        if xp is np:
+            return np.asarray(actions.detach().cpu() if is_torch else actions)
+        if is_torch and actions.is_cuda:
+            return xp.from_dlpack(actions.detach())
+        return xp.asarray(actions.detach().cpu().numpy() if is_torch else actions)
+
+    def _check_actions(self, actions: Any) -> Any:
+        xp, k, n = self.xp, self.num_envs, self.n
         try:
-            a = np.asarray(actions)
+            a = self._as_array(actions)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"actions must be an array of shape ({k}, {n}, {NU})") from exc
         if a.shape != (k, n, NU):
@@ -579,8 +696,8 @@ class VectorEnv:
                 f"actions must be float or int (not bool, complex, str or object), got {a.dtype}"
             )
         a = a.astype(np.float64, copy=False)
-        if not np.isfinite(a.sum()):
-            env, robot, _ = np.argwhere(~np.isfinite(a))[0]
+        if not bool(xp.isfinite(a.sum())):
+            env, robot, _ = self._host(xp.argwhere(~xp.isfinite(a))[0]).tolist()
             raise ValueError(
                 f"action of environment {env}, agent {self.possible_agents[robot]!r} contains "
                 "NaN or inf"
@@ -591,13 +708,13 @@ class VectorEnv:
     def _evaluate(self, ids: Any) -> None:
         """Measure, run the kinematics kernel, note the state metrics, sequence each robot's
         waypoints, add the navigation twist; the observations land in ``self._obs[ids]``."""
-        n, k = self.n, self.num_envs
+        xp, n, k = self.xp, self.n, self.num_envs
         full = isinstance(ids, slice)
         self._time_fraction[0, ids] = self._steps[ids] / self.max_cycles
         x = self.sim.x
         q, zeta = x[: NQ * n], x[NQ * n : 2 * NQ * n]
         if self._noisy:
-            self._measure(np.arange(k) if full else ids, q, zeta)
+            self._measure(np.arange(k) if full else self._host(ids), q, zeta)
         inputs = [
             self._a,
             q,
@@ -616,29 +733,29 @@ class VectorEnv:
             self._workspace,
         ]
         if full:
-            out = self._kinematics(inputs, self.threads, out=self._kin_out)
+            out = self._call(self._kinematics, inputs, out=self._kin_out)
             m = k
         else:
             m = len(ids)
-            cols = _padded_columns(ids, self._kinematics.padded(m))
-            out = self._kinematics([np.ascontiguousarray(a[:, cols]) for a in inputs], self.threads)
+            cols = _padded_columns(ids, self._kinematics.padded(m), xp)
+            out = self._call(self._kinematics, [xp.ascontiguousarray(a[:, cols]) for a in inputs])
             for full_out, part in zip(self._kin_out, out, strict=True):
                 full_out[:, ids] = part[:, :m]
         obs_rows, pose_rows, team = out[0][:, :m], out[1][:, :m], out[4][:, :m]
         # state metrics (EpisodeMetrics.observe)
-        clearance = np.where(self._has_obstacles[ids], team[0], np.inf)
-        np.minimum(self._min_clearance[ids], clearance, out=clearance)
+        clearance = xp.where(self._has_obstacles[ids], team[0], np.inf)
+        xp.minimum(self._min_clearance[ids], clearance, out=clearance)
         self._min_clearance[ids] = clearance
-        self._min_manip[ids] = np.minimum(self._min_manip[ids], team[1])
-        self._grasp_drift[ids] = np.maximum(self._grasp_drift[ids], team[2])
+        self._min_manip[ids] = xp.minimum(self._min_manip[ids], team[1])
+        self._grasp_drift[ids] = xp.maximum(self._grasp_drift[ids], team[2])
         obs = obs_rows.reshape(n, OBSERVATION_SIZE, m).transpose(2, 0, 1).astype(np.float64)
         pose = pose_rows.reshape(n, 6, m).transpose(2, 0, 1).astype(np.float64)  # (m, N, 6)
         # each robot's own sequencer, on its own estimate (WaypointSequencer.update)
         index, done = self._robot_index[ids], self._robot_done[ids]
-        env_rows = np.arange(k)[ids]
+        env_rows = xp.arange(k)[ids]
         wp = self._waypoints[env_rows[:, None], index]
-        near = ~done & (np.linalg.norm(pose[:, :, :3] - wp[:, :, :3], axis=2) < WAYPOINT_TOLERANCE)
-        if near.any():
+        near = ~done & (xp.linalg.norm(pose[:, :, :3] - wp[:, :, :3], axis=2) < WAYPOINT_TOLERANCE)
+        if bool(near.any()):
             last = index + 1 >= self._waypoint_count[ids][:, None]
             index = index + (near & ~last)
             done = done | (near & last)
@@ -649,59 +766,65 @@ class VectorEnv:
         obs[:, :, _WAYPOINT] = wp
         obs[:, :, _NAV] = self._navigation_twist(env_rows, index, pose)
         self._obs[ids] = obs
-        if self.priors.needs_steady:  # from the float32 observations, as the single env
+        if self._prior_kernels is not None:  # a_ss on the device, from the same expression
+            self._steady[ids] = self._robot_columns(self._prior_kernels[0], self._obs[ids], NU)
+        elif self.priors.needs_steady:  # from the float32 observations, as the single env
             self._steady[ids] = steady_inputs(self._obs[ids], self._ring)
 
     def _measure(self, ids: np.ndarray, q: np.ndarray, zeta: np.ndarray) -> None:
         """Sensor noise from each environment's generator (the single env's draws)."""
         n = self.n
         noise = np.stack([self._noise_rngs[i].standard_normal((2, n, NQ)) for i in ids.tolist()])
+        noise = self.xp.asarray(noise)  # drawn on the host: each environment's own generator
         qn = noise[:, 0] * self._noise_q  # (m, N, 10)
         zn = noise[:, 1] * self._noise_zeta
-        self._q_meas[:, ids] = qn.reshape(len(ids), -1).T + q[:, ids]
-        self._zeta_meas[:, ids] = zn.reshape(len(ids), -1).T + zeta[:, ids]
+        on = self._on_device(ids)
+        self._q_meas[:, on] = qn.reshape(len(ids), -1).T + q[:, on]
+        self._zeta_meas[:, on] = zn.reshape(len(ids), -1).T + zeta[:, on]
 
     def _navigation_twist(
         self, env_rows: np.ndarray, index: np.ndarray, pose: np.ndarray
     ) -> np.ndarray:
         """(m, N, 6): each robot's navigation twist towards its active waypoint at its own
         estimate: one batched call over the m N robots."""
+        xp = self.xp
         m, n = index.shape
         cols = m * n
         cp = self._navigation.padded(cols)
         params = self._nav_table[env_rows[:, None], index].reshape(cols, NAV_PARAMETERS)
         x = pose.reshape(cols, 6)
         if cp > cols:
-            params = np.concatenate([params, np.repeat(params[:1], cp - cols, axis=0)])
-            x = np.concatenate([x, np.repeat(x[:1], cp - cols, axis=0)])
-        x_in = np.ascontiguousarray(x.T, self._real)
-        p = np.ascontiguousarray(params.T, self._real)
-        bounds = np.cumsum([0, *self._navigation.signature.nnz_in[1:]])
-        inputs = [x_in] + [p[a:b] for a, b in itertools.pairwise(bounds)]
-        twist = self._navigation(inputs, self.threads)[0]
+            params = xp.concatenate([params, xp.repeat(params[:1], cp - cols, axis=0)])
+            x = xp.concatenate([x, xp.repeat(x[:1], cp - cols, axis=0)])
+        x_in = xp.ascontiguousarray(x.T, self._real)
+        p = xp.ascontiguousarray(params.T, self._real)
+        bounds = np.cumsum([0, *self._navigation.signature.nnz_in[1:]]).tolist()
+        inputs = [x_in] + [xp.ascontiguousarray(p[a:b]) for a, b in itertools.pairwise(bounds)]
+        twist = self._call(self._navigation, inputs)[0]
         return twist[:, :cols].T.reshape(m, n, 6)
 
     def _internal_wrench_sq(self) -> np.ndarray:
         """(K,) squared Frobenius norm of the internal wrench after the step."""
         assert self._wrench is not None
         s = self.sim
-        out = self._wrench(
-            [s.x, s._tau, s._vc, s.parameters, s.object_parameters, s.grasp], self.threads
+        out = self._call(
+            self._wrench, [s.x, s._tau, s._vc, s.parameters, s.object_parameters, s.grasp]
         )[0][:, : self.num_envs].astype(np.float64)
-        return np.einsum("ij,ij->j", out, out)
+        return self.xp.einsum("ij,ij->j", out, out)
 
     # -- reward and sequencing of the team (TeamReward) ---------------------------------
     def _object_pose(self, ids: Any) -> np.ndarray:
         n = self.n
         return self.sim.x[2 * NQ * n : 2 * NQ * n + 6, ids].T.astype(np.float64)
 
-    def _team_waypoint(self, ids: Any) -> np.ndarray:
-        return self._waypoints[np.arange(self.num_envs)[ids], self._team_index[ids]]
+    def _team_waypoint(self, ids: Any) -> Any:
+        return self._waypoints[self.xp.arange(self.num_envs)[ids], self._team_index[ids]]
 
-    def _potential_of(self, ids: Any, x_o: np.ndarray) -> np.ndarray:
+    def _potential_of(self, ids: Any, x_o: Any) -> Any:
+        xp = self.xp
         wp = self._team_waypoint(ids)
-        att = np.sqrt((_wrap(x_o[:, 3:] - wp[:, 3:]) ** 2).sum(axis=1))
-        dist = np.linalg.norm(x_o[:, :3] - wp[:, :3], axis=1)
+        att = xp.sqrt((_wrap(x_o[:, 3:] - wp[:, 3:], xp) ** 2).sum(axis=1))
+        dist = xp.linalg.norm(x_o[:, :3] - wp[:, :3], axis=1)
         return dist + self.reward_weights.attitude * att
 
     def _advance_team(self, ids: Any, x_o: np.ndarray) -> np.ndarray:
@@ -709,7 +832,7 @@ class VectorEnv:
         returns where an intermediate waypoint was passed (index changed)."""
         wp = self._team_waypoint(ids)
         near = ~self._team_done[ids] & (
-            np.linalg.norm(x_o[:, :3] - wp[:, :3], axis=1) < WAYPOINT_TOLERANCE
+            self.xp.linalg.norm(x_o[:, :3] - wp[:, :3], axis=1) < WAYPOINT_TOLERANCE
         )
         last = self._team_index[ids] + 1 >= self._waypoint_count[ids]
         passed = near & ~last
@@ -725,44 +848,44 @@ class VectorEnv:
         success: np.ndarray,
         failed: np.ndarray,
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        w, all_envs = self.reward_weights, slice(None)
+        xp, w, all_envs = self.xp, self.reward_weights, slice(None)
         potential = self._potential_of(all_envs, x_o)
         progress = w.progress * (self._potential - potential)
         passed = self._advance_team(all_envs, x_o)
-        if passed.any():
-            potential = np.where(passed, self._potential_of(all_envs, x_o), potential)
+        if bool(passed.any()):
+            potential = xp.where(passed, self._potential_of(all_envs, x_o), potential)
         self._potential = potential
         terms = {
             "progress": progress,
-            "waypoint": np.where(passed, w.waypoint, 0.0),
-            "success": np.where(success, w.success, 0.0),
-            "violation": 0.0 - w.violation * n_violated / self.n - np.where(failed, w.failure, 0.0),
+            "waypoint": xp.where(passed, w.waypoint, 0.0),
+            "success": xp.where(success, w.success, 0.0),
+            "violation": 0.0 - w.violation * n_violated / self.n - xp.where(failed, w.failure, 0.0),
             "effort": 0.0 - w.effort * mean_sq_action,
         }
-        reward = np.zeros(self.num_envs)
+        reward = xp.zeros(self.num_envs)
         for name in REWARD_TERMS:  # the single env's summation order
             reward = reward + terms[name]
         return reward, terms
 
-    def _at_goal(self, x_o: np.ndarray) -> np.ndarray:
-        s = self._base
-        goal = self._waypoints[np.arange(self.num_envs), self._waypoint_count - 1]
-        pos = np.linalg.norm(x_o[:, :3] - goal[:, :3], axis=1)
-        att = np.abs(_wrap(x_o[:, 3:] - goal[:, 3:])).max(axis=1)
+    def _at_goal(self, x_o: Any) -> Any:
+        xp, s = self.xp, self._base
+        goal = self._waypoints[xp.arange(self.num_envs), self._waypoint_count - 1]
+        pos = xp.linalg.norm(x_o[:, :3] - goal[:, :3], axis=1)
+        att = xp.abs(_wrap(x_o[:, 3:] - goal[:, 3:], xp)).max(axis=1)
         return (pos < s.success_pos_tol) & (att < s.success_att_tol)
 
     # -- metrics (EpisodeMetrics, as arrays) ------------------------------------------------
     def _metrics_reset(self, ids: Any, init: bool = False) -> None:
         if init:
-            k = self.num_envs
-            self._m_steps = np.zeros(k, np.int64)
-            self._min_clearance = np.zeros(k)
-            self._min_manip = np.zeros(k)
-            self._grasp_drift = np.zeros(k)
-            self._violations = np.zeros((k, NK), np.int64)
-            self._effort = np.zeros(k)
-            self._wrench_sq = np.zeros(k)
-            self._wrench_samples = np.zeros(k, np.int64)
+            xp, k = self.xp, self.num_envs
+            self._m_steps = xp.zeros(k, np.int64)
+            self._min_clearance = xp.zeros(k)
+            self._min_manip = xp.zeros(k)
+            self._grasp_drift = xp.zeros(k)
+            self._violations = xp.zeros((k, NK), np.int64)
+            self._effort = xp.zeros(k)
+            self._wrench_sq = xp.zeros(k)
+            self._wrench_samples = xp.zeros(k, np.int64)
         self._m_steps[ids] = 0
         self._min_clearance[ids] = np.inf
         self._min_manip[ids] = np.inf
@@ -772,33 +895,54 @@ class VectorEnv:
         self._wrench_sq[ids] = 0.0
         self._wrench_samples[ids] = 0
 
-    def _metrics_result(self, i: int, x_o: np.ndarray, success: bool) -> dict[str, Any]:
-        return episode_result(
-            self._base.period,
-            self._m_steps[i],
-            x_o.tolist(),
-            self._waypoints[i, self._waypoint_count[i] - 1].tolist(),
-            success,
-            self._min_clearance[i],
-            self._min_manip[i],
-            self._violations[i].tolist(),
-            self._wrench_sq[i],
-            self._wrench_samples[i],
-            self._effort[i],
-            self._grasp_drift[i],
-        )
+    def _metrics_results(self, ids: Any, x_o: Any, success: np.ndarray) -> list[dict[str, Any]]:
+        """The ended episodes' metrics dicts, from host copies of their rows."""
+        goal = self._waypoints[ids, self._waypoint_count[ids] - 1]
+        rows = [
+            self._host(a)
+            for a in (
+                self._m_steps[ids],
+                x_o,
+                goal,
+                self._min_clearance[ids],
+                self._min_manip[ids],
+                self._violations[ids],
+                self._wrench_sq[ids],
+                self._wrench_samples[ids],
+                self._effort[ids],
+                self._grasp_drift[ids],
+            )
+        ]
+        steps, pose, goal, clearance, manip, violations, wrench, samples, effort, drift = rows
+        return [
+            episode_result(
+                self._base.period,
+                steps[j],
+                pose[j].tolist(),
+                goal[j].tolist(),
+                bool(success[j]),
+                clearance[j],
+                manip[j],
+                violations[j].tolist(),
+                wrench[j],
+                samples[j],
+                effort[j],
+                drift[j],
+            )
+            for j in range(len(steps))
+        ]
 
     def close(self) -> None:
         """Nothing to release (no windows, no processes); for the Gymnasium contract."""
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
+def _wrap(angle: Any, xp: Any = np) -> Any:
     """Wrapped into [-pi, pi]: IEEE remainder by 2 pi (``math.remainder``, as the single env)."""
-    return angle - 2 * np.pi * np.round(angle / (2 * np.pi))
+    return angle - 2 * np.pi * xp.round(angle / (2 * np.pi))
 
 
-def _padded_columns(ids: np.ndarray, padded: int) -> np.ndarray:
-    ids = np.asarray(ids)
+def _padded_columns(ids: Any, padded: int, xp: Any = np) -> Any:
+    ids = xp.asarray(ids)
     if padded == len(ids):
         return ids
-    return np.concatenate([ids, np.full(padded - len(ids), ids[0])])
+    return xp.concatenate([ids, xp.full(padded - len(ids), ids[0])])

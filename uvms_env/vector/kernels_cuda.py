@@ -11,7 +11,7 @@ writes device arrays in the (nnz_i, K) layout of ``kernels``, so torch tensors o
 same GPU pass through without a copy (CUDA array interface / DLPack).
 
 May import: numpy, casadi, cupy (imported here, so that nothing else needs it),
-``uvms_env.vector.kernels``.
+``uvms_env.vector.kernels`` and ``kernels_emulated``.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from uvms_env.vector.kernels import (
     check_inputs,
     cuda_source,
 )
+from uvms_env.vector.kernels_emulated import EmulatedCudaFunction
 
 # Threads per block. Measured on an H100 for the N = 2 period step: see the README.
 BLOCK = 128
@@ -108,7 +109,7 @@ class CudaBatchedFunction:
         if dtype not in DTYPES:
             raise ValueError(f"dtype must be one of {sorted(DTYPES)}, got {dtype!r}")
         cp = cupy_module()
-        self.cp = cp
+        self.cp = self.xp = cp
         self.dtype = dtype
         self.np_dtype = DTYPES[dtype][1]
         self.device = cp.cuda.Device(device)
@@ -143,6 +144,23 @@ class CudaBatchedFunction:
             grid = (k + self.block - 1) // self.block
             self._kernel((grid,), (self.block,), (ins_ptr, outs_ptr, np.int64(k)))
         return out
+
+
+def cuda_function(
+    fn: cs.Function,
+    dtype: str,
+    device: int | str,
+    threads: int = 1,
+    refine: Refinement | None = None,
+) -> CudaBatchedFunction | EmulatedCudaFunction:
+    """The CUDA kernel of ``fn`` on GPU ``device`` (an int), or with ``device="cpu"`` the
+    same kernel source compiled for the host (``kernels_emulated``: the GPU backend
+    tested without a GPU; ``threads`` OpenMP threads)."""
+    if device == "cpu":
+        return EmulatedCudaFunction(fn, dtype, refine, threads)
+    if isinstance(device, bool) or not isinstance(device, int | np.integer):
+        raise ValueError(f"device must be a GPU index (int) or 'cpu', got {device!r}")
+    return CudaBatchedFunction(fn, dtype, int(device), refine=refine)
 
 
 def period_refinement(n: int) -> Refinement:

@@ -65,7 +65,7 @@ class BatchedSimulator:
         dtype: str = "float64",
         threads: int | None = None,
         lanes: int | None = None,
-        device: int = 0,
+        device: int | str = 0,
     ) -> None:
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
@@ -83,14 +83,14 @@ class BatchedSimulator:
             self._fn: Any = BatchedFunction(self.chain.step, dtype, lanes)
             self.xp: Any = np
         else:
-            from uvms_env.vector.kernels_cuda import CudaBatchedFunction, period_refinement
+            from uvms_env.vector.kernels_cuda import cuda_function, period_refinement
 
             # the error control runs inside the kernel, in the thread of each environment
             # that needs it: refining a few environments costs no extra launches
-            self._fn = CudaBatchedFunction(
-                self.chain.step, dtype, device, refine=period_refinement(n)
+            self._fn = cuda_function(
+                self.chain.step, dtype, device, self.threads, refine=period_refinement(n)
             )
-            self.xp = self._fn.cp
+            self.xp = self._fn.xp
         xp, real = self.xp, DTYPES[dtype][1]
         self._real = real
         self.uvms = default_model()
