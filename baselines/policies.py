@@ -5,9 +5,10 @@ Known names: ``nmpc`` (the expert, ``nmpc:ipopt`` for its reference solver), ``r
 ``module:factory`` (a user's ``factory(spec) -> Policy`` importable as
 ``package.module:factory``), ``ppo:PATH`` / ``sac:PATH`` (an SB3 run folder, or
 ``pretrained`` for the committed model), ``bc:PATH`` / ``dagger:PATH`` (a folder with
-``policy.pt``, or ``pretrained``). Any of them with the suffix ``+filter`` (e.g.
-``dagger:pretrained+filter``) runs inside the expert's safety filter
-(``nmpc_expert.SafetyFilter``).
+``policy.pt``, or ``pretrained``), ``rllib:PATH`` (an RLlib run or checkpoint) and
+``torchrl:PATH`` (a run folder of ``--engine torchrl``: its ``actor.pt``). Any of them
+with the suffix ``+filter`` (e.g. ``dagger:pretrained+filter``) runs inside the expert's
+safety filter (``nmpc_expert.SafetyFilter``).
 """
 
 from __future__ import annotations
@@ -116,6 +117,12 @@ def _rllib(arg: str | None, seed: int) -> PolicyFactory:
     return factory(arg)
 
 
+def _torchrl(arg: str | None, seed: int) -> PolicyFactory:
+    from baselines.rl.torchrl_ppo import factory
+
+    return factory(arg)
+
+
 BUILTIN: dict[str, Callable[[str | None, int], PolicyFactory]] = {
     "nmpc": _nmpc,
     "random": _random,
@@ -125,6 +132,7 @@ BUILTIN: dict[str, Callable[[str | None, int], PolicyFactory]] = {
     "bc": _cloned("bc"),
     "dagger": _cloned("dagger"),
     "rllib": _rllib,
+    "torchrl": _torchrl,
 }
 
 

@@ -1,10 +1,10 @@
 """Scale-out: marl-eval JSON, the engine switch, the Ray evaluation backend and RLlib
 training evaluated through ``--policy rllib:PATH``.
 
-The Ray tests skip without Ray (``pip install -e ".[distributed]"``, not in the default
-CI install: ray[rllib] pins gymnasium 1.2.2); the 2-iteration, 2-runner RLlib run is
-``slow``. The BenchMARL task's test skips without BenchMARL (its own venv: it needs
-torchrl < 0.12)."""
+The Ray tests need Ray (in the test extra; they skip where it is missing); the fast
+RLlib run trains one iteration on the local runner and evaluates the checkpoint through
+``rllib:PATH``; the 2-iteration, 2-runner run is ``slow``. The BenchMARL task's test
+skips without BenchMARL (its own venv: it needs torchrl < 0.12)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,7 @@
 """The TorchRL view of ``VectorEnv``: TorchRL's own spec check, the multi-agent group layout,
-and episodes equal to the VectorEnv's, ends and resets included."""
+and episodes equal to the VectorEnv's, ends and resets included; over the CUDA backend
+(its kernels compiled for the host, ``device="cpu"``) the same rollout in tensors that
+never leave the env's device."""
 
 from __future__ import annotations
 
@@ -13,6 +15,8 @@ from torchrl.envs.utils import check_env_specs, step_mdp
 
 from uvms_env.vector import VectorEnv
 from uvms_env.vector.torchrl_env import GROUP, CoopTransportTorchRLEnv
+
+EMULATED_CUDA = {"backend": "cuda", "device": "cpu"}
 
 
 def test_specs_pass_torchrl_checks_and_use_one_agent_group():
@@ -52,8 +56,9 @@ def test_rollout_equals_the_vector_env_through_ends_and_resets():
     assert rollout["next", "done"].sum() == 2 * k  # two ends each: the resets were exercised
 
 
-def test_partial_reset_restarts_only_the_masked_environments():
-    env = CoopTransportTorchRLEnv(VectorEnv("short", num_envs=2))
+@pytest.mark.parametrize("backend", [{}, EMULATED_CUDA], ids=["cpu", "emulated-cuda"])
+def test_partial_reset_restarts_only_the_masked_environments(backend):
+    env = CoopTransportTorchRLEnv(VectorEnv("short", num_envs=2, **backend))
     td = env.reset()
     start = td[GROUP, "observation"].clone()
     td[GROUP, "action"] = torch.full((2, 2, 8), 0.5)
@@ -65,3 +70,38 @@ def test_partial_reset_restarts_only_the_masked_environments():
     # env 0 starts its next episode: same geometry, at rest, as the first one began
     assert torch.equal(out[GROUP, "observation"][0], start[0])
     assert not torch.equal(moved[0], start[0])
+
+
+def _fixed_rollout(env: CoopTransportTorchRLEnv, actions: torch.Tensor):
+    step = [0]
+
+    def policy(td):
+        td[GROUP, "action"] = actions[step[0]].to(env.device)
+        step[0] += 1
+        return td
+
+    env.set_seed(3)
+    return env.rollout(len(actions), policy, break_when_any_done=False)
+
+
+def test_cuda_backend_gives_the_cpu_backends_rollout_in_tensors_on_its_device():
+    """float64, fixed actions, max_cycles 3 over 7 steps: two automatic resets each."""
+    k, steps = 3, 7
+    actions = torch.as_tensor(
+        np.random.default_rng(1).uniform(-1, 1, (steps, k, 2, 8)), dtype=torch.float32
+    )
+    cpu = _fixed_rollout(CoopTransportTorchRLEnv(VectorEnv("short", k, max_cycles=3)), actions)
+    venv = VectorEnv("short", k, max_cycles=3, **EMULATED_CUDA)
+    env = CoopTransportTorchRLEnv(venv)
+    assert env.device == torch.device("cpu")
+    check_env_specs(env)
+    cuda = _fixed_rollout(env, actions)
+    assert cuda["next", "done"].sum() == 2 * k  # the automatic resets were exercised
+    assert set(cuda.keys(True, True)) == set(cpu.keys(True, True))
+    for key in cpu.keys(True, True):
+        a, b = cpu[key], cuda[key]
+        assert b.device == env.device and b.dtype == a.dtype and b.shape == a.shape, key
+        if a.dtype == torch.bool:
+            assert torch.equal(a, b), key
+        else:
+            assert torch.allclose(a.double(), b.double(), rtol=0.0, atol=1e-9), key

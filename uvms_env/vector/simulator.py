@@ -8,7 +8,8 @@
 It is the single ``Simulator`` batched, not a second model: the same compiled period
 function (RK4 substeps, projection onto the grasp manifold, residuals before and after),
 generated once and compiled for SIMD lanes and threads (``backend="cpu"``) or as a GPU
-kernel (``backend="cuda"``, arrays stay on the GPU), the same error control (a period
+kernel (``backend="cuda"``, arrays stay on GPU ``device``; ``device="cpu"``: that kernel's
+source compiled for the host, for tests without a GPU), the same error control (a period
 whose drift exceeds the tolerances is integrated again in halves, only for the
 environments that need it) and the same physical envelope. Environment k reset with
 seed s_k and stepped with tau_k matches ``Simulator`` reset with s_k and stepped with

@@ -1,0 +1,661 @@
+"""PPO with TorchRL over the TorchRL view of ``VectorEnv``, every tensor on one device.
+
+    python -m baselines.train --engine torchrl --algo ppo --scenario short --num-envs 4096 \\
+        --backend cuda --device 0 --total-steps 50000000 --out runs/torchrl_ppo
+
+What it is for: training where the environment runs (``VectorEnv(backend="cuda")``), so
+that rollouts, advantages and updates never copy through the host; on the CPU backend the
+same code runs on the host (``--backend cpu``). It is TorchRL's PPO: the ``Collector``
+steps ``CoopTransportTorchRLEnv``, ``GAE`` computes the advantages, ``ClipPPOLoss`` the
+loss, a ``ReplayBuffer`` on the device deals the minibatches; the actor is a
+``ProbabilisticActor`` with a ``TanhNormal`` and the critic a ``ValueOperator``.
+
+Parameter sharing: one actor and one critic for all robots; each robot acts (and is
+valued) on its own observation, the networks applied over the robot dimension of the
+group ``uvms``. Settings follow the SB3 trainer (``baselines.rl.train``): MLP 64-64
+(tanh), 256 steps per rollout, 32 minibatches, 10 epochs, Adam 3e-4, gamma 0.99,
+lambda 0.95, clip 0.2, no entropy bonus, value coefficient 0.5, gradient norm 0.5,
+initial action std e^-1, observations normalized by running statistics (kept in the
+actor, so the saved actor normalizes itself) and rewards scaled by the running spread of
+the discounted return, as ``VecNormalize`` does; ``--hp KEY=JSON`` changes them
+(``HYPERPARAMETERS``). Not here: the Lagrangian cost, a central critic, resuming,
+periodic evaluations (evaluate the saved actor with ``baselines.evaluate``).
+
+The run folder gets ``config.json`` (command, seed, hardware, settings, robot-steps, wall
+time, robot-steps/s with the updates), ``progress.csv`` (one row per iteration) and
+``actor.pt``, which ``--policy torchrl:RUN`` evaluates (``TorchRLPolicy``: plain torch,
+deterministic action tanh(loc), the run's priors applied as ``SB3Policy`` does).
+
+May import: numpy, torch, tensordict and torchrl (inside the training functions: the
+policy loader needs torch alone), ``baselines.options``, ``baselines.rl.policy`` (a
+run's priors) and ``uvms_env``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import platform
+import shlex
+import sys
+import time
+import warnings
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np
+import torch
+from torch import nn
+
+from baselines.options import add_option_arguments, key_value_pairs
+from baselines.rl.policy import run_priors
+from uvms_env.policy import AgentSpec
+
+ALGOS = ("ppo",)
+BACKENDS = ("cpu", "cuda")
+DTYPES = ("float32", "float64")
+ACTOR_FILE = "actor.pt"
+HYPERPARAMETERS: dict[str, Any] = {
+    "rollout_steps": 256,  # per env copy and iteration (SB3's n_steps)
+    "minibatches": 32,  # per epoch, over the rollout's K x rollout_steps rows
+    "epochs": 10,
+    "lr": 3e-4,
+    "gamma": 0.99,
+    "gae_lambda": 0.95,
+    "clip_epsilon": 0.2,
+    "entropy_coef": 0.0,
+    "critic_coef": 0.5,
+    "max_grad_norm": 0.5,
+    "log_std_init": -1.0,
+    "hidden": [64, 64],
+    "normalize_observation": True,
+    "scale_reward": True,
+}
+# The SB3 trainer's reasons hold here: the internal-wrench metric changes nothing the
+# policy sees (~6% of a step), the seeded families' episodes take one of the bank's first
+# 1,024 geometries, float32 is the fast mode, and one kernel thread leaves the other core
+# of a 2-core machine to torch.
+TRAIN_ENV_DEFAULTS: dict[str, Any] = {"internal_wrench_every": 0}
+DEFAULT_GEOMETRY_POOL = 1024
+DEFAULT_DTYPE = "float32"
+DEFAULT_ENV_THREADS = 1
+CLIP_OBSERVATION = 10.0  # VecNormalize's clip_obs and clip_reward
+PROGRESS_COLUMNS = (
+    "iteration",
+    "robot_steps",
+    "episodes",
+    "episode_return_mean",
+    "episode_len_mean",
+    "loss_objective",
+    "loss_critic",
+    "action_std",
+    "collect_s",
+    "update_s",
+    "time_total_s",
+    "robot_steps_per_s",
+)
+
+
+# -- networks (plain torch: the evaluator loads them without TorchRL) ------------------------
+class RunningNorm(nn.Module):
+    """Running mean and variance of the last dimension (buffers, saved with the module):
+    ``forward`` standardizes and clips at ``clip``. Updated in place, so the TorchRL loss's
+    view of the buffers stays the module's."""
+
+    def __init__(self, size: int, clip: float = CLIP_OBSERVATION, eps: float = 1e-8) -> None:
+        super().__init__()
+        self.clip, self.eps = clip, eps
+        self.register_buffer("mean", torch.zeros(size))
+        self.register_buffer("var", torch.ones(size))
+        self.register_buffer("count", torch.tensor(1e-4))  # VecNormalize's prior count
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor) -> None:
+        """Fold the rows of ``x`` (..., size) in (Chan et al.'s parallel combination)."""
+        x = x.reshape(-1, self.mean.shape[0]).to(self.mean.dtype)
+        n = torch.tensor(float(x.shape[0]), device=x.device)
+        mean, var = x.mean(0), x.var(0, unbiased=False)
+        total = self.count + n
+        delta = mean - self.mean
+        m2 = self.var * self.count + var * n + delta**2 * self.count * n / total
+        self.mean.add_(delta * n / total)
+        self.var.copy_(m2 / total)
+        self.count.copy_(total)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        z = (x - self.mean) / torch.sqrt(self.var + self.eps)
+        return z.clamp(-self.clip, self.clip)
+
+
+def mlp(size_in: int, hidden: list[int], size_out: int) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for width in hidden:
+        layers += [nn.Linear(size_in, width), nn.Tanh()]
+        size_in = width
+    layers.append(nn.Linear(size_in, size_out))
+    return nn.Sequential(*layers)
+
+
+class ActorNet(nn.Module):
+    """One robot's observation (..., D) -> the TanhNormal's loc and scale (..., 8); the
+    spread is a learned state-independent log std (SB3's Gaussian policy)."""
+
+    def __init__(
+        self, observation_size: int, hidden: list[int], log_std_init: float, normalize: bool
+    ) -> None:
+        super().__init__()
+        self.norm = RunningNorm(observation_size) if normalize else nn.Identity()
+        self.body = mlp(observation_size, hidden, 8)
+        self.log_std = nn.Parameter(torch.full((8,), float(log_std_init)))
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        loc = self.body(self.norm(obs))
+        return loc, self.log_std.exp().expand_as(loc)
+
+
+class CriticNet(nn.Module):
+    def __init__(self, observation_size: int, hidden: list[int], normalize: bool) -> None:
+        super().__init__()
+        self.norm = RunningNorm(observation_size) if normalize else nn.Identity()
+        self.body = mlp(observation_size, hidden, 1)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.body(self.norm(obs))
+
+
+# -- the policy loader (``--policy torchrl:RUN``) --------------------------------------------
+def resolve_actor(path: str | None) -> Path:
+    """The ``actor.pt`` of ``torchrl:PATH`` (a run folder or the file)."""
+    if not path:
+        raise ValueError("torchrl:PATH needs a run folder of --engine torchrl")
+    file = Path(path)
+    if file.is_dir():
+        file = file / ACTOR_FILE
+    if not file.is_file():
+        raise ValueError(f"no TorchRL actor at {path} (expected {ACTOR_FILE})")
+    return file
+
+
+def save_actor(net: ActorNet, settings: dict[str, Any], path: Path) -> None:
+    """The actor's weights and what rebuilds it, on the host."""
+    state = {k: v.detach().cpu() for k, v in net.state_dict().items()}
+    torch.save({"settings": settings, "state_dict": state}, path)
+
+
+def load_actor(path: Path) -> ActorNet:
+    data = torch.load(path, map_location="cpu", weights_only=True)
+    s = data["settings"]
+    net = ActorNet(s["observation_size"], s["hidden"], 0.0, s["normalize_observation"])
+    net.load_state_dict(data["state_dict"])
+    return net.eval()
+
+
+def _load_cached(path: Path) -> ActorNet:
+    """Cached until the file changes (a later run may write the same folder)."""
+    st = path.stat()
+    return _load_stamped(str(path.resolve()), (st.st_mtime_ns, st.st_size))
+
+
+@lru_cache(maxsize=8)
+def _load_stamped(path: str, stamp: tuple[int, int]) -> ActorNet:
+    del stamp  # part of the cache key only
+    torch.set_num_threads(1)  # one episode per process; two threads collapse when shared
+    return load_actor(Path(path))
+
+
+class TorchRLPolicy:
+    """The shared actor acting for one robot: deterministic (tanh of the Gaussian's mean,
+    TanhNormal's deterministic sample), with the priors the run trained with."""
+
+    def __init__(self, spec: AgentSpec, path: str | None) -> None:
+        file = resolve_actor(path)
+        self.spec = spec
+        self.net = _load_cached(file)
+        self.priors = run_priors(file.parent)
+        self._ring = spec.object_ring_radius
+        self.stats: dict[str, Any] = {}
+
+    def reset(self) -> None:
+        pass
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        raw = np.asarray(obs, dtype=np.float32)
+        x = torch.as_tensor(np.asarray(self.priors.observe(raw, self._ring), np.float32))
+        with torch.no_grad():
+            loc, _ = self.net(x)
+        chosen = np.clip(torch.tanh(loc).numpy(), -1.0, 1.0)
+        return self.priors.command(raw, chosen, self._ring).astype(np.float32)
+
+
+def factory(path: str | None):
+    """``torchrl:PATH`` for ``baselines.policies``: fails before the episode starts."""
+    resolve_actor(path)
+    return lambda spec: TorchRLPolicy(spec, path)
+
+
+# -- training ---------------------------------------------------------------------------------
+def parse_device(text: str | int | None, backend: str) -> str | int:
+    """``--device``: a GPU index (int) or ``cpu``; default GPU 0 for the CUDA backend."""
+    if text is None:
+        return 0 if backend == "cuda" else "cpu"
+    if isinstance(text, int) or str(text).isdigit():
+        return int(text)
+    if str(text).startswith("cuda:") and str(text)[5:].isdigit():
+        return int(str(text)[5:])
+    if text != "cpu":
+        raise ValueError(f"device must be a GPU index or 'cpu', got {text!r}")
+    return "cpu"
+
+
+def torch_device(device: str | int) -> torch.device:
+    return torch.device("cpu") if device == "cpu" else torch.device("cuda", int(device))
+
+
+def make_env(
+    scenario: str,
+    num_envs: int,
+    backend: str,
+    device: str | int,
+    dtype: str,
+    geometry_pool: int | None,
+    env_threads: int | None,
+    overrides: dict[str, Any],
+):
+    """The TorchRL env over one ``VectorEnv`` (``backend``, ``device``; seeded families:
+    episodes on the first ``geometry_pool`` bank geometries), its tensors on ``device``."""
+    from uvms_env.vector import VectorEnv
+    from uvms_env.vector.torchrl_env import CoopTransportTorchRLEnv
+
+    kwargs = {**TRAIN_ENV_DEFAULTS, **overrides}
+    if geometry_pool is not None:
+        kwargs["geometry_pool"] = geometry_pool
+    if backend == "cuda":
+        kwargs["device"] = device
+    venv = VectorEnv(
+        scenario, num_envs=num_envs, backend=backend, dtype=dtype, threads=env_threads, **kwargs
+    )
+    return CoopTransportTorchRLEnv(venv, device=torch_device(device))
+
+
+def build_modules(env: Any, hp: dict[str, Any]) -> tuple[Any, Any, ActorNet, CriticNet]:
+    """(actor, critic, actor net, critic net) on the env's device: TorchRL's
+    ``ProbabilisticActor`` (TanhNormal on [-1, 1]) and ``ValueOperator`` over the group."""
+    from tensordict.nn import TensorDictModule
+    from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
+
+    from uvms_env.vector.torchrl_env import GROUP
+
+    size = env.observation_spec[GROUP, "observation"].shape[-1]
+    actor_net = ActorNet(size, hp["hidden"], hp["log_std_init"], hp["normalize_observation"])
+    critic_net = CriticNet(size, hp["hidden"], hp["normalize_observation"])
+    actor_net, critic_net = actor_net.to(env.device), critic_net.to(env.device)
+    params = TensorDictModule(
+        actor_net, in_keys=[(GROUP, "observation")], out_keys=[(GROUP, "loc"), (GROUP, "scale")]
+    )
+    actor = ProbabilisticActor(
+        params,
+        in_keys=[(GROUP, "loc"), (GROUP, "scale")],
+        out_keys=[(GROUP, "action")],
+        spec=env.full_action_spec[GROUP, "action"],
+        distribution_class=TanhNormal,
+        distribution_kwargs={"low": -1.0, "high": 1.0},
+        return_log_prob=True,
+    )
+    critic = ValueOperator(
+        critic_net, in_keys=[(GROUP, "observation")], out_keys=[(GROUP, "state_value")]
+    )
+    return actor, critic, actor_net, critic_net
+
+
+class EpisodeTracker:
+    """The team's episode returns and lengths (unscaled reward), and the running spread of
+    the discounted return that scales the reward (VecNormalize's ``ret_rms``), carried
+    across rollouts on the device."""
+
+    def __init__(self, k: int, gamma: float, device: torch.device) -> None:
+        self.gamma = gamma
+        self.ret = torch.zeros(k, device=device)
+        self.len = torch.zeros(k, device=device)
+        self.discounted = torch.zeros(k, device=device)
+        self.ret_stats = RunningNorm(1).to(device)
+
+    @torch.no_grad()
+    def observe(self, reward: torch.Tensor, done: torch.Tensor) -> tuple[list[float], list[int]]:
+        """``reward``, ``done``: (K, T). Returns the ended episodes' returns and lengths."""
+        returns, lengths, discounted = [], [], []
+        for t in range(reward.shape[1]):
+            r, d = reward[:, t], done[:, t]
+            self.ret += r
+            self.len += 1
+            self.discounted = self.discounted * self.gamma + r
+            discounted.append(self.discounted)
+            returns.append(self.ret)
+            lengths.append(self.len)
+            self.ret = torch.where(d, 0.0, self.ret)
+            self.len = torch.where(d, 0.0, self.len)
+            self.discounted = torch.where(d, 0.0, self.discounted)
+        self.ret_stats.update(torch.stack(discounted, 1).reshape(-1, 1))
+        # the ended episodes picked once per rollout: one transfer, no sync per step
+        ended = torch.stack([torch.stack(returns, 1)[done], torch.stack(lengths, 1)[done]])
+        ret, length = ended.tolist()
+        return ret, [int(x) for x in length]
+
+    def scale(self, reward: torch.Tensor) -> torch.Tensor:
+        std = torch.sqrt(self.ret_stats.var + self.ret_stats.eps)
+        return (reward / std).clamp(-CLIP_OBSERVATION, CLIP_OBSERVATION)
+
+
+def train(
+    scenario: str,
+    num_envs: int,
+    total_steps: int,
+    seed: int,
+    out: Path,
+    backend: str = "cpu",
+    device: str | int | None = None,
+    dtype: str = DEFAULT_DTYPE,
+    geometry_pool: int | None = DEFAULT_GEOMETRY_POOL,
+    env_threads: int | None = DEFAULT_ENV_THREADS,
+    overrides: dict[str, Any] | None = None,
+    hyperparameters: dict[str, Any] | None = None,
+    torch_threads: int = 1,
+    command: list[str] | None = None,
+    progress: bool = True,
+) -> Path:
+    """Train until at least ``total_steps`` robot-steps (whole iterations); write the run
+    folder ``out``; return it."""
+    from torchrl.collectors import Collector
+    from torchrl.data import LazyTensorStorage, ReplayBuffer
+    from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
+    from torchrl.objectives import ClipPPOLoss, ValueEstimators
+
+    from uvms_env.vector.bank import SEEDED_FAMILIES
+    from uvms_env.vector.torchrl_env import GROUP
+
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if dtype not in DTYPES:
+        raise ValueError(f"dtype must be one of {DTYPES}, got {dtype!r}")
+    unknown = set(hyperparameters or {}) - set(HYPERPARAMETERS)
+    if unknown:
+        known = list(HYPERPARAMETERS)
+        raise ValueError(f"unknown hyperparameters {sorted(unknown)}; known: {known}")
+    hp = {**HYPERPARAMETERS, **(hyperparameters or {})}
+    device = parse_device(device, backend)
+    overrides = dict(overrides or {})
+    seeded = scenario in SEEDED_FAMILIES and overrides.get("reseed_geometry", True)
+    pool = geometry_pool if seeded and geometry_pool else None
+    torch.set_num_threads(torch_threads)
+    torch.manual_seed(seed)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    setup_start = time.perf_counter()
+    env = make_env(scenario, num_envs, backend, device, dtype, pool, env_threads, overrides)
+    env.set_seed(seed)
+    dev = env.device
+    n = env.vector_env.n
+    actor, critic, actor_net, critic_net = build_modules(env, hp)
+    loss = ClipPPOLoss(
+        actor_network=actor,
+        critic_network=critic,
+        clip_epsilon=hp["clip_epsilon"],
+        entropy_bonus=hp["entropy_coef"] > 0,
+        entropy_coeff=hp["entropy_coef"],
+        critic_coeff=hp["critic_coef"],
+        loss_critic_type="l2",
+        normalize_advantage=True,
+    )
+    loss.set_keys(
+        reward=(GROUP, "reward"),
+        action=(GROUP, "action"),
+        value=(GROUP, "state_value"),
+        done=(GROUP, "done"),
+        terminated=(GROUP, "terminated"),
+        advantage=(GROUP, "advantage"),
+        value_target=(GROUP, "value_target"),
+    )
+    # The advantages are normalized over the minibatch's rows and robots together (one
+    # shared policy), which TorchRL's multi-agent warning asks to confirm on every call.
+    warnings.filterwarnings("ignore", "You requested advantage normalization", UserWarning)
+    loss.make_value_estimator(ValueEstimators.GAE, gamma=hp["gamma"], lmbda=hp["gae_lambda"])
+    optimizer = torch.optim.Adam(loss.parameters(), lr=hp["lr"])
+    steps = int(hp["rollout_steps"])
+    rows_per_batch = num_envs * steps
+    robot_steps_per_batch = rows_per_batch * n
+    iterations = max(1, math.ceil(total_steps / robot_steps_per_batch))
+    collector = Collector(
+        env,
+        actor,
+        frames_per_batch=rows_per_batch,
+        total_frames=iterations * rows_per_batch,
+        device=dev,
+        auto_register_policy_transforms=False,  # the actor is memoryless: no InitTracker
+    )
+    minibatch = max(1, rows_per_batch // int(hp["minibatches"]))
+    buffer = ReplayBuffer(
+        storage=LazyTensorStorage(rows_per_batch, device=dev),
+        sampler=SamplerWithoutReplacement(),
+        batch_size=minibatch,
+    )
+    tracker = EpisodeTracker(num_envs, hp["gamma"], dev)
+    settings = {
+        "observation_size": actor_net.body[0].in_features,
+        "hidden": list(hp["hidden"]),
+        "normalize_observation": bool(hp["normalize_observation"]),
+    }
+    config: dict[str, Any] = {
+        "engine": "torchrl",
+        "algo": "ppo",
+        "command": shlex.join(command) if command else None,
+        "scenario": scenario,
+        "num_envs": num_envs,
+        "robots": num_envs * n,
+        "seed": seed,
+        "backend": backend,
+        "device": str(dev),
+        "dtype": dtype,
+        "geometry_pool": pool,
+        "env_threads": env_threads,
+        "overrides": overrides,
+        "env_defaults": TRAIN_ENV_DEFAULTS,
+        "hyperparameters": hp,
+        "minibatch_rows": minibatch,
+        "robot_steps_per_iteration": robot_steps_per_batch,
+        "total_steps": total_steps,
+        "torch_threads": torch.get_num_threads(),
+        "hardware": hardware(dev),
+        "setup_s": round(time.perf_counter() - setup_start, 1),
+    }
+    write_json(out / "config.json", config)
+
+    start = time.perf_counter()
+    collect_total = update_total = 0.0
+    robot_steps = 0
+    episodes: list[float] = []
+    with open(out / "progress.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=PROGRESS_COLUMNS)
+        writer.writeheader()
+        tick = time.perf_counter()
+        for iteration, batch in enumerate(collector, start=1):
+            if dev.type == "cuda":
+                torch.cuda.synchronize(dev)  # the timings below are the device's
+            collect_s = time.perf_counter() - tick
+            tock = time.perf_counter()
+            reward = batch["next", GROUP, "reward"]  # (K, T, N, 1): the team's, per robot
+            done = batch["next", "done"][..., 0]
+            returns, lengths = tracker.observe(reward[:, :, 0, 0], done)
+            if hp["scale_reward"]:
+                batch["next", GROUP, "reward"] = tracker.scale(reward)
+            with torch.no_grad():
+                loss.value_estimator(
+                    batch,
+                    params=loss.critic_network_params,
+                    target_params=loss.target_critic_network_params,
+                )
+            buffer.extend(batch.reshape(-1))
+            objective, critic_loss = [], []
+            for _ in range(int(hp["epochs"]) * int(hp["minibatches"])):
+                values = loss(buffer.sample())
+                total = values["loss_objective"] + values["loss_critic"]
+                if "loss_entropy" in values.keys():
+                    total = total + values["loss_entropy"]
+                total.backward()
+                nn.utils.clip_grad_norm_(loss.parameters(), hp["max_grad_norm"])
+                optimizer.step()
+                optimizer.zero_grad()
+                objective.append(values["loss_objective"].detach())
+                critic_loss.append(values["loss_critic"].detach())
+            if hp["normalize_observation"]:
+                # after the update: the rollout was collected and is learned from with
+                # the same statistics, so the PPO ratio starts at 1
+                obs = batch[GROUP, "observation"]
+                actor_net.norm.update(obs)
+                critic_net.norm.update(obs)
+            collector.update_policy_weights_()
+            losses = torch.stack([torch.stack(objective).mean(), torch.stack(critic_loss).mean()])
+            objective_mean, critic_mean = losses.tolist()
+            update_s = time.perf_counter() - tock
+            collect_total += collect_s
+            update_total += update_s
+            robot_steps += robot_steps_per_batch
+            episodes += returns
+            row = {
+                "iteration": iteration,
+                "robot_steps": robot_steps,
+                "episodes": len(episodes),
+                "episode_return_mean": _mean(returns),
+                "episode_len_mean": _mean(lengths),
+                "loss_objective": objective_mean,
+                "loss_critic": critic_mean,
+                "action_std": float(actor_net.log_std.detach().exp().mean()),
+                "collect_s": round(collect_s, 3),
+                "update_s": round(update_s, 3),
+                "time_total_s": round(time.perf_counter() - start, 2),
+                "robot_steps_per_s": round(robot_steps_per_batch / (collect_s + update_s), 1),
+            }
+            writer.writerow(row)
+            fh.flush()
+            if progress:
+                print(
+                    f"iter {iteration}/{iterations}: {robot_steps} robot-steps, return "
+                    f"{row['episode_return_mean']}, {row['robot_steps_per_s']} robot-steps/s "
+                    f"(collect {collect_s:.1f} s, update {update_s:.1f} s)",
+                    flush=True,
+                )
+            tick = time.perf_counter()
+    wall = time.perf_counter() - start
+    collector.shutdown()
+    save_actor(actor_net, settings, out / ACTOR_FILE)
+    config.update(
+        iterations=iterations,
+        robot_steps=robot_steps,
+        episodes=len(episodes),
+        wall_time_s=round(wall, 1),
+        collect_s=round(collect_total, 1),
+        update_s=round(update_total, 1),
+        robot_steps_per_s=round(robot_steps / wall, 1) if wall > 0 else None,
+    )
+    write_json(out / "config.json", config)
+    return out
+
+
+def _mean(values: list[float] | list[int]) -> float | None:
+    return round(float(np.mean(values)), 4) if values else None
+
+
+def hardware(device: torch.device) -> dict[str, Any]:
+    import torchrl
+
+    from uvms_env.vector.kernels import available_cores
+
+    info: dict[str, Any] = {
+        "machine": platform.machine(),
+        "cores": available_cores(),
+        "torch": torch.__version__,
+        "torchrl": torchrl.__version__,
+    }
+    if device.type == "cuda":
+        info["gpu"] = torch.cuda.get_device_name(device)
+    return info
+
+
+def write_json(path: Path, data: dict[str, Any]) -> None:
+    path.write_text(json.dumps(data, indent=2, default=str) + "\n")
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    ap = argparse.ArgumentParser(
+        prog="python -m baselines.train --engine torchrl",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("--algo", choices=ALGOS, required=True)
+    ap.add_argument("--scenario", default="short", help="short (learning-sized), paper, random")
+    ap.add_argument(
+        "--num-envs", "--n-envs", type=int, default=64, help="env copies (each has N robots)"
+    )
+    ap.add_argument(
+        "--total-steps",
+        "--total-timesteps",
+        type=int,
+        default=200_000,
+        help="robot-steps (rounded up to whole iterations)",
+    )
+    ap.add_argument("--backend", choices=BACKENDS, default="cpu", help="the VectorEnv backend")
+    ap.add_argument(
+        "--device",
+        default=None,
+        help="GPU index (default 0 with --backend cuda) or cpu: where the env's tensors, "
+        "the networks and the updates live",
+    )
+    ap.add_argument("--seed", type=int, default=0)
+    add_option_arguments(ap, f"PPO setting, one of {', '.join(HYPERPARAMETERS)}")
+    ap.add_argument("--dtype", choices=DTYPES, default=DEFAULT_DTYPE, help="the step's precision")
+    ap.add_argument(
+        "--geometry-pool",
+        type=int,
+        default=DEFAULT_GEOMETRY_POOL,
+        help="seeded families: episodes use the geometries of this many bank seeds "
+        "(0: each copy keeps its first)",
+    )
+    ap.add_argument(
+        "--env-threads", type=int, default=DEFAULT_ENV_THREADS, help="host threads of the step"
+    )
+    ap.add_argument("--torch-threads", type=int, default=1)
+    ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--out", type=Path, default=Path("runs/torchrl_ppo"))
+    args = ap.parse_args(argv)
+    out = train(
+        args.scenario,
+        args.num_envs,
+        args.total_steps,
+        args.seed,
+        args.out,
+        backend=args.backend,
+        device=args.device,
+        dtype=args.dtype,
+        geometry_pool=args.geometry_pool,
+        env_threads=args.env_threads,
+        overrides=key_value_pairs(args.env_option),
+        hyperparameters=key_value_pairs(args.hp),
+        torch_threads=args.torch_threads,
+        command=["python", "-m", "baselines.train", "--engine", "torchrl", *argv],
+        progress=not args.no_progress,
+    )
+    config = json.loads((out / "config.json").read_text())
+    print(
+        f"saved {out / ACTOR_FILE}: {config['robot_steps']} robot-steps in "
+        f"{config['wall_time_s']} s, {config['robot_steps_per_s']} robot-steps/s"
+    )
+
+
+if __name__ == "__main__":
+    main()
