@@ -194,6 +194,24 @@ def check_inputs(sig: Signature, inputs: list, dtype: str) -> int:
     return k
 
 
+def batch_entry(entry: ctypes._CFuncPtr, restype: type | None) -> ctypes._CFuncPtr:
+    """A compiled batch loop's C entry point, typed: (const real** in, real** out, long k,
+    int threads)."""
+    entry.restype = restype
+    entry.argtypes = [
+        ctypes.POINTER(ctypes.c_void_p),
+        ctypes.POINTER(ctypes.c_void_p),
+        ctypes.c_long,
+        ctypes.c_int,
+    ]
+    return entry
+
+
+def pointers(arrays: list[np.ndarray]) -> ctypes.Array:
+    """The data addresses of ``arrays``, as the batch loops take them."""
+    return (ctypes.c_void_p * len(arrays))(*[a.ctypes.data for a in arrays])
+
+
 class BatchedFunction:
     """``fn`` evaluated on K environments per call (CPU lanes and threads).
 
@@ -211,14 +229,7 @@ class BatchedFunction:
         if self.lanes not in (1, 2, 4, 8, 16):
             raise ValueError(f"lanes must be 1, 2, 4, 8 or 16, got {lanes}")
         self._lib = _build_cpu(generated_source(fn), self.signature, dtype, self.lanes)
-        self._call = self._lib.uvms_batch
-        self._call.restype = ctypes.c_int
-        self._call.argtypes = [
-            ctypes.POINTER(ctypes.c_void_p),
-            ctypes.POINTER(ctypes.c_void_p),
-            ctypes.c_long,
-            ctypes.c_int,
-        ]
+        self._call = batch_entry(self._lib.uvms_batch, ctypes.c_int)
 
     def padded(self, k: int) -> int:
         return -(-k // self.lanes) * self.lanes
@@ -235,9 +246,7 @@ class BatchedFunction:
             raise ValueError(f"K = {k} must be a multiple of {self.lanes} lanes (pad it)")
         if out is None:
             out = [np.empty((nnz, k), self.np_dtype) for nnz in sig.nnz_out]
-        ins = (ctypes.c_void_p * len(inputs))(*[a.ctypes.data for a in inputs])
-        outs = (ctypes.c_void_p * len(out))(*[a.ctypes.data for a in out])
-        if self._call(ins, outs, k, int(threads)):
+        if self._call(pointers(inputs), pointers(out), k, int(threads)):
             raise RuntimeError(f"{sig.name} failed in its batched evaluation")
         return out
 

@@ -28,7 +28,15 @@ import casadi as cs
 import numpy as np
 
 from uvms_env.dynamics.compiled import CXX_COMPILERS, _cpu_identity, cache_dir, find_compiler
-from uvms_env.vector.kernels import DTYPES, Refinement, Signature, check_inputs, cuda_source
+from uvms_env.vector.kernels import (
+    DTYPES,
+    Refinement,
+    Signature,
+    batch_entry,
+    check_inputs,
+    cuda_source,
+    pointers,
+)
 
 # No -march=native (no fused multiply-adds) and no fast maths: plain IEEE arithmetic, as
 # the CPU backend's float64. -O0: the N = 2 period step compiles in ~3 s instead of ~14 s
@@ -97,14 +105,7 @@ class EmulatedCudaFunction:
         self.threads = int(threads)
         source, self.signature = cuda_source(fn, DTYPES[dtype][0], refine)
         self.nnz_out = self.signature.nnz_out + ((1,) if refine else ())
-        self._call = _build(source, self.signature.name, dtype).uvms_host_launch
-        self._call.restype = None
-        self._call.argtypes = [
-            ctypes.POINTER(ctypes.c_void_p),
-            ctypes.POINTER(ctypes.c_void_p),
-            ctypes.c_long,
-            ctypes.c_int,
-        ]
+        self._call = batch_entry(_build(source, self.signature.name, dtype).uvms_host_launch, None)
 
     def padded(self, k: int) -> int:
         return k
@@ -117,9 +118,7 @@ class EmulatedCudaFunction:
         for i, a in enumerate(out):
             if a.shape != (self.nnz_out[i], k) or a.dtype != self.np_dtype:
                 raise ValueError(f"output {i} must be {self.dtype} ({self.nnz_out[i]}, {k})")
-        ins = (ctypes.c_void_p * len(arrays))(*[a.ctypes.data for a in arrays])
-        outs = (ctypes.c_void_p * len(out))(*[a.ctypes.data for a in out])
-        self._call(ins, outs, k, self.threads)
+        self._call(pointers(arrays), pointers(out), k, self.threads)
         return out
 
 
