@@ -8,10 +8,11 @@ controller per robot, behind the shared policy interface (``uvms_env.policy``).
 Modules (one job each): ``ocp`` (the
 OCP's compiled pieces and the RTI's QP), ``rti`` (fast default solver), ``ipopt_solver``
 (reference solver), ``safety_filter`` (the expert's constraints around any
-policy), ``reference`` (navigation-function reference over the horizon),
-``observation`` (reading the own observation), ``settings``, ``policy``, ``rollout``
-(closed loop + metrics), ``figures``, ``__main__`` (the main job). The prediction model
-(MODEL section 5) and the steady input are ``uvms_env.dynamics.local_model``.
+policy), ``workspace`` (the filter's workspace rows), ``reference``
+(navigation-function reference over the horizon), ``observation`` (reading the own
+observation), ``settings``, ``policy``, ``rollout`` (closed loop + metrics),
+``figures``, ``__main__`` (the main job). The prediction model (MODEL section 5) and the
+steady input are ``uvms_env.dynamics.local_model``.
 
 May import: numpy, scipy, casadi, matplotlib, tqdm and ``uvms_env``. Never ``baselines``.
 """

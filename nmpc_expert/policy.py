@@ -29,7 +29,7 @@ import numpy as np
 from nmpc_expert.observation import OBSERVATION_STRUCTURE, check_observation
 from nmpc_expert.ocp import NC, WEIGHT_OFFSETS, ocp_functions, weight_vector
 from nmpc_expert.reference import HorizonReference
-from nmpc_expert.rti import RTISolver
+from nmpc_expert.rti import ExtraRows, RTISolver
 from nmpc_expert.settings import NMPCSettings
 from uvms_env.dynamics import NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall
@@ -67,6 +67,15 @@ def navigator_for(spec: AgentSpec) -> WaypointNavigator:
     )
 
 
+def local_parameters(spec: AgentSpec) -> np.ndarray:
+    """theta of the robot's local model: its grasp, its load share and the object's
+    nominal parameters, from its spec."""
+    obj = ObjectModel(spec.object_shape, spec.ring_radius)
+    return ModelParams(
+        spec.grasp_offset, spec.grasp_rotation, spec.load_share, obj.nominal_parameters()
+    ).pack()
+
+
 def constraint_bounds(settings: NMPCSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(lower, upper, scale) of the NC soft constraints, normalized by ``scale``."""
     b = settings.backoff
@@ -98,6 +107,7 @@ class LocalController:
         solver: str = "rti",
         settings: NMPCSettings | None = None,
         cost: tuple[np.ndarray, np.ndarray] | None = None,
+        extra: ExtraRows | None = None,
     ) -> None:
         if solver not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
@@ -108,10 +118,7 @@ class LocalController:
         self.funcs = ocp_functions(
             spec.object_shape, spec.object_ring_radius, s.horizon, s.period, s.substeps
         )
-        obj = ObjectModel(spec.object_shape, spec.ring_radius)
-        self.theta = ModelParams(
-            spec.grasp_offset, spec.grasp_rotation, spec.load_share, obj.nominal_parameters()
-        ).pack()
+        self.theta = local_parameters(spec)
         lower, upper, scale = constraint_bounds(s)
         self.weights = weight_vector(
             s.q_x * np.ones(6),
@@ -127,10 +134,10 @@ class LocalController:
         )
         self._steady = BufferCall(self.funcs.steady_input)
         if solver == "rti":
-            self.solver = RTISolver(self.funcs, self.theta, self.weights, cost=cost)
+            self.solver = RTISolver(self.funcs, self.theta, self.weights, cost=cost, extra=extra)
         else:
-            if cost is not None:
-                raise ValueError("a fixed QP cost needs the rti solver")
+            if cost is not None or extra is not None:
+                raise ValueError("a fixed QP cost or extra rows need the rti solver")
             from nmpc_expert.ipopt_solver import IpoptSolver
 
             self.solver = IpoptSolver(self.funcs, self.theta, self.weights, s)

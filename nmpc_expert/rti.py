@@ -23,7 +23,7 @@ May import: numpy, daqp, ``uvms_env`` and this package's ``ocp``/``local_model``
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Protocol
 
 import daqp
 import numpy as np
@@ -41,6 +41,20 @@ _SOLVED = {1: "optimal", 2: "soft_optimal"}
 _G_T, _E = 7, 8  # ``qp_builder`` outputs g_t and e (see ``ocp.build_qp_builder``)
 
 
+class ExtraRows(Protocol):
+    """Soft rows added to the QP beyond the builder's (the safety filter's workspace rows):
+    ``count`` rows with per-row penalties ``l1``, ``l2``; ``rows(xbar, g, e)`` gives (C,
+    lower, upper) in the input steps da, from the condensed dynamics dx = g da + e."""
+
+    count: int
+    l1: np.ndarray
+    l2: np.ndarray
+
+    def rows(
+        self, xbar: np.ndarray, g: np.ndarray, e: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
 class RTISolver:
     """Real-time iteration for one robot. ``solve(x0, xd, vd)`` -> first input (8,)."""
 
@@ -52,10 +66,12 @@ class RTISolver:
         theta: np.ndarray,
         weights: np.ndarray,
         cost: tuple[np.ndarray, np.ndarray] | None = None,
+        extra: ExtraRows | None = None,
     ) -> None:
         """``cost``: a fixed (H, f) of the QP in place of the builder's Gauss-Newton
         tracking cost (the safety filter's input-only cost); the dynamics, constraints
-        and bounds are the builder's either way."""
+        and bounds are the builder's either way. ``extra``: soft rows appended to the
+        builder's (the safety filter's workspace rows)."""
         self.funcs = funcs
         n = funcs.horizon
         self.n = n
@@ -70,12 +86,18 @@ class RTISolver:
         self.stats: dict[str, Any] = {}
         nz, nc = n * NU, n * NC
         self._nz = nz
+        self.extra = extra
+        if extra is not None:
+            nc += extra.count
         self._upper = np.zeros(nz + nc)  # [box on da; soft rows], DAQP's layout
         self._lower = np.zeros(nz + nc)
         self._sense = np.concatenate([np.zeros(nz), np.full(nc, SOFT)]).astype(np.intc)
         o1, o2 = WEIGHT_OFFSETS["slack_l1"], WEIGHT_OFFSETS["slack_l2"]
         l1 = np.tile(self.weights[o1 : o1 + NC], n)
         l2 = np.tile(self.weights[o2 : o2 + NC], n)
+        if extra is not None:
+            l1 = np.concatenate([l1, extra.l1])
+            l2 = np.concatenate([l2, extra.l2])
         if np.any(l2 <= 0):
             raise ValueError("slack_l2 must be > 0 (the soft rows need a quadratic penalty)")
         # one entry per DAQP constraint, the box rows included (hard: their entries unused)
@@ -109,6 +131,11 @@ class RTISolver:
         f, lb, ub, lbc, ubc = (v.reshape(-1) for v in (f, lb, ub, lbc, ubc))  # views
         if self.cost is not None:
             h, f = self.cost
+        if self.extra is not None:
+            out = self._build.outputs
+            c_x, lo_x, up_x = self.extra.rows(self.xbar, out[_G_T], out[_E].reshape(-1))
+            c = np.vstack([c, c_x])
+            lbc, ubc = np.concatenate([lbc, lo_x]), np.concatenate([ubc, up_x])
         nz = self._nz
         self._lower[:nz], self._upper[:nz] = lb, ub
         self._lower[nz:], self._upper[nz:] = lbc, ubc

@@ -23,12 +23,17 @@ input steps da are zero exactly when the proposal with the backup tail is predic
 safe, so a safe proposal passes unchanged. A failed QP falls back like the expert: the
 shifted previous plan's first input, or the holding input with no plan yet.
 
-What it does not cover: collisions and the workspace (not in the expert's constraints),
-and whatever the local model mispredicts beyond the back-offs. The local model assumes
-the other robots carry the object consistently; when they do not (random or PPO
-proposals, each filtered by its own robot) their pull moves this robot's joints by up
-to ~0.35 rad/s per period against the prediction, and joint-rate and joint-angle
-violations remain (README, "Safety filter").
+Beyond the expert's rows, the filter keeps the workspace (``workspace``): at the plan's
+node 1, a barrier on how fast its own bodies and the object (its own estimate, from its
+grasp) approach the workspace boundary, d/dt h <= -rate (h + margin), soft like the
+others; the expert has no such rows (its navigation function keeps the team inside).
+
+What it does not cover: obstacles, and whatever the local model mispredicts beyond the
+back-offs and the rate-offset estimate. The local model assumes the other robots carry
+the object consistently; when they do not (random proposals, each filtered by its own
+robot) their pull moves this robot's joints by ~0.1 rad/s per period against the
+prediction, at random, and joint-rate violations remain; pulling the object back from the
+boundary alone strains the arms (joint-limit periods) (README, "Safety filter").
 
 Built only from the robot's ``AgentSpec`` and fed only its own observation, like the
 expert. May import: numpy, ``uvms_env`` and this package. Never ``baselines``.
@@ -42,8 +47,9 @@ from typing import Any
 
 import numpy as np
 
-from nmpc_expert.policy import LocalController
+from nmpc_expert.policy import LocalController, local_parameters
 from nmpc_expert.settings import NMPCSettings
+from nmpc_expert.workspace import WorkspaceRows
 from uvms_env.dynamics import NU
 from uvms_env.dynamics.local_model import NX
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
@@ -55,6 +61,23 @@ from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 # clones) horizons 3 and 5 gave the same successes, violations and interventions, at
 # 0.89-0.99 vs 1.16-1.40 ms per decision.
 FILTER_HORIZON = 3
+# |rate offset| clip of the filter's estimator, in speed limits (the expert's: 1.0).
+# Filtered PPO (random N = 2, seed 7, episode 0): the other robot pulled one joint 0.15-0.16
+# rad/s against the prediction for tens of periods; the estimate was right to 0.005 rad/s,
+# but clipped at one limit (0.1 rad/s) it could not shift the bound far enough, and the
+# joint ran 0.10-0.11 rad/s for 10 periods. At 2.0 (and 3.0): none.
+FILTER_OFFSET_LIMIT = 2.0
+# Workspace rows (``workspace``): a barrier on how fast a ball approaches the boundary,
+# d/dt h <= -WORKSPACE_RATE (h + WORKSPACE_MARGIN), normalized by WORKSPACE_SCALE [m/s],
+# with the expert's slack penalties. A barrier on the speed, not a bound on the position:
+# a full input changes the team's speed by only a few cm/s per period, so position rows
+# over the 0.36 s horizon could not be kept and their backup tail saturated. The rate
+# asks for a deceleration of 0.5 v, within what the thrusters give at the vehicles' speed
+# limit. On 3 tuning episodes (random + filter, random N = 2, seed 7) the workspace
+# periods fell from 2,050 to 717; a weaker penalty (scale 0.5 m/s) let 1 of them collide.
+WORKSPACE_MARGIN = 0.2
+WORKSPACE_RATE = 0.5
+WORKSPACE_SCALE = 0.1
 
 
 class SafetyFilter(LocalController):
@@ -62,7 +85,8 @@ class SafetyFilter(LocalController):
 
     ``input_weight``: W on the first input (a number or 8 numbers); ``regularization``:
     eps on the later inputs' change from the backup plan; ``tolerance``: a decision with
-    max |a_out - a_prop| above it counts as an intervention. ``settings``: the expert's
+    max |a_out - a_prop| above it counts as an intervention; ``workspace``: add the
+    workspace rows (``workspace_margin`` [m] inside the boundary). ``settings``: the expert's
     (constraints, back-offs, rate-offset estimator; default: the expert's defaults with
     ``horizon = FILTER_HORIZON``)."""
 
@@ -74,6 +98,8 @@ class SafetyFilter(LocalController):
         input_weight: float | np.ndarray = 1.0,
         regularization: float = 1e-3,
         tolerance: float = 1e-3,
+        workspace: bool = True,
+        workspace_margin: float = WORKSPACE_MARGIN,
     ) -> None:
         if not isinstance(policy, Policy):
             if not callable(policy):
@@ -84,12 +110,30 @@ class SafetyFilter(LocalController):
         weight = np.broadcast_to(np.asarray(input_weight, dtype=float), (NU,))
         if not (np.all(weight > 0) and regularization > 0 and tolerance >= 0):
             raise ValueError("input_weight and regularization must be > 0, tolerance >= 0")
-        settings = settings or NMPCSettings(horizon=FILTER_HORIZON)
+        settings = settings or NMPCSettings(
+            horizon=FILTER_HORIZON, offset_limit=FILTER_OFFSET_LIMIT
+        )
         n = settings.horizon
         diag = np.concatenate([weight, np.full(NU * (n - 1), float(regularization))])
         # cost in the input steps da: u_0 = a_prop + da_0, u_k = ubar_k + da_k
         cost = (np.diag(2.0 * diag), np.zeros(NU * n))
-        super().__init__(spec, "rti", settings, cost=cost)
+        rows = None
+        if workspace:
+            rows = WorkspaceRows(
+                spec.object_shape,
+                spec.object_ring_radius,
+                local_parameters(spec),
+                (np.asarray(spec.workspace.center), spec.workspace.radius),
+                workspace_margin,
+                WORKSPACE_RATE,
+                WORKSPACE_SCALE,
+                settings.slack_l1,
+                settings.slack_l2,
+            )
+        super().__init__(spec, "rti", settings, cost=cost, extra=rows)
+        self.workspace_rows = rows
+        if rows is not None:
+            rows.zeta_offset = self.rate_offset  # the same array, updated in place
         self.policy = policy
         self.tolerance = float(tolerance)
         self.interventions = 0
