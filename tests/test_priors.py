@@ -98,6 +98,36 @@ def test_vector_env_applies_the_same_priors_as_single_envs():
         assert truncated.all() == (step == 5)
 
 
+def test_joint_hold_is_the_plain_env_driven_through_a_ss_and_the_hold():
+    """With hold gains, the residual env is the plain env driven by clip(a_ss + h + 0.3 r),
+    h = -kp (q - q_nom) - kd qdot on the four arm inputs only (q_nom the nominal arm
+    pose), from the robot's own measured joints; the vector env applies the same."""
+    from uvms_env.scenarios.geometry import NOMINAL_ARM
+    from uvms_env.vector import VectorEnv
+
+    kp, kd = 0.5, 1.0
+    hold = {"action_mode": "residual", "hold_stiffness": kp, "hold_damping": kd}
+    with_hold = uvms_env.parallel_env("short", internal_wrench_every=0, **hold)
+    plain = uvms_env.parallel_env("short", internal_wrench_every=0)
+    venv = VectorEnv("short", num_envs=1, dtype="float64", internal_wrench_every=0, **hold)
+    obs_h, _ = with_hold.reset(seed=4)
+    obs_0, _ = plain.reset(seed=4)
+    obs_v, _ = venv.reset(seed=4)
+    rng = np.random.default_rng(2)
+    for _ in range(10):
+        raw = _stack(obs_0, plain).astype(float)
+        h = np.zeros((2, 8))
+        h[:, 4:] = -kp * (raw[:, 6:10] - NOMINAL_ARM) - kd * raw[:, 16:20]
+        r = rng.uniform(-1, 1, (2, 8))
+        command = np.clip(_experts_steady(plain, raw) + h + 0.3 * r, -1, 1)
+        obs_h, *_ = with_hold.step(dict(zip(with_hold.possible_agents, r, strict=True)))
+        obs_0, *_ = plain.step(dict(zip(plain.possible_agents, command, strict=True)))
+        obs_v, *_ = venv.step(r[None])
+        np.testing.assert_allclose(with_hold.sim.flat_state, plain.sim.flat_state, atol=1e-7)
+        np.testing.assert_allclose(obs_v[0], _stack(obs_h, with_hold), atol=1e-6)
+    assert np.abs(h[:, 4:]).max() > 1e-3  # the hold acted
+
+
 def test_bad_modes_name_the_option():
     with pytest.raises(ValueError, match="action_mode"):
         uvms_env.parallel_env("short", action_mode="force")
@@ -107,6 +137,10 @@ def test_bad_modes_name_the_option():
         uvms_env.parallel_env("short", residual_scale=0.0)
     with pytest.raises(ValueError, match="observations"):
         steady_inputs(np.zeros((3, 78)), 0.0)
+    with pytest.raises(ValueError, match="residual"):
+        uvms_env.parallel_env("short", hold_stiffness=0.5)  # torque mode has no base input
+    with pytest.raises(ValueError, match="hold_damping"):
+        uvms_env.parallel_env("short", action_mode="residual", hold_damping=-1.0)
 
 
 def test_sb3_policy_rebuilds_the_runs_priors(tmp_path):

@@ -80,7 +80,7 @@ def run_priors(folder: Path) -> Priors:
 
 def priors_from_options(options: dict[str, Any]) -> Priors:
     """The priors among a run's recorded environment options (checked again)."""
-    mine = ("action_mode", "observation_mode", "residual_scale")
+    mine = ("action_mode", "observation_mode", "residual_scale", "hold_stiffness", "hold_damping")
     return priors_of({k: ENV_OPTIONS[k].check(k, v) for k, v in options.items() if k in mine})
 
 

@@ -73,6 +73,12 @@ ENV_OPTIONS: dict[str, Option] = {
     "residual_scale": Option(
         "float", "reach of a residual action", low=0.0, high=2.0, low_open=True
     ),
+    "hold_stiffness": Option(
+        "float", "residual mode: joint hold about the nominal arm pose, per rad", low=0.0, high=10.0
+    ),
+    "hold_damping": Option(
+        "float", "residual mode: joint hold damping, per rad/s", low=0.0, high=10.0
+    ),
 }
 RESET_SEED = Option("int", "reset's seed", low=0, optional=True)
 # Action dtype kinds accepted: float, signed and unsigned int (not bool, complex, str, object).
@@ -642,6 +648,8 @@ def priors_of(options: Mapping[str, Any]) -> Priors:
         options.get("action_mode", "torque"),
         options.get("observation_mode", "raw"),
         options.get("residual_scale", DEFAULT_RESIDUAL_SCALE),
+        options.get("hold_stiffness", 0.0),
+        options.get("hold_damping", 0.0),
     )
 
 
