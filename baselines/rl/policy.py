@@ -85,7 +85,12 @@ def priors_from_options(options: dict[str, Any]) -> Priors:
 
 
 class SB3Policy:
-    def __init__(self, spec: AgentSpec, algo: str, folder: Path) -> None:
+    """``act(obs)``: the run's deterministic action for one robot's raw observation, as
+    the normalized input. ``compiled`` (default): the whole decision as one compiled call
+    (``baselines.rl.actor``) where the model allows it, else SB3's ``predict``;
+    ``self.compiled`` says which."""
+
+    def __init__(self, spec: AgentSpec, algo: str, folder: Path, compiled: bool = True) -> None:
         if algo not in ALGOS:
             raise ValueError(f"unknown algorithm {algo!r}; expected one of {ALGOS}")
         self.spec = spec
@@ -97,12 +102,20 @@ class SB3Policy:
         local = getattr(self.model.policy, "local_dim", None)
         full = self.model.observation_space.shape[0]
         self._pad = np.zeros(full - local, np.float32) if local is not None else None
+        self._decide = None
+        if compiled and algo == "ppo":
+            from baselines.rl.actor import compiled_actor
+
+            self._decide = compiled_actor(self.model, self.priors, self._ring, self._norm, local)
+        self.compiled = self._decide is not None
         self.stats: dict[str, Any] = {}
 
     def reset(self) -> None:
         pass
 
     def act(self, obs: np.ndarray) -> np.ndarray:
+        if self._decide is not None:
+            return self._decide(np.asarray(obs)).astype(np.float32)
         raw = np.asarray(obs, dtype=np.float32)
         x = self.priors.observe(raw, self._ring)
         if self._pad is not None:

@@ -1,0 +1,146 @@
+"""A trained SB3 PPO actor's whole deterministic decision as one compiled function.
+
+``SB3Policy`` used to decide through the model's ``predict``: the priors' features and
+a_ss in numpy (~0.13 ms), torch's forward with SB3's checks and conversions (~0.2 ms)
+and the residual command (~0.02-0.05 ms), ~0.5 ms in all for a 64-64 network. Inside the
+safety filter that put PPO's decisions above the expert's. Here the same decision is one
+generated-C call: the run's priors (features and a_ss, ``uvms_env.env.priors`` in CasADi),
+the saved observation normalization, the actor's layers (the cloned networks' loop nest,
+``baselines.imitation.decision.dense_c``) and the action's way to the input (clip to
+[-1, 1]; in residual mode clip(a_ss + h + s a, -1, 1) with the joint hold h).
+
+Supported: PPO with an MLP actor of tanh layers (SB3's default), the central-critic
+policy's local actor included. Anything else (SAC's ReLU actor, other activations)
+returns None and the policy keeps ``predict``. The hidden tanh is the clones' rational
+approximation and the layers run in float32, so actions agree with torch's to ~1e-6.
+
+May import: numpy, casadi, torch (through the model), ``uvms_env`` and
+``baselines.imitation`` (its compiled-network code).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import casadi as cs
+import numpy as np
+
+from baselines.imitation.decision import _digest, dense_c
+from baselines.imitation.features import CompiledInputs, inputs_sx
+from uvms_env.dynamics.compiled import compile_function
+from uvms_env.env.priors import ACT_DIM, OBS_DIM, Priors, steady_sx
+from uvms_env.scenarios.geometry import NOMINAL_ARM
+
+# the imitation code's names for the priors' observation modes
+FEATURE_SETS = {"raw": "raw", "features": "uvms-v2"}
+NO_CLIP = 1e30  # a model saved without observation normalization
+
+
+def ppo_layers(model: Any) -> list[np.ndarray] | None:
+    """The deterministic actor of an SB3 PPO model as ``dense_c`` layers ((n + 1, m)
+    weights with the bias as the last row, tanh between layers), or None where it is not
+    an MLP of tanh layers behind a flattening feature extractor."""
+    import torch
+    from stable_baselines3.common.torch_layers import FlattenExtractor
+
+    policy = getattr(model, "policy", None)
+    extractor = getattr(policy, "mlp_extractor", None)
+    if extractor is None or not isinstance(policy.features_extractor, FlattenExtractor):
+        return None
+    if getattr(policy, "squash_output", False):
+        return None
+    modules = [*extractor.policy_net, policy.action_net]
+    linear = [m for m in modules if isinstance(m, torch.nn.Linear)]
+    # exactly Linear, Tanh, Linear, Tanh, ..., Linear (the action head)
+    expected = [torch.nn.Linear, torch.nn.Tanh] * (len(linear) - 1) + [torch.nn.Linear]
+    if [type(m) for m in modules] != expected or linear[-1].out_features != ACT_DIM:
+        return None
+    return [
+        np.vstack([m.weight.detach().cpu().numpy().T, m.bias.detach().cpu().numpy()[None]])
+        for m in linear
+    ]
+
+
+def _command(priors: Priors, o: cs.MX, steady: cs.MX, out: cs.MX) -> cs.MX:
+    """The normalized input for the network's output, as ``Priors.command`` builds it."""
+    a = cs.fmin(1.0, cs.fmax(-1.0, out))
+    if priors.action_mode == "torque":
+        return a
+    base = steady
+    if priors.holds:
+        kp, kd = priors.hold_stiffness, priors.hold_damping
+        arm = [-kp * (o[6 + j] - float(NOMINAL_ARM[j])) - kd * o[16 + j] for j in range(4)]
+        base = base + cs.vertcat(cs.MX.zeros(ACT_DIM - 4), *arm)
+    return cs.fmin(1.0, cs.fmax(-1.0, base + priors.residual_scale * a))
+
+
+_CACHE: dict[tuple, cs.Function | None] = {}
+
+
+def actor_function(
+    priors: Priors, ring_radius: float, layers: list[np.ndarray]
+) -> cs.Function | None:
+    """Compiled (obs, mean, inv_std, clip) -> normalized input of a robot whose raw
+    observation is ``obs``, or None where nothing is compiled (no C compiler)."""
+    key = (priors, float(ring_radius), _digest(layers))
+    if key not in _CACHE:  # an evaluation builds a policy per robot and episode
+        _CACHE[key] = _build(priors, ring_radius, layers)
+    return _CACHE[key]
+
+
+def _build(priors: Priors, ring_radius: float, layers: list[np.ndarray]) -> cs.Function | None:
+    features = FEATURE_SETS[priors.observation_mode]
+    args, z, ff, tag = inputs_sx(features, ring_radius, OBS_DIM)
+    if z.numel() != len(layers[0]) - 1:
+        raise ValueError(
+            f"the actor reads {len(layers[0]) - 1} numbers, the run's priors give {z.numel()}"
+        )
+    if priors.action_mode == "torque":
+        steady = cs.DM.zeros(ACT_DIM)
+    else:
+        steady = ff if features == "uvms-v2" else steady_sx(args[0], ring_radius)
+    name = f"ppo_actor_{tag}_{_digest(layers)}"
+    front = cs.Function(f"{name}_inputs", args, [z, steady], {"cse": True})
+    sym = [cs.MX.sym(f"a{i}", front.sparsity_in(i)) for i in range(front.n_in())]
+    zz, steady_mx = front(*sym)
+    net = cs.Function.jit(
+        f"{name}_layers",
+        dense_c(layers),
+        ["z"],
+        ["y"],
+        [cs.Sparsity.dense(zz.numel())],
+        [cs.Sparsity.dense(ACT_DIM)],
+        {"jit": False},  # generated code only: compiled with the rest (see decision.py)
+    )
+    fn = cs.Function(name, sym, [_command(priors, sym[0], steady_mx, net(zz))])
+    compiled = compile_function(fn)
+    return None if compiled is fn else compiled
+
+
+def compiled_actor(
+    model: Any,
+    priors: Priors,
+    ring_radius: float,
+    norm: tuple[np.ndarray, np.ndarray, float] | None,
+    local_dim: int | None,
+) -> CompiledInputs | None:
+    """``__call__(raw_obs) -> input`` (float64 view, overwritten by the next call) for an
+    SB3 PPO model, or None where it cannot be compiled (see the module docstring).
+    ``norm``: the saved (mean, std, clip); ``local_dim``: the actor's share of a central
+    critic's observation (the first numbers)."""
+    layers = ppo_layers(model)
+    if layers is None:
+        return None
+    width = len(layers[0]) - 1
+    if norm is None:
+        mean, inv_std, clip = np.zeros(width), np.ones(width), NO_CLIP
+    else:
+        mean, std, clip = norm
+        mean, inv_std = np.asarray(mean)[:width], 1.0 / np.asarray(std)[:width]
+    if local_dim is not None and local_dim != width:
+        return None
+    fn = actor_function(priors, ring_radius, layers)
+    if fn is None:
+        return None
+    features = FEATURE_SETS[priors.observation_mode]
+    return CompiledInputs(features, mean, inv_std, ring_radius=ring_radius, clip=clip, fn=fn)
