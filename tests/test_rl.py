@@ -157,8 +157,14 @@ def test_cli_records_the_env_path(tmp_path, vec_env):
     argv += ["--vec-env", vec_env, "--dtype", "float64", "--geometry-pool", "8"]
     argv += ["--env-option", "max_cycles=10", "--no-progress", "--checkpoint-every", "1000"]
     argv += ["--hp", "n_steps=16", "--hp", "batch_size=32", "--hp", "n_epochs=1"]
+    argv += ["--hp", 'policy_kwargs={"log_std_init": -2.0}']
     main(argv)
     config = json.loads((out / "config.json").read_text())
+    assert config["policy_kwargs"] == {"log_std_init": -2.0}  # added to, not replacing, NET
+    from stable_baselines3 import PPO
+
+    log_std = PPO.load(out / "model.zip", device="cpu").policy.log_std.detach().numpy()
+    assert log_std.shape == (8,) and np.all(np.abs(log_std + 2.0) < 0.05)  # 64 steps moved it little
     expected = {
         "vector": {"vec_env": "vector", "dtype": "float64", "geometry_pool": 8, "env_threads": 1},
         "single": {"vec_env": "single", "dtype": None, "geometry_pool": None, "env_threads": None},

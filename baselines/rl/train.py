@@ -264,6 +264,12 @@ def train(
         raise ValueError("a central critic (MAPPO) needs --algo ppo on the vector env")
     overrides = dict(overrides or {})
     hp = {**ALGO_DEFAULTS[algo], **(hyperparameters or {})}
+    # ``--hp policy_kwargs={...}`` adds to the defaults (e.g. log_std_init) instead of
+    # replacing them; a resumed model keeps its own.
+    policy_extra = hp.pop("policy_kwargs", None) or {}
+    if not isinstance(policy_extra, dict):
+        raise ValueError(f"policy_kwargs must be a JSON object, got {policy_extra!r}")
+    chosen_policy_kwargs = {**POLICY_KWARGS[algo], **policy_extra}
     env: dict[str, Any] = {
         "vec_env": vec_env,
         "dtype": dtype,
@@ -316,7 +322,7 @@ def train(
             rollout = hp["n_steps"] * venv.num_envs
             hp["batch_size"] = max(PPO_MIN_BATCH, rollout // PPO_MINIBATCHES)
         policy: Any = "MlpPolicy"
-        policy_kwargs = {"net_arch": NET, **POLICY_KWARGS[algo]}
+        policy_kwargs = {"net_arch": NET, **chosen_policy_kwargs}
         if central_critic:
             from baselines.rl.mappo import CentralCriticPolicy, CentralStateVecEnv
 
@@ -348,7 +354,7 @@ def train(
         "env_defaults": TRAIN_ENV_DEFAULTS,
         "hyperparameters": hp,
         "net_arch": NET,
-        "policy_kwargs": POLICY_KWARGS[algo],
+        "policy_kwargs": chosen_policy_kwargs,
         "resumes": previous.get("resumes", -1) + 1 if resume is not None else 0,
         "torch_threads": torch.get_num_threads(),
         "cost": cost.as_dict() if cost is not None else None,
