@@ -164,7 +164,7 @@ def test_cli_records_the_env_path(tmp_path, vec_env):
     from stable_baselines3 import PPO
 
     log_std = PPO.load(out / "model.zip", device="cpu").policy.log_std.detach().numpy()
-    assert log_std.shape == (8,) and np.all(np.abs(log_std + 2.0) < 0.05)  # 64 steps moved it little
+    assert log_std.shape == (8,) and np.all(np.abs(log_std + 2.0) < 0.05)  # moved little
     expected = {
         "vector": {"vec_env": "vector", "dtype": "float64", "geometry_pool": 8, "env_threads": 1},
         "single": {"vec_env": "single", "dtype": None, "geometry_pool": None, "env_threads": None},
