@@ -108,6 +108,7 @@ class LocalController:
         settings: NMPCSettings | None = None,
         cost: tuple[np.ndarray, np.ndarray] | None = None,
         extra: ExtraRows | None = None,
+        max_step: float | None = None,
     ) -> None:
         if solver not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
@@ -134,10 +135,12 @@ class LocalController:
         )
         self._steady = BufferCall(self.funcs.steady_input)
         if solver == "rti":
-            self.solver = RTISolver(self.funcs, self.theta, self.weights, cost=cost, extra=extra)
+            self.solver = RTISolver(
+                self.funcs, self.theta, self.weights, cost=cost, extra=extra, max_step=max_step
+            )
         else:
-            if cost is not None or extra is not None:
-                raise ValueError("a fixed QP cost or extra rows need the rti solver")
+            if cost is not None or extra is not None or max_step is not None:
+                raise ValueError("a fixed QP cost, extra rows or max_step need the rti solver")
             from nmpc_expert.ipopt_solver import IpoptSolver
 
             self.solver = IpoptSolver(self.funcs, self.theta, self.weights, s)

@@ -67,11 +67,15 @@ class RTISolver:
         weights: np.ndarray,
         cost: tuple[np.ndarray, np.ndarray] | None = None,
         extra: ExtraRows | None = None,
+        max_step: float | None = None,
     ) -> None:
         """``cost``: a fixed (H, f) of the QP in place of the builder's Gauss-Newton
         tracking cost (the safety filter's input-only cost); the dynamics, constraints
         and bounds are the builder's either way. ``extra``: soft rows appended to the
-        builder's (the safety filter's workspace rows)."""
+        builder's (the safety filter's workspace rows). ``max_step``: hard bounds
+        |a_k - a_{k-1}| <= max_step along the plan (k >= 1, hard rows after the soft
+        ones), and, while ``a_prev`` (the input applied last period) is set, on the first
+        input |a_0 - a_prev| <= max_step (its box, intersected with [-1, 1]); None: none."""
         self.funcs = funcs
         n = funcs.horizon
         self.n = n
@@ -89,9 +93,21 @@ class RTISolver:
         self.extra = extra
         if extra is not None:
             nc += extra.count
-        self._upper = np.zeros(nz + nc)  # [box on da; soft rows], DAQP's layout
-        self._lower = np.zeros(nz + nc)
-        self._sense = np.concatenate([np.zeros(nz), np.full(nc, SOFT)]).astype(np.intc)
+        self._nsoft = nc
+        self.max_step = None if max_step is None else float(max_step)
+        self.a_prev: np.ndarray | None = None  # the input applied last period (max_step)
+        n_step = 0
+        if self.max_step is not None:
+            if not self.max_step > 0:
+                raise ValueError("max_step must be > 0")
+            n_step = NU * (n - 1)  # a_k - a_{k-1} = da_k - da_{k-1} + (abar_k - abar_{k-1})
+            self._step_c = np.eye(n_step, nz, NU) - np.eye(n_step, nz)
+        # [box on da; soft rows; hard step rows], DAQP's layout
+        self._upper = np.zeros(nz + nc + n_step)
+        self._lower = np.zeros(nz + nc + n_step)
+        self._sense = np.concatenate([np.zeros(nz), np.full(nc, SOFT), np.zeros(n_step)]).astype(
+            np.intc
+        )
         o1, o2 = WEIGHT_OFFSETS["slack_l1"], WEIGHT_OFFSETS["slack_l2"]
         l1 = np.tile(self.weights[o1 : o1 + NC], n)
         l2 = np.tile(self.weights[o2 : o2 + NC], n)
@@ -101,13 +117,17 @@ class RTISolver:
         if np.any(l2 <= 0):
             raise ValueError("slack_l2 must be > 0 (the soft rows need a quadratic penalty)")
         # one entry per DAQP constraint, the box rows included (hard: their entries unused)
-        pad = np.zeros(nz)
-        self._soft = (np.concatenate([pad, 1.0 / (2.0 * l2)]), np.concatenate([pad, l1]))
+        pad, hard = np.zeros(nz), np.zeros(n_step)
+        self._soft = (
+            np.concatenate([pad, 1.0 / (2.0 * l2), hard]),
+            np.concatenate([pad, l1, hard]),
+        )
         self._qp: daqp.Model | None = None
         self.cost = cost
 
     def reset(self) -> None:
         self.has_plan = False
+        self.a_prev = None
         self._qp = None
         self.xbar[:] = 0.0
         self.abar[:] = 0.0
@@ -136,9 +156,20 @@ class RTISolver:
             c_x, lo_x, up_x = self.extra.rows(self.xbar, out[_G_T], out[_E].reshape(-1))
             c = np.vstack([c, c_x])
             lbc, ubc = np.concatenate([lbc, lo_x]), np.concatenate([ubc, up_x])
-        nz = self._nz
+        nz, ns = self._nz, self._nz + self._nsoft
         self._lower[:nz], self._upper[:nz] = lb, ub
-        self._lower[nz:], self._upper[nz:] = lbc, ubc
+        self._lower[nz:ns], self._upper[nz:ns] = lbc, ubc
+        if self.max_step is not None:
+            d = self.max_step
+            if self.a_prev is not None:  # |a_0 - a_prev| <= d, within the [-1, 1] box
+                lo0 = np.maximum(lb[:NU], self.a_prev - d - self.abar[0])
+                self._lower[:NU] = lo0
+                self._upper[:NU] = np.maximum(
+                    lo0, np.minimum(ub[:NU], self.a_prev + d - self.abar[0])
+                )
+            diff = (self.abar[1:] - self.abar[:-1]).reshape(-1)
+            self._lower[ns:], self._upper[ns:] = -d - diff, d - diff
+            c = np.vstack([c, self._step_c])
         if self._qp is None:
             qp = daqp.Model()
             flag, _ = qp.setup(h, f, c, self._upper, self._lower, self._sense)
@@ -161,10 +192,16 @@ class RTISolver:
         if not np.all(np.isfinite(da)):
             raise RuntimeError("QP solution is not finite")
         # own check of the hard bounds (a solver may stop early and still return numbers)
-        viol = max(float(np.max(lb - da)), float(np.max(da - ub)), 0.0)
+        lo, up = self._lower[:nz], self._upper[:nz]
+        viol = max(float(np.max(lo - da)), float(np.max(da - up)), 0.0)
+        cda = c @ da
+        if self.max_step is not None:
+            step = cda[ns - nz :]
+            viol = max(viol, float(np.max(self._lower[ns:] - step)), 0.0)
+            viol = max(viol, float(np.max(step - self._upper[ns:])))
+            cda = cda[: ns - nz]
         if viol > FEASIBILITY_TOL:
             raise RuntimeError(f"QP solution violates the input bounds by {viol:.2e}")
-        cda = c @ da
         slack = max(float(np.max(lbc - cda)), float(np.max(cda - ubc)), 0.0)
         return da, {
             "status": _SOLVED[flag],
