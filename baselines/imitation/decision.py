@@ -35,7 +35,7 @@ import hashlib
 import casadi as cs
 import numpy as np
 
-from baselines.imitation.features import ACT_DIM, inputs_sx
+from baselines.imitation.features import inputs_sx
 from uvms_env.dynamics.compiled import compile_function
 
 # tanh(x) ~ x P(x^2) / Q(x^2) on [-9, 9], and +-tanh(9) beyond (1 - tanh(9) = 3e-8):
@@ -141,7 +141,7 @@ def dense_c(layers: list[np.ndarray], x: str = "z", y: str = "y") -> str:
     return "\n".join(code) + "\n"
 
 
-def _digest(layers: list[np.ndarray]) -> str:
+def layers_digest(layers: list[np.ndarray]) -> str:
     h = hashlib.sha256()
     for w in layers:
         h.update(np.ascontiguousarray(w, dtype=float).tobytes())
@@ -158,11 +158,32 @@ def linear_decision_function(
     args, z, ff, tag = inputs_sx(features, ring_radius, dim)
     out = cs.mtimes(cs.DM(np.asarray(weights, dtype=float).T), cs.vertcat(z, 1.0))
     act = cs.fmin(1.0, cs.fmax(-1.0, ff + out)) if residual else cs.tanh(out)
-    name = f"cloned_linear_{tag}_{_digest([weights])}"
+    name = f"cloned_linear_{tag}_{layers_digest([weights])}"
     return compile_function(cs.Function(name, args, [act], {"cse": True}))
 
 
 _MLP_CACHE: dict[tuple, cs.Function] = {}
+
+
+def network_graph(
+    name: str, args: list[cs.SX], z: cs.SX, extra: cs.SX | cs.DM, layers: list[np.ndarray]
+) -> tuple[list[cs.MX], cs.MX, cs.MX]:
+    """The layers (``dense_c``) applied to the network input ``z``, a function of the
+    symbolic ``args``: (MX inputs like ``args``, the network's output, ``extra`` (any
+    other expression of ``args`` the caller needs, e.g. a_ss) as MX)."""
+    front = cs.Function(f"{name}_inputs", args, [z, extra], {"cse": True})
+    sym = [cs.MX.sym(f"a{i}", front.sparsity_in(i)) for i in range(front.n_in())]
+    zz, extra_mx = front(*sym)
+    layers_fn = cs.Function.jit(
+        f"{name}_layers",
+        dense_c(layers),
+        ["z"],
+        ["y"],
+        [cs.Sparsity.dense(z.numel())],
+        [cs.Sparsity.dense(layers[-1].shape[1])],
+        {"jit": False},  # generated code only: see the module docstring
+    )
+    return sym, layers_fn(zz), extra_mx
 
 
 def mlp_decision_function(
@@ -170,24 +191,12 @@ def mlp_decision_function(
 ) -> cs.Function | None:
     """Compiled (obs, mean, inv_std, clip) -> action of an MLP (``layers`` as in
     ``dense_c``; the last has 8 outputs), or None where nothing is compiled."""
-    key = (features, ring_radius, dim, residual, _digest(layers))
+    key = (features, ring_radius, dim, residual, layers_digest(layers))
     if key in _MLP_CACHE:  # generating and hashing the source again: ~0.25 s per robot
         return _MLP_CACHE[key]
     args, z, ff, tag = inputs_sx(features, ring_radius, dim)
     name = f"cloned_mlp_{tag}_{key[-1]}"
-    front = cs.Function(f"{name}_inputs", args, [z, ff], {"cse": True})
-    sym = [cs.MX.sym(f"a{i}", front.sparsity_in(i)) for i in range(front.n_in())]
-    zz, ff_mx = front(*sym)
-    layers_fn = cs.Function.jit(
-        f"{name}_layers",
-        dense_c(layers),
-        ["z"],
-        ["y"],
-        [cs.Sparsity.dense(z.numel())],
-        [cs.Sparsity.dense(ACT_DIM)],
-        {"jit": False},  # generated code only: see the module docstring
-    )
-    out = layers_fn(zz)
+    sym, out, ff_mx = network_graph(name, args, z, ff, layers)
     act = cs.fmin(1.0, cs.fmax(-1.0, ff_mx + out)) if residual else cs.tanh(out)
     fn = cs.Function(name, sym, [act])
     compiled = compile_function(fn)

@@ -25,7 +25,7 @@ from typing import Any
 import casadi as cs
 import numpy as np
 
-from baselines.imitation.decision import _digest, dense_c
+from baselines.imitation.decision import layers_digest, network_graph
 from baselines.imitation.features import CompiledInputs, inputs_sx
 from uvms_env.dynamics.compiled import compile_function
 from uvms_env.env.priors import ACT_DIM, OBS_DIM, Priors, steady_sx
@@ -82,7 +82,7 @@ def actor_function(
 ) -> cs.Function | None:
     """Compiled (obs, mean, inv_std, clip) -> normalized input of a robot whose raw
     observation is ``obs``, or None where nothing is compiled (no C compiler)."""
-    key = (priors, float(ring_radius), _digest(layers))
+    key = (priors, float(ring_radius), layers_digest(layers))
     if key not in _CACHE:  # an evaluation builds a policy per robot and episode
         _CACHE[key] = _build(priors, ring_radius, layers)
     return _CACHE[key]
@@ -99,20 +99,9 @@ def _build(priors: Priors, ring_radius: float, layers: list[np.ndarray]) -> cs.F
         steady = cs.DM.zeros(ACT_DIM)
     else:
         steady = ff if features == "uvms-v2" else steady_sx(args[0], ring_radius)
-    name = f"ppo_actor_{tag}_{_digest(layers)}"
-    front = cs.Function(f"{name}_inputs", args, [z, steady], {"cse": True})
-    sym = [cs.MX.sym(f"a{i}", front.sparsity_in(i)) for i in range(front.n_in())]
-    zz, steady_mx = front(*sym)
-    net = cs.Function.jit(
-        f"{name}_layers",
-        dense_c(layers),
-        ["z"],
-        ["y"],
-        [cs.Sparsity.dense(zz.numel())],
-        [cs.Sparsity.dense(ACT_DIM)],
-        {"jit": False},  # generated code only: compiled with the rest (see decision.py)
-    )
-    fn = cs.Function(name, sym, [_command(priors, sym[0], steady_mx, net(zz))])
+    name = f"ppo_actor_{tag}_{layers_digest(layers)}"
+    sym, out, steady_mx = network_graph(name, args, z, steady, layers)
+    fn = cs.Function(name, sym, [_command(priors, sym[0], steady_mx, out)])
     compiled = compile_function(fn)
     return None if compiled is fn else compiled
 
