@@ -178,7 +178,12 @@ def _rung_evaluations(run: Path) -> dict[str, np.ndarray] | None:
         return None
     config = json.loads((run / "config.json").read_text()) if (run / "config.json").exists() else {}
     rung = _training_rung(config, rows[0].get("rung"))
-    rows = [r for r in rows if r.get("rung") == rung]
+    # a run evaluated without --eval-ladder labels its rows with the scenario's name
+    rows = [r for r in rows if r.get("rung") == rung] or [
+        r for r in rows if r.get("rung") == config.get("scenario")
+    ]
+    if not rows:
+        return None
     keys = ("timesteps", "success_rate", "clean_success_rate")
     return {k: np.array([_num(r[k]) for r in rows]) for k in keys}
 
@@ -208,7 +213,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.group:
         groups = {}
         for item in args.group:
-            name, sep, runs = item.partition("=")
+            name, sep, runs = item.rpartition("=")  # a name may hold "=", run paths do not
             if not sep:
                 raise SystemExit(f"expected NAME=RUN,RUN, got {item!r}")
             groups[name] = [Path(r) for r in runs.split(",")]
