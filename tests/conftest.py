@@ -28,3 +28,18 @@ def paper():
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+@pytest.fixture
+def central_ppo():
+    """A PPO model with the central critic (MAPPO) on a ``CentralStateVecEnv``."""
+
+    def build(env, net_arch=(32, 32)):
+        from stable_baselines3 import PPO
+
+        from baselines.rl.mappo import CentralCriticPolicy
+
+        kwargs = {"local_dim": env.local_dim, "net_arch": list(net_arch)}
+        return PPO(CentralCriticPolicy, env, n_steps=8, batch_size=16, seed=0, policy_kwargs=kwargs)
+
+    return build

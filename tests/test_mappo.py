@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from baselines.rl.mappo import CentralCriticPolicy, CentralStateVecEnv
+from baselines.rl.mappo import CentralStateVecEnv
 from uvms_env.vector import VectorEnv
 from uvms_env.vector.sb3 import VectorVecEnv
 
@@ -37,18 +37,9 @@ def test_each_robot_sees_its_own_observation_and_its_copys_state():
         assert not np.array_equal(terminal[env.local_dim :], obs[i, env.local_dim :])
 
 
-def test_actor_ignores_the_state_and_critic_reads_it():
-    from stable_baselines3 import PPO
-
+def test_actor_ignores_the_state_and_critic_reads_it(central_ppo):
     env = _central()
-    model = PPO(
-        CentralCriticPolicy,
-        env,
-        n_steps=8,
-        batch_size=16,
-        seed=0,
-        policy_kwargs={"local_dim": env.local_dim, "net_arch": [32, 32]},
-    )
+    model = central_ppo(env)
     model.learn(16)  # one update through the split networks
     obs = env.reset()
     other = obs.copy()

@@ -80,20 +80,11 @@ def test_compiled_ppo_decision_equals_predict(tmp_path, setting):
     assert saturated.any() and not saturated.all()  # both sides of the clip were exercised
 
 
-def test_compiled_central_critic_actor_reads_its_own_observation(tmp_path):
-    from stable_baselines3 import PPO
-
-    from baselines.rl.mappo import CentralCriticPolicy, CentralStateVecEnv
+def test_compiled_central_critic_actor_reads_its_own_observation(tmp_path, central_ppo):
+    from baselines.rl.mappo import CentralStateVecEnv
 
     env = CentralStateVecEnv(VectorVecEnv(VectorEnv("short", 1), seed=0))
-    model = PPO(
-        CentralCriticPolicy,
-        env,
-        n_steps=8,
-        batch_size=16,
-        seed=0,
-        policy_kwargs={"local_dim": env.local_dim, "net_arch": [32, 32]},
-    )
+    model = central_ppo(env)
     _save_run(tmp_path, model, env, {}, np.random.default_rng(8))
     _compare(tmp_path, "short")
 
