@@ -29,7 +29,6 @@ from baselines.imitation.decision import layers_digest, network_graph
 from baselines.imitation.features import CompiledInputs, inputs_sx
 from uvms_env.dynamics.compiled import compile_function
 from uvms_env.env.priors import ACT_DIM, OBS_DIM, Priors, steady_sx
-from uvms_env.scenarios.geometry import NOMINAL_ARM
 
 # the imitation code's names for the priors' observation modes
 FEATURE_SETS = {"raw": "raw", "features": "uvms-v2"}
@@ -61,19 +60,6 @@ def ppo_layers(model: Any) -> list[np.ndarray] | None:
     ]
 
 
-def _command(priors: Priors, o: cs.MX, steady: cs.MX, out: cs.MX) -> cs.MX:
-    """The normalized input for the network's output, as ``Priors.command`` builds it."""
-    a = cs.fmin(1.0, cs.fmax(-1.0, out))
-    if priors.action_mode == "torque":
-        return a
-    base = steady
-    if priors.holds:
-        kp, kd = priors.hold_stiffness, priors.hold_damping
-        arm = [-kp * (o[6 + j] - float(NOMINAL_ARM[j])) - kd * o[16 + j] for j in range(4)]
-        base = base + cs.vertcat(cs.MX.zeros(ACT_DIM - 4), *arm)
-    return cs.fmin(1.0, cs.fmax(-1.0, base + priors.residual_scale * a))
-
-
 _CACHE: dict[tuple, cs.Function | None] = {}
 
 
@@ -101,7 +87,7 @@ def _build(priors: Priors, ring_radius: float, layers: list[np.ndarray]) -> cs.F
         steady = ff if features == "uvms-v2" else steady_sx(args[0], ring_radius)
     name = f"ppo_actor_{tag}_{layers_digest(layers)}"
     sym, out, steady_mx = network_graph(name, args, z, steady, layers)
-    fn = cs.Function(name, sym, [_command(priors, sym[0], steady_mx, out)])
+    fn = cs.Function(name, sym, [priors.command_sx(sym[0], out, steady_mx)])
     compiled = compile_function(fn)
     return None if compiled is fn else compiled
 
@@ -121,13 +107,14 @@ def compiled_actor(
     if layers is None:
         return None
     width = len(layers[0]) - 1
+    # the actor must read the whole observation (or, with a central critic, its local part)
+    if width != (local_dim if local_dim is not None else model.observation_space.shape[0]):
+        return None
     if norm is None:
         mean, inv_std, clip = np.zeros(width), np.ones(width), NO_CLIP
     else:
         mean, std, clip = norm
         mean, inv_std = np.asarray(mean)[:width], 1.0 / np.asarray(std)[:width]
-    if local_dim is not None and local_dim != width:
-        return None
     fn = actor_function(priors, ring_radius, layers)
     if fn is None:
         return None

@@ -49,6 +49,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as cs
 import numpy as np
@@ -296,8 +297,23 @@ class Priors:
         joint hold on the arm's four.
         Written with scalars and slices only, so that it runs on any array library
         (numpy here, CuPy through the GPU backend)."""
-        kp, kd = self.hold_stiffness, self.hold_damping
         q, rate = raw[..., 6:10], raw[..., 16:20]
-        arm = [-kp * (q[..., j] - float(NOMINAL_ARM[j])) - kd * rate[..., j] for j in range(4)]
+        arm = [self._hold(q[..., j], rate[..., j], j) for j in range(4)]
         zero = 0.0 * q[..., 0]
         return np.stack([zero] * (ACT_DIM - 4) + arm, -1).astype(np.float64)
+
+    def _hold(self, q: Any, rate: Any, j: int) -> Any:
+        """h_j of arm joint j at angle ``q`` and rate ``rate`` (any array or CasADi type)."""
+        return -self.hold_stiffness * (q - float(NOMINAL_ARM[j])) - self.hold_damping * rate
+
+    def command_sx(self, o: cs.MX, action: cs.MX, steady: cs.MX) -> cs.MX:
+        """``command`` of one symbolic (79,) observation ``o`` with its a_ss ``steady``,
+        for compiled decisions (``baselines.rl.actor``); ``action`` is clipped here."""
+        a = cs.fmin(1.0, cs.fmax(-1.0, action))
+        if self.action_mode == "torque":
+            return a
+        base = steady
+        if self.holds:
+            arm = [self._hold(o[6 + j], o[16 + j], j) for j in range(4)]
+            base = base + cs.vertcat(cs.MX.zeros(ACT_DIM - 4), *arm)
+        return cs.fmin(1.0, cs.fmax(-1.0, base + self.residual_scale * a))
