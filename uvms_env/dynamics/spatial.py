@@ -8,6 +8,9 @@ R = Rz(psi) Ry(theta) Rx(phi), and eta_dot = blkdiag(R, T) nu.
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 import casadi as cs
 import numpy as np
 
@@ -68,6 +71,16 @@ def rotation_error(r: Sym, r_target: Sym) -> Sym:
     return vee(r @ r_target.T)
 
 
-def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
-    """Wrap to (-pi, pi]."""
-    return np.pi - np.mod(np.pi - np.asarray(a), 2 * np.pi)
+def wrap_angle(a: Any, xp: Any = np) -> Any:
+    """Angles wrapped into (-pi, pi], elementwise, for numpy (``xp=np``) or CuPy arrays.
+
+    The one array wrap of the package: its CasADi twin is ``wrap_angle_sx`` (the same
+    floor formula, so compiled kernels and array code agree to rounding)."""
+    b = math.pi - xp.asarray(a, dtype=float) if xp is np else math.pi - a
+    return math.pi - (b - 2.0 * math.pi * xp.floor(b / (2.0 * math.pi)))
+
+
+def wrap_angle_sx(a: Sym) -> Sym:
+    """``wrap_angle`` for CasADi expressions (derivative 1 wherever the wrap is continuous)."""
+    b = math.pi - a
+    return math.pi - (b - 2.0 * math.pi * cs.floor(b / (2.0 * math.pi)))
