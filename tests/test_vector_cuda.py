@@ -29,7 +29,10 @@ def _gpu() -> bool:
 
 
 def _host(x) -> np.ndarray:
-    return x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
+    """A host copy of a numpy array, a torch tensor or a device array (CuPy's ``get``)."""
+    if isinstance(x, torch.Tensor):
+        return x.detach().cpu().numpy()
+    return x.get() if hasattr(x, "get") else np.asarray(x)
 
 
 def _agree(what: str, reference, candidate) -> None:
@@ -38,7 +41,7 @@ def _agree(what: str, reference, candidate) -> None:
     assert np.allclose(a, b, rtol=0.0, atol=TOL), f"{what}: {np.abs(a - b).max():.3g}"
 
 
-def test_kernel_source_on_the_host_steps_as_the_cpu_backend_with_its_error_control():
+def test_kernel_source_on_the_host_steps_as_the_cpu_backend_with_its_error_control(emulated_xp):
     """The GPU's period kernel (error control inside, one thread per environment) against
     the CPU backend (lanes, error control on the host), saturating inputs that make both
     refine some periods."""
@@ -56,14 +59,23 @@ def test_kernel_source_on_the_host_steps_as_the_cpu_backend_with_its_error_contr
         u = rng.choice([-1.0, 1.0], shape) if t % 3 == 0 else rng.uniform(-1.2, 1.2, shape)
         current = np.c_[rng.uniform(-0.1, 0.1, (k, 2)), np.zeros(k)]
         code = cpu.step(u * cpu.tau_max, current)
-        assert np.array_equal(code, emulated.step(u * cpu.tau_max, current)), t
+        assert np.array_equal(code, _host(emulated.step(u * cpu.tau_max, current))), t
     assert emulated.refinements == cpu.refinements > 0  # the in-kernel control was used
     _agree("state after 100 periods", cpu.state(), emulated.state())
 
 
-def _compare(scenario: str, k: int, steps: int, seed: int, **overrides) -> dict[str, int]:
+def _compare(
+    scenario: str,
+    k: int,
+    steps: int,
+    seed: int,
+    restart_at: dict[int, list[int]] | None = None,
+    **overrides,
+) -> dict[str, int]:
     """Step the CPU backend and the emulated CUDA backend with the same random actions
-    (torch tensors into the CUDA one); assert they agree. Returns the episode ends seen."""
+    (torch tensors into the CUDA one); assert they agree. ``restart_at``: before step t,
+    restart these environments (so that episodes end at different steps afterwards).
+    Returns the episode ends seen."""
     cpu = VectorEnv(scenario, k, threads=2, **overrides)
     cuda = VectorEnv(scenario, k, backend="cuda", device="cpu", threads=2, **overrides)
     obs, _ = cpu.reset(seed=seed)
@@ -73,6 +85,9 @@ def _compare(scenario: str, k: int, steps: int, seed: int, **overrides) -> dict[
     rng = np.random.default_rng(seed)
     ends: dict[str, int] = {}
     for t in range(steps):
+        if restart_at and t in restart_at:
+            ids = restart_at[t]
+            _agree(f"restart, step {t}", cpu.restart(ids), cuda.restart(ids))
         act = rng.uniform(-1.0, 1.0, (k, cpu.n, 8))
         ref = cpu.step(act)
         out = cuda.step(torch.from_numpy(act))
@@ -105,33 +120,37 @@ def _compare(scenario: str, k: int, steps: int, seed: int, **overrides) -> dict[
     return ends
 
 
-def test_emulated_cuda_backend_equals_cpu_through_max_cycles_and_auto_resets():
-    ends = _compare("short", 5, 70, seed=3, max_cycles=30)
+def test_emulated_cuda_backend_equals_cpu_through_max_cycles_and_auto_resets(emulated_xp):
+    # environments 1 and 3 restarted at step 10: their episodes end 10 steps after the
+    # others' (resets of some environments, not all, inside the step)
+    ends = _compare("short", 5, 70, seed=3, max_cycles=30, restart_at={10: [1, 3]})
     assert ends == {"max_cycles": 10}
 
 
-def test_emulated_cuda_backend_equals_cpu_with_priors_pool_noise_and_current():
-    """Residual actions and features (a_ss and features by kernels on this backend, host
-    calls on the CPU one), geometries from a pool, sensor noise and current drawn from each
-    environment's own generator."""
+def test_emulated_cuda_backend_equals_cpu_with_priors_pool_noise_and_current(emulated_xp):
+    """Residual actions with the joint hold and features (a_ss and features by kernels on
+    this backend, host calls on the CPU one), geometries from a pool (environment 2 on its
+    own cycle), sensor noise and current drawn from each environment's own generator."""
     overrides = {
         "geometry_pool": 6,
         "action_mode": "residual",
+        "hold_stiffness": 0.5,
+        "hold_damping": 0.2,
         "observation_mode": "features",
         "sensor_noise": 1.0,
         "current": "strong",
         "max_cycles": 25,
     }
-    ends = _compare("random", 4, 60, seed=3, **overrides)
+    ends = _compare("random", 4, 60, seed=3, restart_at={5: [2]}, **overrides)
     assert sum(ends.values()) >= 8
 
 
-def test_emulated_cuda_backend_ends_episodes_by_constraint_as_the_cpu_backend():
+def test_emulated_cuda_backend_ends_episodes_by_constraint_as_the_cpu_backend(emulated_xp):
     ends = _compare("paper", 3, 40, seed=0, constraint_mode="terminate")
     assert ends.get("constraint", 0) >= 1
 
 
-def test_cuda_backend_names_bad_devices_and_actions():
+def test_cuda_backend_names_bad_devices_and_actions(emulated_xp):
     with pytest.raises(ValueError, match="device must be a GPU index"):
         VectorEnv("short", 2, backend="cuda", device="gpu0")
     with pytest.raises(ValueError, match="backend must be one of"):
