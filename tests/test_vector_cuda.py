@@ -186,3 +186,19 @@ def test_gpu_float64_equals_cpu_over_100_periods_with_auto_resets():
             _agree(f"{name}, step {t}", a, b)
         assert list(ref[4]["episode_end"]) == list(out[4]["episode_end"]), t
     _agree("state", cpu.state(), gpu.state())
+
+
+def test_the_kernel_refuses_outputs_it_would_write_out_of_place(emulated_xp):
+    """The kernels write each output as a C-contiguous (nnz, K) block: a transposed view
+    of the right shape is refused, not written past."""
+    import casadi as cs
+
+    from uvms_env.vector.kernels_cuda import cuda_function
+
+    x = cs.SX.sym("x", 2)
+    kernel = cuda_function(cs.Function("uvms_twice", [x], [2 * x]), "float64", "cpu")
+    xp = kernel.xp
+    inputs = xp.asarray(np.arange(10.0).reshape(2, 5))
+    assert np.array_equal(_host(kernel([inputs])[0]), 2 * np.arange(10.0).reshape(2, 5))
+    with pytest.raises(ValueError, match="output 0 must be a C-contiguous float64"):
+        kernel([inputs], out=[xp.zeros((5, 2)).T])

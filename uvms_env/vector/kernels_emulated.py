@@ -35,6 +35,7 @@ from uvms_env.vector.kernels import (
     Signature,
     batch_entry,
     check_inputs,
+    check_outputs,
     cuda_source,
     pointers,
 )
@@ -122,9 +123,7 @@ class EmulatedCudaFunction:
         if out is None:
             out = [self.xp.empty((nnz, k), self.np_dtype) for nnz in self.nnz_out]
         written = [_memory(a) for a in out]
-        for i, a in enumerate(written):
-            if a.shape != (self.nnz_out[i], k) or a.dtype != self.np_dtype:
-                raise ValueError(f"output {i} must be {self.dtype} ({self.nnz_out[i]}, {k})")
+        check_outputs(self.nnz_out, written, k, self.dtype)
         self._call(pointers(arrays), pointers(written), k, self.threads)
         return out
 
