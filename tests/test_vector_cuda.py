@@ -6,10 +6,15 @@ and out. The GPU tests skip without CuPy and a CUDA device."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 import pytest
 
-from uvms_env.scenarios import make
+from uvms_env.dynamics import NQ
+from uvms_env.env.observation import OBSERVATION_STRUCTURE
+from uvms_env.scenarios import Scenario, make, replace
 from uvms_env.vector import VectorEnv
 from uvms_env.vector.simulator import BatchedSimulator
 
@@ -65,17 +70,17 @@ def test_kernel_source_on_the_host_steps_as_the_cpu_backend_with_its_error_contr
 
 
 def _compare(
-    scenario: str,
+    scenario: str | Scenario,
     k: int,
     steps: int,
     seed: int,
-    restart_at: dict[int, list[int]] | None = None,
+    before: dict[int, Callable[[VectorEnv], Any]] | None = None,
     **overrides,
-) -> dict[str, int]:
+) -> tuple[dict[str, int], tuple]:
     """Step the CPU backend and the emulated CUDA backend with the same random actions
-    (torch tensors into the CUDA one); assert they agree. ``restart_at``: before step t,
-    restart these environments (so that episodes end at different steps afterwards).
-    Returns the episode ends seen."""
+    (torch tensors into the CUDA one); assert they agree. ``before``: before step t, call
+    ``before[t]`` on each (a restart, a reset, a perturbation) and compare what it returns.
+    Returns the episode ends seen and the CPU backend's last step."""
     cpu = VectorEnv(scenario, k, threads=2, **overrides)
     cuda = VectorEnv(scenario, k, backend="cuda", device="cpu", threads=2, **overrides)
     obs, _ = cpu.reset(seed=seed)
@@ -85,9 +90,10 @@ def _compare(
     rng = np.random.default_rng(seed)
     ends: dict[str, int] = {}
     for t in range(steps):
-        if restart_at and t in restart_at:
-            ids = restart_at[t]
-            _agree(f"restart, step {t}", cpu.restart(ids), cuda.restart(ids))
+        if before and t in before:
+            a, b = before[t](cpu), before[t](cuda)
+            if a is not None:
+                _agree(f"before step {t}", a, b)
         act = rng.uniform(-1.0, 1.0, (k, cpu.n, 8))
         ref = cpu.step(act)
         out = cuda.step(torch.from_numpy(act))
@@ -117,13 +123,14 @@ def _compare(
         if ref[4]["final_state"] is not None:
             _agree(f"final state, step {t}", ref[4]["final_state"], out[4]["final_state"])
     _agree("state", cpu.state(), cuda.state())
-    return ends
+    return ends, ref
 
 
 def test_emulated_cuda_backend_equals_cpu_through_max_cycles_and_auto_resets(emulated_xp):
     # environments 1 and 3 restarted at step 10: their episodes end 10 steps after the
     # others' (resets of some environments, not all, inside the step)
-    ends = _compare("short", 5, 70, seed=3, max_cycles=30, restart_at={10: [1, 3]})
+    restart = {10: lambda venv: venv.restart([1, 3])}
+    ends, _ = _compare("short", 5, 70, seed=3, before=restart, max_cycles=30)
     assert ends == {"max_cycles": 10}
 
 
@@ -141,13 +148,47 @@ def test_emulated_cuda_backend_equals_cpu_with_priors_pool_noise_and_current(emu
         "current": "strong",
         "max_cycles": 25,
     }
-    ends = _compare("random", 4, 60, seed=3, restart_at={5: [2]}, **overrides)
+    before = {
+        5: lambda venv: venv.restart([2]),
+        55: lambda venv: venv.reset()[0],  # every environment on to its next pool geometry
+    }
+    ends, _ = _compare("random", 4, 60, seed=3, before=before, **overrides)
     assert sum(ends.values()) >= 8
 
 
 def test_emulated_cuda_backend_ends_episodes_by_constraint_as_the_cpu_backend(emulated_xp):
-    ends = _compare("paper", 3, 40, seed=0, constraint_mode="terminate")
+    ends, _ = _compare("paper", 3, 40, seed=0, constraint_mode="terminate")
     assert ends.get("constraint", 0) >= 1
+
+
+def _overspeed(venv: VectorEnv, env: int) -> None:
+    """Environment ``env``'s first vehicle surging far beyond the physical envelope."""
+    x = _host(venv.sim.state())
+    x[env, NQ * venv.n] = 50.0
+    venv.sim.set_state(x)
+
+
+def test_emulated_cuda_backend_sequences_waypoints_and_ends_diverged_as_the_cpu_backend(
+    emulated_xp,
+):
+    """Two waypoints at the start: the team passes one at the reset and one in the first
+    step, each robot's sequencer both in its first two measurements; environment 1 then
+    diverges (refused steps) and restarts."""
+    paper = make("paper")
+    start = np.asarray(paper.object_start)[None]
+    scenario = replace(paper, waypoints=np.vstack([start, start, paper.waypoints]))
+    before = {4: lambda venv: _overspeed(venv, 1)}
+    ends, (obs, *_) = _compare(scenario, 3, 8, seed=0, before=before)
+    assert ends == {"diverged": 1}
+    # every robot aims at the first waypoint past the start
+    assert np.allclose(obs[:, :, OBSERVATION_STRUCTURE["waypoint"]], paper.waypoints[0])
+
+
+def test_emulated_cuda_backend_ends_episodes_by_success_as_the_cpu_backend(emulated_xp):
+    paper = make("paper")
+    start = np.asarray(paper.object_start)[None]
+    ends, _ = _compare(replace(paper, waypoints=np.vstack([start, start])), 2, 3, seed=0)
+    assert ends == {"success": 6}
 
 
 def test_cuda_backend_names_bad_devices_and_actions(emulated_xp):
