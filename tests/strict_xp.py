@@ -36,6 +36,26 @@ _HOST_MESSAGE = (
 )
 _SCALARS = bool | int | float | complex | np.generic
 
+
+class HostReads:
+    """Device-to-host reads (each a synchronization on a GPU), by kind: ``bool``,
+    ``scalar`` (float/int/complex/item), ``copy`` (get/asnumpy/tolist)."""
+
+    def __init__(self) -> None:
+        self.counts: dict[str, int] = {}
+
+    def note(self, kind: str) -> None:
+        self.counts[kind] = self.counts.get(kind, 0) + 1
+
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+    def clear(self) -> None:
+        self.counts.clear()
+
+
+host_reads = HostReads()
+
 # the numpy ufuncs CuPy has (cupy.<name>), by name
 UFUNCS = frozenset(
     """add subtract multiply divide true_divide floor_divide remainder mod fmod power
@@ -153,6 +173,7 @@ class StrictArray:
                 "The truth value of an array with more than one element is ambiguous. "
                 "Use a.any() or a.all()"
             )
+        host_reads.note("bool")
         return bool(self._a.reshape(()))
 
     def __float__(self) -> float:
@@ -167,6 +188,7 @@ class StrictArray:
     def _scalar(self, what: str) -> Any:
         if self._a.size != 1:
             raise TypeError(f"only size-1 arrays can be converted to Python {what}s")
+        host_reads.note("scalar")
         return self._a.reshape(()).item()
 
     # CuPy defines no __index__: a device array is no Python index (range, list[...])
@@ -230,14 +252,17 @@ class StrictArray:
 
     # -- explicit copies to the host ------------------------------------------------------
     def get(self) -> np.ndarray:
+        host_reads.note("copy")
         return self._a.copy()
 
     def item(self) -> Any:
         if self._a.size != 1:
             raise ValueError("can only convert an array of size 1 to a Python scalar")
+        host_reads.note("scalar")
         return self._a.item()
 
     def tolist(self) -> Any:
+        host_reads.note("copy")
         return self._a.tolist()
 
     # -- DLPack -------------------------------------------------------------------------------
@@ -442,4 +467,4 @@ def _build() -> _Namespace:
 
 xp = _build()
 
-__all__ = ["FUNCTIONS", "UFUNCS", "StrictArray", "asnumpy", "xp"]
+__all__ = ["FUNCTIONS", "UFUNCS", "StrictArray", "asnumpy", "host_reads", "xp"]

@@ -243,3 +243,25 @@ def test_the_kernel_refuses_outputs_it_would_write_out_of_place(emulated_xp):
     assert np.array_equal(_host(kernel([inputs])[0]), 2 * np.arange(10.0).reshape(2, 5))
     with pytest.raises(ValueError, match="output 0 must be a C-contiguous float64"):
         kernel([inputs], out=[xp.zeros((5, 2)).T])
+
+
+@pytest.mark.parametrize("emulated_xp", ["strict"], indirect=True)
+def test_the_step_reads_the_device_a_fixed_number_of_times_whatever_k(emulated_xp):
+    """Device-to-host reads (each a synchronization on a GPU) per step: a few flags, the
+    same for 2 environments as for 5, whether episodes end or not (the ended ones come
+    over together)."""
+    from strict_xp import host_reads
+
+    def reads(k: int) -> list[int]:
+        venv = VectorEnv("short", k, backend="cuda", device="cpu", max_cycles=2)
+        venv.reset(seed=0)
+        counts = []
+        for _ in range(3):  # every episode ends in the second step
+            host_reads.clear()
+            venv.step(torch.zeros(k, 2, 8))
+            counts.append(host_reads.total())
+        return counts
+
+    two = reads(2)
+    assert two == reads(5)
+    assert two[0] == two[2] < two[1] <= 30
