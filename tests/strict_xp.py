@@ -39,7 +39,9 @@ _SCALARS = bool | int | float | complex | np.generic
 
 class HostReads:
     """Device-to-host reads (each a synchronization on a GPU), by kind: ``bool``,
-    ``scalar`` (float/int/complex/item), ``copy`` (get/asnumpy/tolist)."""
+    ``scalar`` (float/int/complex/item), ``copy`` (get/asnumpy/tolist), and the ones
+    CuPy makes inside: ``mask`` (boolean-mask indexing, reading the count of True) and
+    ``nonzero`` (argwhere, flatnonzero, nonzero, unique: reading the output size)."""
 
     def __init__(self) -> None:
         self.counts: dict[str, int] = {}
@@ -129,11 +131,17 @@ def _wrap(x: Any) -> Any:
     return x
 
 
+# functions whose output size CuPy reads from the device
+_SIZE_READS = frozenset({"argwhere", "flatnonzero", "nonzero", "unique"})
+
+
 def _device_function(fn: Callable, name: str) -> Callable:
     """``fn`` (numpy) as a function of the device namespace: device arrays in and out."""
 
     def call(*args: Any, **kwargs: Any) -> Any:
         _check((args, kwargs), f"xp.{name}")
+        if name in _SIZE_READS:
+            host_reads.note("nonzero")
         out = kwargs.get("out")
         result = fn(*_raw(args), **_raw(kwargs))
         return out if isinstance(out, StrictArray) else _wrap(result)
@@ -307,6 +315,8 @@ class StrictArray:
 def _method(name: str) -> Callable:
     def call(self: StrictArray, *args: Any, **kwargs: Any) -> Any:
         _check((args, kwargs), f"ndarray.{name}")
+        if name in _SIZE_READS:
+            host_reads.note("nonzero")
         out = kwargs.get("out")
         result = getattr(self._a, name)(*_raw(args), **_raw(kwargs))
         return out if isinstance(out, StrictArray) else _wrap(result)
@@ -373,8 +383,11 @@ def _advanced(key: Any) -> bool:
 
 def _check_index(key: Any) -> None:
     """Indices: ints, slices, None, Ellipsis, device arrays, and host arrays or lists
-    (CuPy copies them to the device); nothing else that converts to an array."""
+    (CuPy copies them to the device); nothing else that converts to an array. A boolean
+    array among them is a host read (CuPy reads how many are True)."""
     for k in key if isinstance(key, tuple) else (key,):
+        if isinstance(k, StrictArray | np.ndarray) and k.dtype == bool and k.ndim > 0:
+            host_reads.note("mask")
         if isinstance(k, StrictArray | np.ndarray | list | slice | _SCALARS) or k is None:
             continue
         if k is Ellipsis:

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from strict_xp import StrictArray, xp
+from strict_xp import StrictArray, host_reads, xp
 
 from uvms_env.vector.kernels_emulated import _memory
 
@@ -114,3 +114,15 @@ def test_the_emulated_device_reads_and_writes_device_arrays_in_place():
     assert float(a[1, 2]) == 4.0
     host = np.zeros(2)
     assert _memory(host) is host  # numpy as it was
+
+
+def test_host_reads_are_counted_where_cupy_synchronizes():
+    a = _a()
+    host_reads.clear()
+    b = a * 2.0 + 1.0  # on the device
+    b[a > 2] = 0.0  # a mask: CuPy reads how many are True
+    float(b[0, 0])
+    bool((b > 0).any())
+    xp.flatnonzero(b)  # output size read
+    xp.asnumpy(b)
+    assert host_reads.counts == {"mask": 1, "scalar": 1, "bool": 1, "nonzero": 1, "copy": 1}

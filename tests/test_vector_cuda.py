@@ -247,9 +247,9 @@ def test_the_kernel_refuses_outputs_it_would_write_out_of_place(emulated_xp):
 
 @pytest.mark.parametrize("emulated_xp", ["strict"], indirect=True)
 def test_the_step_reads_the_device_a_fixed_number_of_times_whatever_k(emulated_xp):
-    """Device-to-host reads (each a synchronization on a GPU) per step: a few flags, the
-    same for 2 environments as for 5, whether episodes end or not (the ended ones come
-    over together)."""
+    """Device-to-host reads (each a synchronization on a GPU, boolean masks included) per
+    step: a few flags, the same for 2 environments as for 5, whether episodes end or not
+    (the ended ones come over together)."""
     from strict_xp import host_reads
 
     def reads(k: int) -> list[int]:
