@@ -57,6 +57,9 @@ class HostReads:
 
 
 host_reads = HostReads()
+# host-to-device copies (no synchronization, a transfer each): ``asarray`` of host data,
+# host ``index`` arrays and lists, host ``value`` arrays assigned
+uploads = HostReads()
 
 # the numpy ufuncs CuPy has (cupy.<name>), by name
 UFUNCS = frozenset(
@@ -292,6 +295,8 @@ class StrictArray:
             raise TypeError(f"a host array assigned to a device array's slice ({type(value)})")
         if not isinstance(value, StrictArray | _SCALARS | np.ndarray | list):
             _check(value, "assignment")
+        if isinstance(value, np.ndarray | list) and np.ndim(value) > 0:
+            uploads.note("value")
         self._a[_raw(key)] = _raw(value)
 
     def fill(self, value: Any) -> None:
@@ -388,6 +393,8 @@ def _check_index(key: Any) -> None:
     for k in key if isinstance(key, tuple) else (key,):
         if isinstance(k, StrictArray | np.ndarray) and k.dtype == bool and k.ndim > 0:
             host_reads.note("mask")
+        if isinstance(k, np.ndarray | list):
+            uploads.note("index")
         if isinstance(k, StrictArray | np.ndarray | list | slice | _SCALARS) or k is None:
             continue
         if k is Ellipsis:
@@ -412,6 +419,7 @@ def asarray(obj: Any, dtype: Any = None, order: Any = None) -> StrictArray:
             return obj
         return StrictArray(obj._a.astype(dtype))
     _check_nested_device(obj)
+    uploads.note("asarray")
     return StrictArray(np.array(obj, dtype=dtype, order=order or "K", copy=True))
 
 
@@ -480,4 +488,4 @@ def _build() -> _Namespace:
 
 xp = _build()
 
-__all__ = ["FUNCTIONS", "UFUNCS", "StrictArray", "asnumpy", "host_reads", "xp"]
+__all__ = ["FUNCTIONS", "UFUNCS", "StrictArray", "asnumpy", "host_reads", "uploads", "xp"]

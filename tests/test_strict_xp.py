@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from strict_xp import StrictArray, host_reads, xp
+from strict_xp import StrictArray, host_reads, uploads, xp
 
 from uvms_env.vector.kernels_emulated import _memory
 
@@ -119,6 +119,7 @@ def test_the_emulated_device_reads_and_writes_device_arrays_in_place():
 def test_host_reads_are_counted_where_cupy_synchronizes():
     a = _a()
     host_reads.clear()
+    uploads.clear()
     b = a * 2.0 + 1.0  # on the device
     b[a > 2] = 0.0  # a mask: CuPy reads how many are True
     float(b[0, 0])
@@ -126,3 +127,7 @@ def test_host_reads_are_counted_where_cupy_synchronizes():
     xp.flatnonzero(b)  # output size read
     xp.asnumpy(b)
     assert host_reads.counts == {"mask": 1, "scalar": 1, "bool": 1, "nonzero": 1, "copy": 1}
+    assert uploads.total() == 0
+    b[np.array([0, 1])] = np.ones((2, 3))  # a host index and a host value
+    xp.asarray(np.ones(2))
+    assert uploads.counts == {"index": 1, "value": 1, "asarray": 1}
