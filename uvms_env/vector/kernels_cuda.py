@@ -114,6 +114,9 @@ class CudaBatchedFunction:
         self.dtype = dtype
         self.np_dtype = DTYPES[dtype][1]
         self.device = cp.cuda.Device(device)
+        # the backend allocates its arrays on CuPy's current device: make it this kernel's,
+        # or with device > 0 they would lie on GPU 0 and the kernel read them from another
+        self.device.use()
         source, self.signature = cuda_source(fn, DTYPES[dtype][0], refine)
         self.nnz_out = self.signature.nnz_out + ((1,) if refine else ())
         with self.device:
