@@ -3,9 +3,10 @@ implicitly, for testing the CUDA backend's array code without a GPU.
 
 CuPy refuses what would silently copy a device array to the host: ``np.asarray(a)``
 (``__array__`` raises TypeError), numpy arrays mixed into its ufuncs and functions
-(TypeError), ``float``/``int``/``bool`` of arrays with more than one element, numpy ufunc
-methods other than calls (``np.add.reduce(a)``) and numpy functions it has no
-counterpart of (``__array_function__`` gives up: TypeError). ``StrictArray`` does the same
+(TypeError), ``float``/``int`` (TypeError) and ``bool`` (ValueError, as numpy) of arrays
+with more than one element, numpy ufunc methods other than calls (``np.add.reduce(a)``)
+and numpy functions it has no counterpart of (``__array_function__`` gives up:
+TypeError). ``StrictArray`` does the same
 over a numpy array it holds, and ``xp`` is the namespace (the subset of CuPy's API the
 package uses, plus ``asnumpy``: the explicit copy to the host). What CuPy allows, this
 allows: host index arrays and lists (copied to the device), host values assigned through
@@ -18,8 +19,13 @@ and the namespace's functions take no host arrays at all (some CuPy functions co
 the device silently, others refuse).
 
 How the package's emulated CUDA device takes it: ``EmulatedCudaFunction.xp`` (the array
-namespace of ``uvms_env.vector.kernels_emulated``) set to ``xp``; its kernels read and
-write the arrays' memory through DLPack, as a GPU kernel reads device memory.
+namespace of ``uvms_env.vector.kernels_emulated``) set to ``xp`` (the ``emulated_xp``
+fixture); its kernels read and write the arrays' memory through DLPack, as a GPU kernel
+reads device memory. ``host_reads`` counts the device-to-host reads (a synchronization
+each on a GPU, those CuPy makes inside included) and ``uploads`` the host-to-device
+copies, for tests that bound them.
+
+May import: numpy only (a test helper).
 """
 
 from __future__ import annotations
