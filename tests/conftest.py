@@ -43,3 +43,18 @@ def central_ppo():
         return PPO(CentralCriticPolicy, env, n_steps=8, batch_size=16, seed=0, policy_kwargs=kwargs)
 
     return build
+
+
+@pytest.fixture(params=["numpy", "strict"])
+def emulated_xp(request, monkeypatch):
+    """The array namespace of the emulated CUDA device (``device="cpu"``): numpy, or the
+    strict CuPy stand-in of ``strict_xp`` (arrays that refuse implicit host conversions,
+    numpy operands and iteration as CuPy does), so that the backend's array code is checked
+    as CuPy would run it."""
+    if request.param == "strict":
+        from strict_xp import xp
+
+        from uvms_env.vector.kernels_emulated import EmulatedCudaFunction
+
+        monkeypatch.setattr(EmulatedCudaFunction, "xp", xp)
+    return request.param

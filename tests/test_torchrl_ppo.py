@@ -108,7 +108,7 @@ def _collect_on(backend: str, device: str | int) -> None:
     assert handed == [torch.Tensor] * 6
 
 
-def test_the_cuda_backend_keeps_the_rollout_in_tensors_on_the_env_device(tmp_path):
+def test_the_cuda_backend_keeps_the_rollout_in_tensors_on_the_env_device(tmp_path, emulated_xp):
     _collect_on("cuda", "cpu")
     out = torchrl_ppo.train(
         "short",

@@ -6,10 +6,15 @@ and out. The GPU tests skip without CuPy and a CUDA device."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 import pytest
 
-from uvms_env.scenarios import make
+from uvms_env.dynamics import NQ
+from uvms_env.env.observation import OBSERVATION_STRUCTURE
+from uvms_env.scenarios import Scenario, make, replace
 from uvms_env.vector import VectorEnv
 from uvms_env.vector.simulator import BatchedSimulator
 
@@ -29,7 +34,10 @@ def _gpu() -> bool:
 
 
 def _host(x) -> np.ndarray:
-    return x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
+    """A host copy of a numpy array, a torch tensor or a device array (CuPy's ``get``)."""
+    if isinstance(x, torch.Tensor):
+        return x.detach().cpu().numpy()
+    return x.get() if hasattr(x, "get") else np.asarray(x)
 
 
 def _agree(what: str, reference, candidate) -> None:
@@ -38,7 +46,7 @@ def _agree(what: str, reference, candidate) -> None:
     assert np.allclose(a, b, rtol=0.0, atol=TOL), f"{what}: {np.abs(a - b).max():.3g}"
 
 
-def test_kernel_source_on_the_host_steps_as_the_cpu_backend_with_its_error_control():
+def test_kernel_source_on_the_host_steps_as_the_cpu_backend_with_its_error_control(emulated_xp):
     """The GPU's period kernel (error control inside, one thread per environment) against
     the CPU backend (lanes, error control on the host), saturating inputs that make both
     refine some periods."""
@@ -56,14 +64,23 @@ def test_kernel_source_on_the_host_steps_as_the_cpu_backend_with_its_error_contr
         u = rng.choice([-1.0, 1.0], shape) if t % 3 == 0 else rng.uniform(-1.2, 1.2, shape)
         current = np.c_[rng.uniform(-0.1, 0.1, (k, 2)), np.zeros(k)]
         code = cpu.step(u * cpu.tau_max, current)
-        assert np.array_equal(code, emulated.step(u * cpu.tau_max, current)), t
+        assert np.array_equal(code, _host(emulated.step(u * cpu.tau_max, current))), t
     assert emulated.refinements == cpu.refinements > 0  # the in-kernel control was used
     _agree("state after 100 periods", cpu.state(), emulated.state())
 
 
-def _compare(scenario: str, k: int, steps: int, seed: int, **overrides) -> dict[str, int]:
+def _compare(
+    scenario: str | Scenario,
+    k: int,
+    steps: int,
+    seed: int,
+    before: dict[int, Callable[[VectorEnv], Any]] | None = None,
+    **overrides,
+) -> tuple[dict[str, int], tuple]:
     """Step the CPU backend and the emulated CUDA backend with the same random actions
-    (torch tensors into the CUDA one); assert they agree. Returns the episode ends seen."""
+    (torch tensors into the CUDA one); assert they agree. ``before``: before step t, call
+    ``before[t]`` on each (a restart, a reset, a perturbation) and compare what it returns.
+    Returns the episode ends seen and the CPU backend's last step."""
     cpu = VectorEnv(scenario, k, threads=2, **overrides)
     cuda = VectorEnv(scenario, k, backend="cuda", device="cpu", threads=2, **overrides)
     obs, _ = cpu.reset(seed=seed)
@@ -73,6 +90,10 @@ def _compare(scenario: str, k: int, steps: int, seed: int, **overrides) -> dict[
     rng = np.random.default_rng(seed)
     ends: dict[str, int] = {}
     for t in range(steps):
+        if before and t in before:
+            a, b = before[t](cpu), before[t](cuda)
+            if a is not None:
+                _agree(f"before step {t}", a, b)
         act = rng.uniform(-1.0, 1.0, (k, cpu.n, 8))
         ref = cpu.step(act)
         out = cuda.step(torch.from_numpy(act))
@@ -102,36 +123,75 @@ def _compare(scenario: str, k: int, steps: int, seed: int, **overrides) -> dict[
         if ref[4]["final_state"] is not None:
             _agree(f"final state, step {t}", ref[4]["final_state"], out[4]["final_state"])
     _agree("state", cpu.state(), cuda.state())
-    return ends
+    return ends, ref
 
 
-def test_emulated_cuda_backend_equals_cpu_through_max_cycles_and_auto_resets():
-    ends = _compare("short", 5, 70, seed=3, max_cycles=30)
+def test_emulated_cuda_backend_equals_cpu_through_max_cycles_and_auto_resets(emulated_xp):
+    # environments 1 and 3 restarted at step 10: their episodes end 10 steps after the
+    # others' (resets of some environments, not all, inside the step)
+    restart = {10: lambda venv: venv.restart([1, 3])}
+    ends, _ = _compare("short", 5, 70, seed=3, before=restart, max_cycles=30)
     assert ends == {"max_cycles": 10}
 
 
-def test_emulated_cuda_backend_equals_cpu_with_priors_pool_noise_and_current():
-    """Residual actions and features (a_ss and features by kernels on this backend, host
-    calls on the CPU one), geometries from a pool, sensor noise and current drawn from each
-    environment's own generator."""
+def test_emulated_cuda_backend_equals_cpu_with_priors_pool_noise_and_current(emulated_xp):
+    """Residual actions with the joint hold and features (a_ss and features by kernels on
+    this backend, host calls on the CPU one), geometries from a pool (environment 2 on its
+    own cycle), sensor noise and current drawn from each environment's own generator."""
     overrides = {
         "geometry_pool": 6,
         "action_mode": "residual",
+        "hold_stiffness": 0.5,
+        "hold_damping": 0.2,
         "observation_mode": "features",
         "sensor_noise": 1.0,
         "current": "strong",
         "max_cycles": 25,
     }
-    ends = _compare("random", 4, 60, seed=3, **overrides)
+    before = {
+        5: lambda venv: venv.restart([2]),
+        55: lambda venv: venv.reset()[0],  # every environment on to its next pool geometry
+    }
+    ends, _ = _compare("random", 4, 60, seed=3, before=before, **overrides)
     assert sum(ends.values()) >= 8
 
 
-def test_emulated_cuda_backend_ends_episodes_by_constraint_as_the_cpu_backend():
-    ends = _compare("paper", 3, 40, seed=0, constraint_mode="terminate")
+def test_emulated_cuda_backend_ends_episodes_by_constraint_as_the_cpu_backend(emulated_xp):
+    ends, _ = _compare("paper", 3, 40, seed=0, constraint_mode="terminate")
     assert ends.get("constraint", 0) >= 1
 
 
-def test_cuda_backend_names_bad_devices_and_actions():
+def _overspeed(venv: VectorEnv, env: int) -> None:
+    """Environment ``env``'s first vehicle surging far beyond the physical envelope."""
+    x = _host(venv.sim.state())
+    x[env, NQ * venv.n] = 50.0
+    venv.sim.set_state(x)
+
+
+def test_emulated_cuda_backend_sequences_waypoints_and_ends_diverged_as_the_cpu_backend(
+    emulated_xp,
+):
+    """Two waypoints at the start: the team passes one at the reset and one in the first
+    step, each robot's sequencer both in its first two measurements; environment 1 then
+    diverges (refused steps) and restarts."""
+    paper = make("paper")
+    start = np.asarray(paper.object_start)[None]
+    scenario = replace(paper, waypoints=np.vstack([start, start, paper.waypoints]))
+    before = {4: lambda venv: _overspeed(venv, 1)}
+    ends, (obs, *_) = _compare(scenario, 3, 8, seed=0, before=before)
+    assert ends == {"diverged": 1}
+    # every robot aims at the first waypoint past the start
+    assert np.allclose(obs[:, :, OBSERVATION_STRUCTURE["waypoint"]], paper.waypoints[0])
+
+
+def test_emulated_cuda_backend_ends_episodes_by_success_as_the_cpu_backend(emulated_xp):
+    paper = make("paper")
+    start = np.asarray(paper.object_start)[None]
+    ends, _ = _compare(replace(paper, waypoints=np.vstack([start, start])), 2, 3, seed=0)
+    assert ends == {"success": 6}
+
+
+def test_cuda_backend_names_bad_devices_and_actions(emulated_xp):
     with pytest.raises(ValueError, match="device must be a GPU index"):
         VectorEnv("short", 2, backend="cuda", device="gpu0")
     with pytest.raises(ValueError, match="backend must be one of"):
@@ -167,3 +227,82 @@ def test_gpu_float64_equals_cpu_over_100_periods_with_auto_resets():
             _agree(f"{name}, step {t}", a, b)
         assert list(ref[4]["episode_end"]) == list(out[4]["episode_end"]), t
     _agree("state", cpu.state(), gpu.state())
+
+
+def test_the_kernel_refuses_outputs_it_would_write_out_of_place(emulated_xp):
+    """The kernels write each output as a C-contiguous (nnz, K) block: a transposed view
+    of the right shape is refused, not written past."""
+    import casadi as cs
+
+    from uvms_env.vector.kernels_cuda import cuda_function
+
+    x = cs.SX.sym("x", 2)
+    kernel = cuda_function(cs.Function("uvms_twice", [x], [2 * x]), "float64", "cpu")
+    xp = kernel.xp
+    inputs = xp.asarray(np.arange(10.0).reshape(2, 5))
+    assert np.array_equal(_host(kernel([inputs])[0]), 2 * np.arange(10.0).reshape(2, 5))
+    with pytest.raises(ValueError, match="output 0 must be a C-contiguous float64"):
+        kernel([inputs], out=[xp.zeros((5, 2)).T])
+
+
+@pytest.mark.parametrize("emulated_xp", ["strict"], indirect=True)
+def test_the_step_reads_the_device_a_fixed_number_of_times_whatever_k(emulated_xp):
+    """Device-to-host reads (each a synchronization on a GPU, boolean masks included) per
+    step: a few flags, the same for 2 environments as for 5, whether episodes end or not
+    (the ended ones come over together)."""
+    from strict_xp import host_reads
+
+    def reads(k: int) -> list[int]:
+        venv = VectorEnv("short", k, backend="cuda", device="cpu", max_cycles=2)
+        venv.reset(seed=0)
+        counts = []
+        for _ in range(3):  # every episode ends in the second step
+            host_reads.clear()
+            venv.step(torch.zeros(k, 2, 8))
+            counts.append(host_reads.total())
+        return counts
+
+    two = reads(2)
+    assert two == reads(5)
+    assert two[0] == two[2] < two[1] <= 30
+
+
+def test_the_cuda_sources_mark_every_function_and_table_as_device_code():
+    """What the host emulation cannot check (it defines ``__device__`` away): every
+    function and constant table of the kernels the backend compiles is device code, so
+    that NVRTC or nvcc finds no host function called from the kernel."""
+    import re
+
+    from uvms_env.dynamics import ObjectModel
+    from uvms_env.env.kinematics import BATCH_CYLINDERS, BATCH_SPHERES, team_function
+    from uvms_env.env.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT
+    from uvms_env.env.priors import prior_functions
+    from uvms_env.navigation.parametric import parametric_twist_function
+    from uvms_env.sim.simulator import _chain
+    from uvms_env.vector.kernels import cuda_source, generated_source
+    from uvms_env.vector.kernels_cuda import period_refinement
+
+    s = make("paper")
+    chain, _ = _chain(2, s.object_shape, float(s.ring_radius), s.period, s.substeps)
+    segments = len(ObjectModel(s.object_shape, s.ring_radius).segments)
+    kinematics = team_function(
+        2, segments, BATCH_CYLINDERS, BATCH_SPHERES, OBSERVATION_LAYOUT, tuple(FAR_OBSTACLE), True
+    )
+    kernels = [
+        (chain.step, period_refinement(2)),
+        (chain.internal_wrench, None),
+        (parametric_twist_function(BATCH_CYLINDERS, BATCH_SPHERES), None),
+        (kinematics, None),
+        *((f, None) for f in prior_functions(s.object_ring_radius)),
+    ]
+    # a definition at the top level not marked __device__/__global__, or a constant table
+    host_code = re.compile(
+        r"^(?!__device__|__global__|extern|#|\}|\{|/\*|\s)[^;]*\([^;]*\)\s*\{"
+        r"|^(static |const )+casadi_(int|real) "
+    )
+    for fn, refine in kernels:
+        unmarked = [line for line in generated_source(fn).split("\n") if host_code.match(line)]
+        assert unmarked, fn.name()  # the pattern finds the generated functions ...
+        source, _ = cuda_source(fn, "double", refine)
+        left = [line[:80] for line in source.split("\n") if host_code.match(line)]
+        assert not left, (fn.name(), left[:3])  # ... and none is left unmarked

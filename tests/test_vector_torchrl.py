@@ -56,8 +56,13 @@ def test_rollout_equals_the_vector_env_through_ends_and_resets():
     assert rollout["next", "done"].sum() == 2 * k  # two ends each: the resets were exercised
 
 
-@pytest.mark.parametrize("backend", [{}, EMULATED_CUDA], ids=["cpu", "emulated-cuda"])
-def test_partial_reset_restarts_only_the_masked_environments(backend):
+@pytest.mark.parametrize(
+    ("backend", "emulated_xp"),
+    [({}, "numpy"), (EMULATED_CUDA, "numpy"), (EMULATED_CUDA, "strict")],
+    ids=["cpu", "emulated-cuda", "emulated-cuda-strict"],
+    indirect=["emulated_xp"],
+)
+def test_partial_reset_restarts_only_the_masked_environments(backend, emulated_xp):
     env = CoopTransportTorchRLEnv(VectorEnv("short", num_envs=2, **backend))
     td = env.reset()
     start = td[GROUP, "observation"].clone()
@@ -84,7 +89,7 @@ def _fixed_rollout(env: CoopTransportTorchRLEnv, actions: torch.Tensor):
     return env.rollout(len(actions), policy, break_when_any_done=False)
 
 
-def test_cuda_backend_gives_the_cpu_backends_rollout_in_tensors_on_its_device():
+def test_cuda_backend_gives_the_cpu_backends_rollout_in_tensors_on_its_device(emulated_xp):
     """float64, fixed actions, max_cycles 3 over 7 steps: two automatic resets each."""
     k, steps = 3, 7
     actions = torch.as_tensor(

@@ -311,8 +311,10 @@ class VectorEnv:
             OceanCurrent(self.sim.uvms.params.currents[base.current]) for _ in range(k)
         ]
         self._current_on = self._currents[0].preset.max > 0.0
-        self._noise_q = base.sensor_noise * NOISE_STD_Q
-        self._noise_zeta = base.sensor_noise * NOISE_STD_ZETA
+        # the noise scales where the noise is scaled: on the device (CuPy takes no numpy
+        # operand in its arithmetic)
+        self._noise_q = xp.asarray(base.sensor_noise * NOISE_STD_Q)
+        self._noise_zeta = xp.asarray(base.sensor_noise * NOISE_STD_ZETA)
         self._metrics_reset(slice(None), init=True)
         self._obs = xp.zeros((k, n, OBSERVATION_SIZE), np.float32)
         # a_ss of the robots' current observations, kept beside them when the priors use it

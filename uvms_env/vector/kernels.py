@@ -194,6 +194,19 @@ def check_inputs(sig: Signature, inputs: list, dtype: str) -> int:
     return k
 
 
+def check_outputs(nnz_out: tuple[int, ...], out: list, k: int, dtype: str) -> None:
+    """ValueError unless each of ``out`` is a C-contiguous (nnz_i, K) array of ``dtype``:
+    the kernels write them as such, whatever they are."""
+    if len(out) != len(nnz_out):
+        raise ValueError(f"{len(nnz_out)} outputs expected, got {len(out)}")
+    for i, (a, nnz) in enumerate(zip(out, nnz_out, strict=True)):
+        if a.shape != (nnz, k) or a.dtype != DTYPES[dtype][1] or not a.flags.c_contiguous:
+            raise ValueError(
+                f"output {i} must be a C-contiguous {dtype} array of shape ({nnz}, {k}), "
+                f"got {a.dtype} {a.shape}"
+            )
+
+
 def batch_entry(entry: ctypes._CFuncPtr, restype: type | None) -> ctypes._CFuncPtr:
     """A compiled batch loop's C entry point, typed: (const real** in, real** out, long k,
     int threads)."""

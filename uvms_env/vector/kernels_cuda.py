@@ -32,6 +32,7 @@ from uvms_env.vector.kernels import (
     Refinement,
     Signature,
     check_inputs,
+    check_outputs,
     cuda_source,
 )
 from uvms_env.vector.kernels_emulated import EmulatedCudaFunction
@@ -113,6 +114,9 @@ class CudaBatchedFunction:
         self.dtype = dtype
         self.np_dtype = DTYPES[dtype][1]
         self.device = cp.cuda.Device(device)
+        # the backend allocates its arrays on CuPy's current device: make it this kernel's,
+        # or with device > 0 they would lie on GPU 0 and the kernel read them from another
+        self.device.use()
         source, self.signature = cuda_source(fn, DTYPES[dtype][0], refine)
         self.nnz_out = self.signature.nnz_out + ((1,) if refine else ())
         with self.device:
@@ -138,7 +142,11 @@ class CudaBatchedFunction:
             k = check_inputs(sig, arrays, self.dtype)
             if out is None:
                 out = [cp.empty((nnz, k), self.np_dtype) for nnz in self.nnz_out]
+            if any(isinstance(a, np.ndarray) for a in out):
+                # cp.asarray would copy them to the device and the results stay there
+                raise TypeError("outputs must be device arrays (CuPy, torch CUDA tensors)")
             outs = [cp.asarray(a) for a in out]
+            check_outputs(self.nnz_out, outs, k, self.dtype)
             ins_ptr = cp.asarray(np.array([a.data.ptr for a in arrays], np.uint64))
             outs_ptr = cp.asarray(np.array([a.data.ptr for a in outs], np.uint64))
             grid = (k + self.block - 1) // self.block

@@ -23,6 +23,7 @@ import subprocess
 import tempfile
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import casadi as cs
 import numpy as np
@@ -34,6 +35,7 @@ from uvms_env.vector.kernels import (
     Signature,
     batch_entry,
     check_inputs,
+    check_outputs,
     cuda_source,
     pointers,
 )
@@ -86,10 +88,15 @@ def _build(source: str, name: str, dtype: str) -> ctypes.CDLL:
 
 class EmulatedCudaFunction:
     """``CudaBatchedFunction``'s interface and kernel source, run on the host: inputs and
-    outputs are numpy arrays in the (nnz_i, K) layout; with ``refine`` one more output
-    (1, K) carries the error-control status."""
+    outputs are arrays of ``xp`` in the (nnz_i, K) layout; with ``refine`` one more output
+    (1, K) carries the error-control status.
 
-    xp = np
+    ``xp``: the array namespace of the emulated device, numpy. Tests put a CuPy stand-in
+    there (arrays that refuse implicit conversion to numpy) to check the backend's array
+    code as CuPy would run it; the kernel reaches such arrays' memory through DLPack, as
+    the GPU kernel reaches device memory through its pointers."""
+
+    xp: Any = np
 
     def __init__(
         self,
@@ -111,15 +118,20 @@ class EmulatedCudaFunction:
         return k
 
     def __call__(self, inputs: list, out: list | None = None) -> list:
-        arrays = [np.asarray(a) for a in inputs]
+        arrays = [_memory(a) for a in inputs]
         k = check_inputs(self.signature, arrays, self.dtype)
         if out is None:
-            out = [np.empty((nnz, k), self.np_dtype) for nnz in self.nnz_out]
-        for i, a in enumerate(out):
-            if a.shape != (self.nnz_out[i], k) or a.dtype != self.np_dtype:
-                raise ValueError(f"output {i} must be {self.dtype} ({self.nnz_out[i]}, {k})")
-        self._call(pointers(arrays), pointers(out), k, self.threads)
+            out = [self.xp.empty((nnz, k), self.np_dtype) for nnz in self.nnz_out]
+        written = [_memory(a) for a in out]
+        check_outputs(self.nnz_out, written, k, self.dtype)
+        self._call(pointers(arrays), pointers(written), k, self.threads)
         return out
+
+
+def _memory(a: Any) -> np.ndarray:
+    """A host view of ``a``'s memory: numpy arrays as they are, other arrays of the emulated
+    device through DLPack (no copy, no implicit conversion)."""
+    return np.asarray(a) if isinstance(a, np.ndarray | list) else np.from_dlpack(a)
 
 
 __all__ = ["EmulatedCudaFunction", "Signature"]

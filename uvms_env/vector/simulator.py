@@ -226,7 +226,8 @@ class BatchedSimulator:
         if self.backend == "cuda":  # refined in the kernel; its status says how it went
             status = outputs[3][0]
             self.refinements += int((status[:k] > 0).sum())
-            code[status == 2] = INACCURATE
+            # where, not a boolean-mask assignment: CuPy reads a mask's count (a sync)
+            code = xp.where(status == 2, INACCURATE, OK).astype(np.int8)
         else:
             bad = np.flatnonzero(~self._accurate(drift, error, x_next)[:k])
             if len(bad):
@@ -234,7 +235,8 @@ class BatchedSimulator:
                 x_end, ok = self._integrate(bad, self.x[:, bad], self.scenario.period, 1)
                 x_next[:, bad] = x_end
                 code[bad[~ok]] = INACCURATE
-        code[(code == OK) & ~self._within_envelope(x_next)] = ENVELOPE
+        refused = (code == OK) & ~self._within_envelope(x_next)
+        code = xp.where(refused, ENVELOPE, code).astype(np.int8, copy=False)
         keep = code[:k] == OK
         self.x[:, :k] = xp.where(keep[None, :], x_next[:, :k], self.x[:, :k])
         return code[:k]
