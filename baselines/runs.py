@@ -298,9 +298,11 @@ class Run:
         return self.settings.seed + 1_000_003 * self.config["resumes"]
 
     def write_config(self, **engine_settings: Any) -> None:
-        """Record the engine's own settings (``engine_settings``) and write config.json."""
+        """Record the engine's own settings (``engine_settings``) and write config.json;
+        the first iteration's time counts from here (not the engine's setup)."""
         self.config["engine_settings"].update(engine_settings)
         write_json(self.folder / CONFIG_FILE, self.config)
+        self._tick = time.perf_counter()
 
     # -- the training loop's hooks --------------------------------------------------------
     def iteration(

@@ -174,9 +174,18 @@ def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> Any:
     )
 
 
-def train(engine: str, algo: str, settings: Any, args: Any = None, command: Any = None) -> Path:
-    """Build the engine's trainer over a ``baselines.runs.Run``, learn, save; return the
-    run folder. ``args``: the engine's own options (its ``add_arguments``' namespace)."""
+def train(
+    engine: str,
+    algo: str,
+    settings: Any,
+    args: argparse.Namespace | None = None,
+    command: list[str] | None = None,
+    **engine_options: Any,
+) -> Path:
+    """Build the engine's trainer over a ``baselines.runs.Run`` with ``settings``
+    (``RunSettings``), learn, save; return the run folder. The engine's own options:
+    ``args`` (its parsed command line) or its defaults changed by ``engine_options``
+    (e.g. ``backend="cuda"``)."""
     from baselines.runs import Run
 
     module = engine_module(engine)
@@ -184,6 +193,13 @@ def train(engine: str, algo: str, settings: Any, args: Any = None, command: Any 
         raise ValueError(f"the {engine} engine trains {module.ALGOS}, not {algo!r}")
     if args is None:
         args = build_parser(engine).parse_args(["--engine", engine])
+        for key, value in engine_options.items():
+            if not hasattr(args, key):
+                raise ValueError(f"the {engine} engine has no option {key!r}")
+            setattr(args, key, value)
+    for key, default in module.DEFAULTS.items():
+        if getattr(settings, key) is None:
+            setattr(settings, key, default)
     run = Run.start(settings, engine, algo, command)
     trainer = module.Engine(run, algo, args)
     try:

@@ -112,18 +112,21 @@ def _train_and_evaluate(tmp_path: Path, runners: int, iterations: int) -> list[d
 
     run = tmp_path / "rllib_ppo"
     train_main(
-        f"--engine rllib --algo ppo --scenario random --n-agents 2 --num-env-runners {runners}"
-        f" --iterations {iterations} --hp train_batch_size_per_learner=64"
-        " --hp minibatch_size=32 --hp num_epochs=1 --env-option max_cycles=16"
-        f" --geometry-pool 2 --num-envs-per-env-runner 2 --checkpoint-every 1 --no-progress"
-        f" --out {run}".split()
+        "--engine rllib --algo ppo --scenario random --env-option n_agents=2"
+        f" --num-env-runners {runners} --iterations {iterations} --robot-steps 100000"
+        " --hp train_batch_size_per_learner=64 --hp minibatch_size=32 --hp num_epochs=1"
+        " --env-option max_cycles=16 --geometry-pool 2 --num-envs 2 --checkpoint-every 128"
+        f" --no-progress --out {run}".split()
     )
     config = json.loads((run / "config.json").read_text())
-    assert config["iterations_done"] == iterations and config["num_env_runners"] == runners
-    assert config["env_options"]["max_cycles"] == 16
+    engine = config["engine_settings"]
+    assert engine["iterations_done"] == iterations and engine["num_env_runners"] == runners
+    assert config["env_options"]["max_cycles"] == 16 and config["num_envs"] == 2
     progress = list(csv.DictReader(open(run / "progress.csv")))
     assert [int(r["iteration"]) for r in progress] == list(range(1, iterations + 1))
-    assert (run / "checkpoints" / f"iter_{iterations}").is_dir()
+    # 64 env steps of 2 robots an iteration: a checkpoint every other iteration
+    assert [int(r["robot_steps"]) for r in progress] == [128 * k for k in range(1, iterations + 1)]
+    assert (run / "checkpoints" / f"robot_steps_{128 * iterations}").is_dir()
     rows = evaluate([f"rllib:{run}"], ["random"], 2, 0, 1, {"n_agents": 2}, 6, progress=False)
     assert all(r["error"] == "" and r["episode_steps"] == 6 for r in rows), rows
     again = evaluate([f"rllib:{run}"], ["random"], 2, 0, 1, {"n_agents": 2}, 6, progress=False)
