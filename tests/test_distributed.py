@@ -139,13 +139,17 @@ def test_rllib_sub_envs_cycle_through_their_own_geometries(local_ray):
     from ray.rllib.env.env_context import EnvContext
 
     from baselines.distributed.rllib_env import make_env
+    from uvms_env.vector.seeding import episode_seed
 
-    config = {"scenario": "short", "seed": 10, "geometry_pool": 2, "envs_per_runner": 2}
-    context = EnvContext({**config, "overrides": {"max_cycles": 3}}, worker_index=1)
+    config = {"scenario": "short", "seed": 10, "geometry_pool": 7, "envs_per_runner": 2}
+    config["num_env_runners"] = 2
+    context = EnvContext({**config, "overrides": {"max_cycles": 3}}, worker_index=2)
     first, second = make_env(context), make_env(context)
     seeds = [[env._next_seed() for _ in range(3)] for env in (first, second)]
-    # sub-env v of runner w: seed + (w V + v) P + e % P, whatever order RLlib resets in
-    assert {tuple(s) for s in seeds} == {(14, 15, 14), (16, 17, 16)}
+    # runner 2 of 2 holds copies 2 and 3 of K = 4: seed (10 + k + 4 e) mod 7, whatever
+    # order RLlib resets in; the rule's function agrees with the written-out numbers
+    assert {tuple(s) for s in seeds} == {(5, 2, 6), (6, 3, 0)}
+    assert [episode_seed(10, 2, e, 4, 7) for e in range(3)] == [5, 2, 6]
 
 
 def test_rllib_ppo_smoke_on_the_local_runner(local_ray, tmp_path):

@@ -25,9 +25,10 @@ def _factory(**kwargs):
     return lambda k: uvms_env.parallel_env(scenario="short", seed=SEED + k, **kwargs)
 
 
-def _reference(copy: int, episode: int, **kwargs):
+def _reference(copy: int, episode: int, copies: int = 2, **kwargs):
+    """Copy ``copy`` of ``copies``, its ``episode``-th episode: seeded SEED + k + K e."""
     env = uvms_env.parallel_env(scenario="short", seed=SEED + copy, **kwargs)
-    obs, _ = env.reset(seed=SEED + 10_007 * copy + episode)
+    obs, _ = env.reset(seed=SEED + copy + copies * episode)
     return env, obs
 
 

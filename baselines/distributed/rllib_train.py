@@ -85,6 +85,7 @@ def build_config(
         "seed": seed,
         "geometry_pool": geometry_pool,
         "envs_per_runner": envs_per_runner,
+        "num_env_runners": num_env_runners,
     }
     return (
         PPOConfig()

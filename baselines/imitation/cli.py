@@ -56,6 +56,7 @@ from baselines.imitation.features import FEATURES
 from baselines.imitation.policy import ClonedPolicy
 from baselines.imitation.rollout import rollouts
 from baselines.policies import PolicySource
+from baselines.runs import TRAIN_ENV_DEFAULTS, hardware, write_json
 
 
 def env_overrides(scenario: str, args: argparse.Namespace) -> dict[str, Any]:
@@ -66,13 +67,12 @@ def env_overrides(scenario: str, args: argparse.Namespace) -> dict[str, Any]:
         out["n_agents"] = args.n_agents
     if getattr(args, "constraint_mode", None):
         out["constraint_mode"] = args.constraint_mode
-    out["internal_wrench_every"] = 0  # not needed for learning; saves ~6% per step
-    return out
+    return {**TRAIN_ENV_DEFAULTS, **out}
 
 
 def _env_factory(scenario: str, overrides: dict, cap: int | None = None):
     """Seed -> environment; ``cap`` shortens episodes to at most ``cap`` periods (never
-    lengthens them beyond the scenario's own ``max_steps``)."""
+    lengthens them beyond the scenario's own ``max_cycles``)."""
     import uvms_env
 
     def make(seed: int):
@@ -140,7 +140,7 @@ def collect(args: argparse.Namespace) -> None:
 
 def _write_json(path: Path, payload: dict[str, Any]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(payload, indent=2, default=str))
+    write_json(path, payload)
 
 
 def _common(args: argparse.Namespace) -> dict[str, Any]:
@@ -153,6 +153,7 @@ def _common(args: argparse.Namespace) -> dict[str, Any]:
         "features": args.features,
         "seed": args.seed,
         "python": platform.python_version(),
+        "hardware": hardware(),
     }
 
 
