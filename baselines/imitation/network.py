@@ -100,9 +100,9 @@ class MLPPolicyNet(nn.Module):
         blob = torch.load(path, map_location="cpu", weights_only=False)
         net = MLPPolicyNet(
             blob["obs_dim"],
-            blob.get("act_dim", 8),
+            blob["act_dim"],
             hidden=tuple(blob["hidden"]),
-            features=blob.get("features", "raw"),
+            features=blob["features"],
         )
         net.load_state_dict(blob["state"])
         net.eval()
