@@ -17,11 +17,11 @@ from baselines.train import ENGINES, SHARED_GROUP, build_parser, main
 
 # Tiny: one or two iterations of a few dozen robot-steps, small networks, 2 env copies of
 # 2 robots, 6-step episodes; one evaluation episode (its length: the plain scenario's).
-COMMON = [
+TINY = [
     *("--scenario", "short", "--num-envs", "2", "--seed", "1", "--no-progress"),
-    *("--env-option", "max_cycles=6", "--eval-every", "64", "--eval-episodes", "1"),
-    *("--checkpoint-every", "64"),
+    *("--env-option", "max_cycles=6", "--checkpoint-every", "0"),
 ]
+COMMON = [*TINY, "--eval-every", "64", "--eval-episodes", "1"]
 ENGINE_ARGS = {
     "sb3": [
         "--hp",
@@ -188,6 +188,39 @@ def test_rllib_envs_per_runner_and_team_size_flags_are_deprecated():
 
 
 def test_the_cost_is_refused_clearly_where_an_engine_cannot_apply_it(tmp_path):
-    for engine in ("torchrl", "rllib"):
-        with pytest.raises(ValueError, match="--cost is not available"):
-            main(["--engine", engine, "--cost", "magnitude", "--out", str(tmp_path / engine)])
+    with pytest.raises(ValueError, match="--cost is not available"):
+        main(["--engine", "rllib", "--cost", "magnitude", "--out", str(tmp_path / "rllib")])
+
+
+@pytest.mark.parametrize("engine", ["sb3", "torchrl"])
+def test_ppo_lagrangian_takes_the_dual_step_from_each_rollouts_episode_cost(engine, tmp_path):
+    """Every PPO engine that applies the cost: after each rollout the multiplier moves by
+    lr (mean episode cost - limit), clipped at 0, from 0.5; config.json keeps the last."""
+    if engine == "torchrl":
+        pytest.importorskip("torchrl", minversion="0.14")
+    out = tmp_path / engine
+    cost = ["--cost", "magnitude", "--cost-weight", "0.5", "--multiplier-lr", "0.1"]
+    cost += ["--cost-limit", "0.2"]
+    main(
+        [
+            "--engine",
+            engine,
+            "--robot-steps",
+            "192",
+            "--out",
+            str(out),
+            *COMMON[:-4],
+            *cost,
+            *ENGINE_ARGS[engine],
+        ]
+    )
+    rows = _rows(out / "progress.csv")
+    assert len(rows) == 3
+    multiplier = 0.5
+    for row in rows:
+        mean = float(row["episode_cost_mean"])  # 6-step episodes end in every rollout
+        assert mean > 0.0  # exploration violates the speed limits
+        multiplier = max(0.0, multiplier + 0.1 * (mean - 0.2))
+        assert float(row["multiplier"]) == pytest.approx(multiplier, rel=1e-5)
+    config = json.loads((out / "config.json").read_text())
+    assert config["cost"]["final_multiplier"] == pytest.approx(multiplier, rel=1e-5)

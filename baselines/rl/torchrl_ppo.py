@@ -18,8 +18,9 @@ lambda 0.95, clip 0.2, no entropy bonus, value coefficient 0.5, gradient norm 0.
 initial action std e^-1, observations normalized by running statistics (kept in the
 actor, so the saved actor normalizes itself) and rewards scaled by the running spread of
 the discounted return, as ``VecNormalize`` does; ``--hp KEY=JSON`` changes them
-(``HYPERPARAMETERS``). Not here: the constraint cost (the TorchRL env does not pass the
-constraint values on) and a central critic.
+(``HYPERPARAMETERS``). ``--cost`` (``baselines.lagrangian``) subtracts the multiplier
+times each robot's constraint cost from its reward before the advantages, the constraint
+values read from each ``VectorEnv`` step (``StepCosts``). Not here: a central critic.
 
 This is the engine of ``baselines.train --engine torchrl``: the run layer
 (``baselines.runs``) writes the records and evaluations; the run folder also gets
@@ -28,8 +29,8 @@ deterministic action tanh(loc), the run's priors applied as ``SB3Policy`` does),
 ``trainer.pt`` (critic, optimizer, return statistics), which ``--resume RUN`` reads.
 
 May import: numpy, torch, tensordict and torchrl (inside the training functions: the
-policy loader needs torch alone), ``baselines.runs``, ``baselines.rl.policy`` (a run's
-priors) and ``uvms_env``.
+policy loader needs torch alone), ``baselines.runs``, ``baselines.lagrangian``,
+``baselines.rl.policy`` (a run's priors) and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from baselines.lagrangian import Lagrangian
 from baselines.rl.policy import run_priors
 from baselines.runs import TRAIN_ENV_DEFAULTS, Run, seeded_pool
 from uvms_env.policy import AgentSpec
@@ -347,17 +349,38 @@ class EpisodeTracker:
         return (reward / std).clamp(-CLIP_OBSERVATION, CLIP_OBSERVATION)
 
 
+class StepCosts:
+    """Each ``VectorEnv.step``'s constraint values (K, N, 8) and violation counts (K, N),
+    on the host, in step order: the TorchRL env does not pass its infos on, so the engine
+    reads them where the step returns them."""
+
+    def __init__(self, vector_env: Any) -> None:
+        self.rows: list[tuple[np.ndarray, np.ndarray]] = []
+        step = vector_env.step
+
+        def recording(actions: Any) -> Any:
+            out = step(actions)
+            infos = out[4]
+            self.rows.append((_host(infos["constraint_values"]), _host(infos["cost"])))
+            return out
+
+        vector_env.step = recording
+
+    def take(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        rows, self.rows = self.rows, []
+        return rows
+
+
+def _host(x: Any) -> np.ndarray:
+    return np.asarray(x.get() if hasattr(x, "get") and not isinstance(x, np.ndarray) else x)
+
+
 class Engine:
     """TorchRL's PPO under a ``baselines.runs.Run`` (``baselines.runs.Engine``)."""
 
     def __init__(self, run: Run, algo: str, args: argparse.Namespace) -> None:
         if algo not in ALGOS:
             raise ValueError(f"the torchrl engine trains {ALGOS}, not {algo!r}")
-        if run.settings.cost is not None:
-            raise ValueError(
-                "--cost is not available with the torchrl engine (its env does not pass "
-                "the constraint values on); use --engine sb3"
-            )
         if args.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {args.backend!r}")
         if args.dtype not in DTYPES:
@@ -369,6 +392,8 @@ class Engine:
         self.run, self.args = run, args
         self.hp = {**HYPERPARAMETERS, **run.settings.hyperparameters}
         self.collector: Any = None
+        self.costs: StepCosts | None = None
+        self.lagrangian: Lagrangian | None = None
         self.robot_steps = 0
         self.totals = {"collect_s": 0.0, "update_s": 0.0, "episodes": 0}
 
@@ -392,6 +417,9 @@ class Engine:
         env.set_seed(self.run.episode_seed)
         dev = self.dev = env.device
         n = env.vector_env.n
+        if s.cost is not None:
+            self.costs = StepCosts(env.vector_env)
+            self.lagrangian = Lagrangian(s.cost, s.num_envs * n)
         actor, critic, actor_net, critic_net = build_modules(env, hp)
         loss = ClipPPOLoss(
             actor_network=actor,
@@ -472,6 +500,10 @@ class Engine:
             tock = time.perf_counter()
             reward = batch["next", GROUP, "reward"]  # (K, T, N, 1): the team's, per robot
             done = batch["next", "done"][..., 0]
+            if self.lagrangian is not None:
+                reward = reward - self._penalties(done)
+                batch["next", GROUP, "reward"] = reward
+            # the team's return as robot 0 receives it (the SB3 engine's monitor, too)
             returns, lengths = tracker.observe(reward[:, :, 0, 0], done)
             if hp["scale_reward"]:
                 batch["next", GROUP, "reward"] = tracker.scale(reward)
@@ -504,9 +536,41 @@ class Engine:
             self.totals["update_s"] += time.perf_counter() - tock
             self.totals["episodes"] += len(returns)
             self.robot_steps += self.robot_steps_per_batch
-            self.run.after_iteration(self, self.robot_steps, returns=returns, lengths=lengths)
+            cost = multiplier = None
+            if self.lagrangian is not None:
+                cost = self.lagrangian.end_rollout()
+                multiplier = self.lagrangian.multiplier
+            self.run.after_iteration(
+                self,
+                self.robot_steps,
+                returns=returns,
+                lengths=lengths,
+                episode_cost=cost,
+                multiplier=multiplier,
+            )
             tick = time.perf_counter()
         return self.robot_steps
+
+    def _penalties(self, done: torch.Tensor) -> torch.Tensor:
+        """(K, T, N, 1) multiplier times each robot's constraint cost of the rollout's T
+        steps (``baselines.lagrangian``), with the multiplier the rollout ran with."""
+        assert self.costs is not None and self.lagrangian is not None
+        rows = self.costs.take()
+        k, steps = done.shape
+        if len(rows) != steps:
+            raise RuntimeError(f"recorded {len(rows)} env steps for a rollout of {steps}")
+        ended = done.cpu().numpy()
+        n = rows[0][1].shape[1]
+        multiplier = self.lagrangian.multiplier
+        cost = np.stack(
+            [
+                self.lagrangian.penalize(g, count, np.repeat(ended[:, t], n))
+                for t, (g, count) in enumerate(rows)
+            ],
+            1,
+        )  # (K N, T) -> (K, T, N, 1) below
+        cost = cost.reshape(k, n, steps).transpose(0, 2, 1)[..., None]
+        return torch.as_tensor(multiplier * cost, dtype=torch.float32, device=self.dev)
 
     def save(self, folder: Path) -> None:
         folder.mkdir(parents=True, exist_ok=True)
