@@ -140,6 +140,37 @@ def test_the_plot_draws_the_three_engines_runs(trained, tmp_path):
     assert [label.split()[0] for label in labels] == list(trained)
 
 
+@pytest.mark.parametrize("engine", ["sb3", "torchrl"])
+def test_a_resumed_run_goes_on_where_it_stopped_and_appends_to_its_records(
+    engine, trained, tmp_path
+):
+    import shutil
+
+    run = tmp_path / engine
+    shutil.copytree(trained[engine], run)
+    before = json.loads((run / "config.json").read_text())
+    main(
+        [
+            "--engine",
+            engine,
+            "--robot-steps",
+            "128",
+            "--out",
+            str(run),
+            "--resume",
+            str(run),
+            *TINY,
+            *ENGINE_ARGS[engine],
+        ]
+    )
+    config = json.loads((run / "config.json").read_text())
+    assert config["resumes"] == 1 and config["robot_steps"] == 128
+    assert config["wall_time_s"] > before["wall_time_s"]  # both sessions
+    progress = _rows(run / "progress.csv")
+    assert [int(r["iteration"]) for r in progress] == [1, 2]
+    assert [int(r["robot_steps"]) for r in progress] == [64, 128]
+
+
 def _shared_options(engine: str) -> list[list[str]]:
     ap = build_parser(engine)
     (group,) = [g for g in ap._action_groups if g.title == SHARED_GROUP]
