@@ -3,11 +3,15 @@ one ``progress.csv`` and one ``evaluations.csv`` schema, periodic evaluation thr
 ``baselines.evaluate`` and resuming.
 
     run = Run.start(settings, engine="sb3", algo="ppo", command=argv)
-    ...                                        # the engine builds its env and model
-    run.iteration(robot_steps, stats)          # after each iteration: progress row
-    if run.evaluation_due(robot_steps):        # periodic evaluation of a saved snapshot
-        engine.save(run.snapshot); run.evaluate(robot_steps, engine.policy(run.snapshot))
-    run.finish(robot_steps)                    # wall time and robot-steps in config.json
+    engine = Engine(run, algo, args)           # an RL library's trainer (``Engine``)
+    run.write_config(**engine.build())         # env and model; config.json
+    steps = engine.learn()                     # calls, after each iteration,
+        # run.after_iteration(engine, robot_steps, returns=..., lengths=...): the progress
+        # row, a checkpoint and an evaluation of a fresh snapshot when due
+    engine.save(run.folder); engine.close()
+    run.finish(steps, engine)                  # robot-steps, wall time, recorded evaluation
+
+``baselines.train.train`` is that sequence.
 
 The folder: ``config.json`` (``CONFIG_KEYS``, then the engine's own ``engine_settings``),
 ``progress.csv`` (``PROGRESS_COLUMNS``, one row per iteration, appended by a resumed run),

@@ -140,11 +140,12 @@ def build_parser(engine: str) -> argparse.ArgumentParser:
     module = engine_module(engine)
     ap = argparse.ArgumentParser(
         prog="python -m baselines.train",
-        description=__doc__,
+        description=__doc__.split("May import")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_shared_arguments(ap, engine, module.ALGOS)
-    module.add_arguments(ap.add_argument_group(f"{engine} engine"))
+    note = getattr(module, "OPTIONS_NOTE", None)
+    module.add_arguments(ap.add_argument_group(f"{engine} engine", description=note))
     return ap
 
 

@@ -112,6 +112,9 @@ def _shared(agent_id: Any, *args: Any, **kwargs: Any) -> str:
     return POLICY_ID
 
 
+OPTIONS_NOTE = "--num-envs counts the env copies of each env runner"
+
+
 def add_arguments(g: Any) -> None:
     """The RLlib engine's own options (``--num-envs``: env copies per runner)."""
     g.add_argument("--num-env-runners", type=int, default=2, help="RLlib env runner actors")

@@ -76,6 +76,7 @@ HYPERPARAMETERS: dict[str, Any] = {
     "scale_reward": True,
 }
 TRAINER_FILE = "trainer.pt"
+# As the SB3 engine: a seeded family's episodes take the bank's first 1,024 geometries.
 DEFAULTS: dict[str, Any] = {"num_envs": 64, "geometry_pool": 1024}
 # As the SB3 engine: float32 is the fast mode, and one kernel thread leaves the other
 # core of a small machine to torch.

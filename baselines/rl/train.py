@@ -40,6 +40,8 @@ if TYPE_CHECKING:
     from baselines.lagrangian import CostSettings
 
 ALGOS = ("ppo", "sac")
+# Seeded families: every episode a geometry of the bank's first 1,024 seeds (built once,
+# kept on disk): diverse starts without building a geometry inside a step.
 DEFAULTS: dict[str, Any] = {"num_envs": 4, "geometry_pool": 1024}
 ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
     # PPO: SB3 defaults except a smaller rollout per sub-env (many sub-envs) and a
