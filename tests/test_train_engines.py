@@ -255,3 +255,19 @@ def test_ppo_lagrangian_takes_the_dual_step_from_each_rollouts_episode_cost(engi
         assert float(row["multiplier"]) == pytest.approx(multiplier, rel=1e-5)
     config = json.loads((out / "config.json").read_text())
     assert config["cost"]["final_multiplier"] == pytest.approx(multiplier, rel=1e-5)
+
+
+def test_sac_writes_the_same_records_and_a_last_row_at_the_budget(tmp_path):
+    """SAC has no rollouts: a row every 256 steps of each sub-environment, and one for the
+    steps after the last row when the budget is reached."""
+    out = tmp_path / "sac"
+    sac = ["--hp", "learning_starts=50", "--hp", "batch_size=16", "--hp", "buffer_size=1000"]
+    sac += ["--hp", 'policy_kwargs={"net_arch": [8]}', "--num-envs", "1"]
+    main(["--algo", "sac", "--robot-steps", "300", "--out", str(out), *TINY, *sac])
+    assert _header(out / "progress.csv") == list(runs.PROGRESS_COLUMNS)
+    progress = _rows(out / "progress.csv")
+    assert [int(r["robot_steps"]) for r in progress] == [300]  # 150 steps of 2 robots
+    assert int(progress[0]["episodes"]) == 150 // 6
+    config = json.loads((out / "config.json").read_text())
+    assert list(config) == list(runs.CONFIG_KEYS) and config["algo"] == "sac"
+    assert (out / "replay_buffer.pkl").exists()

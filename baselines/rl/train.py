@@ -386,6 +386,13 @@ def _progress_callback(engine: Engine) -> Any:
             steps = self.model.num_timesteps
             if engine.algo == "sac" and steps - self.last < SAC_ROW_STEPS * self.model.n_envs:
                 return
+            self._row(steps)
+
+        def _on_training_end(self) -> None:
+            if self.model.num_timesteps > self.last:  # SAC's last steps since a row
+                self._row(self.model.num_timesteps)
+
+        def _row(self, steps: int) -> None:
             self.last = steps
             cost = penalty.update_multiplier() if penalty is not None else None
             run.after_iteration(
