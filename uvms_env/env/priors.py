@@ -67,6 +67,9 @@ ACT_DIM = 8
 BASE_FEATURES = 76  # featurize
 FEATURES_SIZE = BASE_FEATURES + ACT_DIM  # observation_mode="features": featurize and a_ss
 OBSTACLE_RANGE = 5.0  # m; obstacle offsets beyond this are scaled down to it
+# the arm's joint angles (q's last 4) and rates (zeta's last 4) in the observation
+_JOINTS = slice(OBSERVATION_STRUCTURE["q"].start + 6, OBSERVATION_STRUCTURE["q"].stop)
+_JOINT_RATES = slice(OBSERVATION_STRUCTURE["zeta"].start + 6, OBSERVATION_STRUCTURE["zeta"].stop)
 ACTION_MODES = ("torque", "residual")
 OBSERVATION_MODES = ("raw", "features")
 # Residual reach 0.3 of the saturation: enough to correct a_ss (the expert's inputs stay
@@ -174,14 +177,17 @@ def _object(ring_radius: float) -> ObjectModel:
 def steady_sx(o: cs.SX, ring_radius: float) -> cs.SX:
     """a_ss (8) of the robot in observation ``o``: own q and zeta, own grasp and share,
     the object's nominal parameters, the observed navigation twist."""
-    r_t = cs.reshape(o[69:78], 3, 3)  # the observation holds R_Oi row-major: this is R^T
+    f = OBSERVATION_STRUCTURE
+    # the observation holds R_Oi row-major: this is R^T
+    r_t = cs.reshape(o[f["grasp_rotation"]], 3, 3)
     theta = cs.vertcat(  # laid out as uvms_env.dynamics.local_model.ModelParams.pack
-        o[66:69],
+        o[f["grasp_offset"]],
         cs.reshape(r_t.T, 9, 1),  # R_Oi column-major
-        o[65],
+        o[f["load_share"]],
         cs.DM(_object(ring_radius).nominal_parameters()),
     )
-    return _steady_input(ring_radius)(o[0:20], theta, o[44:50])
+    own = o[f["q"].start : f["zeta"].stop]  # q and zeta
+    return _steady_input(ring_radius)(own, theta, o[f["nav_velocity"]])
 
 
 @functools.cache
@@ -298,7 +304,7 @@ class Priors:
         joint hold on the arm's four.
         Written with scalars and slices only, so that it runs on any array library
         (numpy here, CuPy through the GPU backend)."""
-        q, rate = raw[..., 6:10], raw[..., 16:20]
+        q, rate = raw[..., _JOINTS], raw[..., _JOINT_RATES]
         arm = [self._hold(q[..., j], rate[..., j], j) for j in range(4)]
         zero = 0.0 * q[..., 0]
         return np.stack([zero] * (ACT_DIM - 4) + arm, -1).astype(np.float64)
@@ -315,6 +321,7 @@ class Priors:
             return a
         base = steady
         if self.holds:
-            arm = [self._hold(o[6 + j], o[16 + j], j) for j in range(4)]
+            q, rate = _JOINTS.start, _JOINT_RATES.start
+            arm = [self._hold(o[q + j], o[rate + j], j) for j in range(4)]
             base = base + cs.vertcat(cs.MX.zeros(ACT_DIM - 4), *arm)
         return cs.fmin(1.0, cs.fmax(-1.0, base + self.residual_scale * a))
