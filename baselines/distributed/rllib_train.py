@@ -112,7 +112,10 @@ def _shared(agent_id: Any, *args: Any, **kwargs: Any) -> str:
     return POLICY_ID
 
 
-OPTIONS_NOTE = "--num-envs counts the env copies of each env runner"
+OPTIONS_NOTE = (
+    "--num-envs counts the env copies of each env runner; --hp KEY=JSON: an argument of "
+    "PPOConfig.training()"
+)
 
 
 def add_arguments(g: Any) -> None:

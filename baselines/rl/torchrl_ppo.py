@@ -85,6 +85,9 @@ DEFAULT_ENV_THREADS = 1
 CLIP_OBSERVATION = 10.0  # VecNormalize's clip_obs and clip_reward
 
 
+OPTIONS_NOTE = f"--hp KEY=JSON sets one of {', '.join(HYPERPARAMETERS)}"
+
+
 def add_arguments(g: Any) -> None:
     """The TorchRL engine's own options."""
     g.add_argument("--backend", choices=BACKENDS, default="cpu", help="the VectorEnv backend")

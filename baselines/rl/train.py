@@ -80,6 +80,9 @@ DEFAULT_GEOMETRY_POOL = DEFAULTS["geometry_pool"]
 DEFAULT_ENV_THREADS = 1
 
 
+OPTIONS_NOTE = "--hp KEY=JSON: an argument of SB3's PPO or SAC (policy_kwargs adds to the defaults)"
+
+
 def add_arguments(g: Any) -> None:
     """The SB3 engine's own options."""
     g.add_argument(
