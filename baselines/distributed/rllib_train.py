@@ -51,12 +51,15 @@ HYPERPARAMETERS: dict[str, Any] = {
 }
 # The SB3 trainer's network: two tanh layers of 64, separate policy and value nets.
 MODEL = {"fcnet_hiddens": [64, 64], "fcnet_activation": "tanh", "vf_share_layers": False}
-# Seeded families: geometries per env copy. The single env builds a geometry with an
-# IPOPT solve and keeps 32 in memory: a larger pool rebuilds one every episode (the
+# Seeded families: the pool's P seeds are dealt round-robin over the K env copies
+# (``uvms_env.vector.seeding``): a copy meets P / K of them (K dividing P). The single
+# env builds a geometry with an IPOPT solve and keeps 32 in memory: the default pool is
+# 32 K (None below), 32 per copy; a larger one rebuilds a geometry every episode (the
 # batched env of the other engines copies its 1,024 from the disk bank instead).
+GEOMETRIES_PER_COPY = 32
 # Env copies per runner (``--num-envs``), stepped together with one forward pass: 4
 # beat 1 and matched 8, which builds twice the geometries (figures in the docs).
-DEFAULTS: dict[str, Any] = {"num_envs": 4, "geometry_pool": 32}
+DEFAULTS: dict[str, Any] = {"num_envs": 4, "geometry_pool": None}
 
 
 def build_config(
@@ -163,7 +166,9 @@ class Engine:
 
         torch.set_num_threads(1)  # the learner shares the machine with the env runners
         s, a = self.run.settings, self.args
-        pool = seeded_pool(s.scenario, s.overrides, s.geometry_pool)
+        copies = max(1, a.num_env_runners) * s.num_envs
+        size = s.geometry_pool if s.geometry_pool is not None else GEOMETRIES_PER_COPY * copies
+        pool = seeded_pool(s.scenario, s.overrides, size)
         hp = {**HYPERPARAMETERS, **s.hyperparameters}
         init_ray(a.address, a.num_cpus if a.num_cpus is not None else max(2, a.num_env_runners))
         import ray
