@@ -3,7 +3,7 @@ figures, an animation, metrics.json and the trajectory (.npz).
 
     python -m nmpc_expert --scenario paper --out runs/paper [--solver rti|ipopt]
         [--seed 0] [--n-agents N] [--current none|mild|strong] [--mismatch 0.1]
-        [--max-steps 2000] [--no-figures]
+        [--max-cycles 2000] [--no-figures]
 
 One NMPCPolicy per agent on the PettingZoo environment (``uvms_env.parallel_env``), each
 fed only its own observation.
@@ -15,6 +15,7 @@ import argparse
 import json
 import os
 import time
+import warnings
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -22,6 +23,19 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from nmpc_expert.rollout import run_episode
+
+
+class _Deprecated(argparse.Action):
+    """``--max-steps``: the old name of ``--max-cycles``, kept for one release."""
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        warnings.warn(
+            f"{option_string} is deprecated and will be removed in the next release; "
+            "use --max-cycles",
+            FutureWarning,
+            stacklevel=2,
+        )
+        setattr(namespace, self.dest, values)
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -34,7 +48,10 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--current", default="none", choices=["none", "mild", "strong"])
     ap.add_argument("--mismatch", type=float, default=0.0, help="truth-model perturbation")
     ap.add_argument("--solver", default="rti", choices=["rti", "ipopt"])
-    ap.add_argument("--max-steps", type=int, default=None)
+    ap.add_argument("--max-cycles", type=int, default=None, help="episode length cap")
+    ap.add_argument(
+        "--max-steps", type=int, dest="max_cycles", action=_Deprecated, help=argparse.SUPPRESS
+    )
     ap.add_argument("--out", type=Path, default=Path("runs/paper"))
     ap.add_argument("--no-figures", action="store_true")
     args = ap.parse_args(argv)
@@ -43,7 +60,7 @@ def main(argv: list[str] | None = None) -> dict:
         overrides["n_agents"] = args.n_agents
     start = time.perf_counter()
     metrics, arr, scenario = run_episode(
-        args.scenario, args.solver, args.seed, args.max_steps, **overrides
+        args.scenario, args.solver, args.seed, args.max_cycles, **overrides
     )
     metrics["wall_time_s"] = time.perf_counter() - start
     args.out.mkdir(parents=True, exist_ok=True)

@@ -34,6 +34,7 @@ from nmpc_expert.settings import NMPCSettings
 from uvms_env.dynamics import NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall
 from uvms_env.dynamics.local_model import NX, ModelParams
+from uvms_env.dynamics.spatial import wrap_angle
 from uvms_env.env.observation import NAV_K_MAX, NAV_K_MIN, WAYPOINT_TOLERANCE
 from uvms_env.navigation import WaypointNavigator, choose_k
 from uvms_env.policy import AgentSpec
@@ -289,7 +290,7 @@ class NMPCPolicy(LocalController):
         if s.goal_integral_gain == 0 or index != len(self._wp) - 1:
             return
         pose = x_o.reshape(-1)
-        att = (pose[3:] - self._wp[index, 3:] + np.pi) % (2 * np.pi) - np.pi  # wrapped
+        att = wrap_angle(pose[3:] - self._wp[index, 3:])
         err = np.concatenate([pose[:3] - self._wp[index, :3], att])
         if np.linalg.norm(err[:3]) < s.goal_integral_radius:
             lim = self._goal_integral_clip

@@ -139,7 +139,7 @@ def test_without_a_compiler_the_policy_keeps_numpy_layers(monkeypatch, tmp_path,
         net.body[0].bias.add_(0.01)  # weights no earlier test has compiled in this process
     net.save(tmp_path / "policy.pt")
     layers = [np.vstack([w, b[None]]) for w, b in net.numpy_weights()]
-    assert mlp_decision_function("uvms-v2", 0.0, layers, True, 79) is None
+    assert mlp_decision_function("features", 0.0, layers, True, 79) is None
     spec = AgentSpec.from_scenario(paper, 0)
     policy = ClonedPolicy(spec, tmp_path / "policy.pt")
     assert not policy.compiled

@@ -1,6 +1,6 @@
 """Minari datasets of ``python -m baselines.imitate collect``: where they live (a root of
 their own, whatever else the parent folder holds), what they record (the environment's
-spec, so ``recover_environment`` works), and reading the earlier layout."""
+spec, so ``recover_environment`` works)."""
 
 from __future__ import annotations
 
@@ -48,33 +48,3 @@ def test_collect_next_to_other_folders_and_recover_environment(tmp_path):
         assert env.unwrapped.parallel.max_cycles == STEPS
     finally:
         env.close()
-
-
-def test_reads_the_earlier_layout(tmp_path, monkeypatch):
-    """Datasets written as ``root/uvms/NAME-v0`` (root = the parent) are still read."""
-    import minari
-    from gymnasium.spaces import Box
-    from minari.data_collector import EpisodeBuffer
-
-    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
-    rng = np.random.default_rng(0)
-    buffer = EpisodeBuffer(
-        id=0,
-        seed=3,
-        observations=rng.normal(size=(4, 79)).astype(np.float32),
-        actions=rng.uniform(-1, 1, (3, 8)).astype(np.float32),
-        rewards=[0.0, 1.0, 2.0],
-        terminations=[False, False, True],
-        truncations=[False, False, False],
-        infos={},
-    )
-    with pytest.warns(UserWarning):  # no author, permalink or env: fine for this test
-        minari.create_dataset_from_buffers(
-            "uvms/old-v0",
-            [buffer],
-            observation_space=Box(-np.inf, np.inf, (79,), np.float32),
-            action_space=Box(-1, 1, (8,), np.float32),
-        )
-    obs, act, episodes = dataset.read_dataset(tmp_path, "old")
-    assert np.array_equal(obs, buffer.observations[:-1]) and np.array_equal(act, buffer.actions)
-    assert len(episodes) == 1

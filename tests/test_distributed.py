@@ -112,18 +112,21 @@ def _train_and_evaluate(tmp_path: Path, runners: int, iterations: int) -> list[d
 
     run = tmp_path / "rllib_ppo"
     train_main(
-        f"--engine rllib --algo ppo --scenario random --n-agents 2 --num-env-runners {runners}"
-        f" --iterations {iterations} --hp train_batch_size_per_learner=64"
-        " --hp minibatch_size=32 --hp num_epochs=1 --env-option max_cycles=16"
-        f" --geometry-pool 2 --num-envs-per-env-runner 2 --checkpoint-every 1 --no-progress"
-        f" --out {run}".split()
+        "--engine rllib --algo ppo --scenario random --env-option n_agents=2"
+        f" --num-env-runners {runners} --iterations {iterations} --robot-steps 100000"
+        " --hp train_batch_size_per_learner=64 --hp minibatch_size=32 --hp num_epochs=1"
+        " --env-option max_cycles=16 --geometry-pool 2 --num-envs 2 --checkpoint-every 128"
+        f" --no-progress --out {run}".split()
     )
     config = json.loads((run / "config.json").read_text())
-    assert config["iterations_done"] == iterations and config["num_env_runners"] == runners
-    assert config["env_options"]["max_cycles"] == 16
+    engine = config["engine_settings"]
+    assert engine["iterations_done"] == iterations and engine["num_env_runners"] == runners
+    assert config["env_options"]["max_cycles"] == 16 and config["num_envs"] == 2
     progress = list(csv.DictReader(open(run / "progress.csv")))
     assert [int(r["iteration"]) for r in progress] == list(range(1, iterations + 1))
-    assert (run / "checkpoints" / f"iter_{iterations}").is_dir()
+    # 64 env steps of 2 robots an iteration: a checkpoint every other iteration
+    assert [int(r["robot_steps"]) for r in progress] == [128 * k for k in range(1, iterations + 1)]
+    assert (run / "checkpoints" / f"robot_steps_{128 * iterations}").is_dir()
     rows = evaluate([f"rllib:{run}"], ["random"], 2, 0, 1, {"n_agents": 2}, 6, progress=False)
     assert all(r["error"] == "" and r["episode_steps"] == 6 for r in rows), rows
     again = evaluate([f"rllib:{run}"], ["random"], 2, 0, 1, {"n_agents": 2}, 6, progress=False)
@@ -136,13 +139,17 @@ def test_rllib_sub_envs_cycle_through_their_own_geometries(local_ray):
     from ray.rllib.env.env_context import EnvContext
 
     from baselines.distributed.rllib_env import make_env
+    from uvms_env.vector.seeding import episode_seed
 
-    config = {"scenario": "short", "seed": 10, "geometry_pool": 2, "envs_per_runner": 2}
-    context = EnvContext({**config, "overrides": {"max_cycles": 3}}, worker_index=1)
+    config = {"scenario": "short", "seed": 10, "geometry_pool": 7, "envs_per_runner": 2}
+    config["num_env_runners"] = 2
+    context = EnvContext({**config, "overrides": {"max_cycles": 3}}, worker_index=2)
     first, second = make_env(context), make_env(context)
     seeds = [[env._next_seed() for _ in range(3)] for env in (first, second)]
-    # sub-env v of runner w: seed + (w V + v) P + e % P, whatever order RLlib resets in
-    assert {tuple(s) for s in seeds} == {(14, 15, 14), (16, 17, 16)}
+    # runner 2 of 2 holds copies 2 and 3 of K = 4: seed (10 + k + 4 e) mod 7, whatever
+    # order RLlib resets in; the rule's function agrees with the written-out numbers
+    assert {tuple(s) for s in seeds} == {(5, 2, 6), (6, 3, 0)}
+    assert [episode_seed(10, 2, e, 4, 7) for e in range(3)] == [5, 2, 6]
 
 
 def test_rllib_ppo_smoke_on_the_local_runner(local_ray, tmp_path):

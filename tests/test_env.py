@@ -142,11 +142,15 @@ def test_registered_with_pettingzoo_and_gymnasium():
     register_gymnasium()  # registering again is a silent no-op
 
 
-def test_gymnasium_entry_point_declared():
+def test_gymnasium_1_registers_on_import_without_a_plugin_entry_point():
+    """Gymnasium >= 1.0 (required) reads no ``gymnasium.envs`` plugin group: the id is
+    registered by importing the package, which the module-prefixed id does itself."""
     pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    target = pyproject["project"]["entry-points"]["gymnasium.envs"]["uvms_env"]
-    module, attr = target.split(":")
-    assert getattr(__import__(module, fromlist=[attr]), attr) is register_gymnasium
+    assert "gymnasium>=1.0" in pyproject["project"]["dependencies"]
+    assert "gymnasium.envs" not in pyproject["project"].get("entry-points", {})
+    assert int(gym.__version__.split(".")[0]) >= 1
+    genv = gym.make(f"uvms_env:{ENV_ID}", max_cycles=2)
+    assert isinstance(genv.unwrapped, CoopTransportGymEnv)
 
 
 def test_options_are_validated(paper):

@@ -155,7 +155,7 @@ def test_cli_collect_bc_dagger_evaluate(tmp_path):
     # the steady-input features read the object that collect recorded per stream
     assert np.all(episodes[0].infos["object_ring_radius"] == 0.0)  # short carries the bar
     main(["bc", "--data", str(data), "--epochs", "2", "--hidden", "16", "--features",
-          "uvms-v2", "--out", str(ff_out)])  # fmt: skip
+          "features", "--out", str(ff_out)])  # fmt: skip
     main(["dagger", "--data", str(data), "--scenario", "short:1", "--iterations", "1",
           "--episodes-per-iteration", "3", "--max-cycles", str(STEPS), "--epochs", "2",
           "--hidden", "16", "16", "--expert", expert, "--save-data", "--lr-schedule", "cosine",

@@ -54,7 +54,7 @@ def test_saved_network_reproduces_its_decisions(tmp_path, paper_spec):
     rng = np.random.default_rng(1)
     obs = _observations(rng, 500, 1.0).astype(np.float32)
     ring = paper_spec.object_ring_radius
-    cases = [(f, (32, 32)) for f in FEATURES] + [("uvms-v2", ())]  # (): linear feedback
+    cases = [(f, (32, 32)) for f in FEATURES] + [("features", ())]  # (): linear feedback
     for features, hidden in cases:
         net, _ = bc.fit(obs, np.tanh(obs[:, :8]), epochs=2, features=features, hidden=hidden,
                         progress=False, ring_radius=ring)  # fmt: skip
@@ -115,10 +115,10 @@ def test_steady_input_feature_is_the_experts_own(paper):
             ).pack()
             o = obs[agent].astype(float)
             want = np.asarray(steady(o[:20], theta, o[44:50])).ravel()
-            got = prepare(obs[agent][None], "uvms-v2", ring)[0, -8:]
+            got = prepare(obs[agent][None], "features", ring)[0, -8:]
             assert np.allclose(got, want, atol=1e-5)
-            dim = FEATURE_DIMS["uvms-v2"]
-            compiled = CompiledInputs("uvms-v2", np.zeros(dim), np.ones(dim), ring, clip=1e30)
+            dim = FEATURE_DIMS["features"]
+            compiled = CompiledInputs("features", np.zeros(dim), np.ones(dim), ring, clip=1e30)
             assert np.allclose(compiled(obs[agent])[dim + 1 :], want, atol=1e-9)
             assert np.abs(want).max() > 0.01  # a real holding input, not zeros
 
@@ -126,16 +126,16 @@ def test_steady_input_feature_is_the_experts_own(paper):
 def test_feedforward_features_need_the_object():
     obs = _observations(np.random.default_rng(6), 4)
     with pytest.raises(ValueError, match="need the object"):
-        prepare(obs, "uvms-v2")
+        prepare(obs, "features")
     with pytest.raises(ValueError, match="did not record it"):
-        prepare(obs, "uvms-v2", np.array([0.0, np.nan, 0.0, 0.0]))
+        prepare(obs, "features", np.array([0.0, np.nan, 0.0, 0.0]))
     with pytest.raises(ValueError, match="need the object"):
-        CompiledInputs("uvms-v2", np.zeros(84), np.ones(84))
+        CompiledInputs("features", np.zeros(84), np.ones(84))
 
 
 def test_residual_network_adds_its_output_to_the_steady_input():
     rng = np.random.default_rng(8)
-    net = MLPPolicyNet(84, hidden=(16,), features="uvms-v2")
+    net = MLPPolicyNet(84, hidden=(16,), features="features")
     x = rng.normal(size=(50, 84)).astype(np.float32)
     import torch
 
@@ -207,3 +207,18 @@ def test_dataset_round_trip(tmp_path):
     assert obs.shape == (sum(len(s.actions) for s in streams), 79) and act.shape[1] == 8
     _, _, ring, n = dataset.read_many([tmp_path / "roundtrip"])
     assert n == 3 and np.array_equal(ring, np.repeat([0.0, 0.5, 1.0], [5, 6, 7]))
+
+
+def test_the_committed_clones_earlier_feature_name_reads_as_features():
+    """The ``bc`` and ``dagger`` models were saved when the feature set was ``uvms-v2``:
+    they load as ``features``, the environment's observation mode's name."""
+    import torch
+
+    from baselines.policies import PRETRAINED
+
+    for name in ("bc", "dagger", "dagger_linear"):
+        path = PRETRAINED / name / "policy.pt"
+        saved = torch.load(path, map_location="cpu", weights_only=False)["features"]
+        net = MLPPolicyNet.load(path)
+        assert saved in ("uvms-v2", "features") and net.features == "features", name
+        assert net.residual  # the steady input is fed forward

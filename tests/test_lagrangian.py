@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from baselines.rl.lagrangian import SCALES, CostPenalty, CostSettings, magnitude_cost
+from baselines.lagrangian import SCALES, CostSettings, magnitude_cost
+from baselines.rl.cost import CostPenalty
 from uvms_env.env.constraints import CONSTRAINTS
 
 

@@ -13,8 +13,10 @@ pytest.importorskip("stable_baselines3")
 import uvms_env
 from baselines.evaluate import evaluate
 from baselines.rl.policy import PRETRAINED_DIR
-from baselines.rl.train import find_resume, main, make_vec_env, train
+from baselines.rl.train import find_resume, make_vec_env
 from baselines.rl.vec_env import ParallelVecEnv
+from baselines.runs import RunSettings
+from baselines.train import main, train
 
 SEED = 7
 
@@ -23,9 +25,10 @@ def _factory(**kwargs):
     return lambda k: uvms_env.parallel_env(scenario="short", seed=SEED + k, **kwargs)
 
 
-def _reference(copy: int, episode: int, **kwargs):
+def _reference(copy: int, episode: int, copies: int = 2, **kwargs):
+    """Copy ``copy`` of ``copies``, its ``episode``-th episode: seeded SEED + k + K e."""
     env = uvms_env.parallel_env(scenario="short", seed=SEED + copy, **kwargs)
-    obs, _ = env.reset(seed=SEED + 10_007 * copy + episode)
+    obs, _ = env.reset(seed=SEED + copy + copies * episode)
     return env, obs
 
 
@@ -86,21 +89,22 @@ def test_termination_is_not_truncation():
 def test_train_save_resume_evaluate(tmp_path):
     out = tmp_path / "ppo"
     hp = {"n_steps": 32, "batch_size": 64, "n_epochs": 1}
-    train(
-        "ppo",
-        "short",
-        128,
-        n_envs=2,
-        seed=0,
-        out=out,
-        overrides={"max_cycles": 40},
-        progress=False,
-        hyperparameters=hp,
-        eval_every=128,
-        eval_episodes=1,
-        checkpoint_every=128,
-        record_eval=False,
-    )
+
+    def settings(budget: int, **kw) -> RunSettings:
+        return RunSettings(
+            "short",
+            {"max_cycles": 40},
+            budget,
+            2,
+            0,
+            out,
+            record_eval=False,
+            hyperparameters=hp,
+            progress=False,
+            **kw,
+        )
+
+    train("sb3", "ppo", settings(128, eval_every=128, eval_episodes=1, checkpoint_every=128))
     for name in ("model.zip", "vecnormalize.pkl", "config.json", "progress.csv"):
         assert (out / name).exists(), name
     assert (out / "evaluations.csv").read_text().count("\n") == 2  # header + one evaluation
@@ -109,22 +113,11 @@ def test_train_save_resume_evaluate(tmp_path):
     # Resume from the newest checkpoint to 256 steps in all.
     model, norm, _ = find_resume(out / "checkpoints" / "rl_model_128_steps.zip")
     assert norm.name == "rl_model_vecnormalize_128_steps.pkl"
-    train(
-        "ppo",
-        "short",
-        256,
-        n_envs=2,
-        seed=0,
-        out=out,
-        resume=model,
-        overrides={"max_cycles": 40},
-        progress=False,
-        hyperparameters=hp,
-        record_eval=False,
-    )
+    train("sb3", "ppo", settings(256, resume=model))
     config = json.loads((out / "config.json").read_text())
-    assert config["timesteps_done"] == 256 and config["resumes"] == 1
-    assert (out / "progress.part0.csv").exists()
+    assert config["robot_steps"] == 256 and config["resumes"] == 1
+    progress = (out / "progress.csv").read_text().splitlines()
+    assert [int(line.split(",")[1]) for line in progress[1:]] == [128, 256]  # appended
     rows = evaluate([f"ppo:{out}"], ["short"], 1, 0, 1, max_cycles=20, progress=False)
     assert rows[0]["error"] == "" and rows[0]["episode_steps"] == 20
 
@@ -153,14 +146,15 @@ def test_make_vec_env_paths():
 )  # the single path's VecEnv: test_make_vec_env_paths and the ParallelVecEnv tests above
 def test_cli_records_the_env_path(tmp_path, vec_env):
     out = tmp_path / vec_env
-    argv = ["--algo", "ppo", "--total-timesteps", "64", "--n-envs", "2", "--out", str(out)]
+    argv = ["--algo", "ppo", "--robot-steps", "64", "--num-envs", "2", "--out", str(out)]
     argv += ["--vec-env", vec_env, "--dtype", "float64", "--geometry-pool", "8"]
     argv += ["--env-option", "max_cycles=10", "--no-progress", "--checkpoint-every", "1000"]
     argv += ["--hp", "n_steps=16", "--hp", "batch_size=32", "--hp", "n_epochs=1"]
     argv += ["--hp", 'policy_kwargs={"log_std_init": -2.0}']
     main(argv)
     config = json.loads((out / "config.json").read_text())
-    assert config["policy_kwargs"] == {"log_std_init": -2.0}  # added to, not replacing, NET
+    engine = config["engine_settings"]
+    assert engine["policy_kwargs"] == {"log_std_init": -2.0}  # added to, not replacing, NET
     from stable_baselines3 import PPO
 
     log_std = PPO.load(out / "model.zip", device="cpu").policy.log_std.detach().numpy()
@@ -169,24 +163,34 @@ def test_cli_records_the_env_path(tmp_path, vec_env):
         "vector": {"vec_env": "vector", "dtype": "float64", "geometry_pool": 8, "env_threads": 1},
         "single": {"vec_env": "single", "dtype": None, "geometry_pool": None, "env_threads": None},
     }[vec_env]
-    assert {key: config[key] for key in expected} == expected
-    assert config["timesteps_done"] == 64 and config["robot_sub_envs"] == 4
+    assert {key: engine[key] for key in expected} == expected
+    assert config["robot_steps"] == 64 and engine["robot_sub_envs"] == 4
     assert len(config["eval"]["episodes"]) == 2  # evaluated on single envs after training
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac"])
-def test_pretrained_reproduces_recorded_evaluation(algo):
-    folder = PRETRAINED_DIR / algo
-    if not (folder / "model.zip").exists():
-        pytest.skip(f"no pretrained {algo} model")
-    for name in ("model.zip", "vecnormalize.pkl", "config.json"):
-        assert (folder / name).stat().st_size < 1_000_000, name
+@pytest.mark.parametrize(
+    ("algo", "name"),
+    [
+        ("ppo", "ppo"),
+        ("sac", "sac"),
+        ("ppo", "ppo_vector"),
+        ("ppo", "ppo_v0"),
+        # random geometries and ~600-period episodes: the slow suite
+        pytest.param("ppo", "ppo_random_hold", marks=pytest.mark.slow),
+        pytest.param("ppo", "ppo_random_hold_s2", marks=pytest.mark.slow),
+    ],
+)
+def test_pretrained_reproduces_recorded_evaluation(algo, name):
+    """Every committed SB3 model loads and replays the evaluation its config.json
+    recorded (written by the trainer of its day: the loaders read that layout)."""
+    folder = PRETRAINED_DIR / name
+    source = f"{algo}:pretrained" if name == algo else f"{algo}:{folder}"
+    for file in ("model.zip", "vecnormalize.pkl", "config.json"):
+        assert (folder / file).stat().st_size < 1_000_000, file
     recorded = json.loads((folder / "config.json").read_text())["eval"]
     n = len(recorded["episodes"])
     runs = [
-        evaluate(
-            [f"{algo}:pretrained"], [recorded["scenario"]], n, recorded["seed"], 1, progress=False
-        )
+        evaluate([source], [recorded["scenario"]], n, recorded["seed"], 1, progress=False)
         for _ in range(2)
     ]
     for first, second, rec in zip(*runs, recorded["episodes"], strict=True):

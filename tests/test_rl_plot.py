@@ -34,7 +34,7 @@ def test_group_curves_from_runs_evaluated_without_the_ladder(tmp_path):
         _run(run, k, "random")
     evals = plot._rung_evaluations(runs[1])
     assert evals is not None
-    np.testing.assert_array_equal(evals["timesteps"], [2000, 4000])
+    np.testing.assert_array_equal(evals["robot_steps"], [2000, 4000])
     np.testing.assert_array_equal(evals["success_rate"], [0.5, 0.5])
     out = tmp_path / "fig.png"
     plot.main(["--group", f"PPO, N = 2={','.join(map(str, runs))}", "--out", str(out)])

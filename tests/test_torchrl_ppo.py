@@ -21,7 +21,8 @@ import uvms_env
 from baselines.evaluate import evaluate
 from baselines.policies import PolicySource
 from baselines.rl import torchrl_ppo
-from baselines.train import main
+from baselines.runs import RunSettings
+from baselines.train import main, train
 from uvms_env.policy import AgentSpec
 from uvms_env.vector.torchrl_env import GROUP
 
@@ -40,20 +41,23 @@ def test_two_iterations_write_the_run_folder_and_the_actor_acts(tmp_path):
     main(
         [
             *("--engine", "torchrl", "--algo", "ppo", "--scenario", "short", "--num-envs", "4"),
-            *("--total-steps", "100", "--seed", "3", "--out", str(out), "--no-progress", *TINY),
+            *("--robot-steps", "100", "--seed", "3", "--out", str(out), "--no-progress", *TINY),
             *("--env-option", "max_cycles=6"),  # episodes end inside the rollouts
         ]
     )
     config = json.loads((out / "config.json").read_text())
     assert config["command"].startswith("python -m baselines.train --engine torchrl --algo ppo")
-    assert config["robot_steps"] == 128 and config["iterations"] == 2
-    assert config["seed"] == 3 and config["backend"] == "cpu" and config["device"] == "cpu"
-    assert config["robot_steps_per_s"] > 0 and config["wall_time_s"] >= 0
+    engine = config["engine_settings"]
+    assert config["robot_steps"] == 128 and engine["robot_steps_per_iteration"] == 64
+    assert config["seed"] == 3 and engine["backend"] == "cpu" and engine["device"] == "cpu"
+    assert config["robot_steps_per_s"] > 0 and config["wall_time_s"] > 0
     assert config["hardware"]["cores"] >= 1 and config["overrides"] == {"max_cycles": 6}
     rows = _rows(out / "progress.csv")
     assert [int(r["robot_steps"]) for r in rows] == [64, 128]
-    assert int(rows[-1]["episodes"]) == 4 * 2  # 16 steps of 6-step episodes per copy
-    assert all(np.isfinite(float(r["loss_critic"])) for r in rows)
+    # 8 steps of 6-step episodes per copy and iteration: 4 copies end one in each
+    assert [int(r["episodes"]) for r in rows] == [4, 4]
+    assert all(float(r["episode_len_mean"]) == 6.0 for r in rows)
+    assert len(config["eval"]["episodes"]) == 2  # the recorded evaluation of the final actor
 
     # the saved actor through the evaluator's policy source, on a single environment
     env = uvms_env.parallel_env(scenario="short")
@@ -110,20 +114,21 @@ def _collect_on(backend: str, device: str | int) -> None:
 
 def test_the_cuda_backend_keeps_the_rollout_in_tensors_on_the_env_device(tmp_path, emulated_xp):
     _collect_on("cuda", "cpu")
-    out = torchrl_ppo.train(
+    settings = RunSettings(
         "short",
-        4,
+        {"max_cycles": 6},
         100,
+        4,
         0,
         tmp_path / "cuda",
-        backend="cuda",
-        device="cpu",
+        record_eval=False,
         hyperparameters=TINY_HP,
-        overrides={"max_cycles": 6},
         progress=False,
     )
+    out = train("torchrl", "ppo", settings, backend="cuda", device="cpu")
     config = json.loads((out / "config.json").read_text())
-    assert config["backend"] == "cuda" and config["device"] == "cpu"
+    engine = config["engine_settings"]
+    assert engine["backend"] == "cuda" and engine["device"] == "cpu"
     assert config["robot_steps"] == 128 and (out / torchrl_ppo.ACTOR_FILE).exists()
 
 
@@ -131,8 +136,7 @@ def test_the_cuda_backend_keeps_the_rollout_in_tensors_on_the_env_device(tmp_pat
 def test_on_a_gpu_everything_stays_there(tmp_path):
     pytest.importorskip("cupy")
     _collect_on("cuda", 0)
-    out = torchrl_ppo.train(
-        "short", 64, 10_000, 0, tmp_path / "gpu", backend="cuda", device=0, progress=False
-    )
+    settings = RunSettings("short", {}, 10_000, 64, 0, tmp_path / "gpu", progress=False)
+    out = train("torchrl", "ppo", settings, backend="cuda", device=0)
     config = json.loads((out / "config.json").read_text())
-    assert config["device"] == "cuda:0" and "gpu" in config["hardware"]
+    assert config["engine_settings"]["device"] == "cuda:0" and "gpu" in config["hardware"]

@@ -3,15 +3,16 @@
 
 RLlib resets an environment with ``seed=None`` after its first episode, and the single
 env then keeps its geometry: a runner of a seeded family (``random``, ``short``) would
-train on one geometry forever. So every reset passes the episode seed chosen here, as
-the SB3 trainer's ``geometry_pool`` does: with a pool of P, episode e of env runner w
-(sub-env v of its V) has seed ``seed + (w V + v) P + e % P``: each sub-env cycles
-through its own P geometries, which the single env builds once (an IPOPT solve,
-~0.5 s) and keeps in memory (it keeps 32). Without a pool (``paper``) the seeds are
-drawn from the sub-env's own stream. RLlib builds a runner's V sub-envs with one and the
-same context (``vector_index`` 0), so v is the order in which this process built them.
+train on one geometry forever. So every reset passes the episode seed of the adapters'
+one rule (``uvms_env.vector.seeding``): the K = W V sub-envs of W env runners (V each)
+are copies k = (w - 1) V + v (the local runner, w = 0, counts as the first when there
+are no remote ones), and episode e of copy k has seed ``seed + k + K e``, mod P with a
+geometry pool of P. The single env builds each of its geometries once (an IPOPT solve,
+~0.5 s) and keeps them in memory (it keeps 32). RLlib builds a runner's V sub-envs with
+one and the same context (``vector_index`` 0), so v is the order in which this process
+built them.
 
-May import: numpy, gymnasium, ray.rllib and ``uvms_env``; imported only where Ray is.
+May import: gymnasium, ray.rllib and ``uvms_env``; imported only where Ray is.
 """
 
 from __future__ import annotations
@@ -19,8 +20,9 @@ from __future__ import annotations
 import itertools
 from typing import Any
 
-import numpy as np
 from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
+
+from uvms_env.vector.seeding import episode_seed
 
 ENV_NAME = "uvms_coop"
 _BUILT = itertools.count()  # sub-envs built in this process (see module docstring)
@@ -28,20 +30,21 @@ _BUILT = itertools.count()  # sub-envs built in this process (see module docstri
 
 class UVMSMultiAgentEnv(ParallelPettingZooEnv):
     """``config``: ``scenario``, ``overrides`` (env options), ``seed``, ``geometry_pool``
-    (geometries per sub-env; None: seeds from a stream), ``envs_per_runner``; RLlib's
-    ``EnvContext`` adds the runner's index."""
+    (None: no pool), ``envs_per_runner``, ``num_env_runners``; RLlib's ``EnvContext`` adds
+    the runner's index."""
 
     def __init__(self, config: dict[str, Any]) -> None:
         import uvms_env
 
         worker = int(getattr(config, "worker_index", 0))
         per_runner = int(config.get("envs_per_runner", 1))
+        runners = max(1, int(config.get("num_env_runners", 0)))
         vector = next(_BUILT) % per_runner
-        seed = int(config.get("seed", 0))
+        self._seed = int(config.get("seed", 0))
         self._pool: int | None = config.get("geometry_pool")
         self._episodes = 0
-        self._offset = seed + (worker * per_runner + vector) * (self._pool or 0)
-        self._rng = np.random.default_rng((seed, worker, vector))
+        self._copy = (max(worker, 1) - 1) * per_runner + vector
+        self._copies = runners * per_runner
         # built on the first episode's seed: its reset finds that geometry already built
         self._upcoming = self._draw()
         env = uvms_env.parallel_env(
@@ -50,10 +53,8 @@ class UVMSMultiAgentEnv(ParallelPettingZooEnv):
         super().__init__(env)
 
     def _draw(self) -> int:
-        if not self._pool:
-            return int(self._rng.integers(2**31 - 1))
         self._episodes += 1
-        return self._offset + (self._episodes - 1) % self._pool
+        return episode_seed(self._seed, self._copy, self._episodes - 1, self._copies, self._pool)
 
     def _next_seed(self) -> int:
         seed, self._upcoming = self._upcoming, self._draw()

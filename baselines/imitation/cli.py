@@ -26,10 +26,10 @@ per-component error on the states it drove into itself, before they were added.
 
 ``--noise S`` (``collect`` and ``dagger``) adds Gaussian noise of std S to the executed
 actions while the labels stay the expert's (DART; see ``baselines.imitation.rollout``).
-Training options of ``bc`` and ``dagger``: ``--features`` (default ``uvms-v2``: invariant
+Training options of ``bc`` and ``dagger``: ``--features`` (default ``features``: invariant
 features and the expert's steady input, which the network learns a residual on; see
 ``baselines.imitation.features``), ``--hidden W [W ...]`` (default 128 128; ``--hidden``
-alone: a linear map, on ``uvms-v2`` a linear feedback around a_ss), ``--loss-scale std``
+alone: a linear map, on ``features`` a linear feedback around a_ss), ``--loss-scale std``
 (per-component inverse-variance weights), ``--lr-schedule cosine``, ``--batch-size``.
 ``dagger --gate G`` executes the learner's action only where it is within G of the
 expert's in every component (the expert's otherwise; ``learner_share`` reports how often
@@ -44,6 +44,7 @@ import json
 import os
 import platform
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -52,10 +53,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from baselines.imitation import bc, dataset
-from baselines.imitation.features import FEATURES
+from baselines.imitation.features import FEATURES, LEGACY_FEATURES, canonical_features
 from baselines.imitation.policy import ClonedPolicy
 from baselines.imitation.rollout import rollouts
 from baselines.policies import PolicySource
+from baselines.runs import TRAIN_ENV_DEFAULTS, hardware, write_json
 
 
 def env_overrides(scenario: str, args: argparse.Namespace) -> dict[str, Any]:
@@ -66,13 +68,12 @@ def env_overrides(scenario: str, args: argparse.Namespace) -> dict[str, Any]:
         out["n_agents"] = args.n_agents
     if getattr(args, "constraint_mode", None):
         out["constraint_mode"] = args.constraint_mode
-    out["internal_wrench_every"] = 0  # not needed for learning; saves ~6% per step
-    return out
+    return {**TRAIN_ENV_DEFAULTS, **out}
 
 
 def _env_factory(scenario: str, overrides: dict, cap: int | None = None):
     """Seed -> environment; ``cap`` shortens episodes to at most ``cap`` periods (never
-    lengthens them beyond the scenario's own ``max_steps``)."""
+    lengthens them beyond the scenario's own ``max_cycles``)."""
     import uvms_env
 
     def make(seed: int):
@@ -140,7 +141,19 @@ def collect(args: argparse.Namespace) -> None:
 
 def _write_json(path: Path, payload: dict[str, Any]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(payload, indent=2, default=str))
+    write_json(path, payload)
+
+
+def _features(name: str) -> str:
+    """``--features``: an earlier name is accepted for one release, with a warning."""
+    if name in LEGACY_FEATURES:
+        warnings.warn(
+            f"--features {name} is deprecated and will be removed in the next release; "
+            f"use --features {canonical_features(name)}",
+            FutureWarning,
+            stacklevel=2,
+        )
+    return canonical_features(name)
 
 
 def _common(args: argparse.Namespace) -> dict[str, Any]:
@@ -153,6 +166,7 @@ def _common(args: argparse.Namespace) -> dict[str, Any]:
         "features": args.features,
         "seed": args.seed,
         "python": platform.python_version(),
+        "hardware": hardware(),
     }
 
 
@@ -337,7 +351,9 @@ def _add_train_args(p: argparse.ArgumentParser, epochs: int) -> None:
         "--loss-scale", default="none", choices=bc.LOSS_SCALES, help="std: per-component 1/var"
     )
     p.add_argument("--hidden", type=int, nargs="*", default=[128, 128], help="widths; none: linear")
-    p.add_argument("--features", default="uvms-v2", choices=FEATURES)
+    p.add_argument(
+        "--features", default="features", choices=FEATURES, type=_features, help="input set"
+    )
     p.add_argument("--seed", type=int, default=0)
 
 

@@ -7,8 +7,7 @@ expert statistics in ``infos``: ``solve_ms``, ``expert_iterations``, ``expert_fa
 it knows before the task: the ring's radius, 0 for the bar); entry 0 belongs to the reset
 observation). Dataset ``data/NAME`` is a Minari root of its own (``MINARI_DATASETS_PATH``
 = ``data/NAME``, holding only this dataset, id ``uvms/NAME-v0``), so other folders next to
-it never reach Minari's scan of its root. Datasets written before this layout
-(``data/uvms/NAME-v0``, root ``data``) are still read.
+it never reach Minari's scan of its root.
 
 Each dataset records the environment it came from as a Gymnasium ``EnvSpec`` of
 ``uvms_env/CoopTransport-v0`` with the scenario and its overrides as kwargs, so
@@ -64,16 +63,6 @@ def _dataset_id(name: str) -> str:
 def _use_root(root: Path) -> None:
     root.mkdir(parents=True, exist_ok=True)
     os.environ["MINARI_DATASETS_PATH"] = str(root.resolve())
-
-
-def _minari_root(root: Path, name: str) -> Path:
-    """The Minari root of dataset ``root/NAME``: ``root/NAME`` itself, or ``root`` for a
-    dataset written in the earlier layout (``root/uvms/NAME-v0``)."""
-    own = Path(root) / name
-    legacy = Path(root) / NAMESPACE / f"{name}-v0"
-    if not (own / NAMESPACE).exists() and (legacy / "data").exists():
-        return Path(root)
-    return own
 
 
 def env_spec(scenario: str, **kwargs: Any):
@@ -173,7 +162,7 @@ def load(path: Path):
     import minari
 
     root, name = split_path(path)
-    _use_root(_minari_root(root, name))
+    _use_root(Path(root) / name)
     return minari.load_dataset(_dataset_id(name))
 
 

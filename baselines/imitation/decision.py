@@ -2,7 +2,7 @@
 
 One generated-C function of (obs, mean, inv_std, clip): the features with normalization
 and clipping (``features.inputs_sx``), the layers, and the output (clip(a_ss + out, -1,
-1) on ``uvms-v2``, tanh(out) otherwise), called through preallocated buffers
+1) on ``features``, tanh(out) otherwise), called through preallocated buffers
 (``features.CompiledInputs`` with ``fn``).
 
 The layers of a network without hidden layers (680 multiply-adds) are CasADi
@@ -10,7 +10,7 @@ expressions. Hidden layers are a C loop nest generated here from the weights
 (``dense_c``), put in the CasADi function as a node that exists only as generated code
 (``casadi.Function.jit`` with ``jit`` off: nothing is compiled when it is built, and
 ``compile_function`` compiles it with the rest). Why not CasADi expressions: for the
-128-128 MLP on ``uvms-v2`` (28,700 multiply-adds), alone with warm caches, the layers
+128-128 MLP on ``features`` (28,700 multiply-adds), alone with warm caches, the layers
 as SX took 30 us (one statement per multiply-add: ~300 kB of straight-line code), as MX
 dense products 35-55 us (CasADi's kernel accumulates every output through memory, one
 dependent multiply-add at a time) and as MX column updates 11 us, against 1.2 us for

@@ -2,7 +2,7 @@
 with built-in input normalization, saved as one ``policy.pt``.
 
 Outputs: on ``uvms-v1`` and ``raw`` features, tanh-bounded actions (the network can never
-ask for more than the saturation). On ``uvms-v2`` (which carry the steady input a_ss),
+ask for more than the saturation). On ``features`` (which carry the steady input a_ss),
 a linear residual: action = clip(a_ss + r, -1, 1), trained on the unclipped sum, so the
 network learns only how the expert departs from holding the load at the navigation twist.
 
@@ -22,6 +22,7 @@ from baselines.imitation.features import (
     ACT_DIM,
     FEEDFORWARD,
     INPUT_CLIP,
+    canonical_features,
     check_features,
     prepare,
 )
@@ -31,7 +32,7 @@ MIN_STD = 1e-3  # features (nearly) constant in the data are centred, not scaled
 
 class MLPPolicyNet(nn.Module):
     """MLP on (already prepared) inputs; ``features`` says how observations are prepared.
-    ``hidden=()`` is a linear map (on ``uvms-v2``: a linear feedback around a_ss)."""
+    ``hidden=()`` is a linear map (on ``features``: a linear feedback around a_ss)."""
 
     def __init__(
         self,
@@ -41,6 +42,7 @@ class MLPPolicyNet(nn.Module):
         features: str = "raw",
     ) -> None:
         super().__init__()
+        features = canonical_features(features)
         check_features(features)
         self.register_buffer("obs_mean", torch.zeros(in_dim))
         self.register_buffer("obs_std", torch.ones(in_dim))
@@ -98,9 +100,9 @@ class MLPPolicyNet(nn.Module):
         blob = torch.load(path, map_location="cpu", weights_only=False)
         net = MLPPolicyNet(
             blob["obs_dim"],
-            blob.get("act_dim", 8),
+            blob["act_dim"],
             hidden=tuple(blob["hidden"]),
-            features=blob.get("features", "raw"),
+            features=blob["features"],
         )
         net.load_state_dict(blob["state"])
         net.eval()
@@ -108,7 +110,7 @@ class MLPPolicyNet(nn.Module):
 
     def predict(self, obs: np.ndarray, ring_radius: np.ndarray | float | None = None) -> np.ndarray:
         """Actions for a batch (or one) of raw observations, through torch (``ring_radius``:
-        the object, for ``uvms-v2``; see ``features.prepare``)."""
+        the object, for ``features``; see ``features.prepare``)."""
         with torch.no_grad():
             x = torch.as_tensor(prepare(obs, self.features, ring_radius))
             return torch.clamp(self(x), -1.0, 1.0).numpy()

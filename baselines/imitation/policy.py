@@ -6,7 +6,7 @@ compiled (``UVMS_ENV_NO_COMPILE``, no C compiler), or with ``compiled=False``, a
 with hidden layers runs its layers in numpy float32 after the compiled input function
 instead. The torch network (``MLPPolicyNet.predict``) is the reference both are tested
 against. The same network serves every robot; it is stateless, so ``reset`` does
-nothing. The object (for ``uvms-v2`` features) comes from the robot's ``AgentSpec``.
+nothing. The object (for ``features`` features) comes from the robot's ``AgentSpec``.
 
 May import: numpy, torch, ``uvms_env.policy`` and this package's network, features and
 decision.

@@ -9,9 +9,14 @@ from typing import Any
 
 import numpy as np
 
+from uvms_env.dynamics.spatial import wrap_angle
+from uvms_env.env.observation import OBSERVATION_STRUCTURE
 from uvms_env.policy import AgentSpec
 
 GAIN = 0.5
+_POSE = OBSERVATION_STRUCTURE["object_pose"]  # own estimate: x, y, z, phi, theta, psi
+_WAYPOINT = OBSERVATION_STRUCTURE["waypoint"]
+_Q = OBSERVATION_STRUCTURE["q"]  # vehicle pose (x, y, z, phi, theta, psi) and joints
 
 
 class ScriptedPolicy:
@@ -26,8 +31,9 @@ class ScriptedPolicy:
     def act(self, obs: np.ndarray) -> np.ndarray:
         o = np.asarray(obs, dtype=np.float64)
         a = np.zeros(8)
-        a[:3] = self.gain * (o[32:35] - o[20:23])  # waypoint minus own object estimate
-        a[3] = 0.2 * self.gain * ((o[37] - o[5] + np.pi) % (2 * np.pi) - np.pi)
+        pose, waypoint, vehicle = o[_POSE], o[_WAYPOINT], o[_Q]
+        a[:3] = self.gain * (waypoint[:3] - pose[:3])  # waypoint minus own object estimate
+        a[3] = 0.2 * self.gain * wrap_angle(waypoint[5] - vehicle[5])  # waypoint vs vehicle yaw
         self.stats = {"solve_ms": 0.0, "iterations": 1, "fallbacks": 0}
         return np.clip(a, -1.0, 1.0).astype(np.float32)
 

@@ -30,8 +30,6 @@ from baselines.imitation.features import CompiledInputs, inputs_sx
 from uvms_env.dynamics.compiled import compile_function
 from uvms_env.env.priors import ACT_DIM, OBS_DIM, Priors, steady_sx
 
-# the imitation code's names for the priors' observation modes
-FEATURE_SETS = {"raw": "raw", "features": "uvms-v2"}
 NO_CLIP = 1e30  # a model saved without observation normalization
 
 
@@ -75,7 +73,7 @@ def actor_function(
 
 
 def _build(priors: Priors, ring_radius: float, layers: list[np.ndarray]) -> cs.Function | None:
-    features = FEATURE_SETS[priors.observation_mode]
+    features = priors.observation_mode  # the feature sets share the modes' names
     args, z, ff, tag = inputs_sx(features, ring_radius, OBS_DIM)
     if z.numel() != len(layers[0]) - 1:
         raise ValueError(
@@ -84,7 +82,7 @@ def _build(priors: Priors, ring_radius: float, layers: list[np.ndarray]) -> cs.F
     if priors.action_mode == "torque":
         steady = cs.DM.zeros(ACT_DIM)
     else:
-        steady = ff if features == "uvms-v2" else steady_sx(args[0], ring_radius)
+        steady = ff if features == "features" else steady_sx(args[0], ring_radius)
     name = f"ppo_actor_{tag}_{layers_digest(layers)}"
     sym, out, steady_mx = network_graph(name, args, z, steady, layers)
     fn = cs.Function(name, sym, [priors.command_sx(sym[0], out, steady_mx)])
@@ -118,5 +116,5 @@ def compiled_actor(
     fn = actor_function(priors, ring_radius, layers)
     if fn is None:
         return None
-    features = FEATURE_SETS[priors.observation_mode]
+    features = priors.observation_mode  # the feature sets share the modes' names
     return CompiledInputs(features, mean, inv_std, ring_radius=ring_radius, clip=clip, fn=fn)

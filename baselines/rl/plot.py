@@ -1,10 +1,14 @@
-"""Learning curves of RL runs from their ``evaluations.csv`` and ``progress.csv``.
+"""Learning curves of training runs (any engine) from their ``evaluations.csv`` and
+``progress.csv`` (the schemas of ``baselines.runs``).
 
-    python -m baselines.rl.plot runs/ppo runs/sac --out docs/figures/learning_curves.png
+    python -m baselines.rl.plot runs/ppo runs/torchrl_ppo runs/rllib_ppo \
+        --out docs/figures/learning_curves.png
 
 Top: success rate and mean return of the periodic evaluations (``baselines.evaluate``,
 fixed seeds, deterministic policy); bottom: the final position error of those
-evaluations and the training episodes' mean return (``rollout/ep_rew_mean``) when logged.
+evaluations and the training episodes' mean return. Runs written before the shared
+schemas (SB3's logger columns, ``timesteps``) are read through ``LEGACY_COLUMNS``: the
+committed ``baselines/pretrained`` runs have them.
 
     python -m baselines.rl.plot --group "PPO-Lag=runs/a0,runs/a1,runs/a2" --group ... \
         --out docs/figures/learning_curves_seeds.png
@@ -25,12 +29,26 @@ from typing import Any
 
 import numpy as np
 
+# Earlier runs' column names -> the shared schemas' (SB3's logger, the old RLlib trainer).
+LEGACY_COLUMNS = {
+    "time/total_timesteps": "robot_steps",
+    "timesteps": "robot_steps",
+    "rollout/ep_rew_mean": "episode_return_mean",
+    "rollout/ep_len_mean": "episode_len_mean",
+    "lagrangian/episode_cost": "episode_cost_mean",
+    "lagrangian/multiplier": "multiplier",
+}
+
 
 def read_csv(path: Path) -> dict[str, np.ndarray]:
+    """The columns of a CSV as float arrays, earlier names renamed (``LEGACY_COLUMNS``)."""
     with open(path, newline="") as fh:
         rows = list(csv.DictReader(fh))
     keys = list(rows[0]) if rows else []
-    return {k: np.array([_num(r.get(k)) for r in rows], dtype=float) for k in keys}
+    return {
+        LEGACY_COLUMNS.get(k, k): np.array([_num(r.get(k)) for r in rows], dtype=float)
+        for k in keys
+    }
 
 
 def _num(x: str | None) -> float:
@@ -57,8 +75,10 @@ def label(run: Path) -> str:
     cfg = run / "config.json"
     if cfg.exists():
         c = json.loads(cfg.read_text())
-        minutes = c.get("wall_time_s", float("nan")) / 60
-        return f"{c['algo'].upper()} ({c.get('timesteps_done', 0):,} steps, {minutes:.0f} min)"
+        minutes = (c.get("wall_time_s") or float("nan")) / 60
+        steps = c.get("robot_steps", c.get("timesteps_done", 0))
+        engine = c.get("engine", "sb3")
+        return f"{engine} {c['algo'].upper()} ({steps:,} steps, {minutes:.1f} min)"
     return run.name
 
 
@@ -81,17 +101,17 @@ def plot(runs: list[Path], out: Path) -> None:
         color, name = f"C{k}", label(run)
         ev = run / "evaluations.csv"
         if ev.exists():
-            e = read_csv(ev)
-            t = e["timesteps"]
+            e = _first_rung(ev)
+            t = e["robot_steps"]
             axes[0, 0].plot(t, e["success_rate"], "o-", color=color, ms=3, label=name)
             axes[0, 1].plot(t, e["mean_return"], "o-", color=color, ms=3, label=name)
             if "final_pos_error_m" in e:
                 axes[1, 0].plot(t, e["final_pos_error_m"], "o-", color=color, ms=3, label=name)
         p = progress(run)
-        if "rollout/ep_rew_mean" in p:
-            ok = np.isfinite(p["rollout/ep_rew_mean"])
+        if "episode_return_mean" in p:
+            ok = np.isfinite(p["episode_return_mean"])
             axes[1, 1].plot(
-                p["time/total_timesteps"][ok], p["rollout/ep_rew_mean"][ok], color=color, label=name
+                p["robot_steps"][ok], p["episode_return_mean"][ok], color=color, label=name
             )
     titles = [
         ("eval success rate", "success rate"),
@@ -140,15 +160,15 @@ def plot_groups(groups: dict[str, list[Path]], out: Path) -> None:
         series: list[list[tuple[np.ndarray, np.ndarray]]] = [[], [], [], []]
         for run in runs:
             p = progress(run)
-            t = p.get("time/total_timesteps")
-            for j, key in enumerate(("rollout/ep_rew_mean", "lagrangian/episode_cost")):
+            t = p.get("robot_steps")
+            for j, key in enumerate(("episode_return_mean", "episode_cost_mean")):
                 if t is not None and key in p:
                     ok = np.isfinite(p[key])
                     series[j].append((t[ok], p[key][ok]))
             e = _rung_evaluations(run)
             if e is not None:
-                series[2].append((e["timesteps"], e["success_rate"]))
-                series[3].append((e["timesteps"], e["clean_success_rate"]))
+                series[2].append((e["robot_steps"], e["success_rate"]))
+                series[3].append((e["robot_steps"], e["clean_success_rate"]))
         for ax, curves in zip(axes.flat, series, strict=True):
             if not curves:
                 continue
@@ -184,12 +204,24 @@ def _rung_evaluations(run: Path) -> dict[str, np.ndarray] | None:
     ]
     if not rows:
         return None
-    keys = ("timesteps", "success_rate", "clean_success_rate")
-    return {k: np.array([_num(r[k]) for r in rows]) for k in keys}
+    steps = "robot_steps" if "robot_steps" in rows[0] else "timesteps"
+    out = {k: np.array([_num(r[k]) for r in rows]) for k in ("success_rate", "clean_success_rate")}
+    return {"robot_steps": np.array([_num(r[steps]) for r in rows]), **out}
+
+
+def _first_rung(path: Path) -> dict[str, np.ndarray]:
+    """evaluations.csv's rows of its first rung (all rows where it has no rung)."""
+    table = read_csv(path)
+    with open(path, newline="") as fh:
+        rungs = [r.get("rung") for r in csv.DictReader(fh)]
+    if not rungs or rungs[0] is None:
+        return table
+    keep = np.array([r == rungs[0] for r in rungs])
+    return {k: v[keep] for k, v in table.items()}
 
 
 def _training_rung(config: dict, first: str | None) -> str | None:
-    from baselines.rl.train import LADDER
+    from baselines.runs import LADDER
 
     n = config.get("overrides", {}).get("n_agents", 2)
     for name, (scenario, overrides) in LADDER.items():

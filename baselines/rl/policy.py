@@ -55,7 +55,7 @@ def _load_cached(algo: str, folder: str, stamps: tuple) -> tuple[Any, Any]:
     import torch
     from stable_baselines3 import PPO, SAC
 
-    torch.set_num_threads(1)  # 2-thread torch collapses when anything else runs here
+    torch.set_num_threads(1)  # one episode per process: threads shared with others stall
     model = {"ppo": PPO, "sac": SAC}[algo].load(Path(folder) / "model.zip", device="cpu")
     norm_path = Path(folder) / "vecnormalize.pkl"
     stats = None

@@ -1,7 +1,7 @@
 """PPO with TorchRL over the TorchRL view of ``VectorEnv``, every tensor on one device.
 
     python -m baselines.train --engine torchrl --algo ppo --scenario short --num-envs 4096 \\
-        --backend cuda --device 0 --total-steps 50000000 --out runs/torchrl_ppo
+        --backend cuda --device 0 --robot-steps 50000000 --out runs/torchrl_ppo
 
 What it is for: training where the environment runs (``VectorEnv(backend="cuda")``), so
 that rollouts, advantages and updates never copy through the host; on the CPU backend the
@@ -18,29 +18,26 @@ lambda 0.95, clip 0.2, no entropy bonus, value coefficient 0.5, gradient norm 0.
 initial action std e^-1, observations normalized by running statistics (kept in the
 actor, so the saved actor normalizes itself) and rewards scaled by the running spread of
 the discounted return, as ``VecNormalize`` does; ``--hp KEY=JSON`` changes them
-(``HYPERPARAMETERS``). Not here: the Lagrangian cost, a central critic, resuming,
-periodic evaluations (evaluate the saved actor with ``baselines.evaluate``).
+(``HYPERPARAMETERS``). ``--cost`` (``baselines.lagrangian``) subtracts the multiplier
+times each robot's constraint cost from its reward before the advantages, the constraint
+values read from each ``VectorEnv`` step (``StepCosts``). Not here: a central critic.
 
-The run folder gets ``config.json`` (command, seed, hardware, settings, robot-steps, wall
-time, robot-steps/s with the updates), ``progress.csv`` (one row per iteration) and
+This is the engine of ``baselines.train --engine torchrl``: the run layer
+(``baselines.runs``) writes the records and evaluations; the run folder also gets
 ``actor.pt``, which ``--policy torchrl:RUN`` evaluates (``TorchRLPolicy``: plain torch,
-deterministic action tanh(loc), the run's priors applied as ``SB3Policy`` does).
+deterministic action tanh(loc), the run's priors applied as ``SB3Policy`` does), and
+``trainer.pt`` (critic, optimizer, return statistics), which ``--resume RUN`` reads.
 
 May import: numpy, torch, tensordict and torchrl (inside the training functions: the
-policy loader needs torch alone), ``baselines.options``, ``baselines.rl.policy`` (a
-run's priors) and ``uvms_env``.
+policy loader needs torch alone), ``baselines.runs``, ``baselines.lagrangian``,
+``baselines.rl.policy`` (a run's priors) and ``uvms_env``.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import math
 import os
-import platform
-import shlex
-import sys
 import time
 import warnings
 from functools import lru_cache
@@ -53,8 +50,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from baselines.options import add_option_arguments, key_value_pairs
+from baselines.lagrangian import Lagrangian
 from baselines.rl.policy import run_priors
+from baselines.runs import TRAIN_ENV_DEFAULTS, Run, seeded_pool
 from uvms_env.policy import AgentSpec
 
 ALGOS = ("ppo",)
@@ -77,29 +75,33 @@ HYPERPARAMETERS: dict[str, Any] = {
     "normalize_observation": True,
     "scale_reward": True,
 }
-# The SB3 trainer's reasons hold here: the internal-wrench metric changes nothing the
-# policy sees (~6% of a step), the seeded families' episodes take one of the bank's first
-# 1,024 geometries, float32 is the fast mode, and one kernel thread leaves the other core
-# of a 2-core machine to torch.
-TRAIN_ENV_DEFAULTS: dict[str, Any] = {"internal_wrench_every": 0}
-DEFAULT_GEOMETRY_POOL = 1024
+TRAINER_FILE = "trainer.pt"
+# As the SB3 engine: a seeded family's episodes take the bank's first 1,024 geometries.
+DEFAULTS: dict[str, Any] = {"num_envs": 64, "geometry_pool": 1024}
+# As the SB3 engine: float32 is the fast mode, and one kernel thread leaves the other
+# core of a small machine to torch.
 DEFAULT_DTYPE = "float32"
 DEFAULT_ENV_THREADS = 1
 CLIP_OBSERVATION = 10.0  # VecNormalize's clip_obs and clip_reward
-PROGRESS_COLUMNS = (
-    "iteration",
-    "robot_steps",
-    "episodes",
-    "episode_return_mean",
-    "episode_len_mean",
-    "loss_objective",
-    "loss_critic",
-    "action_std",
-    "collect_s",
-    "update_s",
-    "time_total_s",
-    "robot_steps_per_s",
-)
+
+
+OPTIONS_NOTE = f"--hp KEY=JSON sets one of {', '.join(HYPERPARAMETERS)}"
+
+
+def add_arguments(g: Any) -> None:
+    """The TorchRL engine's own options."""
+    g.add_argument("--backend", choices=BACKENDS, default="cpu", help="the VectorEnv backend")
+    g.add_argument(
+        "--device",
+        default=None,
+        help="GPU index (default 0 with --backend cuda) or cpu: where the env's tensors, "
+        "the networks and the updates live",
+    )
+    g.add_argument("--dtype", choices=DTYPES, default=DEFAULT_DTYPE, help="the step's precision")
+    g.add_argument(
+        "--env-threads", type=int, default=DEFAULT_ENV_THREADS, help="host threads of the step"
+    )
+    g.add_argument("--torch-threads", type=int, default=1)
 
 
 # -- networks (plain torch: the evaluator loads them without TorchRL) ------------------------
@@ -351,145 +353,161 @@ class EpisodeTracker:
         return (reward / std).clamp(-CLIP_OBSERVATION, CLIP_OBSERVATION)
 
 
-def train(
-    scenario: str,
-    num_envs: int,
-    total_steps: int,
-    seed: int,
-    out: Path,
-    backend: str = "cpu",
-    device: str | int | None = None,
-    dtype: str = DEFAULT_DTYPE,
-    geometry_pool: int | None = DEFAULT_GEOMETRY_POOL,
-    env_threads: int | None = DEFAULT_ENV_THREADS,
-    overrides: dict[str, Any] | None = None,
-    hyperparameters: dict[str, Any] | None = None,
-    torch_threads: int = 1,
-    command: list[str] | None = None,
-    progress: bool = True,
-) -> Path:
-    """Train until at least ``total_steps`` robot-steps (whole iterations); write the run
-    folder ``out``; return it."""
-    from torchrl.collectors import Collector
-    from torchrl.data import LazyTensorStorage, ReplayBuffer
-    from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
-    from torchrl.objectives import ClipPPOLoss, ValueEstimators
+class StepCosts:
+    """Each ``VectorEnv.step``'s constraint values (K, N, 8) and violation counts (K, N),
+    on the host, in step order: the TorchRL env does not pass its infos on, so the engine
+    reads them where the step returns them."""
 
-    from uvms_env.vector.bank import SEEDED_FAMILIES
-    from uvms_env.vector.torchrl_env import GROUP
+    def __init__(self, vector_env: Any) -> None:
+        self.rows: list[tuple[np.ndarray, np.ndarray]] = []
+        step = vector_env.step
 
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    if dtype not in DTYPES:
-        raise ValueError(f"dtype must be one of {DTYPES}, got {dtype!r}")
-    unknown = set(hyperparameters or {}) - set(HYPERPARAMETERS)
-    if unknown:
-        known = list(HYPERPARAMETERS)
-        raise ValueError(f"unknown hyperparameters {sorted(unknown)}; known: {known}")
-    hp = {**HYPERPARAMETERS, **(hyperparameters or {})}
-    device = parse_device(device, backend)
-    overrides = dict(overrides or {})
-    seeded = scenario in SEEDED_FAMILIES and overrides.get("reseed_geometry", True)
-    pool = geometry_pool if seeded and geometry_pool else None
-    torch.set_num_threads(torch_threads)
-    torch.manual_seed(seed)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+        def recording(actions: Any) -> Any:
+            out = step(actions)
+            infos = out[4]
+            self.rows.append((_host(infos["constraint_values"]), _host(infos["cost"])))
+            return out
 
-    setup_start = time.perf_counter()
-    env = make_env(scenario, num_envs, backend, device, dtype, pool, env_threads, overrides)
-    env.set_seed(seed)
-    dev = env.device
-    n = env.vector_env.n
-    actor, critic, actor_net, critic_net = build_modules(env, hp)
-    loss = ClipPPOLoss(
-        actor_network=actor,
-        critic_network=critic,
-        clip_epsilon=hp["clip_epsilon"],
-        entropy_bonus=hp["entropy_coef"] > 0,
-        entropy_coeff=hp["entropy_coef"],
-        critic_coeff=hp["critic_coef"],
-        loss_critic_type="l2",
-        normalize_advantage=True,
-    )
-    loss.set_keys(
-        reward=(GROUP, "reward"),
-        action=(GROUP, "action"),
-        value=(GROUP, "state_value"),
-        done=(GROUP, "done"),
-        terminated=(GROUP, "terminated"),
-        advantage=(GROUP, "advantage"),
-        value_target=(GROUP, "value_target"),
-    )
-    # The advantages are normalized over the minibatch's rows and robots together (one
-    # shared policy), which TorchRL's multi-agent warning asks to confirm on every call.
-    warnings.filterwarnings("ignore", "You requested advantage normalization", UserWarning)
-    loss.make_value_estimator(ValueEstimators.GAE, gamma=hp["gamma"], lmbda=hp["gae_lambda"])
-    optimizer = torch.optim.Adam(loss.parameters(), lr=hp["lr"])
-    steps = int(hp["rollout_steps"])
-    rows_per_batch = num_envs * steps
-    robot_steps_per_batch = rows_per_batch * n
-    iterations = max(1, math.ceil(total_steps / robot_steps_per_batch))
-    collector = Collector(
-        env,
-        actor,
-        frames_per_batch=rows_per_batch,
-        total_frames=iterations * rows_per_batch,
-        device=dev,
-        auto_register_policy_transforms=False,  # the actor is memoryless: no InitTracker
-    )
-    minibatch = max(1, rows_per_batch // int(hp["minibatches"]))
-    buffer = ReplayBuffer(
-        storage=LazyTensorStorage(rows_per_batch, device=dev),
-        sampler=SamplerWithoutReplacement(),
-        batch_size=minibatch,
-    )
-    tracker = EpisodeTracker(num_envs, hp["gamma"], dev)
-    settings = {
-        "observation_size": actor_net.body[0].in_features,
-        "hidden": list(hp["hidden"]),
-        "normalize_observation": bool(hp["normalize_observation"]),
-    }
-    config: dict[str, Any] = {
-        "engine": "torchrl",
-        "algo": "ppo",
-        "command": shlex.join(command) if command else None,
-        "scenario": scenario,
-        "num_envs": num_envs,
-        "robots": num_envs * n,
-        "seed": seed,
-        "backend": backend,
-        "device": str(dev),
-        "dtype": dtype,
-        "geometry_pool": pool,
-        "env_threads": env_threads,
-        "overrides": overrides,
-        "env_defaults": TRAIN_ENV_DEFAULTS,
-        "hyperparameters": hp,
-        "minibatch_rows": minibatch,
-        "robot_steps_per_iteration": robot_steps_per_batch,
-        "total_steps": total_steps,
-        "torch_threads": torch.get_num_threads(),
-        "hardware": hardware(dev),
-        "setup_s": round(time.perf_counter() - setup_start, 1),
-    }
-    write_json(out / "config.json", config)
+        vector_env.step = recording
 
-    start = time.perf_counter()
-    collect_total = update_total = 0.0
-    robot_steps = 0
-    episodes: list[float] = []
-    with open(out / "progress.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=PROGRESS_COLUMNS)
-        writer.writeheader()
+    def take(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        rows, self.rows = self.rows, []
+        return rows
+
+
+def _host(x: Any) -> np.ndarray:
+    return np.asarray(x.get() if hasattr(x, "get") and not isinstance(x, np.ndarray) else x)
+
+
+class Engine:
+    """TorchRL's PPO under a ``baselines.runs.Run`` (``baselines.runs.Engine``)."""
+
+    def __init__(self, run: Run, algo: str, args: argparse.Namespace) -> None:
+        if algo not in ALGOS:
+            raise ValueError(f"the torchrl engine trains {ALGOS}, not {algo!r}")
+        if args.backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {BACKENDS}, got {args.backend!r}")
+        if args.dtype not in DTYPES:
+            raise ValueError(f"dtype must be one of {DTYPES}, got {args.dtype!r}")
+        unknown = set(run.settings.hyperparameters) - set(HYPERPARAMETERS)
+        if unknown:
+            known = list(HYPERPARAMETERS)
+            raise ValueError(f"unknown hyperparameters {sorted(unknown)}; known: {known}")
+        self.run, self.args = run, args
+        self.hp = {**HYPERPARAMETERS, **run.settings.hyperparameters}
+        self.collector: Any = None
+        self.costs: StepCosts | None = None
+        self.lagrangian: Lagrangian | None = None
+        self.robot_steps = 0
+        self.totals = {"collect_s": 0.0, "update_s": 0.0, "episodes": 0}
+
+    def build(self) -> dict[str, Any]:
+        from torchrl.collectors import Collector
+        from torchrl.data import LazyTensorStorage, ReplayBuffer
+        from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
+        from torchrl.objectives import ClipPPOLoss, ValueEstimators
+
+        from uvms_env.vector.torchrl_env import GROUP
+
+        s, a, hp = self.run.settings, self.args, self.hp
+        device = parse_device(a.device, a.backend)
+        pool = seeded_pool(s.scenario, s.overrides, s.geometry_pool)
+        torch.set_num_threads(a.torch_threads)
+        torch.manual_seed(s.seed + self.run.config["resumes"])
+        setup_start = time.perf_counter()
+        env = make_env(
+            s.scenario, s.num_envs, a.backend, device, a.dtype, pool, a.env_threads, s.overrides
+        )
+        env.set_seed(self.run.episode_seed)
+        dev = self.dev = env.device
+        n = env.vector_env.n
+        if s.cost is not None:
+            self.costs = StepCosts(env.vector_env)
+            self.lagrangian = Lagrangian(s.cost, s.num_envs * n)
+        actor, critic, actor_net, critic_net = build_modules(env, hp)
+        loss = ClipPPOLoss(
+            actor_network=actor,
+            critic_network=critic,
+            clip_epsilon=hp["clip_epsilon"],
+            entropy_bonus=hp["entropy_coef"] > 0,
+            entropy_coeff=hp["entropy_coef"],
+            critic_coeff=hp["critic_coef"],
+            loss_critic_type="l2",
+            normalize_advantage=True,
+        )
+        loss.set_keys(
+            reward=(GROUP, "reward"),
+            action=(GROUP, "action"),
+            value=(GROUP, "state_value"),
+            done=(GROUP, "done"),
+            terminated=(GROUP, "terminated"),
+            advantage=(GROUP, "advantage"),
+            value_target=(GROUP, "value_target"),
+        )
+        # The advantages are normalized over the minibatch's rows and robots together (one
+        # shared policy), which TorchRL's multi-agent warning asks to confirm on every call.
+        warnings.filterwarnings("ignore", "You requested advantage normalization", UserWarning)
+        loss.make_value_estimator(ValueEstimators.GAE, gamma=hp["gamma"], lmbda=hp["gae_lambda"])
+        optimizer = torch.optim.Adam(loss.parameters(), lr=hp["lr"])
+        tracker = EpisodeTracker(s.num_envs, hp["gamma"], dev)
+        if s.resume is not None:
+            self.robot_steps = self._restore(
+                Path(s.resume), actor_net, critic_net, optimizer, tracker
+            )
+        steps = int(hp["rollout_steps"])
+        rows_per_batch = s.num_envs * steps
+        self.robot_steps_per_batch = rows_per_batch * n
+        remaining = max(0, s.robot_steps - self.robot_steps)
+        self.iterations = math.ceil(remaining / self.robot_steps_per_batch)
+        self.collector = Collector(
+            env,
+            actor,
+            frames_per_batch=rows_per_batch,
+            total_frames=max(1, self.iterations) * rows_per_batch,
+            device=dev,
+            auto_register_policy_transforms=False,  # the actor is memoryless: no InitTracker
+        )
+        minibatch = max(1, rows_per_batch // int(hp["minibatches"]))
+        self.buffer = ReplayBuffer(
+            storage=LazyTensorStorage(rows_per_batch, device=dev),
+            sampler=SamplerWithoutReplacement(),
+            batch_size=minibatch,
+        )
+        self.loss, self.optimizer, self.tracker = loss, optimizer, tracker
+        self.actor_net, self.critic_net = actor_net, critic_net
+        self.run.config["hardware"].update(hardware(dev))
+        return {
+            "backend": a.backend,
+            "device": str(dev),
+            "dtype": a.dtype,
+            "geometry_pool": pool,
+            "env_threads": a.env_threads,
+            "robots": s.num_envs * n,
+            "hyperparameters": hp,
+            "minibatch_rows": minibatch,
+            "robot_steps_per_iteration": self.robot_steps_per_batch,
+            "torch_threads": torch.get_num_threads(),
+            "setup_s": round(time.perf_counter() - setup_start, 1),
+        }
+
+    def learn(self) -> int:
+        from uvms_env.vector.torchrl_env import GROUP
+
+        if self.iterations == 0:
+            return self.robot_steps
+        hp, loss, tracker = self.hp, self.loss, self.tracker
         tick = time.perf_counter()
-        for iteration, batch in enumerate(collector, start=1):
-            if dev.type == "cuda":
-                torch.cuda.synchronize(dev)  # the timings below are the device's
+        for batch in self.collector:
+            if self.dev.type == "cuda":
+                torch.cuda.synchronize(self.dev)  # the timings below are the device's
             collect_s = time.perf_counter() - tick
             tock = time.perf_counter()
             reward = batch["next", GROUP, "reward"]  # (K, T, N, 1): the team's, per robot
             done = batch["next", "done"][..., 0]
+            if self.lagrangian is not None:
+                reward = reward - self._penalties(done)
+                batch["next", GROUP, "reward"] = reward
+            # the team's return as robot 0 receives it (the SB3 engine's monitor, too)
             returns, lengths = tracker.observe(reward[:, :, 0, 0], done)
             if hp["scale_reward"]:
                 batch["next", GROUP, "reward"] = tracker.scale(reward)
@@ -499,163 +517,133 @@ def train(
                     params=loss.critic_network_params,
                     target_params=loss.target_critic_network_params,
                 )
-            buffer.extend(batch.reshape(-1))
-            objective, critic_loss = [], []
+            self.buffer.extend(batch.reshape(-1))
             for _ in range(int(hp["epochs"]) * int(hp["minibatches"])):
-                values = loss(buffer.sample())
+                values = loss(self.buffer.sample())
                 total = values["loss_objective"] + values["loss_critic"]
                 if "loss_entropy" in values.keys():
                     total = total + values["loss_entropy"]
                 total.backward()
                 nn.utils.clip_grad_norm_(loss.parameters(), hp["max_grad_norm"])
-                optimizer.step()
-                optimizer.zero_grad()
-                objective.append(values["loss_objective"].detach())
-                critic_loss.append(values["loss_critic"].detach())
+                self.optimizer.step()
+                self.optimizer.zero_grad()
             if hp["normalize_observation"]:
                 # after the update: the rollout was collected and is learned from with
                 # the same statistics, so the PPO ratio starts at 1
                 obs = batch[GROUP, "observation"]
-                actor_net.norm.update(obs)
-                critic_net.norm.update(obs)
-            collector.update_policy_weights_()
-            losses = torch.stack([torch.stack(objective).mean(), torch.stack(critic_loss).mean()])
-            objective_mean, critic_mean = losses.tolist()
-            update_s = time.perf_counter() - tock
-            collect_total += collect_s
-            update_total += update_s
-            robot_steps += robot_steps_per_batch
-            episodes += returns
-            row = {
-                "iteration": iteration,
-                "robot_steps": robot_steps,
-                "episodes": len(episodes),
-                "episode_return_mean": _mean(returns),
-                "episode_len_mean": _mean(lengths),
-                "loss_objective": objective_mean,
-                "loss_critic": critic_mean,
-                "action_std": float(actor_net.log_std.detach().exp().mean()),
-                "collect_s": round(collect_s, 3),
-                "update_s": round(update_s, 3),
-                "time_total_s": round(time.perf_counter() - start, 2),
-                "robot_steps_per_s": round(robot_steps_per_batch / (collect_s + update_s), 1),
-            }
-            writer.writerow(row)
-            fh.flush()
-            if progress:
-                print(
-                    f"iter {iteration}/{iterations}: {robot_steps} robot-steps, return "
-                    f"{row['episode_return_mean']}, {row['robot_steps_per_s']} robot-steps/s "
-                    f"(collect {collect_s:.1f} s, update {update_s:.1f} s)",
-                    flush=True,
-                )
+                self.actor_net.norm.update(obs)
+                self.critic_net.norm.update(obs)
+            self.collector.update_policy_weights_()
+            if self.dev.type == "cuda":
+                torch.cuda.synchronize(self.dev)
+            self.totals["collect_s"] += collect_s
+            self.totals["update_s"] += time.perf_counter() - tock
+            self.totals["episodes"] += len(returns)
+            self.robot_steps += self.robot_steps_per_batch
+            cost = multiplier = None
+            if self.lagrangian is not None:
+                cost = self.lagrangian.end_rollout()
+                multiplier = self.lagrangian.multiplier
+            self.run.after_iteration(
+                self,
+                self.robot_steps,
+                returns=returns,
+                lengths=lengths,
+                episode_cost=cost,
+                multiplier=multiplier,
+            )
             tick = time.perf_counter()
-    wall = time.perf_counter() - start
-    collector.shutdown()
-    save_actor(actor_net, settings, out / ACTOR_FILE)
-    config.update(
-        iterations=iterations,
-        robot_steps=robot_steps,
-        episodes=len(episodes),
-        wall_time_s=round(wall, 1),
-        collect_s=round(collect_total, 1),
-        update_s=round(update_total, 1),
-        robot_steps_per_s=round(robot_steps / wall, 1) if wall > 0 else None,
-    )
-    write_json(out / "config.json", config)
-    return out
+        return self.robot_steps
 
+    def _penalties(self, done: torch.Tensor) -> torch.Tensor:
+        """(K, T, N, 1) multiplier times each robot's constraint cost of the rollout's T
+        steps (``baselines.lagrangian``), with the multiplier the rollout ran with."""
+        assert self.costs is not None and self.lagrangian is not None
+        rows = self.costs.take()
+        k, steps = done.shape
+        if len(rows) != steps:
+            raise RuntimeError(f"recorded {len(rows)} env steps for a rollout of {steps}")
+        ended = done.cpu().numpy()
+        n = rows[0][1].shape[1]
+        multiplier = self.lagrangian.multiplier
+        cost = np.stack(
+            [
+                self.lagrangian.penalize(g, count, np.repeat(ended[:, t], n))
+                for t, (g, count) in enumerate(rows)
+            ],
+            1,
+        )  # (K N, T) -> (K, T, N, 1) below
+        cost = cost.reshape(k, n, steps).transpose(0, 2, 1)[..., None]
+        return torch.as_tensor(multiplier * cost, dtype=torch.float32, device=self.dev)
 
-def _mean(values: list[float] | list[int]) -> float | None:
-    return round(float(np.mean(values)), 4) if values else None
+    def save(self, folder: Path) -> None:
+        folder.mkdir(parents=True, exist_ok=True)
+        save_actor(self.actor_net, self._actor_settings(), folder / ACTOR_FILE)
+        if folder == self.run.folder:
+            torch.save(self._trainer_state(), folder / TRAINER_FILE)
+
+    def checkpoint(self, robot_steps: int) -> None:
+        folder = self.run.folder / "checkpoints" / f"robot_steps_{robot_steps}"
+        folder.mkdir(parents=True, exist_ok=True)
+        save_actor(self.actor_net, self._actor_settings(), folder / ACTOR_FILE)
+        torch.save(self._trainer_state(), folder / TRAINER_FILE)
+
+    def policy(self, folder: Path) -> str:
+        return f"torchrl:{folder}"
+
+    def results(self) -> dict[str, Any]:
+        return {k: round(v, 1) if isinstance(v, float) else v for k, v in self.totals.items()}
+
+    def close(self) -> None:
+        if self.collector is not None:
+            self.collector.shutdown()
+            self.collector = None
+
+    def _actor_settings(self) -> dict[str, Any]:
+        return {
+            "observation_size": self.actor_net.body[0].in_features,
+            "hidden": list(self.hp["hidden"]),
+            "normalize_observation": bool(self.hp["normalize_observation"]),
+        }
+
+    def _trainer_state(self) -> dict[str, Any]:
+        def host(state: dict[str, Any]) -> dict[str, Any]:
+            return {k: v.detach().cpu() for k, v in state.items()}
+
+        return {
+            "robot_steps": self.robot_steps,
+            "actor": host(self.actor_net.state_dict()),
+            "critic": host(self.critic_net.state_dict()),
+            "return_stats": host(self.tracker.ret_stats.state_dict()),
+            "optimizer": self.optimizer.state_dict(),
+        }
+
+    def _restore(
+        self,
+        path: Path,
+        actor: nn.Module,
+        critic: nn.Module,
+        optimizer: Any,
+        tracker: EpisodeTracker,
+    ) -> int:
+        """Load ``trainer.pt`` of a run folder or checkpoint; returns its robot-steps."""
+        file = path / TRAINER_FILE if path.is_dir() else path
+        if not file.is_file():
+            raise FileNotFoundError(f"nothing to resume at {path} (expected {TRAINER_FILE})")
+        state = torch.load(file, map_location=self.dev, weights_only=True)
+        actor.load_state_dict(state["actor"])
+        critic.load_state_dict(state["critic"])
+        tracker.ret_stats.load_state_dict(state["return_stats"])
+        optimizer.load_state_dict(state["optimizer"])
+        print(f"resuming {file} at {state['robot_steps']} robot-steps")
+        return int(state["robot_steps"])
 
 
 def hardware(device: torch.device) -> dict[str, Any]:
+    """The libraries and the GPU, added to the run's hardware record."""
     import torchrl
 
-    from uvms_env.vector.kernels import available_cores
-
-    info: dict[str, Any] = {
-        "machine": platform.machine(),
-        "cores": available_cores(),
-        "torch": torch.__version__,
-        "torchrl": torchrl.__version__,
-    }
+    info: dict[str, Any] = {"torch": torch.__version__, "torchrl": torchrl.__version__}
     if device.type == "cuda":
         info["gpu"] = torch.cuda.get_device_name(device)
     return info
-
-
-def write_json(path: Path, data: dict[str, Any]) -> None:
-    path.write_text(json.dumps(data, indent=2, default=str) + "\n")
-
-
-def main(argv: list[str] | None = None) -> None:
-    argv = sys.argv[1:] if argv is None else list(argv)
-    ap = argparse.ArgumentParser(
-        prog="python -m baselines.train --engine torchrl",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    ap.add_argument("--algo", choices=ALGOS, required=True)
-    ap.add_argument("--scenario", default="short", help="short (learning-sized), paper, random")
-    ap.add_argument(
-        "--num-envs", "--n-envs", type=int, default=64, help="env copies (each has N robots)"
-    )
-    ap.add_argument(
-        "--total-steps",
-        "--total-timesteps",
-        type=int,
-        default=200_000,
-        help="robot-steps (rounded up to whole iterations)",
-    )
-    ap.add_argument("--backend", choices=BACKENDS, default="cpu", help="the VectorEnv backend")
-    ap.add_argument(
-        "--device",
-        default=None,
-        help="GPU index (default 0 with --backend cuda) or cpu: where the env's tensors, "
-        "the networks and the updates live",
-    )
-    ap.add_argument("--seed", type=int, default=0)
-    add_option_arguments(ap, f"PPO setting, one of {', '.join(HYPERPARAMETERS)}")
-    ap.add_argument("--dtype", choices=DTYPES, default=DEFAULT_DTYPE, help="the step's precision")
-    ap.add_argument(
-        "--geometry-pool",
-        type=int,
-        default=DEFAULT_GEOMETRY_POOL,
-        help="seeded families: episodes use the geometries of this many bank seeds "
-        "(0: each copy keeps its first)",
-    )
-    ap.add_argument(
-        "--env-threads", type=int, default=DEFAULT_ENV_THREADS, help="host threads of the step"
-    )
-    ap.add_argument("--torch-threads", type=int, default=1)
-    ap.add_argument("--no-progress", action="store_true")
-    ap.add_argument("--out", type=Path, default=Path("runs/torchrl_ppo"))
-    args = ap.parse_args(argv)
-    out = train(
-        args.scenario,
-        args.num_envs,
-        args.total_steps,
-        args.seed,
-        args.out,
-        backend=args.backend,
-        device=args.device,
-        dtype=args.dtype,
-        geometry_pool=args.geometry_pool,
-        env_threads=args.env_threads,
-        overrides=key_value_pairs(args.env_option),
-        hyperparameters=key_value_pairs(args.hp),
-        torch_threads=args.torch_threads,
-        command=["python", "-m", "baselines.train", "--engine", "torchrl", *argv],
-        progress=not args.no_progress,
-    )
-    config = json.loads((out / "config.json").read_text())
-    print(
-        f"saved {out / ACTOR_FILE}: {config['robot_steps']} robot-steps in "
-        f"{config['wall_time_s']} s, {config['robot_steps_per_s']} robot-steps/s"
-    )
-
-
-if __name__ == "__main__":
-    main()

@@ -10,7 +10,8 @@ The team ends its episode together (shared termination); when a copy's episode e
 each of its sub-environments reports done, its ``terminal_observation`` and
 ``TimeLimit.truncated`` in infos (SB3 conventions) and the copy is reset automatically.
 SuperSuit's equivalent is slated for deprecation and breaks on current versions, so
-this small adapter is ours. May import: numpy, gymnasium, stable-baselines3.
+this small adapter is ours. May import: numpy, gymnasium, stable-baselines3 and
+``uvms_env.vector.seeding``.
 """
 
 from __future__ import annotations
@@ -21,11 +22,14 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
+from uvms_env.vector.seeding import episode_seed
+
 
 class ParallelVecEnv(VecEnv):
-    """Episode ``e`` of copy ``k`` is reset with seed ``seed + 10_007 k + e`` (for the
-    seeded scenario families this also picks the geometry); ``seed(s)`` restarts that
-    sequence from ``s`` at the next ``reset()``."""
+    """Episode ``e`` of copy ``k`` of K is reset with seed ``seed + k + K e``, the
+    adapters' one rule (``uvms_env.vector.seeding``; for the seeded scenario families it
+    also picks the geometry); ``seed(s)`` restarts that sequence from ``s`` at the next
+    ``reset()``."""
 
     def __init__(self, factory: Callable[[int], Any], n_copies: int, seed: int = 0) -> None:
         """``factory(copy_index)`` returns a new PettingZoo ParallelEnv."""
@@ -52,7 +56,7 @@ class ParallelVecEnv(VecEnv):
         return copy * self.n_agents + agent_index
 
     def _reset_copy(self, copy: int) -> dict[str, np.ndarray]:
-        seed = self._seed + 10_007 * copy + self._episodes[copy]
+        seed = episode_seed(self._seed, copy, self._episodes[copy], len(self.envs))
         self._episodes[copy] += 1
         obs, infos = self.envs[copy].reset(seed=seed)
         for a, agent in enumerate(self.agents):
@@ -64,7 +68,8 @@ class ParallelVecEnv(VecEnv):
         if seed is not None:
             self._seed = int(seed)
             self._episodes = [0] * len(self.envs)
-        return [self._seed + 10_007 * c for c in range(len(self.envs)) for _ in self.agents]
+        k = len(self.envs)
+        return [episode_seed(self._seed, c, 0, k) for c in range(k) for _ in self.agents]
 
     def reset(self) -> np.ndarray:
         for c in range(len(self.envs)):

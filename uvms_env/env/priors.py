@@ -57,14 +57,19 @@ import numpy as np
 from uvms_env.dynamics import ObjectModel
 from uvms_env.dynamics.compiled import BufferCall, compile_function
 from uvms_env.dynamics.local_model import build_local_model, build_steady_input
+from uvms_env.dynamics.spatial import wrap_angle, wrap_angle_sx
 from uvms_env.dynamics.uvms import default_model
+from uvms_env.env.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
 from uvms_env.scenarios.geometry import NOMINAL_ARM
 
-OBS_DIM = 79  # the raw observation (uvms_env.env.observation.OBSERVATION_SIZE)
+OBS_DIM = OBSERVATION_SIZE  # the raw observation
 ACT_DIM = 8
 BASE_FEATURES = 76  # featurize
 FEATURES_SIZE = BASE_FEATURES + ACT_DIM  # observation_mode="features": featurize and a_ss
 OBSTACLE_RANGE = 5.0  # m; obstacle offsets beyond this are scaled down to it
+# the arm's joint angles (q's last 4) and rates (zeta's last 4) in the observation
+_JOINTS = slice(OBSERVATION_STRUCTURE["q"].start + 6, OBSERVATION_STRUCTURE["q"].stop)
+_JOINT_RATES = slice(OBSERVATION_STRUCTURE["zeta"].start + 6, OBSERVATION_STRUCTURE["zeta"].stop)
 ACTION_MODES = ("torque", "residual")
 OBSERVATION_MODES = ("raw", "features")
 # Residual reach 0.3 of the saturation: enough to correct a_ss (the expert's inputs stay
@@ -73,16 +78,14 @@ OBSERVATION_MODES = ("raw", "features")
 DEFAULT_RESIDUAL_SCALE = 0.3
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return (a + np.pi) % (2 * np.pi) - np.pi
-
-
 def featurize(obs: np.ndarray) -> np.ndarray:
     """(..., 79) observations -> (..., 76) float32 ``uvms-v1`` features (numpy)."""
     o = np.asarray(obs, dtype=np.float64)
     if o.shape[-1] != OBS_DIM:
         raise ValueError(f"uvms-v1 features need {OBS_DIM}-number observations, got {o.shape}")
-    psi = o[..., 5]
+    f = {name: o[..., sl] for name, sl in OBSERVATION_STRUCTURE.items()}
+    q, pose, twist = f["q"], f["object_pose"], f["object_twist"]
+    psi = q[..., 5]  # vehicle yaw
     c, s = np.cos(psi), np.sin(psi)
 
     def yaw_frame(v: np.ndarray) -> np.ndarray:  # (..., 3) NED -> heading frame
@@ -90,9 +93,8 @@ def featurize(obs: np.ndarray) -> np.ndarray:
             [c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1], v[..., 2]], -1
         )
 
-    pose = o[..., 20:26]
-    wp, goal = o[..., 32:38], o[..., 38:44]
-    obst = o[..., 50:65].reshape(*o.shape[:-1], 3, 5)
+    wp, goal, nav = f["waypoint"], f["goal"], f["nav_velocity"]
+    obst = f["obstacles"].reshape(*o.shape[:-1], 3, 5)
     present = (obst[..., 3] > 0).astype(np.float64)
     dxy = obst[..., :2]
     dist = np.linalg.norm(dxy, axis=-1, keepdims=True)
@@ -105,55 +107,57 @@ def featurize(obs: np.ndarray) -> np.ndarray:
         [ob_body * present[..., None], obst[..., 2:5] * present[..., None]], -1
     ).reshape(*o.shape[:-1], 15)
     parts = [
-        o[..., 2:5],  # vehicle depth, roll, pitch
-        o[..., 6:10],  # joint angles
-        o[..., 10:20],  # body twist and joint rates
+        q[..., 2:5],  # vehicle depth, roll, pitch
+        q[..., 6:10],  # joint angles
+        f["zeta"],  # body twist and joint rates
         pose[..., 2:5],  # object depth, roll, pitch
-        _wrap(pose[..., 5:6] - psi[..., None]),  # object yaw relative to the vehicle's
-        yaw_frame(o[..., 26:29]),
-        yaw_frame(o[..., 29:32]),
+        wrap_angle(pose[..., 5:6] - psi[..., None]),  # object yaw relative to the vehicle's
+        yaw_frame(twist[..., :3]),
+        yaw_frame(twist[..., 3:]),
         yaw_frame(wp[..., :3] - pose[..., :3]),
-        _wrap(wp[..., 3:] - pose[..., 3:]),
+        wrap_angle(wp[..., 3:] - pose[..., 3:]),
         yaw_frame(goal[..., :3] - pose[..., :3]),
-        _wrap(goal[..., 3:] - pose[..., 3:]),
-        yaw_frame(o[..., 44:47]),
-        o[..., 47:50],
+        wrap_angle(goal[..., 3:] - pose[..., 3:]),
+        yaw_frame(nav[..., :3]),
+        nav[..., 3:],
         obstacles,
-        yaw_frame(o[..., 0:3] - pose[..., :3]),
-        o[..., 65:78],  # load share, grasp offset, grasp rotation
+        yaw_frame(q[..., 0:3] - pose[..., :3]),
+        f["load_share"],
+        f["grasp_offset"],
+        f["grasp_rotation"],
     ]
     return np.concatenate(parts, -1).astype(np.float32)
 
 
-def _wrap_sx(a: cs.SX) -> cs.SX:
-    return a - 2 * math.pi * cs.floor((a + math.pi) / (2 * math.pi))
-
-
 def featurize_sx(o: cs.SX) -> cs.SX:
     """(79,) observation -> (76,) ``uvms-v1`` features, symbolically (see network.py)."""
-    psi = o[5]
+    at = {name: sl.start for name, sl in OBSERVATION_STRUCTURE.items()}
+    q, pose, twist = at["q"], at["object_pose"], at["object_twist"]
+    psi = o[q + 5]  # vehicle yaw
     c, s = cs.cos(psi), cs.sin(psi)
 
     def heading(x: cs.SX, y: cs.SX) -> list[cs.SX]:
         return [c * x + s * y, -s * x + c * y]
 
-    px, py, pz = o[20], o[21], o[22]
-    f: list[cs.SX] = [o[k] for k in range(2, 5)] + [o[k] for k in range(6, 20)]
-    f += [o[22], o[23], o[24], _wrap_sx(o[25] - psi)]
-    for i in (26, 29):
+    px, py, pz = o[pose], o[pose + 1], o[pose + 2]
+    f: list[cs.SX] = [o[q + k] for k in (2, 3, 4, 6, 7, 8, 9)]
+    f += [o[at["zeta"] + k] for k in range(10)]
+    f += [o[pose + 2], o[pose + 3], o[pose + 4], wrap_angle_sx(o[pose + 5] - psi)]
+    for i in (twist, twist + 3):
         f += [*heading(o[i], o[i + 1]), o[i + 2]]
-    for i in (32, 38):
+    for i in (at["waypoint"], at["goal"]):
         f += [*heading(o[i] - px, o[i + 1] - py), o[i + 2] - pz]
-        f += [_wrap_sx(o[i + 3 + k] - o[23 + k]) for k in range(3)]
-    f += [*heading(o[44], o[45]), o[46], o[47], o[48], o[49]]
-    for i in (50, 55, 60):
+        f += [wrap_angle_sx(o[i + 3 + k] - o[pose + 3 + k]) for k in range(3)]
+    nav = at["nav_velocity"]
+    f += [*heading(o[nav], o[nav + 1]), o[nav + 2], o[nav + 3], o[nav + 4], o[nav + 5]]
+    for i in range(at["obstacles"], at["obstacles"] + 15, 5):
         present = o[i + 3] > 0
         dist = cs.sqrt(o[i] ** 2 + o[i + 1] ** 2)
         scale = cs.fmin(1.0, OBSTACLE_RANGE / cs.fmax(dist, 1e-9))
         near = [*heading(o[i] * scale, o[i + 1] * scale), o[i + 2], o[i + 3], o[i + 4]]
         f += [cs.if_else(present, v, 0.0) for v in near]
-    f += [*heading(o[0] - px, o[1] - py), o[2] - pz]
-    f += [o[k] for k in range(65, 78)]
+    f += [*heading(o[q] - px, o[q + 1] - py), o[q + 2] - pz]
+    f += [o[k] for k in range(at["load_share"], at["time_fraction"])]
     out = cs.vertcat(*f)
     assert out.numel() == BASE_FEATURES
     return out
@@ -173,14 +177,17 @@ def _object(ring_radius: float) -> ObjectModel:
 def steady_sx(o: cs.SX, ring_radius: float) -> cs.SX:
     """a_ss (8) of the robot in observation ``o``: own q and zeta, own grasp and share,
     the object's nominal parameters, the observed navigation twist."""
-    r_t = cs.reshape(o[69:78], 3, 3)  # the observation holds R_Oi row-major: this is R^T
+    f = OBSERVATION_STRUCTURE
+    # the observation holds R_Oi row-major: this is R^T
+    r_t = cs.reshape(o[f["grasp_rotation"]], 3, 3)
     theta = cs.vertcat(  # laid out as uvms_env.dynamics.local_model.ModelParams.pack
-        o[66:69],
+        o[f["grasp_offset"]],
         cs.reshape(r_t.T, 9, 1),  # R_Oi column-major
-        o[65],
+        o[f["load_share"]],
         cs.DM(_object(ring_radius).nominal_parameters()),
     )
-    return _steady_input(ring_radius)(o[0:20], theta, o[44:50])
+    own = o[f["q"].start : f["zeta"].stop]  # q and zeta
+    return _steady_input(ring_radius)(own, theta, o[f["nav_velocity"]])
 
 
 @functools.cache
@@ -297,7 +304,7 @@ class Priors:
         joint hold on the arm's four.
         Written with scalars and slices only, so that it runs on any array library
         (numpy here, CuPy through the GPU backend)."""
-        q, rate = raw[..., 6:10], raw[..., 16:20]
+        q, rate = raw[..., _JOINTS], raw[..., _JOINT_RATES]
         arm = [self._hold(q[..., j], rate[..., j], j) for j in range(4)]
         zero = 0.0 * q[..., 0]
         return np.stack([zero] * (ACT_DIM - 4) + arm, -1).astype(np.float64)
@@ -314,6 +321,7 @@ class Priors:
             return a
         base = steady
         if self.holds:
-            arm = [self._hold(o[6 + j], o[16 + j], j) for j in range(4)]
+            q, rate = _JOINTS.start, _JOINT_RATES.start
+            arm = [self._hold(o[q + j], o[rate + j], j) for j in range(4)]
             base = base + cs.vertcat(cs.MX.zeros(ACT_DIM - 4), *arm)
         return cs.fmin(1.0, cs.fmax(-1.0, base + self.residual_scale * a))

@@ -2,10 +2,8 @@
 
 * PettingZoo 1.27: ``pettingzoo.make("parallel", "uvms_env/CoopTransport-v0", **kwargs)``
   (``max_cycles`` is passed through when given).
-* Gymnasium: ``gymnasium.make("uvms_env/CoopTransport-v0", **kwargs)``, or without a
-  prior import ``gymnasium.make("uvms_env:uvms_env/CoopTransport-v0")``. The package
-  also declares a ``gymnasium.envs`` entry point (``register_gymnasium``) for Gymnasium
-  versions that load plugins (0.26 - 0.29; 1.x no longer reads that group).
+* Gymnasium (>= 1.0): ``gymnasium.make("uvms_env/CoopTransport-v0", **kwargs)``, or
+  without a prior import ``gymnasium.make("uvms_env:uvms_env/CoopTransport-v0")``.
 * Gymnasium's vector API: ``gymnasium.make_vec("uvms_env/CoopTransport-v0", num_envs=K,
   **kwargs)`` builds the batched ``uvms_env.vector.gym_vector.CoopTransportVectorEnv``
   (the ``vector_entry_point``, Gymnasium's default mode when one is registered; kwargs as

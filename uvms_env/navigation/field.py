@@ -120,6 +120,8 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from uvms_env.dynamics.spatial import wrap_angle, wrap_angle_sx
+
 __all__ = [
     "Cylinder",
     "NavigationField",
@@ -245,30 +247,6 @@ class Workspace:
 Obstacle = Cylinder | Sphere
 
 
-def wrap_angle(angle: ArrayLike) -> FloatArray:
-    """Wrap angles into ``(-pi, pi]``, elementwise.
-
-    Parameters
-    ----------
-    angle : array_like
-        Angles [rad].
-
-    Returns
-    -------
-    numpy.ndarray
-        Wrapped angles, same shape as ``angle``.
-    """
-    a = np.asarray(angle, dtype=float)
-    # pi - mod(pi - a, 2 pi) lands in (-pi, pi]; the same floor formula is used in CasADi.
-    b = np.pi - a
-    return np.pi - (b - 2.0 * np.pi * np.floor(b / (2.0 * np.pi)))
-
-
-def _wrap_angle_ca(angle: ca.SX) -> ca.SX:
-    b = np.pi - angle
-    return np.pi - (b - 2.0 * np.pi * ca.floor(b / (2.0 * np.pi)))
-
-
 def attitude_rate(
     attitude: ArrayLike,
     attitude_goal: ArrayLike,
@@ -303,7 +281,7 @@ def attitude_rate(
 
 
 def _attitude_rate_ca(attitude: ca.SX, goal: FloatArray, gain: float, max_rate: float) -> ca.SX:
-    raw = -gain * _wrap_angle_ca(attitude - ca.DM(goal))
+    raw = -gain * wrap_angle_sx(attitude - ca.DM(goal))
     return ca.fmin(ca.fmax(raw, -max_rate), max_rate)
 
 

@@ -46,7 +46,9 @@ import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
-from .field import NavigationField, _wrap_angle_ca, scene_velocity
+from uvms_env.dynamics.spatial import wrap_angle_sx
+
+from .field import NavigationField, scene_velocity
 from .waypoints import WaypointNavigator
 
 parametric_velocity = scene_velocity  # the name this module exports
@@ -87,7 +89,7 @@ def parametric_twist_function(n_cyl: int = N_CYLINDERS, n_sph: int = N_SPHERES) 
         x[0:3], goal[0:3], workspace, cylinders, spheres, gains[0], gains[1], gains[2]
     )
     # _attitude_rate_ca with symbolic goal, gain and saturation
-    raw = -gains[3] * _wrap_angle_ca(x[3:6] - goal[3:6])
+    raw = -gains[3] * wrap_angle_sx(x[3:6] - goal[3:6])
     w = ca.fmin(ca.fmax(raw, -gains[4]), gains[4])
     return ca.Function(
         "nav_twist_param",

@@ -47,11 +47,12 @@ class VectorVecEnv(VecEnv):
     ``reward_terms`` dicts, which would cost K N dicts a step: the last step's batched
     infos (arrays over environments) are in ``last_infos``.
 
-    **Seeding.** The first ``reset()`` is the ``VectorEnv``'s ``reset(seed=seed)`` (with
-    ``seed=None``: its own first seed); after ``seed(s)`` the next ``reset()`` is
-    ``reset(seed=s)``: environment k starts with seed ``s + k``, and its later episodes
-    follow the ``VectorEnv``'s automatic reset (its own generator, or the geometry
-    pool). Any other ``reset()`` continues every environment's sequence.
+    **Seeding** (the adapters' one rule, ``uvms_env.vector.seeding``): the first
+    ``reset()`` is the ``VectorEnv``'s ``reset(seed=seed)`` (with ``seed=None``: its own
+    first seed); after ``seed(s)`` the next ``reset()`` is ``reset(seed=s)``: episode e of
+    environment k has seed ``s + k + K e`` (mod P with a geometry pool of P); without a
+    pool its later episodes continue the environment's own generator. Any other
+    ``reset()`` continues every environment's sequence.
 
     ``get_attr``, ``set_attr`` and ``env_method`` act on the one ``VectorEnv`` behind
     every sub-environment (``env_method`` calls the method once and repeats its result

@@ -1,9 +1,9 @@
-"""Constraint-aware training: a per-robot constraint cost and a Lagrange multiplier on it.
+"""Constraint-aware training for every PPO engine: a per-robot constraint cost and a
+Lagrange multiplier on it (PPO-Lagrangian), independent of the RL library.
 
-PPO-Lagrangian (Ray, Achiam and Amodei 2019, "Benchmarking safe exploration in deep RL")
-as a VecEnv wrapper and a callback, so that SB3's PPO itself stays unchanged: each robot's
-reward becomes r - lambda c_i, where c_i is that robot's constraint cost this step, and
-after each rollout lambda moves by gradient ascent on the dual,
+PPO-Lagrangian (Ray, Achiam and Amodei 2019, "Benchmarking safe exploration in deep RL"):
+each robot's reward becomes r - lambda c_i, where c_i is that robot's constraint cost this
+step, and after each rollout lambda moves by gradient ascent on the dual,
 
     lambda <- clip(lambda + lr (J_c - d), 0, lambda_max),
 
@@ -19,10 +19,13 @@ Costs (per robot, per step; the environment's constraint values g <= 0 hold):
   (``SCALES``: 0.1 rad/s for the speed limits, 2 rad for the joint limits, ...), summed:
   a joint rate of 0.15 rad/s costs 0.5, one of 0.3 costs 2.
 
-Written here because SB3 has no constrained RL and the safe-RL libraries (OmniSafe,
-safety-gymnasium) bring their own environments loop and pins.
+An engine applies it where its rewards are made: ``Lagrangian.penalize`` on a step's
+batched constraint values, ``Lagrangian.end_rollout`` once per rollout. The SB3 engine's
+VecEnv wrapper is ``baselines.rl.cost.CostPenalty``. Written here because the RL
+libraries have no constrained RL and the safe-RL ones (OmniSafe, safety-gymnasium)
+bring their own environment loop and pins.
 
-May import: numpy, stable-baselines3 and ``uvms_env.env.constraints``.
+May import: numpy and ``uvms_env.env.constraints``.
 """
 
 from __future__ import annotations
@@ -31,9 +34,6 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
-from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from uvms_env.env.constraints import CONSTRAINTS
 
@@ -72,45 +72,44 @@ def magnitude_cost(g: np.ndarray) -> np.ndarray:
     return (np.maximum(np.asarray(g, dtype=np.float64), 0.0) / SCALES).sum(-1)
 
 
-class CostPenalty(VecEnvWrapper):
-    """Subtracts ``multiplier * cost`` from each robot sub-environment's reward and keeps
-    each ended episode's cost; ``infos[i]["constraint_cost"]`` is the step's cost. Wraps
-    ``uvms_env.vector.sb3.VectorVecEnv`` or ``baselines.rl.vec_env.ParallelVecEnv``
-    directly (it reads their constraint values)."""
+class Lagrangian:
+    """The multiplier and the per-robot episode costs of one training run.
 
-    def __init__(self, venv: VecEnv, settings: CostSettings) -> None:
-        super().__init__(venv)
+    ``penalize(g, count, done)``: R robots' (R, 8) constraint values and (R,) violation
+    counts (the environment's ``cost``) this step, and (R,) their episode ended -> (R,)
+    costs (the caller subtracts ``multiplier * cost``); ``end_rollout`` takes the dual step
+    from the episodes that ended since the last one."""
+
+    def __init__(self, settings: CostSettings, robots: int) -> None:
         self.settings = settings
         self.multiplier = float(settings.multiplier)
-        self._episode = np.zeros(self.num_envs)
+        self._episode = np.zeros(robots)
         self._finished: list[float] = []
+        self.last_episode_cost: float | None = None
 
-    def reset(self) -> np.ndarray:
+    def reset(self) -> None:
         self._episode[:] = 0.0
-        return self.venv.reset()
 
-    def step_wait(self) -> VecEnvStepReturn:
-        obs, reward, done, infos = self.venv.step_wait()
-        cost = self._costs(infos)
+    def record(self, cost: np.ndarray, done: np.ndarray) -> None:
+        """Adds the step's (R,) costs; closes the episodes where ``done``."""
         self._episode += cost
-        for i, c in enumerate(cost.tolist()):
-            infos[i]["constraint_cost"] = c
-        if done.any():
+        if np.any(done):
             ended = np.flatnonzero(done)
             self._finished.extend(self._episode[ended].tolist())
             self._episode[ended] = 0.0
-        return obs, (reward - self.multiplier * cost).astype(np.float32), done, infos
 
-    def _costs(self, infos: list[dict[str, Any]]) -> np.ndarray:
-        if self.settings.kind == "count":
-            return np.array([float(info["cost"]) for info in infos])
-        batched = getattr(self.venv, "last_infos", None)
-        if batched:  # the vector env: (K, N, 8) arrays, robots in sub-env order
-            return magnitude_cost(batched["constraint_values"]).reshape(-1)
-        g = [[info["constraint_values"][c] for c in CONSTRAINTS] for info in infos]
-        return magnitude_cost(np.array(g))
+    def penalize(self, g: Any, count: Any, done: np.ndarray) -> np.ndarray:
+        """``g`` and ``count`` are only read for their kind of cost (the other may be
+        None)."""
+        robots = len(self._episode)
+        if self.settings.kind == "magnitude":
+            cost = magnitude_cost(np.asarray(g).reshape(robots, -1))
+        else:
+            cost = np.asarray(count, dtype=np.float64).reshape(robots)
+        self.record(cost, np.asarray(done).reshape(-1))
+        return cost
 
-    def update_multiplier(self) -> float | None:
+    def end_rollout(self) -> float | None:
         """One dual step from the episodes ended since the last call; returns their mean
         cost (None, and no step, when none ended)."""
         if not self._finished:
@@ -121,21 +120,5 @@ class CostPenalty(VecEnvWrapper):
         self.multiplier = float(
             np.clip(self.multiplier + s.lr * (mean - s.cost_limit), 0.0, s.max_multiplier)
         )
+        self.last_episode_cost = mean
         return mean
-
-
-class MultiplierCallback(BaseCallback):
-    """After each rollout: the dual step, logged as ``lagrangian/*``."""
-
-    def __init__(self, penalty: CostPenalty) -> None:
-        super().__init__()
-        self.penalty = penalty
-
-    def _on_step(self) -> bool:
-        return True
-
-    def _on_rollout_end(self) -> None:
-        mean = self.penalty.update_multiplier()
-        if mean is not None:
-            self.logger.record("lagrangian/episode_cost", mean)
-        self.logger.record("lagrangian/multiplier", self.penalty.multiplier)

@@ -1,0 +1,507 @@
+"""The run layer every training engine writes through: one run folder, one ``config.json``,
+one ``progress.csv`` and one ``evaluations.csv`` schema, periodic evaluation through
+``baselines.evaluate`` and resuming.
+
+    run = Run.start(settings, engine="sb3", algo="ppo", command=argv)
+    engine = Engine(run, algo, args)           # an RL library's trainer (``Engine``)
+    run.write_config(**engine.build())         # env and model; config.json
+    steps = engine.learn()                     # calls, after each iteration,
+        # run.after_iteration(engine, robot_steps, returns=..., lengths=...): the progress
+        # row, a checkpoint and an evaluation of a fresh snapshot when due
+    engine.save(run.folder); engine.close()
+    run.finish(steps, engine)                  # robot-steps, wall time, recorded evaluation
+
+``baselines.train.train`` is that sequence.
+
+The folder: ``config.json`` (``CONFIG_KEYS``, then the engine's own ``engine_settings``),
+``progress.csv`` (``PROGRESS_COLUMNS``, one row per iteration, appended by a resumed run),
+``evaluations.csv`` (``EVAL_COLUMNS``, one row per evaluation and rung),
+``marl_eval.json`` (the same evaluations for marl-eval), ``eval_snapshot/`` and whatever
+the engine saves (its policy and checkpoints).
+
+Every budget and cadence counts robot-steps (one step of one robot; an env step of N
+robots is N robot-steps), whatever the engine counts internally.
+
+May import: the standard library, numpy, ``baselines.evaluate``,
+``baselines.distributed.marl_eval``, ``baselines.lagrangian`` and ``uvms_env``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import platform
+import shlex
+import shutil
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from baselines.lagrangian import CostSettings
+
+CONFIG_FILE = "config.json"
+PROGRESS_FILE = "progress.csv"
+EVAL_FILE = "evaluations.csv"
+SNAPSHOT = "eval_snapshot"
+# One row per training iteration (a rollout and its update): the training episodes that
+# ended in it (unscaled team return), the constraint cost and multiplier of
+# PPO-Lagrangian (empty without it) and the throughput.
+PROGRESS_COLUMNS = (
+    "iteration",
+    "robot_steps",
+    "episodes",
+    "episode_return_mean",
+    "episode_len_mean",
+    "episode_cost_mean",
+    "multiplier",
+    "iteration_s",
+    "wall_time_s",
+    "robot_steps_per_s",
+)
+# One row per evaluation and rung (deterministic policy, fixed seeds).
+EVAL_COLUMNS = (
+    "robot_steps",
+    "rung",
+    "success_rate",
+    "clean_success_rate",
+    "violation_periods",
+    "mean_return",
+    "final_pos_error_m",
+    "episode_steps",
+    "errors",
+)
+# The keys every engine's config.json has (the engine adds ``engine_settings``).
+CONFIG_KEYS = (
+    "engine",
+    "algo",
+    "command",
+    "scenario",
+    "overrides",
+    "env_defaults",
+    "env_options",
+    "num_envs",
+    "seed",
+    "robot_steps_budget",
+    "eval_every",
+    "eval_episodes",
+    "eval_ladder",
+    "checkpoint_every",
+    "cost",
+    "resumes",
+    "hardware",
+    "engine_settings",
+    "robot_steps",
+    "wall_time_s",
+    "robot_steps_per_s",
+    "eval",
+)
+RECORD_EPISODES = 2  # the final policy's recorded per-episode evaluation ("eval")
+# Training drops the internal-wrench metric (~6% of a step): it changes no observation,
+# reward or dynamics.
+TRAIN_ENV_DEFAULTS: dict[str, Any] = {"internal_wrench_every": 0}
+# The task ladder, easiest first: (scenario, overrides) per rung.
+LADDER: dict[str, tuple[str, dict[str, Any]]] = {
+    "short": ("short", {}),
+    "random_n2": ("random", {"n_agents": 2}),
+    "paper": ("paper", {}),
+    "random_n3": ("random", {"n_agents": 3}),
+}
+
+
+class Engine(Protocol):
+    """What an RL library implements to train under a ``Run`` (``Engine(run, algo, args)``,
+    ``args`` its own command-line options). A training-loop addition that is no library's
+    business (a safety filter around the env, a policy initialized from the expert) goes in
+    ``build``: it makes the env and the model."""
+
+    def build(self) -> dict[str, Any]:
+        """Make the env and the model (from ``run.settings.resume`` when set); return the
+        engine's settings for config.json."""
+        ...
+
+    def learn(self) -> int:
+        """Train until ``run.settings.robot_steps``, calling ``run.after_iteration`` after
+        each iteration; return the robot-steps done in all."""
+        ...
+
+    def save(self, folder: Path) -> None:
+        """Write what the policy loader (``policy``) and a resume need into ``folder``."""
+        ...
+
+    def checkpoint(self, robot_steps: int) -> None:
+        """Save a numbered checkpoint under the run folder."""
+        ...
+
+    def policy(self, folder: Path) -> str:
+        """The evaluator's ``--policy`` spec of a policy saved in ``folder``."""
+        ...
+
+    def results(self) -> dict[str, Any]:
+        """What the engine adds to ``engine_settings`` at the end."""
+        ...
+
+    def close(self) -> None: ...
+
+
+@dataclass
+class RunSettings:
+    """What every engine shares (``baselines.train``'s shared options)."""
+
+    scenario: str = "short"
+    overrides: dict[str, Any] = field(default_factory=dict)
+    robot_steps: int = 200_000
+    num_envs: int | None = None  # None: the engine's default
+    seed: int = 0
+    out: Path = Path("runs/train")
+    eval_every: int = 0
+    eval_episodes: int = 5
+    eval_ladder: bool = False
+    checkpoint_every: int = 50_000
+    resume: Path | None = None
+    cost: CostSettings | None = None
+    geometry_pool: int | None = None  # None: the engine's default
+    hyperparameters: dict[str, Any] = field(default_factory=dict)
+    progress: bool = True
+    record_eval: bool = True  # the final policy's per-episode result, in config.json
+
+    def env_options(self) -> dict[str, Any]:
+        """The environment options training uses: the defaults, then the overrides."""
+        return {**TRAIN_ENV_DEFAULTS, **self.overrides}
+
+    def rungs(self) -> dict[str, tuple[str, dict[str, Any]]]:
+        """The evaluation's rungs: the ladder, or the training scenario with its team size
+        (the evaluation plays the plain environment; a policy applies its own priors)."""
+        if self.eval_ladder:
+            return LADDER
+        keep = {k: v for k, v in self.overrides.items() if k == "n_agents"}
+        return {self.scenario: (self.scenario, keep)}
+
+
+def seeded_pool(scenario: str, overrides: dict[str, Any], pool: int | None) -> int | None:
+    """The geometry pool a run uses: seeded families only (a fixed scenario has one
+    geometry), 0 or None: no pool."""
+    from uvms_env.vector.bank import SEEDED_FAMILIES
+
+    seeded = scenario in SEEDED_FAMILIES and overrides.get("reseed_geometry", True)
+    return pool if seeded and pool else None
+
+
+def hardware(extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    from uvms_env.vector.kernels import available_cores
+
+    return {"machine": platform.machine(), "cores": available_cores(), **(extra or {})}
+
+
+def write_json(path: Path, data: dict[str, Any]) -> None:
+    path.write_text(json.dumps(data, indent=2, default=_plain) + "\n")
+
+
+def _plain(x: Any) -> Any:
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    return str(x)
+
+
+def read_config(folder: Path) -> dict[str, Any]:
+    """A run's config.json ({} when it has none)."""
+    path = Path(folder) / CONFIG_FILE
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
+class Run:
+    """One training run's folder and records; see the module docstring."""
+
+    def __init__(
+        self,
+        settings: RunSettings,
+        engine: str,
+        algo: str,
+        command: list[str] | None = None,
+        previous: dict[str, Any] | None = None,
+    ) -> None:
+        self.settings = settings
+        self.folder = Path(settings.out)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.previous = previous or {}
+        self.resumed = settings.resume is not None
+        self.config: dict[str, Any] = {
+            "engine": engine,
+            "algo": algo,
+            "command": shlex.join(command) if command else None,
+            "scenario": settings.scenario,
+            "overrides": settings.overrides,
+            "env_defaults": TRAIN_ENV_DEFAULTS,
+            "env_options": settings.env_options(),
+            "num_envs": settings.num_envs,
+            "seed": settings.seed,
+            "robot_steps_budget": settings.robot_steps,
+            "eval_every": settings.eval_every,
+            "eval_episodes": settings.eval_episodes,
+            "eval_ladder": settings.eval_ladder,
+            "checkpoint_every": settings.checkpoint_every,
+            "cost": settings.cost.as_dict() if settings.cost is not None else None,
+            "resumes": self.previous.get("resumes", -1) + 1 if self.resumed else 0,
+            "hardware": hardware(),
+            "engine_settings": {},
+            "robot_steps": self.previous.get("robot_steps", 0) if self.resumed else 0,
+            "wall_time_s": None,
+            "robot_steps_per_s": None,
+            "eval": None,
+        }
+        self.multiplier: float | None = None
+        self._start = time.perf_counter()
+        self._tick = self._start
+        self._steps_at_start = self.config["robot_steps"]
+        self._last_steps = self._steps_at_start
+        self._iteration = self._last_iteration()
+        self._next_eval = self._after(settings.eval_every, self._steps_at_start)
+        self._next_checkpoint = self._after(settings.checkpoint_every, self._steps_at_start)
+        progress = self.folder / PROGRESS_FILE
+        if self.resumed and progress.exists() and _header(progress) != PROGRESS_COLUMNS:
+            # an earlier layout's file: kept aside, the run goes on in the schema
+            progress.rename(
+                self.folder
+                / f"progress.part{len(list(self.folder.glob('progress.part*.csv')))}.csv"
+            )
+        if not self.resumed or not progress.exists():
+            self._write_header(progress, PROGRESS_COLUMNS)
+
+    @classmethod
+    def start(
+        cls, settings: RunSettings, engine: str, algo: str, command: list[str] | None = None
+    ) -> Run:
+        """A new run, or with ``settings.resume`` the continuation of the run there (its
+        config.json: resumes, robot-steps and wall time so far, the last multiplier)."""
+        previous: dict[str, Any] = {}
+        if settings.resume is not None:
+            resume = Path(settings.resume)
+            folder = resume if resume.is_dir() else resume.parent
+            previous = read_config(folder) or read_config(folder.parent)
+            if previous and previous.get("engine", engine) != engine:
+                raise ValueError(
+                    f"{resume} was trained by the {previous['engine']} engine, not {engine}"
+                )
+            if settings.cost is not None and (previous.get("cost") or {}).get("final_multiplier"):
+                settings.cost.multiplier = previous["cost"]["final_multiplier"]
+        return cls(settings, engine, algo, command, previous)
+
+    @property
+    def snapshot(self) -> Path:
+        """Where the engine saves the policy that a periodic evaluation loads."""
+        return self.folder / SNAPSHOT
+
+    @property
+    def episode_seed(self) -> int:
+        """The seed of the run's env copies: a resumed run gets new episodes, so it does
+        not replay the first ones."""
+        return self.settings.seed + 1_000_003 * self.config["resumes"]
+
+    def write_config(self, **engine_settings: Any) -> None:
+        """Record the engine's own settings (``engine_settings``) and write config.json;
+        the first iteration's time counts from here (not the engine's setup)."""
+        self.config["engine_settings"].update(engine_settings)
+        write_json(self.folder / CONFIG_FILE, self.config)
+        self._tick = time.perf_counter()
+
+    # -- the training loop's hooks --------------------------------------------------------
+    def iteration(
+        self,
+        robot_steps: int,
+        returns: list[float] | None = None,
+        lengths: list[float] | None = None,
+        episode_cost: float | None = None,
+        multiplier: float | None = None,
+        summary: tuple[int, float | None, float | None] | None = None,
+    ) -> dict[str, Any]:
+        """One progress row at ``robot_steps`` done in all: the training episodes that
+        ended in the iteration (raw team returns and lengths), or where the library keeps
+        only their ``summary`` (count, mean return, mean length)."""
+        if summary is None:
+            summary = (len(returns or []), _mean(returns), _mean(lengths))
+        if multiplier is not None:
+            self.multiplier = multiplier
+        now = time.perf_counter()
+        self._iteration += 1
+        steps = robot_steps - self._last_steps
+        seconds = now - self._tick
+        row = {
+            "iteration": self._iteration,
+            "robot_steps": int(robot_steps),
+            "episodes": summary[0],
+            "episode_return_mean": _round(summary[1]),
+            "episode_len_mean": _round(summary[2]),
+            "episode_cost_mean": _round(episode_cost),
+            "multiplier": _round(multiplier),
+            "iteration_s": round(seconds, 3),
+            "wall_time_s": round(self._wall_before + now - self._start, 2),
+            "robot_steps_per_s": round(steps / seconds, 1) if seconds > 0 else None,
+        }
+        with open(self.folder / PROGRESS_FILE, "a", newline="") as fh:
+            csv.DictWriter(fh, fieldnames=PROGRESS_COLUMNS).writerow(row)
+        self._tick, self._last_steps = now, robot_steps
+        if self.settings.progress:
+            print(
+                f"iter {row['iteration']}: {robot_steps} robot-steps, return "
+                f"{row['episode_return_mean']}, {row['robot_steps_per_s']} robot-steps/s",
+                flush=True,
+            )
+        return row
+
+    def after_iteration(self, engine: Engine, robot_steps: int, **stats: Any) -> None:
+        """The progress row (``iteration``'s arguments), then a checkpoint and an
+        evaluation of a fresh snapshot when due."""
+        self.iteration(robot_steps, **stats)
+        if self.checkpoint_due(robot_steps):
+            engine.checkpoint(robot_steps)
+        if self.evaluation_due(robot_steps):
+            engine.save(self.snapshot)
+            self.evaluate(robot_steps, engine.policy(self.snapshot))
+
+    def evaluation_due(self, robot_steps: int) -> bool:
+        if self.settings.eval_every <= 0 or robot_steps < self._next_eval:
+            return False
+        self._next_eval = self._after(self.settings.eval_every, robot_steps)
+        return True
+
+    def checkpoint_due(self, robot_steps: int) -> bool:
+        if self.settings.checkpoint_every <= 0 or robot_steps < self._next_checkpoint:
+            return False
+        self._next_checkpoint = self._after(self.settings.checkpoint_every, robot_steps)
+        return True
+
+    def evaluate(self, robot_steps: int, policy: str) -> list[dict[str, Any]]:
+        """The saved ``policy`` (an evaluator ``--policy`` spec, the snapshot's) on every
+        rung, fixed seeds: rows appended to evaluations.csv and marl_eval.json. The
+        snapshot gets config.json (the policy rebuilds the run's priors from it)."""
+        from baselines.distributed import marl_eval
+        from baselines.evaluate import aggregate, evaluate
+
+        if self.snapshot.is_dir():
+            write_json(self.snapshot / CONFIG_FILE, self.config)
+        s = self.settings
+        path = self.folder / EVAL_FILE
+        if not path.exists():
+            self._write_header(path, EVAL_COLUMNS)
+        out = []
+        for rung, (scenario, overrides) in s.rungs().items():
+            rows = evaluate(
+                [policy], [scenario], s.eval_episodes, s.seed, 1, overrides, progress=False
+            )
+            summary = aggregate(rows, s.seed)[0]
+            failed = [r["error"] for r in rows if r["error"]]
+            if failed:
+                warnings.warn(
+                    f"evaluation on {rung}: {len(failed)} episodes failed: {failed[0]}",
+                    stacklevel=2,
+                )
+            row = {
+                "robot_steps": int(robot_steps),
+                "rung": rung,
+                "success_rate": summary["success_rate"],
+                "clean_success_rate": summary["clean_success_rate"],
+                "violation_periods": float(np.mean([r["violation_periods"] for r in rows])),
+                "mean_return": summary.get("return", math.nan),
+                "final_pos_error_m": summary.get("final_pos_error_m", math.nan),
+                "episode_steps": summary.get("episode_steps", math.nan),
+                "errors": summary["errors"],
+            }
+            with open(path, "a", newline="") as fh:
+                csv.DictWriter(fh, fieldnames=EVAL_COLUMNS).writerow(row)
+            for r in rows:  # one algorithm name per run in marl-eval, not the snapshot's
+                r["policy"] = f"{self.config['engine']}_{self.config['algo']}:{self.folder.name}"
+            marl_eval.write(
+                self.folder / "marl_eval.json",
+                rows,
+                s.seed,
+                step_count=int(robot_steps),
+                elapsed_time=time.perf_counter() - self._start,
+                overrides=overrides,
+            )
+            out.append(row)
+        return out
+
+    def record(self, policy: str) -> dict[str, Any]:
+        """The saved policy's per-episode result on fixed seeds (the training scenario,
+        seed 0): a regression value produced by running, which tests check for the
+        committed models."""
+        from baselines.evaluate import evaluate
+
+        scenario, overrides = next(iter(self.settings.rungs().values()))
+        rows = evaluate([policy], [scenario], RECORD_EPISODES, 0, 1, overrides, progress=False)
+        keys = ("return", "episode_steps", "final_pos_error_m")
+        return {
+            "scenario": scenario,
+            "seed": 0,
+            "episodes": [
+                {
+                    "episode": r["episode"],
+                    "seed": r["seed"],
+                    "success": bool(r.get("success")),
+                    **{k: r.get(k) for k in keys},
+                }
+                for r in rows
+            ],
+        }
+
+    def finish(self, robot_steps: int, engine: Engine | None = None, **results: Any) -> dict:
+        """Robot-steps done, wall time (all sessions of a resumed run), robot-steps/s of
+        this session, the last multiplier and (``settings.record_eval``) the recorded
+        evaluation of ``engine``'s policy saved in the run folder; written to config.json."""
+        wall = time.perf_counter() - self._start
+        done = robot_steps - self._steps_at_start
+        self.config.update(
+            robot_steps=int(robot_steps),
+            wall_time_s=round(self._wall_before + wall, 1),
+            robot_steps_per_s=round(done / wall, 1) if wall > 0 else None,
+        )
+        self.config["engine_settings"].update(results)
+        if self.config["cost"] is not None and self.multiplier is not None:
+            self.config["cost"]["final_multiplier"] = self.multiplier
+        write_json(self.folder / CONFIG_FILE, self.config)
+        if engine is not None and self.settings.record_eval:
+            self.config["eval"] = self.record(engine.policy(self.folder))
+        if self.snapshot.is_dir():
+            shutil.rmtree(self.snapshot, ignore_errors=True)
+        write_json(self.folder / CONFIG_FILE, self.config)
+        return self.config
+
+    # -- helpers ----------------------------------------------------------------------------
+    @property
+    def _wall_before(self) -> float:
+        return float(self.previous.get("wall_time_s") or 0.0) if self.resumed else 0.0
+
+    @staticmethod
+    def _after(every: int, steps: int) -> int:
+        """The first multiple of ``every`` above ``steps``."""
+        return (steps // every + 1) * every if every > 0 else 0
+
+    def _last_iteration(self) -> int:
+        path = self.folder / PROGRESS_FILE
+        if not self.resumed or not path.exists():
+            return 0
+        with open(path, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        return int(rows[-1]["iteration"]) if rows else 0
+
+    @staticmethod
+    def _write_header(path: Path, columns: tuple[str, ...]) -> None:
+        with open(path, "w", newline="") as fh:
+            csv.DictWriter(fh, fieldnames=columns).writeheader()
+
+
+def _header(path: Path) -> tuple[str, ...]:
+    with open(path, newline="") as fh:
+        return tuple(next(csv.reader(fh), []))
+
+
+def _mean(values: list[float] | None) -> float | None:
+    return round(float(np.mean(values)), 4) if values else None
+
+
+def _round(x: float | None) -> float | None:
+    return None if x is None else round(float(x), 6)

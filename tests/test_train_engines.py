@@ -1,0 +1,273 @@
+"""One training layer under three engines (``baselines.train --engine {sb3,torchrl,rllib}``):
+each trains for a tiny budget and writes the same progress.csv and evaluations.csv
+columns and the same config.json keys; every engine's ``--help`` lists the same shared
+options; the old flag names still work, with a deprecation warning; the learning-curve
+figure draws runs of all three."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from baselines import runs
+from baselines.train import ENGINES, SHARED_GROUP, build_parser, main
+
+# Tiny: one or two iterations of a few dozen robot-steps, small networks, 2 env copies of
+# 2 robots, 6-step episodes; one evaluation episode (its length: the plain scenario's).
+TINY = [
+    *("--scenario", "short", "--num-envs", "2", "--seed", "1", "--no-progress"),
+    *("--env-option", "max_cycles=6", "--checkpoint-every", "0"),
+]
+COMMON = [*TINY, "--eval-every", "64", "--eval-episodes", "1"]
+ENGINE_ARGS = {
+    "sb3": [
+        "--hp",
+        "n_steps=16",
+        "--hp",
+        "batch_size=32",
+        "--hp",
+        "n_epochs=1",
+        "--hp",
+        'policy_kwargs={"net_arch": [8]}',
+    ],
+    "torchrl": [
+        "--hp",
+        "rollout_steps=16",
+        "--hp",
+        "minibatches=2",
+        "--hp",
+        "epochs=1",
+        "--hp",
+        "hidden=[8]",
+    ],
+    "rllib": [
+        "--num-env-runners",
+        "0",
+        "--geometry-pool",
+        "2",
+        "--hp",
+        "train_batch_size_per_learner=32",
+        "--hp",
+        "minibatch_size=16",
+        "--hp",
+        "num_epochs=1",
+    ],
+}
+
+
+def _header(path: Path) -> list[str]:
+    with open(path, newline="") as fh:
+        return next(csv.reader(fh))
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> dict[str, Path]:
+    """A run folder per available engine, 64 robot-steps each."""
+    folders: dict[str, Path] = {}
+    base = tmp_path_factory.mktemp("engines")
+    started_ray = False
+    for engine in ENGINES:
+        if engine == "rllib":
+            ray = pytest.importorskip("ray")
+            pytest.importorskip("ray.rllib")
+            if not ray.is_initialized():
+                ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+                started_ray = True
+        if engine == "torchrl":
+            pytest.importorskip("torchrl", minversion="0.14")
+        out = base / engine
+        main(
+            [
+                "--engine",
+                engine,
+                "--robot-steps",
+                "64",
+                "--out",
+                str(out),
+                *COMMON,
+                *ENGINE_ARGS[engine],
+            ]
+        )
+        folders[engine] = out
+    if started_ray:
+        import ray
+
+        ray.shutdown()
+    return folders
+
+
+def test_every_engine_writes_the_same_records(trained):
+    assert set(trained) == set(ENGINES)
+    for engine, run in trained.items():
+        assert _header(run / "progress.csv") == list(runs.PROGRESS_COLUMNS), engine
+        assert _header(run / "evaluations.csv") == list(runs.EVAL_COLUMNS), engine
+        config = json.loads((run / "config.json").read_text())
+        assert list(config) == list(runs.CONFIG_KEYS), engine
+        assert config["engine"] == engine and config["algo"] == "ppo"
+        assert config["command"].startswith(f"python -m baselines.train --engine {engine}")
+        assert config["num_envs"] == 2 and config["seed"] == 1
+        assert config["overrides"] == {"max_cycles": 6}
+        assert config["robot_steps"] >= 64 and config["wall_time_s"] > 0
+        progress = _rows(run / "progress.csv")
+        steps = [int(r["robot_steps"]) for r in progress]
+        assert steps == sorted(steps) and steps[-1] == config["robot_steps"], engine
+        # each 6-step team episode of each copy ends inside the budget
+        ended = sum(int(r["episodes"]) for r in progress)
+        assert ended >= 2 * (config["robot_steps"] // (2 * 2 * 6)) - 2, (engine, ended)
+        lengths = {float(r["episode_len_mean"]) for r in progress if r["episode_len_mean"]}
+        assert lengths == {6.0}, engine
+        evaluations = _rows(run / "evaluations.csv")
+        assert [r["rung"] for r in evaluations] == ["short"] and evaluations[0]["errors"] == "0"
+        assert int(evaluations[0]["robot_steps"]) == 64
+        assert len(config["eval"]["episodes"]) == runs.RECORD_EPISODES
+
+
+def test_the_plot_draws_the_three_engines_runs(trained, tmp_path):
+    from baselines.rl import plot
+
+    out = tmp_path / "curves.png"
+    plot.main([*map(str, trained.values()), "--out", str(out)])
+    assert out.stat().st_size > 10_000
+    labels = [plot.label(run) for run in trained.values()]
+    assert [label.split()[0] for label in labels] == list(trained)
+
+
+@pytest.mark.parametrize("engine", ["sb3", "torchrl"])
+def test_a_resumed_run_goes_on_where_it_stopped_and_appends_to_its_records(
+    engine, trained, tmp_path
+):
+    import shutil
+
+    run = tmp_path / engine
+    shutil.copytree(trained[engine], run)
+    before = json.loads((run / "config.json").read_text())
+    main(
+        [
+            "--engine",
+            engine,
+            "--robot-steps",
+            "128",
+            "--out",
+            str(run),
+            "--resume",
+            str(run),
+            *TINY,
+            *ENGINE_ARGS[engine],
+        ]
+    )
+    config = json.loads((run / "config.json").read_text())
+    assert config["resumes"] == 1 and config["robot_steps"] == 128
+    assert config["wall_time_s"] > before["wall_time_s"]  # both sessions
+    progress = _rows(run / "progress.csv")
+    assert [int(r["iteration"]) for r in progress] == [1, 2]
+    assert [int(r["robot_steps"]) for r in progress] == [64, 128]
+
+
+def _shared_options(engine: str) -> list[list[str]]:
+    ap = build_parser(engine)
+    (group,) = [g for g in ap._action_groups if g.title == SHARED_GROUP]
+    return [a.option_strings for a in group._group_actions if a.help != "==SUPPRESS=="]
+
+
+def test_every_engine_lists_the_same_shared_options(capsys):
+    listed = {engine: _shared_options(engine) for engine in ENGINES}
+    assert listed["sb3"] == listed["torchrl"] == listed["rllib"]
+    flags = [f for options in listed["sb3"] for f in options]
+    for name in ("--robot-steps", "--num-envs", "--env-option", "--eval-every", "--resume"):
+        assert name in flags
+    for engine in ENGINES:
+        with pytest.raises(SystemExit):
+            main(["--engine", engine, "--help"])
+        text = capsys.readouterr().out
+        shared = text[text.index(SHARED_GROUP) :].split(f"{engine} engine:")[0]
+        assert all(f in shared for f in flags), engine
+        # deprecated aliases are accepted but not advertised
+        assert "--n-envs" not in text and "--total-timesteps" not in text
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "dest"),
+    [
+        (["--n-envs", "3"], ["--num-envs", "3"], "num_envs"),
+        (["--total-timesteps", "99"], ["--robot-steps", "99"], "robot_steps"),
+        (["--total-steps", "99"], ["--robot-steps", "99"], "robot_steps"),
+    ],
+)
+def test_old_flags_still_parse_with_a_deprecation_warning(old, new, dest):
+    for engine in ENGINES:
+        ap = build_parser(engine)
+        with pytest.warns(FutureWarning, match=f"{old[0]} is deprecated.*{new[0]}"):
+            args = ap.parse_args(old)
+        assert getattr(args, dest) == getattr(ap.parse_args(new), dest)
+
+
+def test_rllib_envs_per_runner_and_team_size_flags_are_deprecated():
+    ap = build_parser("rllib")
+    with pytest.warns(FutureWarning, match="--num-envs-per-env-runner"):
+        assert ap.parse_args(["--num-envs-per-env-runner", "5"]).num_envs == 5
+    with pytest.warns(FutureWarning, match="n_agents"):
+        args = ap.parse_args(["--env-option", "max_cycles=9", "--n-agents", "3"])
+    assert args.env_option == ["max_cycles=9", "n_agents=3"]
+
+
+def test_the_cost_is_refused_clearly_where_an_engine_cannot_apply_it(tmp_path):
+    with pytest.raises(ValueError, match="--cost is not available"):
+        main(["--engine", "rllib", "--cost", "magnitude", "--out", str(tmp_path / "rllib")])
+
+
+@pytest.mark.parametrize("engine", ["sb3", "torchrl"])
+def test_ppo_lagrangian_takes_the_dual_step_from_each_rollouts_episode_cost(engine, tmp_path):
+    """Every PPO engine that applies the cost: after each rollout the multiplier moves by
+    lr (mean episode cost - limit), clipped at 0, from 0.5; config.json keeps the last."""
+    if engine == "torchrl":
+        pytest.importorskip("torchrl", minversion="0.14")
+    out = tmp_path / engine
+    cost = ["--cost", "magnitude", "--cost-weight", "0.5", "--multiplier-lr", "0.1"]
+    cost += ["--cost-limit", "0.2"]
+    main(
+        [
+            "--engine",
+            engine,
+            "--robot-steps",
+            "192",
+            "--out",
+            str(out),
+            *COMMON[:-4],
+            *cost,
+            *ENGINE_ARGS[engine],
+        ]
+    )
+    rows = _rows(out / "progress.csv")
+    assert len(rows) == 3
+    multiplier = 0.5
+    for row in rows:
+        mean = float(row["episode_cost_mean"])  # 6-step episodes end in every rollout
+        assert mean > 0.0  # exploration violates the speed limits
+        multiplier = max(0.0, multiplier + 0.1 * (mean - 0.2))
+        assert float(row["multiplier"]) == pytest.approx(multiplier, rel=1e-5)
+    config = json.loads((out / "config.json").read_text())
+    assert config["cost"]["final_multiplier"] == pytest.approx(multiplier, rel=1e-5)
+
+
+def test_sac_writes_the_same_records_and_a_last_row_at_the_budget(tmp_path):
+    """SAC has no rollouts: a row every 256 steps of each sub-environment, and one for the
+    steps after the last row when the budget is reached."""
+    out = tmp_path / "sac"
+    sac = ["--hp", "learning_starts=50", "--hp", "batch_size=16", "--hp", "buffer_size=1000"]
+    sac += ["--hp", 'policy_kwargs={"net_arch": [8]}', "--num-envs", "1"]
+    main(["--algo", "sac", "--robot-steps", "300", "--out", str(out), *TINY, *sac])
+    assert _header(out / "progress.csv") == list(runs.PROGRESS_COLUMNS)
+    progress = _rows(out / "progress.csv")
+    assert [int(r["robot_steps"]) for r in progress] == [300]  # 150 steps of 2 robots
+    assert int(progress[0]["episodes"]) == 150 // 6
+    config = json.loads((out / "config.json").read_text())
+    assert list(config) == list(runs.CONFIG_KEYS) and config["algo"] == "sac"
+    assert (out / "replay_buffer.pkl").exists()
