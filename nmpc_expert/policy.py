@@ -30,7 +30,7 @@ from nmpc_expert.observation import OBSERVATION_STRUCTURE, check_observation
 from nmpc_expert.ocp import NC, WEIGHT_OFFSETS, ocp_functions, weight_vector
 from nmpc_expert.reference import HorizonReference
 from nmpc_expert.rti import ExtraRows, RTISolver
-from nmpc_expert.settings import NMPCSettings
+from nmpc_expert.settings import NMPCSettings, controller_settings
 from uvms_env.dynamics import NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall
 from uvms_env.dynamics.local_model import NX, ModelParams
@@ -113,7 +113,10 @@ class LocalController:
         if solver not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
         self.spec = spec
-        self.settings = s = settings or NMPCSettings()
+        # default: the observer controller with rti, the paper's with ipopt (its only one)
+        self.settings = s = settings or (
+            NMPCSettings() if solver == "rti" else NMPCSettings.paper()
+        )
         if abs(s.period - spec.period) > 1e-12:
             raise ValueError(f"settings.period {s.period} != scenario period {spec.period}")
         self.funcs = ocp_functions(
@@ -145,6 +148,11 @@ class LocalController:
 
             self.solver = IpoptSolver(self.funcs, self.theta, self.weights, s)
         self.solver_name = solver
+        if s.disturbance_observer and solver != "rti":
+            raise ValueError(
+                "the disturbance observer needs the rti solver; for ipopt use "
+                "NMPCSettings.paper() (disturbance_observer=False)"
+            )
         # rate-offset estimator (settings.offset_gain): the speed bounds, shifted in place
         # in the solver's weight vector by the estimated prediction error
         self._bounds = (lower.copy(), upper.copy(), scale.copy())
@@ -152,6 +160,13 @@ class LocalController:
         self._lower = self.solver.weights[o["lower"] : o["lower"] + NC]
         self._upper = self.solver.weights[o["upper"] : o["upper"] + NC]
         self.rate_offset = np.zeros(NX // 2)  # e, filtered one-step error of zeta
+        # disturbance observer (settings.disturbance_observer): d, the velocity part of
+        # the solver's additive disturbance (a view, updated in place), and sigma^2, the
+        # moving average of the squared innovation behind the adaptive speed margins
+        self.disturbance = (
+            self.solver.disturbance[NX // 2 :] if solver == "rti" else np.zeros(NX // 2)
+        )
+        self.innovation_var = np.zeros(NX // 2)
         self._predicted_zeta: np.ndarray | None = None
         self._x0 = np.zeros(NX)
         self.stats: dict[str, Any] = {}
@@ -161,6 +176,8 @@ class LocalController:
     def reset(self) -> None:
         self.solver.reset()
         self.rate_offset[:] = 0.0
+        self.disturbance[:] = 0.0
+        self.innovation_var[:] = 0.0
         self._predicted_zeta = None
         self._lower[:], self._upper[:] = self._bounds[0], self._bounds[1]
         self.stats = {}
@@ -174,7 +191,10 @@ class LocalController:
         st = OBSERVATION_STRUCTURE
         self._x0[: NX // 2] = o[st["q"]]
         self._x0[NX // 2 :] = o[st["zeta"]]
-        self._update_rate_offset()
+        if self.settings.disturbance_observer:
+            self._update_disturbance()
+        else:
+            self._update_rate_offset()
         return o
 
     def _hold(self) -> np.ndarray:
@@ -213,6 +233,27 @@ class LocalController:
         shift = np.clip(self.rate_offset / scale[:m], -s.offset_limit, s.offset_limit)
         self._lower[:m] = lower[:m] - shift
         self._upper[:m] = upper[:m] - shift
+
+    def _update_disturbance(self) -> None:
+        """Disturbance observer: the innovation nu = zeta - zeta_pred (the prediction
+        already holds d) is integrated, d <- d + L_d nu, clipped to ``observer_limit``
+        speed limits; its moving RMS sigma tightens the speed bounds (the first 10 soft
+        constraints) by ``margin_gain`` sigma, at most ``margin_limit`` of each limit."""
+        s = self.settings
+        if self._predicted_zeta is None:
+            return
+        m = NX // 2
+        nu = self._x0[m:] - self._predicted_zeta
+        lower, upper, scale = self._bounds
+        limit = s.observer_limit * scale[:m]
+        np.clip(self.disturbance + s.observer_gain * nu, -limit, limit, out=self.disturbance)
+        w = s.margin_forgetting
+        self.innovation_var += w * (nu * nu - self.innovation_var)
+        margin = np.minimum(
+            s.margin_gain * np.sqrt(self.innovation_var) / scale[:m], s.margin_limit
+        )
+        self._lower[:m] = lower[:m] + margin
+        self._upper[:m] = upper[:m] - margin
 
     def predicted_plan(self) -> tuple[np.ndarray, np.ndarray]:
         """The current plan: states (N+1, 20) and normalized inputs (N, 8) (copies)."""
@@ -275,6 +316,8 @@ class NMPCPolicy(LocalController):
             "fallbacks": self.fallbacks,
             "waypoint_index": index,
             "rate_offset_max": float(np.max(np.abs(self.rate_offset / self._bounds[2][:10]))),
+            "disturbance_max": float(np.max(np.abs(self.disturbance / self._bounds[2][:10]))),
+            "margin_max": float(np.max(self._bounds[1][:10] - self._upper[:10])),
             "slow": elapsed > self.settings.fallback_after_ms,
             **{k: v for k, v in info.items() if k not in ("iterations", "status")},
         }
@@ -309,13 +352,21 @@ class NMPCPolicy(LocalController):
         return k
 
 
-def make_policy(solver: str = "rti", **settings: Any) -> Callable[[AgentSpec], NMPCPolicy]:
+def make_policy(
+    solver: str = "rti", controller: str | None = None, **settings: Any
+) -> Callable[[AgentSpec], NMPCPolicy]:
     """A ``PolicyFactory`` (AgentSpec -> policy) for evaluators, e.g.
-    ``make_policy("rti", q_v=0.4)``; unknown setting names raise ValueError."""
+    ``make_policy("rti", q_v=0.4)`` or ``make_policy(controller="paper")``; ``controller``:
+    ``observer`` or ``paper`` (``settings.controller_settings``; None: ``observer`` with
+    rti, ``paper`` with ipopt). Unknown setting names raise ValueError."""
     unknown = sorted(set(settings) - set(NMPCSettings.field_names()))
     if unknown:
         raise ValueError(f"unknown NMPC setting(s) {unknown}; known: {NMPCSettings.field_names()}")
-    cfg = NMPCSettings(**settings)
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+    cfg = controller_settings(
+        controller or ("observer" if solver == "rti" else "paper"), **settings
+    )
 
     def factory(spec: AgentSpec) -> NMPCPolicy:
         return NMPCPolicy(spec, solver=solver, settings=cfg)
