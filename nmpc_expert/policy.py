@@ -34,6 +34,7 @@ from nmpc_expert.settings import NMPCSettings, controller_settings
 from uvms_env.dynamics import NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall
 from uvms_env.dynamics.local_model import NX, ModelParams
+from uvms_env.dynamics.uvms import default_model
 from uvms_env.env.observation import NAV_K_MAX, NAV_K_MIN, WAYPOINT_TOLERANCE
 from uvms_env.navigation import WaypointNavigator, choose_k
 from uvms_env.policy import AgentSpec
@@ -76,6 +77,11 @@ def local_parameters(spec: AgentSpec) -> np.ndarray:
     ).pack()
 
 
+def default_settings(solver: str) -> NMPCSettings:
+    """The observer controller with rti; the paper's with ipopt (its only one)."""
+    return NMPCSettings() if solver == "rti" else NMPCSettings.paper()
+
+
 def constraint_bounds(settings: NMPCSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(lower, upper, scale) of the NC soft constraints, normalized by ``scale``."""
     b = settings.backoff
@@ -113,10 +119,7 @@ class LocalController:
         if solver not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
         self.spec = spec
-        # default: the observer controller with rti, the paper's with ipopt (its only one)
-        self.settings = s = settings or (
-            NMPCSettings() if solver == "rti" else NMPCSettings.paper()
-        )
+        self.settings = s = settings or default_settings(solver)
         if abs(s.period - spec.period) > 1e-12:
             raise ValueError(f"settings.period {s.period} != scenario period {spec.period}")
         self.funcs = ocp_functions(
@@ -167,6 +170,12 @@ class LocalController:
             self.solver.disturbance[NX // 2 :] if solver == "rti" else np.zeros(NX // 2)
         )
         self.innovation_var = np.zeros(NX // 2)
+        # anti-windup: each rate's actuating input (B's one-hot rows; none for roll and
+        # pitch) and the input applied last period
+        b = np.asarray(default_model().B)
+        self._actuated = b.any(axis=1)
+        self._input_of_rate = b.argmax(axis=1)
+        self._applied: np.ndarray | None = None
         self._predicted_zeta: np.ndarray | None = None
         self._x0 = np.zeros(NX)
         self.stats: dict[str, Any] = {}
@@ -178,6 +187,7 @@ class LocalController:
         self.rate_offset[:] = 0.0
         self.disturbance[:] = 0.0
         self.innovation_var[:] = 0.0
+        self._applied = None
         self._predicted_zeta = None
         self._lower[:], self._upper[:] = self._bounds[0], self._bounds[1]
         self.stats = {}
@@ -211,6 +221,7 @@ class LocalController:
         a = np.asarray(action, dtype=np.float64).reshape(-1)
         if a.shape != (NU,) or not np.all(np.isfinite(a)):
             raise ValueError(f"executed action must be {NU} finite numbers, got {a.shape}")
+        self._applied = np.clip(a, -1.0, 1.0)
         if self._predicted_zeta is None:
             return
         gain = self.solver.input_sensitivity() if self.solver_name == "rti" else None
@@ -246,7 +257,14 @@ class LocalController:
         nu = self._x0[m:] - self._predicted_zeta
         lower, upper, scale = self._bounds
         limit = s.observer_limit * scale[:m]
-        np.clip(self.disturbance + s.observer_gain * nu, -limit, limit, out=self.disturbance)
+        step = s.observer_gain * nu
+        if self._applied is not None:
+            # anti-windup: where the rate's input was saturated and the error asks for
+            # more of it, the model's input gain is what is wrong (the teammates hold the
+            # joint), not a missing force: integrating would only wind the estimate up
+            a = self._applied[self._input_of_rate]
+            step[self._actuated & (np.abs(a) >= 1.0 - 1e-9) & (a * nu < 0)] = 0.0
+        np.clip(self.disturbance + step, -limit, limit, out=self.disturbance)
         w = s.margin_forgetting
         self.innovation_var += w * (nu * nu - self.innovation_var)
         margin = np.minimum(
@@ -269,8 +287,8 @@ class NMPCPolicy(LocalController):
         solver: str = "rti",
         settings: NMPCSettings | None = None,
     ) -> None:
-        super().__init__(spec, solver, settings)
-        s = self.settings
+        s = settings or default_settings(solver)
+        super().__init__(spec, solver, s, max_step=s.input_step)
         self.navigator = navigator_for(spec)
         self.reference = HorizonReference(
             self.navigator, s.horizon, s.period, s.attitude_from_waypoint
@@ -307,6 +325,10 @@ class NMPCPolicy(LocalController):
             status = f"fallback: {type(err).__name__}: {err}"
             action = self.solver.fallback(self._x0, self._hold())
             self._predicted_zeta = None
+        action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        self._applied = action
+        if self.settings.input_step is not None:
+            self.solver.a_prev = action.copy()  # the step bound's anchor (``executed``)
         self.decisions += 1
         elapsed = (time.perf_counter() - start) * 1e3
         self.stats = {
@@ -321,9 +343,13 @@ class NMPCPolicy(LocalController):
             "slow": elapsed > self.settings.fallback_after_ms,
             **{k: v for k, v in info.items() if k not in ("iterations", "status")},
         }
-        return np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        return action
 
-    # -- helpers ----------------------------------------------------------------------------
+    def executed(self, action: np.ndarray) -> None:
+        super().executed(action)
+        if self.settings.input_step is not None:  # the input applied anchors the step bound
+            self.solver.a_prev = np.clip(np.asarray(action, dtype=np.float64).reshape(-1), -1, 1)
+
     # -- helpers ----------------------------------------------------------------------------
     def _goal_integral_action(self, x_o: np.ndarray, index: int) -> None:
         """Integral action near the last waypoint (``goal_integral_gain``): the pose

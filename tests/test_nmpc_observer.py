@@ -148,6 +148,9 @@ def test_each_controller_reads_only_its_own_observation(env, controller):
         replay = np.array([alone.act(o) for o in stream[a]])
         np.testing.assert_allclose(replay, np.array(acted[a]), rtol=0, atol=1e-9)
         assert alone.settings.disturbance_observer == (controller == "observer")
+        step = alone.settings.input_step
+        if step is not None:  # the observer controller's bound on the input's change
+            assert np.max(np.abs(np.diff(acted[a], axis=0))) <= step + 1e-9
 
 
 def test_observer_needs_rti_and_validates(env):
