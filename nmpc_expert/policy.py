@@ -170,6 +170,12 @@ class LocalController:
             self.solver.disturbance[NX // 2 :] if solver == "rti" else np.zeros(NX // 2)
         )
         self.innovation_var = np.zeros(NX // 2)
+        # its prior: the cold-start margin (settings.margin_initial), as a variance
+        k = max(s.margin_gain, 1e-12)
+        self._innovation_var0 = (s.margin_initial * scale[: NX // 2] / k) ** 2
+        self.innovation_var[:] = self._innovation_var0
+        if s.disturbance_observer:
+            self._apply_margin()
         # anti-windup: each rate's actuating input (B's one-hot rows; none for roll and
         # pitch) and the input applied last period
         b = np.asarray(default_model().B)
@@ -186,10 +192,12 @@ class LocalController:
         self.solver.reset()
         self.rate_offset[:] = 0.0
         self.disturbance[:] = 0.0
-        self.innovation_var[:] = 0.0
+        self.innovation_var[:] = self._innovation_var0
+        self._lower[:], self._upper[:] = self._bounds[0], self._bounds[1]
+        if self.settings.disturbance_observer:
+            self._apply_margin()
         self._applied = None
         self._predicted_zeta = None
-        self._lower[:], self._upper[:] = self._bounds[0], self._bounds[1]
         self.stats = {}
         self.fallbacks = 0
         self.decisions = 0
@@ -255,7 +263,7 @@ class LocalController:
             return
         m = NX // 2
         nu = self._x0[m:] - self._predicted_zeta
-        lower, upper, scale = self._bounds
+        scale = self._bounds[2]
         limit = s.observer_limit * scale[:m]
         step = s.observer_gain * nu
         if self._applied is not None:
@@ -267,6 +275,13 @@ class LocalController:
         np.clip(self.disturbance + step, -limit, limit, out=self.disturbance)
         w = s.margin_forgetting
         self.innovation_var += w * (nu * nu - self.innovation_var)
+        self._apply_margin()
+
+    def _apply_margin(self) -> None:
+        """Speed bounds tightened by min(k sigma, margin_limit) (observer controller)."""
+        s = self.settings
+        lower, upper, scale = self._bounds
+        m = NX // 2
         margin = np.minimum(
             s.margin_gain * np.sqrt(self.innovation_var) / scale[:m], s.margin_limit
         )

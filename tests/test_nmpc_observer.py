@@ -101,9 +101,11 @@ def test_observer_converges_to_an_injected_generalized_force(env):
     np.testing.assert_allclose(pol._lower[:NQ], lower[:NQ] + margin)
     np.testing.assert_array_equal(pol._upper[NQ:], upper[NQ:])
     assert margin.max() > 0 and not pol.rate_offset.any()  # the bound shift is off
-    pol.reset()
-    assert not pol.disturbance.any() and not pol.innovation_var.any()
-    np.testing.assert_array_equal(pol._upper, upper)
+    pol.reset()  # back to the cold start: no estimate, the initial margin
+    assert not pol.disturbance.any()
+    np.testing.assert_allclose(pol._upper[:NQ], upper[:NQ] - s.margin_initial)
+    np.testing.assert_allclose(pol._lower[:NQ], lower[:NQ] + s.margin_initial)
+    np.testing.assert_array_equal(pol._upper[NQ:], upper[NQ:])
 
 
 def test_paper_controller_reproduces_the_decisions_before_the_observer():
