@@ -266,7 +266,7 @@ class LocalController:
         scale = self._bounds[2]
         limit = s.observer_limit * scale[:m]
         step = s.observer_gain * nu
-        if self._applied is not None:
+        if s.observer_anti_windup and self._applied is not None:
             # anti-windup: where the rate's input was saturated and the error asks for
             # more of it, the model's input gain is what is wrong (the teammates hold the
             # joint), not a missing force: integrating would only wind the estimate up
