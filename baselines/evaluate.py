@@ -11,10 +11,12 @@ raises ends its episode as a failure with the error recorded, not the evaluation
 
 Writes ``episodes.csv`` (one row per episode), ``results.json`` and ``results.md``
 (success and clean success, i.e. success with no violation period, with Wilson 95%
-intervals, means with bootstrap 95% intervals, violations per kind, decision time median
-and p95, and for ``+filter`` policies the safety filter's intervention rate), and plots
-(success by scenario, decision time on a log scale, the object's path per policy on the
-paper scenario).
+intervals, over the episodes whose current is within the team's reach: those beyond it,
+``current_within_reach`` false, are counted apart and left out of the rates; means with
+bootstrap 95% intervals, violations per kind, decision time median and p95, and for
+``+filter`` policies the safety filter's intervention rate), and plots (success by
+scenario, decision time on a log scale, the object's path per policy on the paper
+scenario).
 """
 
 from __future__ import annotations
@@ -89,6 +91,7 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
             kwargs["max_cycles"] = job.max_cycles
         env = uvms_env.parallel_env(scenario=job.scenario, seed=job.seed, **kwargs)
         obs, infos = env.reset(seed=job.seed)
+        row["current_within_reach"] = within_reach(env.scenario)
         factory = PolicySource.parse(job.policy).factory(job.seed)
         policies = {}
         for i, agent in enumerate(env.possible_agents):
@@ -138,6 +141,16 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
     return row
 
 
+def within_reach(scenario: Any) -> bool:
+    """Whether the team can hold against the scenario's current at all
+    (``uvms_env.scenarios.reach``); no current is always within reach."""
+    if scenario.current == "none":
+        return True
+    from uvms_env.scenarios.reach import current_within_reach
+
+    return current_within_reach(scenario)[0]
+
+
 def flatten_metrics(metrics: dict[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in metrics.items():
@@ -158,18 +171,22 @@ def aggregate(rows: list[dict[str, Any]], seed: int) -> list[dict[str, Any]]:
         groups.setdefault((row["policy"], row["scenario"]), []).append(row)
     out = []
     for (policy, scenario), group in sorted(groups.items()):
-        n = len(group)
-        wins = sum(bool(r.get("success")) for r in group)
+        # episodes whose current is beyond the team's reach are no policy's failure:
+        # counted apart, left out of the rates
+        reachable = [r for r in group if r.get("current_within_reach", True)]
+        n = len(reachable)
+        wins = sum(bool(r.get("success")) for r in reachable)
         lo, hi = wilson_interval(wins, n)
-        clean = sum(bool(r.get("clean_success")) for r in group)
+        clean = sum(bool(r.get("clean_success")) for r in reachable)
         summary: dict[str, Any] = {
             "policy": policy,
             "scenario": scenario,
-            "episodes": n,
+            "episodes": len(group),
+            "out_of_reach": len(group) - n,
             "errors": sum(bool(r["error"]) for r in group),
-            "success_rate": wins / n,
+            "success_rate": wins / n if n else float("nan"),
             "success_ci95": [lo, hi],
-            "clean_success_rate": clean / n,
+            "clean_success_rate": clean / n if n else float("nan"),
             "clean_success_ci95": list(wilson_interval(clean, n)),
         }
         for key in MEAN_METRICS:
@@ -212,17 +229,17 @@ def markdown_table(summaries: list[dict[str, Any]]) -> str:
         )
 
     lines = [
-        "| policy | scenario | episodes | success [95% CI] | clean success | "
-        "final pos. error m | min clearance m | violations (total) | violations / episode | "
-        "intervention rate | decision ms median / p95 | errors |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| policy | scenario | episodes | current out of reach | success [95% CI] | "
+        "clean success | final pos. error m | min clearance m | violations (total) | "
+        "violations / episode | intervention rate | decision ms median / p95 | errors |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in summaries:
         lo, hi = s["success_ci95"]
         t = s["policy_time_ms"]
         lines.append(
             f"| {s['policy']} | {s['scenario']} | {s['episodes']} | "
-            f"{s['success_rate']:.2f} [{fmt(lo)}, {fmt(hi)}] | "
+            f"{s.get('out_of_reach', 0)} | {fmt(s['success_rate'])} [{fmt(lo)}, {fmt(hi)}] | "
             f"{fmt(s.get('clean_success_rate'))} | "
             f"{fmt(s.get('final_pos_error_m'))} | {fmt(s.get('min_obstacle_clearance_m'))} | "
             f"{sum(s['violations'].values())} | "

@@ -1,6 +1,7 @@
 """Policy sources for the evaluator: ``--policy NAME[:ARG]`` to a per-agent factory.
 
-Known names: ``nmpc`` (the expert, ``nmpc:ipopt`` for its reference solver), ``random``
+Known names: ``nmpc`` (the expert, ``nmpc:ipopt`` for its reference solver,
+``nmpc:paper`` for the paper's controller without the disturbance observer), ``random``
 (uniform actions, seeded per episode and agent), ``zero`` (all inputs zero), and
 ``module:factory`` (a user's ``factory(spec) -> Policy`` importable as
 ``package.module:factory``), ``ppo:PATH`` / ``sac:PATH`` (an SB3 run folder, or
@@ -57,10 +58,21 @@ class ZeroPolicy:
 
 
 def _nmpc(arg: str | None, seed: int) -> PolicyFactory:
-    from nmpc_expert import NMPCPolicy  # the expert is optional at import time
+    """``nmpc[:OPTIONS]``, OPTIONS comma-separated: a solver (rti, ipopt) and/or a
+    controller (observer, paper), e.g. ``nmpc:paper``, ``nmpc:ipopt``."""
+    from nmpc_expert import CONTROLLERS, make_policy  # the expert is optional at import time
 
-    solver = arg or "rti"
-    return lambda spec: NMPCPolicy(spec, solver=solver)
+    solver, controller = "rti", None
+    for option in (arg or "").split(","):
+        if option in ("rti", "ipopt"):
+            solver = option
+        elif option in CONTROLLERS:
+            controller = option
+        elif option:
+            raise ValueError(
+                f"unknown nmpc option {option!r}: use rti, ipopt or one of {CONTROLLERS}"
+            )
+    return make_policy(solver, controller)
 
 
 def _random(arg: str | None, seed: int) -> PolicyFactory:

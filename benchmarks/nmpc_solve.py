@@ -1,13 +1,16 @@
 """Per-agent decision time of the NMPC expert (one core), at N = 2, 4, 6 robots.
 
     python benchmarks/nmpc_solve.py [--steps 150] [--solver rti] [--sizes 2 4 6] [--random]
+        [--controllers paper observer]
 
 Runs each case in closed loop on the environment (N = 2: the paper scenario; N = 4, 6:
 the random family, seed 0; ``--random``: the random family for every N, so that the
 object model is the same ring-shaped kind at every size) with one policy per robot and
 times every ``act`` call (the whole decision: observation check, object estimate,
 reference, QP build and solve).
-The controllers are distributed, so the time per decision must not grow with N. The
+``--controllers``: the paper's controller and the one with the disturbance observer
+(``nmpc_expert.CONTROLLERS``), measured one after the other in the same run (before and
+after). The controllers are distributed, so the time per decision must not grow with N. The
 first run compiles the OCP of each object shape (~50 s each, cached on disk).
 """
 
@@ -22,20 +25,20 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
-from nmpc_expert import NMPCPolicy
+from nmpc_expert import CONTROLLERS, make_policy
 from uvms_env.policy import AgentSpec
 
 
-def measure(n: int, steps: int, solver: str, random_only: bool = False) -> np.ndarray:
+def measure(
+    n: int, steps: int, solver: str, random_only: bool = False, controller: str | None = None
+) -> np.ndarray:
     kwargs = {"scenario": "random", "n_agents": n, "seed": 0}
     if n == 2 and not random_only:
         kwargs = {"scenario": "paper"}
     env = uvms_env.parallel_env(**kwargs)
     obs, _ = env.reset(seed=0)
-    pols = {
-        a: NMPCPolicy(AgentSpec.from_scenario(env.scenario, i), solver=solver)
-        for i, a in enumerate(env.agents)
-    }
+    factory = make_policy(solver, controller)
+    pols = {a: factory(AgentSpec.from_scenario(env.scenario, i)) for i, a in enumerate(env.agents)}
     times = []
     for _ in range(steps):
         actions = {}
@@ -59,13 +62,21 @@ def main() -> None:
     ap.add_argument("--solver", default="rti", choices=["rti", "ipopt"])
     ap.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 6])
     ap.add_argument("--random", action="store_true", help="random family at every N")
+    ap.add_argument("--controllers", nargs="+", default=["paper", "observer"], choices=CONTROLLERS)
     args = ap.parse_args()
-    print(f"{'N':>3} {'decisions':>9} {'median ms':>10} {'p95 ms':>8} {'max ms':>8}")
+    if args.solver == "ipopt":
+        args.controllers = ["paper"]  # IPOPT solves the paper's controller only
+    print(
+        f"{'controller':>10} {'N':>3} {'decisions':>9} {'median ms':>10} {'p95 ms':>8} "
+        f"{'max ms':>8}"
+    )
     for n in args.sizes:
-        t = measure(n, args.steps, args.solver, args.random)
-        print(
-            f"{n:>3} {len(t):>9} {np.median(t):>10.2f} {np.percentile(t, 95):>8.2f} {t.max():>8.2f}"
-        )
+        for controller in args.controllers:
+            t = measure(n, args.steps, args.solver, args.random, controller)
+            print(
+                f"{controller:>10} {n:>3} {len(t):>9} {np.median(t):>10.2f} "
+                f"{np.percentile(t, 95):>8.2f} {t.max():>8.2f}"
+            )
 
 
 if __name__ == "__main__":

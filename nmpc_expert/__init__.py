@@ -3,6 +3,7 @@ controller per robot, behind the shared policy interface (``uvms_env.policy``).
 
     from nmpc_expert import NMPCPolicy, SafetyFilter, make_policy
     policy = NMPCPolicy(AgentSpec.from_scenario(scenario, i), solver="rti")   # or "ipopt"
+    paper = NMPCPolicy(spec, settings=NMPCSettings.paper())  # the paper's controller
     safe = SafetyFilter(spec, other_policy)   # the expert's constraints around any policy
 
 Modules (one job each): ``ocp`` (the
@@ -19,13 +20,20 @@ May import: numpy, scipy, casadi, matplotlib, tqdm and ``uvms_env``. Never ``bas
 
 from nmpc_expert.policy import NMPCPolicy, make_policy
 from nmpc_expert.safety_filter import SafetyFilter, make_filter
-from nmpc_expert.settings import MANIPULABILITY_EPS, NMPCSettings
+from nmpc_expert.settings import (
+    CONTROLLERS,
+    MANIPULABILITY_EPS,
+    NMPCSettings,
+    controller_settings,
+)
 
 __all__ = [
+    "CONTROLLERS",
     "MANIPULABILITY_EPS",
     "NMPCPolicy",
     "NMPCSettings",
     "SafetyFilter",
+    "controller_settings",
     "make_filter",
     "make_policy",
 ]

@@ -2,8 +2,13 @@
 figures, an animation, metrics.json and the trajectory (.npz).
 
     python -m nmpc_expert --scenario paper --out runs/paper [--solver rti|ipopt]
-        [--seed 0] [--n-agents N] [--current none|mild|strong] [--mismatch 0.1]
-        [--max-cycles 2000] [--no-figures]
+        [--controller observer|paper] [--seed 0] [--n-agents N]
+        [--current none|mild|strong] [--mismatch 0.1] [--max-cycles 2000] [--no-figures]
+
+``--controller``: ``observer`` (the default) is the expert with offset-free local
+prediction (a disturbance observer on its own measured rates, ``NMPCSettings``);
+``paper`` is the paper's controller without it. The IPOPT solver runs the paper's
+controller only.
 
 One NMPCPolicy per agent on the PettingZoo environment (``uvms_env.parallel_env``), each
 fed only its own observation.
@@ -23,6 +28,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from nmpc_expert.rollout import run_episode
+from nmpc_expert.settings import CONTROLLERS, controller_settings
 
 
 class _Deprecated(argparse.Action):
@@ -48,6 +54,13 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--current", default="none", choices=["none", "mild", "strong"])
     ap.add_argument("--mismatch", type=float, default=0.0, help="truth-model perturbation")
     ap.add_argument("--solver", default="rti", choices=["rti", "ipopt"])
+    ap.add_argument(
+        "--controller",
+        default=None,
+        choices=CONTROLLERS,
+        help="observer: offset-free prediction (default with rti); paper: the paper's "
+        "controller (default and only choice with ipopt)",
+    )
     ap.add_argument("--max-cycles", type=int, default=None, help="episode length cap")
     ap.add_argument(
         "--max-steps", type=int, dest="max_cycles", action=_Deprecated, help=argparse.SUPPRESS
@@ -58,10 +71,19 @@ def main(argv: list[str] | None = None) -> dict:
     overrides: dict = {"current": args.current, "mismatch": args.mismatch}
     if args.n_agents is not None:
         overrides["n_agents"] = args.n_agents
+    controller = args.controller or ("paper" if args.solver == "ipopt" else "observer")
+    if controller == "observer" and args.solver == "ipopt":
+        ap.error("--controller observer needs --solver rti")
     start = time.perf_counter()
     metrics, arr, scenario = run_episode(
-        args.scenario, args.solver, args.seed, args.max_cycles, **overrides
+        args.scenario,
+        args.solver,
+        args.seed,
+        args.max_cycles,
+        settings=controller_settings(controller),
+        **overrides,
     )
+    metrics["controller"] = controller
     metrics["wall_time_s"] = time.perf_counter() - start
     args.out.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(args.out / "trajectory.npz", **arr)

@@ -38,6 +38,7 @@ class IpoptSolver:
         self.theta = np.ascontiguousarray(theta, dtype=float)
         self.weights = np.ascontiguousarray(weights, dtype=float)
         self._build = BufferCall(funcs.qp_builder)
+        self._no_disturbance = np.zeros(NX)  # the paper's model (no disturbance observer)
         self.xbar = np.zeros((n + 1, NX))
         self.abar = np.zeros((n, NU))
         self.sbar = np.zeros((n, NC))
@@ -130,7 +131,9 @@ class IpoptSolver:
 
     def step(self, x0: np.ndarray, a_init: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
         self.shift(x0, a_init)
-        a_ref = self._build(self.xbar, self.abar, self.theta, self.xd, self.vd, self.weights)[9]
+        a_ref = self._build(
+            self.xbar, self.abar, self.theta, self.xd, self.vd, self.weights, self._no_disturbance
+        )[9]
         n = self.n
         w0 = np.concatenate([self.xbar.ravel(), self.abar.ravel(), self.sbar.ravel()])
         lbx = np.concatenate([-np.inf * np.ones(NX * (n + 1)), -np.ones(NU * n), np.zeros(NC * n)])

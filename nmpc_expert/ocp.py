@@ -186,7 +186,13 @@ def build_qp_builder(
     normalized constraint values of x_1..x_N; their L1 + L2 slack penalties are the
     solver's business (``rti``).
 
-    Inputs: xbar (NX x N+1), abar (NU x N), theta, xd (6 x N+1), vd (6 x N+1), w (NW).
+    Offset-free prediction: ``d`` (NX) is added to every interval's end state, F(x_k, a_k)
+    + d, the disturbance observer's estimate of what the local model misses per period
+    (``policy.LocalController``); zeros give the paper's model exactly. A constant, it
+    changes the defects, not the sensitivities.
+
+    Inputs: xbar (NX x N+1), abar (NU x N), theta, xd (6 x N+1), vd (6 x N+1), w (NW),
+    d (NX).
     Outputs, laid out for numpy through the buffer interface (column-major transposes):
     h (H), f, c_t (C' so that numpy reads C, 16N x 8N, row-major), lb, ub, lbc, ubc,
     g_t (G' with G = [G_1; ...; G_N], NX N x 8N), e ([e_1; ...; e_N]), a_ref (NU x N).
@@ -197,6 +203,7 @@ def build_qp_builder(
     theta = cs.MX.sym("theta", NTHETA)
     xd, vd = cs.MX.sym("xd", 6, n + 1), cs.MX.sym("vd", 6, n + 1)
     w = cs.MX.sym("w", NW)
+    d = cs.MX.sym("d", NX)
     o = 0
     q_x, q_v, p_x = w[o : o + 6], w[o + 6 : o + 12], w[o + 12 : o + 18]
     o += 18
@@ -206,6 +213,7 @@ def build_qp_builder(
     use_ss = w[o + 5 * NC]
 
     f_next, phis, gams = interval.map(n, "serial")(xbar[:, :n], abar, cs.repmat(theta, 1, n))
+    f_next = f_next + cs.repmat(d, 1, n)
     # node 0 is the measured state: neither its cost nor its constraints depend on da
     thetas = cs.repmat(theta, 1, n)
     r, jr, c, jc = outputs.map(n, "serial")(xbar[:, 1:], thetas, xd[:, 1:], vd[:, 1:])
@@ -242,7 +250,7 @@ def build_qp_builder(
     dense = cs.densify
     return cs.Function(
         "nmpc_qp_builder",
-        [xbar, abar, theta, xd, vd, w],
+        [xbar, abar, theta, xd, vd, w, d],
         [
             dense(h_mat),
             dense(f_vec),
@@ -255,7 +263,7 @@ def build_qp_builder(
             dense(cs.vertcat(*e_rows)),
             dense(a_ref),
         ],
-        ["xbar", "abar", "theta", "xd", "vd", "w"],
+        ["xbar", "abar", "theta", "xd", "vd", "w", "d"],
         ["h", "f", "c_t", "lb", "ub", "lbc", "ubc", "g_t", "e", "a_ref"],
     )
 

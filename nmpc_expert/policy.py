@@ -30,11 +30,12 @@ from nmpc_expert.observation import OBSERVATION_STRUCTURE, check_observation
 from nmpc_expert.ocp import NC, WEIGHT_OFFSETS, ocp_functions, weight_vector
 from nmpc_expert.reference import HorizonReference
 from nmpc_expert.rti import ExtraRows, RTISolver
-from nmpc_expert.settings import NMPCSettings
+from nmpc_expert.settings import NMPCSettings, controller_settings
 from uvms_env.dynamics import NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall
 from uvms_env.dynamics.local_model import NX, ModelParams
 from uvms_env.dynamics.spatial import wrap_angle
+from uvms_env.dynamics.uvms import default_model
 from uvms_env.env.observation import NAV_K_MAX, NAV_K_MIN, WAYPOINT_TOLERANCE
 from uvms_env.navigation import WaypointNavigator, choose_k
 from uvms_env.policy import AgentSpec
@@ -77,6 +78,11 @@ def local_parameters(spec: AgentSpec) -> np.ndarray:
     ).pack()
 
 
+def default_settings(solver: str) -> NMPCSettings:
+    """The observer controller with rti; the paper's with ipopt (its only one)."""
+    return NMPCSettings() if solver == "rti" else NMPCSettings.paper()
+
+
 def constraint_bounds(settings: NMPCSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(lower, upper, scale) of the NC soft constraints, normalized by ``scale``."""
     b = settings.backoff
@@ -114,7 +120,7 @@ class LocalController:
         if solver not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
         self.spec = spec
-        self.settings = s = settings or NMPCSettings()
+        self.settings = s = settings or default_settings(solver)
         if abs(s.period - spec.period) > 1e-12:
             raise ValueError(f"settings.period {s.period} != scenario period {spec.period}")
         self.funcs = ocp_functions(
@@ -146,6 +152,11 @@ class LocalController:
 
             self.solver = IpoptSolver(self.funcs, self.theta, self.weights, s)
         self.solver_name = solver
+        if s.disturbance_observer and solver != "rti":
+            raise ValueError(
+                "the disturbance observer needs the rti solver; for ipopt use "
+                "NMPCSettings.paper() (disturbance_observer=False)"
+            )
         # rate-offset estimator (settings.offset_gain): the speed bounds, shifted in place
         # in the solver's weight vector by the estimated prediction error
         self._bounds = (lower.copy(), upper.copy(), scale.copy())
@@ -153,6 +164,25 @@ class LocalController:
         self._lower = self.solver.weights[o["lower"] : o["lower"] + NC]
         self._upper = self.solver.weights[o["upper"] : o["upper"] + NC]
         self.rate_offset = np.zeros(NX // 2)  # e, filtered one-step error of zeta
+        # disturbance observer (settings.disturbance_observer): d, the velocity part of
+        # the solver's additive disturbance (a view, updated in place), and sigma^2, the
+        # moving average of the squared innovation behind the adaptive speed margins
+        self.disturbance = (
+            self.solver.disturbance[NX // 2 :] if solver == "rti" else np.zeros(NX // 2)
+        )
+        self.innovation_var = np.zeros(NX // 2)
+        # its prior: the cold-start margin (settings.margin_initial), as a variance
+        k = max(s.margin_gain, 1e-12)
+        self._innovation_var0 = (s.margin_initial * scale[: NX // 2] / k) ** 2
+        self.innovation_var[:] = self._innovation_var0
+        if s.disturbance_observer:
+            self._apply_margin()
+        # anti-windup: each rate's actuating input (B's one-hot rows; none for roll and
+        # pitch) and the input applied last period
+        b = np.asarray(default_model().B)
+        self._actuated = b.any(axis=1)
+        self._input_of_rate = b.argmax(axis=1)
+        self._applied: np.ndarray | None = None
         self._predicted_zeta: np.ndarray | None = None
         self._x0 = np.zeros(NX)
         self.stats: dict[str, Any] = {}
@@ -162,8 +192,13 @@ class LocalController:
     def reset(self) -> None:
         self.solver.reset()
         self.rate_offset[:] = 0.0
-        self._predicted_zeta = None
+        self.disturbance[:] = 0.0
+        self.innovation_var[:] = self._innovation_var0
         self._lower[:], self._upper[:] = self._bounds[0], self._bounds[1]
+        if self.settings.disturbance_observer:
+            self._apply_margin()
+        self._applied = None
+        self._predicted_zeta = None
         self.stats = {}
         self.fallbacks = 0
         self.decisions = 0
@@ -175,7 +210,10 @@ class LocalController:
         st = OBSERVATION_STRUCTURE
         self._x0[: NX // 2] = o[st["q"]]
         self._x0[NX // 2 :] = o[st["zeta"]]
-        self._update_rate_offset()
+        if self.settings.disturbance_observer:
+            self._update_disturbance()
+        else:
+            self._update_rate_offset()
         return o
 
     def _hold(self) -> np.ndarray:
@@ -192,6 +230,7 @@ class LocalController:
         a = np.asarray(action, dtype=np.float64).reshape(-1)
         if a.shape != (NU,) or not np.all(np.isfinite(a)):
             raise ValueError(f"executed action must be {NU} finite numbers, got {a.shape}")
+        self._applied = np.clip(a, -1.0, 1.0)
         if self._predicted_zeta is None:
             return
         gain = self.solver.input_sensitivity() if self.solver_name == "rti" else None
@@ -215,6 +254,41 @@ class LocalController:
         self._lower[:m] = lower[:m] - shift
         self._upper[:m] = upper[:m] - shift
 
+    def _update_disturbance(self) -> None:
+        """Disturbance observer: the innovation nu = zeta - zeta_pred (the prediction
+        already holds d) is integrated, d <- d + L_d nu, clipped to ``observer_limit``
+        speed limits; its moving RMS sigma tightens the speed bounds (the first 10 soft
+        constraints) by ``margin_gain`` sigma, at most ``margin_limit`` of each limit."""
+        s = self.settings
+        if self._predicted_zeta is None:
+            return
+        m = NX // 2
+        nu = self._x0[m:] - self._predicted_zeta
+        scale = self._bounds[2]
+        limit = s.observer_limit * scale[:m]
+        step = s.observer_gain * nu
+        if s.observer_anti_windup and self._applied is not None:
+            # anti-windup: where the rate's input was saturated and the error asks for
+            # more of it, the model's input gain is what is wrong (the teammates hold the
+            # joint), not a missing force: integrating would only wind the estimate up
+            a = self._applied[self._input_of_rate]
+            step[self._actuated & (np.abs(a) >= 1.0 - 1e-9) & (a * nu < 0)] = 0.0
+        np.clip(self.disturbance + step, -limit, limit, out=self.disturbance)
+        w = s.margin_forgetting
+        self.innovation_var += w * (nu * nu - self.innovation_var)
+        self._apply_margin()
+
+    def _apply_margin(self) -> None:
+        """Speed bounds tightened by min(k sigma, margin_limit) (observer controller)."""
+        s = self.settings
+        lower, upper, scale = self._bounds
+        m = NX // 2
+        margin = np.minimum(
+            s.margin_gain * np.sqrt(self.innovation_var) / scale[:m], s.margin_limit
+        )
+        self._lower[:m] = lower[:m] + margin
+        self._upper[:m] = upper[:m] - margin
+
     def predicted_plan(self) -> tuple[np.ndarray, np.ndarray]:
         """The current plan: states (N+1, 20) and normalized inputs (N, 8) (copies)."""
         return self.solver.xbar.copy(), self.solver.abar.copy()
@@ -229,8 +303,8 @@ class NMPCPolicy(LocalController):
         solver: str = "rti",
         settings: NMPCSettings | None = None,
     ) -> None:
-        super().__init__(spec, solver, settings)
-        s = self.settings
+        s = settings or default_settings(solver)
+        super().__init__(spec, solver, s, max_step=s.input_step)
         self.navigator = navigator_for(spec)
         self.reference = HorizonReference(
             self.navigator, s.horizon, s.period, s.attitude_from_waypoint
@@ -267,6 +341,10 @@ class NMPCPolicy(LocalController):
             status = f"fallback: {type(err).__name__}: {err}"
             action = self.solver.fallback(self._x0, self._hold())
             self._predicted_zeta = None
+        action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        self._applied = action
+        if self.settings.input_step is not None:
+            self.solver.a_prev = action.copy()  # the step bound's anchor (``executed``)
         self.decisions += 1
         elapsed = (time.perf_counter() - start) * 1e3
         self.stats = {
@@ -276,12 +354,18 @@ class NMPCPolicy(LocalController):
             "fallbacks": self.fallbacks,
             "waypoint_index": index,
             "rate_offset_max": float(np.max(np.abs(self.rate_offset / self._bounds[2][:10]))),
+            "disturbance_max": float(np.max(np.abs(self.disturbance / self._bounds[2][:10]))),
+            "margin_max": float(np.max(self._bounds[1][:10] - self._upper[:10])),
             "slow": elapsed > self.settings.fallback_after_ms,
             **{k: v for k, v in info.items() if k not in ("iterations", "status")},
         }
-        return np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        return action
 
-    # -- helpers ----------------------------------------------------------------------------
+    def executed(self, action: np.ndarray) -> None:
+        super().executed(action)
+        if self.settings.input_step is not None:  # the input applied anchors the step bound
+            self.solver.a_prev = np.clip(np.asarray(action, dtype=np.float64).reshape(-1), -1, 1)
+
     # -- helpers ----------------------------------------------------------------------------
     def _goal_integral_action(self, x_o: np.ndarray, index: int) -> None:
         """Integral action near the last waypoint (``goal_integral_gain``): the pose
@@ -310,13 +394,21 @@ class NMPCPolicy(LocalController):
         return k
 
 
-def make_policy(solver: str = "rti", **settings: Any) -> Callable[[AgentSpec], NMPCPolicy]:
+def make_policy(
+    solver: str = "rti", controller: str | None = None, **settings: Any
+) -> Callable[[AgentSpec], NMPCPolicy]:
     """A ``PolicyFactory`` (AgentSpec -> policy) for evaluators, e.g.
-    ``make_policy("rti", q_v=0.4)``; unknown setting names raise ValueError."""
+    ``make_policy("rti", q_v=0.4)`` or ``make_policy(controller="paper")``; ``controller``:
+    ``observer`` or ``paper`` (``settings.controller_settings``; None: ``observer`` with
+    rti, ``paper`` with ipopt). Unknown setting names raise ValueError."""
     unknown = sorted(set(settings) - set(NMPCSettings.field_names()))
     if unknown:
         raise ValueError(f"unknown NMPC setting(s) {unknown}; known: {NMPCSettings.field_names()}")
-    cfg = NMPCSettings(**settings)
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+    cfg = controller_settings(
+        controller or ("observer" if solver == "rti" else "paper"), **settings
+    )
 
     def factory(spec: AgentSpec) -> NMPCPolicy:
         return NMPCPolicy(spec, solver=solver, settings=cfg)

@@ -86,6 +86,9 @@ class RTISolver:
         self.abar = np.zeros((n, NU))
         self.xd = np.zeros((n + 1, 6))
         self.vd = np.zeros((n + 1, 6))
+        # d: added to every interval's predicted end state (the disturbance observer's
+        # estimate, written in place by the controller; zeros: the paper's model)
+        self.disturbance = np.zeros(NX)
         self.has_plan = False
         self.stats: dict[str, Any] = {}
         nz, nc = n * NU, n * NC
@@ -146,7 +149,7 @@ class RTISolver:
         """Build and solve the condensed QP around (xbar, abar); returns the input steps
         da (N * 8) and solver info; raises RuntimeError if the QP failed."""
         h, f, c, lb, ub, lbc, ubc, *_ = self._build(
-            self.xbar, self.abar, self.theta, self.xd, self.vd, self.weights
+            self.xbar, self.abar, self.theta, self.xd, self.vd, self.weights, self.disturbance
         )
         f, lb, ub, lbc, ubc = (v.reshape(-1) for v in (f, lb, ub, lbc, ubc))  # views
         if self.cost is not None:

@@ -101,9 +101,11 @@ class SafetyFilter(LocalController):
     eps on the later inputs' change from the backup plan; ``tolerance``: a decision with
     max |a_out - a_prop| above it counts as an intervention; ``workspace``: add the
     workspace rows (``workspace_margin`` [m] inside the boundary). ``settings``: the expert's
-    (constraints, back-offs, rate-offset estimator; default: the expert's defaults with
-    ``horizon = FILTER_HORIZON``). ``max_input_step``: bound delta on the input's change
-    per period, along the plan too (module docstring); None: no bound (the default)."""
+    (constraints, back-offs, rate-offset estimator; default: the paper controller's
+    settings, ``NMPCSettings.paper``, with ``horizon = FILTER_HORIZON`` and
+    ``offset_limit = FILTER_OFFSET_LIMIT``; the disturbance observer is not used here).
+    ``max_input_step``: bound delta on the input's change per period, along the plan too
+    (module docstring); None: no bound (the default)."""
 
     def __init__(
         self,
@@ -128,7 +130,7 @@ class SafetyFilter(LocalController):
             raise ValueError("input_weight and regularization must be > 0, tolerance >= 0")
         if max_input_step is not None and not max_input_step > 0:
             raise ValueError("max_input_step must be > 0 (or None)")
-        settings = settings or NMPCSettings(
+        settings = settings or NMPCSettings.paper(
             horizon=FILTER_HORIZON, offset_limit=FILTER_OFFSET_LIMIT
         )
         n = settings.horizon

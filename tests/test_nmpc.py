@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import uvms_env
-from nmpc_expert import NMPCPolicy, make_policy
+from nmpc_expert import NMPCPolicy, NMPCSettings, make_policy
 from nmpc_expert.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
 from nmpc_expert.ocp import NC, WEIGHT_OFFSETS
 from uvms_env.policy import AgentSpec, Policy
@@ -66,17 +66,18 @@ def test_short_closed_loop_moves_toward_waypoint_1(env, short_run):
 
 
 def test_rate_offset_shifts_speed_bounds(env, short_run):
-    """The offset estimator learned a nonzero one-step rate error (the local model misses
-    the internal wrench) and shifted exactly the speed bounds by it, nothing else; reset
-    restores the bounds."""
+    """The paper controller's offset estimator learned a nonzero one-step rate error (the
+    local model misses the internal wrench) and shifted exactly the speed bounds by it,
+    nothing else; reset restores the bounds."""
     *_, stream, _ = short_run
     for i, agent in enumerate(env.possible_agents):
-        p = NMPCPolicy(AgentSpec.from_scenario(env.scenario, i))
+        p = NMPCPolicy(AgentSpec.from_scenario(env.scenario, i), settings=NMPCSettings.paper())
         for o in stream[agent][:20]:
             p.act(o)
         lower, upper, scale = p._bounds
         assert 1e-4 < p.stats["rate_offset_max"] <= p.settings.offset_limit
-        shift = np.clip(p.rate_offset / scale[:10], -0.5, 0.5)
+        lim = p.settings.offset_limit
+        shift = np.clip(p.rate_offset / scale[:10], -lim, lim)
         np.testing.assert_allclose(p._upper[:10], upper[:10] - shift)
         np.testing.assert_allclose(p._lower[:10], lower[:10] - shift)
         np.testing.assert_array_equal(p._upper[10:], upper[10:])
@@ -233,7 +234,10 @@ def test_soft_rows_carry_the_l1_l2_slack_penalty(env, short_run):
     import casadi as cs
 
     *_, stream, _ = short_run
-    pol = NMPCPolicy(AgentSpec.from_scenario(env.scenario, 0))
+    # no input-step rows: the reference below has the box and the soft rows only
+    pol = NMPCPolicy(
+        AgentSpec.from_scenario(env.scenario, 0), settings=NMPCSettings(input_step=None)
+    )
     for o in stream[env.possible_agents[0]][:10]:
         pol.act(o)
     solver = pol.solver
