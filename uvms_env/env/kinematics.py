@@ -422,6 +422,11 @@ class TeamKinematics(RebuiltOnUnpickle):
         squared clipped normalized actions)] as floats."""
         return self._team[:6].tolist()
 
+    def team_column(self) -> np.ndarray:
+        """The whole team output as (T, 1) float64 (a view): the rows ``team`` lists, then
+        the kinds violated (8), ...: the task's K = 1 input."""
+        return self._team[:, None]
+
     @property
     def object_clearance(self) -> float:
         return float(self._team[6 + NK])
