@@ -691,8 +691,8 @@ def task_of(scenario: Scenario, env: Any, num_envs: int, w_max: int, xp: Any) ->
     )
     waypoints = np.zeros((num_envs, w_max, 6))
     waypoints[:, : len(scenario.waypoints)] = scenario.waypoints
-    task.set_geometry(ALL, waypoints, np.full(num_envs, bool(scenario.obstacles)))
-    task.set_counts(ALL, np.full(num_envs, len(scenario.waypoints)))
+    count = np.full(num_envs, len(scenario.waypoints))
+    task.set_geometry(ALL, waypoints, count, np.full(num_envs, bool(scenario.obstacles)))
     return task
 
 

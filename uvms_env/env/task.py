@@ -161,6 +161,9 @@ class Task:
         self.period = period
         self.pos_tol, self.att_tol = success_pos_tol, success_att_tol
         self.wrench_every = internal_wrench_every
+        # violations averaged over robots, effort over robots and inputs
+        self._per_violation = weights.violation / n_agents
+        self._per_action_sq = weights.effort / (n_agents * NU)
         self.reward_fns = _functions("extra_reward_terms", extra_reward_terms, REWARD_TERMS)
         self.constraint_fns = _functions("extra_constraints", extra_constraints, CONSTRAINTS)
         self.reward_terms = REWARD_TERMS + tuple(self.reward_fns)
@@ -203,15 +206,13 @@ class Task:
         return self.targets[:, 1]
 
     # -- geometry and resets -------------------------------------------------------------
-    def set_geometry(self, ids: Any, waypoints: Any, has_obstacles: Any) -> None:
-        """Environments ``ids`` take these waypoints ((m, W, 6), padded with zeros; the
-        counts: ``waypoint_count``, set by the caller with them) and obstacle flags (m,)."""
+    def set_geometry(self, ids: Any, waypoints: Any, counts: Any, has_obstacles: Any) -> None:
+        """Environments ``ids`` take these waypoints ((m, W, 6), zeros beyond each one's
+        ``counts`` (m,)) and obstacle flags (m,): host or device arrays."""
         xp = self.xp
         self.waypoints[ids] = xp.asarray(waypoints)
+        self.waypoint_count[ids] = xp.asarray(counts)
         self.has_obstacles[ids] = xp.asarray(has_obstacles)
-
-    def set_counts(self, ids: Any, counts: Any) -> None:
-        self.waypoint_count[ids] = self.xp.asarray(counts)
         self.goal[ids] = self.waypoints[self._rows[ids], self.waypoint_count[ids] - 1]
 
     def reset(self, ids: Any) -> None:
@@ -344,8 +345,8 @@ class Task:
             "waypoint": waypoint,
             "success": success * w.success,
             # 0.0 - ...: a clean 0.0 rather than -0.0 when nothing is violated
-            "violation": 0.0 - w.violation * n_violated / self.n - failed * w.failure,
-            "effort": 0.0 - w.effort * action_sq / (self.n * NU),
+            "violation": 0.0 - self._per_violation * n_violated - failed * w.failure,
+            "effort": 0.0 - self._per_action_sq * action_sq,
         }
         if self.reward_fns:
             assert state is not None, "extra reward terms need the state"

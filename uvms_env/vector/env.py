@@ -143,15 +143,18 @@ class VectorEnv:
 
     | key | shape | meaning |
     |---|---|---|
-    | constraint_values | (K, N, 8) | g <= 0 holds, order of `CONSTRAINTS` |
+    | constraint_values | (K, N, 8 + E) | g <= 0 holds: `CONSTRAINTS`, then E extra ones |
     | cost | (K, N) | violated constraints per robot |
-    | reward_terms | dict name -> (K,) | the terms of the shared reward |
+    | reward_terms | dict name -> (K,) | the terms of the shared reward (extra terms last) |
     | success | (K,) bool | the episode succeeded this step |
     | episode_end | (K,) object | "" or success, collision, constraint, diverged, max_cycles |
     | final_observation | (K, N, 79) | last observation of the envs that ended (else zeros) |
     | final_state | (K, 20 N + 19) or None | `state()` before the resets, when an env ended |
     | metrics | (K,) object | the ended episodes' metrics (`uvms_env.env.metrics`) or None |
     | diverged_reason | (K,) object | why a step was refused ("" elsewhere) |
+
+    **Extensions**: `extra_reward_terms` and `extra_constraints` as in `parallel_env`; the
+    functions receive the K environments' arrays (CuPy ones on a GPU) and `xp`.
 
     **Float32** (`dtype="float32"`): every compiled call in single precision, rewards and
     metrics in float64 from its results; the fast mode. Its deviation from float64 is
@@ -473,8 +476,7 @@ class VectorEnv:
             ).reshape(-1)
         xp, real = self.xp, self._real
         cols = self._on_device(np.array([i for i, _ in changed]))
-        self.task.set_geometry(cols, waypoints, obstacles)
-        self.task.set_counts(cols, count)
+        self.task.set_geometry(cols, waypoints, count, obstacles)
         self._nav_table[cols] = xp.asarray(nav)
         for target, rows in (
             (self._cylinders, cylinders),
