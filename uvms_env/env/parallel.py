@@ -422,11 +422,10 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             raise self._bad_actions(a) from exc
         task = w.task
         task.max_cycles = self.max_cycles  # an attribute a user may change
-        task.tick()
+        refused = np.array([bool(diverged)])
+        sampled = task.tick(refused)
         obs = self._observe(a)
         kin = w.kinematics
-        refused = np.array([bool(diverged)])
-        sampled = task.wrench_due(refused)
         wrench_sq = None
         if sampled is not None and sampled[0]:
             wrench_sq = np.array([w.wrench(info.tau_applied, info.current)])

@@ -131,9 +131,10 @@ class Task:
     Calls, in an episode's order: ``set_geometry`` (when a geometry changes), ``reset``
     (bookkeeping), then per evaluation of the kinematics kernel ``observe`` (state metrics)
     and ``advance_robots``; ``start`` after the first one (the team's sequencing, the
-    reward's potential); per step ``tick`` (before the kernel: time advances),
-    ``step`` (after it) and ``results``/``end_kinds`` for the episodes that ended.
-    ``ids``: a slice or an index array of the namespace."""
+    reward's potential); per step ``tick`` (before the kernel: time advances; it says
+    where the internal wrench is sampled), ``step`` (after it) and ``results`` and
+    ``end_kinds`` for the episodes that ended. ``ids``: a slice or an index array of
+    the namespace."""
 
     def __init__(
         self,
@@ -269,18 +270,16 @@ class Task:
         self.robot_waypoint[ids] = self.waypoints[self._rows[ids][:, None], index]
         return True
 
-    def tick(self) -> None:
-        """A period passed in every environment (before the step's evaluation)."""
+    def tick(self, diverged: Any) -> Any:
+        """A period passed in every environment (before the step's evaluation); returns
+        where the internal wrench is sampled this step ((K,) bool; None: never)."""
         self.steps += 1
-
-    def time_fraction(self, ids: Any = ALL) -> Any:
-        return self.steps[ids] / self.max_cycles
-
-    def wrench_due(self, diverged: Any) -> Any:
-        """(K,) where the internal wrench is sampled this step; None: never."""
         if self.wrench_every <= 0:
             return None
         return ~diverged & (self.steps % self.wrench_every == 0)
+
+    def time_fraction(self, ids: Any = ALL) -> Any:
+        return self.steps[ids] / self.max_cycles
 
     # -- one step ---------------------------------------------------------------------------
     def step(
@@ -298,7 +297,7 @@ class Task:
         ``x_o`` (K, 6) the true object, ``team`` (T, K) float64 the kernel's team rows,
         ``constraint_values`` (K, N, 8) and ``cost`` (K, N) the kernel's, ``diverged`` (K,)
         the refused steps, ``sampled``/``wrench_sq`` (K,) the internal wrench samples
-        (``wrench_due``), ``state`` what the extensions see (needed when ``extended``)."""
+        (``tick``), ``state`` what the extensions see (needed when ``extended``)."""
         xp, w = self.xp, self.weights
         kinds = team[KINDS].T > 0.0  # (K, 8)
         n_violated = team[VIOLATED]
@@ -318,9 +317,9 @@ class Task:
         if self.terminate:
             failed = failed | (n_violated > 0)
         d, dist = self._distances(x_o)
-        success = ~failed & self._at_goal(d, dist)
+        success = self._success(d, dist, failed)
         terminated = success | failed
-        truncated = ~terminated & (self.steps >= self.max_cycles)
+        truncated = (self.steps >= self.max_cycles) & ~terminated
 
         # metrics
         action_sq = team[ACTION_SQ]
@@ -387,9 +386,10 @@ class Task:
         """The team's sequencer passes its waypoint where the true object is within the
         tolerance (``dist`` to the active one); returns where an intermediate waypoint was
         passed, or None when (numpy, checked on the host) none was near."""
-        near = ~self.team_done[ids] & (dist < WAYPOINT_TOLERANCE)
+        near = dist < WAYPOINT_TOLERANCE
         if self._host_tests and not near.any():
             return None
+        near = near & ~self.team_done[ids]
         index = self.team_index[ids]
         last = index + 1 >= self.waypoint_count[ids]
         passed = near & ~last
@@ -398,11 +398,14 @@ class Task:
         self.team_waypoint[ids] = self.waypoints[self._rows[ids], index]
         return passed
 
-    def _at_goal(self, d: Any, dist: Any) -> Any:
+    def _success(self, d: Any, dist: Any, failed: Any) -> Any:
+        """Where the true object is at the goal (position and attitude tolerances) and the
+        step did not fail (``_distances``)."""
         near = dist[:, 1] < self.pos_tol
         if self._host_tests and not near.any():  # the common case, decided cheaply
             return near
-        return near & (self.xp.abs(wrap_angle(d[:, 1, 3:], self.xp)).max(axis=1) < self.att_tol)
+        att = self.xp.abs(wrap_angle(d[:, 1, 3:], self.xp)).max(axis=1)
+        return near & ~failed & (att < self.att_tol)
 
     # -- ended episodes ---------------------------------------------------------------------
     def results(self, ids: Any, x_o: Any, success: Any) -> list[dict[str, Any]]:

@@ -543,14 +543,13 @@ class VectorEnv:
         code = self.sim.step(command * xp.asarray(self.sim.tau_max), current)
         task = self.task
         task.max_cycles = self.max_cycles  # an attribute a user may change
-        task.tick()
         diverged = code != OK
+        sampled = task.tick(diverged)
         self._a[:, :k] = a.reshape(k, n * NU).T
         all_envs = slice(0, k)  # the simulator's and kernels' arrays have padding lanes
         self._evaluate(all_envs)
         team = self._kin_out[4][:, :k].astype(np.float64)
         x_o = self._object_pose(all_envs)
-        sampled = task.wrench_due(diverged)
         wrench_sq = None
         if sampled is not None and sampled.any():
             wrench_sq = xp.where(sampled, self._internal_wrench_sq(), 0.0)
