@@ -422,10 +422,10 @@ class TeamKinematics(RebuiltOnUnpickle):
         squared clipped normalized actions)] as floats."""
         return self._team[:6].tolist()
 
-    def team_column(self) -> np.ndarray:
-        """The whole team output as (T, 1) float64 (a view): the rows ``team`` lists, then
-        the kinds violated (8), ...: the task's K = 1 input."""
-        return self._team[:, None]
+    def team_rows(self) -> np.ndarray:
+        """The whole team output (T,) float64 (a view): the rows ``team`` lists, then the
+        kinds violated (8), ...: the task's input (``uvms_env.env.task``)."""
+        return self._team
 
     @property
     def object_clearance(self) -> float:

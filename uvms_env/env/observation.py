@@ -222,10 +222,10 @@ class Observer(RebuiltOnUnpickle):
         return self.scenario.sensor_noise > 0
 
     def reset(self, rng: np.random.Generator, task: Task) -> None:
-        """New episode: noise from ``rng``, the robots' waypoints as ``task`` (K = 1) has
-        them after its reset."""
+        """New episode: noise from ``rng``, the robots' waypoints as ``task`` (one
+        environment) has them after its reset."""
         self._rng = rng
-        self.index[:] = task.robot_index[0]
+        self.index[:] = task.robot_index
         self._on_waypoint_change()
 
     def _on_waypoint_change(self) -> None:
@@ -246,12 +246,12 @@ class Observer(RebuiltOnUnpickle):
 
     def build(self, task: Task, team: np.ndarray) -> np.ndarray:
         """The (N, 79) float32 observations, after the kinematics kernel was evaluated on
-        this step's measurements (``team``: its team rows, (T, 1)). Advances each robot's
-        own waypoint sequencing (``task``, K = 1) first."""
+        this step's measurements (``team``: its team rows). Advances each robot's own
+        waypoint sequencing (``task``, one environment) first."""
         kin = self.kin
         obs, pose = kin.observation, kin.pose_estimate
-        if task.advance_robots(slice(None), pose[None], team):
-            self.index[:] = task.robot_index[0]
+        if task.advance_robots(..., pose, team):
+            self.index[:] = task.robot_index
             self._on_waypoint_change()
             obs[:, self._waypoint] = kin.waypoint
         obs[:, self._nav_slice] = self._nav(pose)[0][self._nav_rows]

@@ -224,8 +224,8 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
     **Beyond the API.** `env.sim` and `env.scenario` (global: never feed them to a
     policy), `env.observe()` (observations of the current state, e.g. after
     `sim.set_state`), `env.constraint_values()`, `env.task` (the task's rules and this
-    episode's bookkeeping: `uvms_env.env.task.Task` with K = 1, the code `VectorEnv` runs
-    over K environments).
+    episode's bookkeeping: `uvms_env.env.task.Task` for one environment, the code
+    `VectorEnv` runs over K environments).
 
     **Extensions** (no change to the package): `extra_reward_terms={"name": fn}` adds
     `fn(s, xp)` (K,) to the reward, reported as `reward_terms["name"]`;
@@ -362,14 +362,14 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
 
     @property
     def task(self) -> Task:
-        """The task's rules and episode bookkeeping (K = 1): metrics so far, sequencing."""
+        """The task's rules and episode bookkeeping (one environment): metrics so far,
+        sequencing."""
         return self._world.task
 
     def state(self) -> np.ndarray:
         w = self._world
-        wp = w.task.team_waypoint[0]
         return np.concatenate(
-            [w.sim.flat_state, wp, [w.task.steps[0] / self.max_cycles]], dtype=np.float32
+            [w.sim.flat_state, w.task.team_waypoint, [w.task.time_fraction()]], dtype=np.float32
         )
 
     # -- episode -----------------------------------------------------------------------
@@ -391,7 +391,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         self._bind(w)
         self.agents = self.possible_agents[:]
         obs = self._observe(self._zero_action)
-        w.task.start(ALL, self._x_o[None])
+        w.task.start(ALL, self._x_o)
         self._path = [self._x_o[:3].copy()]
         return (
             {a: obs[i] for i, a in enumerate(self.possible_agents)},
@@ -422,32 +422,32 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             raise self._bad_actions(a) from exc
         task = w.task
         task.max_cycles = self.max_cycles  # an attribute a user may change
-        refused = np.array([bool(diverged)])
+        refused = np.bool_(bool(diverged))
         sampled = task.tick(refused)
         obs = self._observe(a)
         kin = w.kinematics
         wrench_sq = None
-        if sampled is not None and sampled[0]:
-            wrench_sq = np.array([w.wrench(info.tau_applied, info.current)])
+        if sampled is not None and sampled:
+            wrench_sq = w.wrench(info.tau_applied, info.current)
         out = task.step(
-            self._x_o[None],
-            kin.team_column(),
-            kin.constraints[None],
-            kin.violated_count[None],
+            self._x_o,
+            kin.team_rows(),
+            kin.constraints,
+            kin.violated_count,
             refused,
             sampled,
             wrench_sq,
             self._task_arrays(a) if task.extended else None,
         )
-        terminated, truncated = bool(out.terminated[0]), bool(out.truncated[0])
-        reward = float(out.reward[0])
-        terms = {name: float(v[0]) for name, v in out.terms.items()}
+        terminated, truncated = bool(out.terminated), bool(out.truncated)
+        reward = float(out.reward)
+        terms = {name: float(v) for name, v in out.terms.items()}
         if self.render_mode is not None:
             self._path.append(self._x_o[:3].copy())
 
         agents = self.possible_agents
-        g_rows = out.constraint_values[0].tolist()
-        costs = out.cost[0].tolist()
+        g_rows = out.constraint_values.tolist()
+        costs = out.cost.tolist()
         names = task.constraints
         infos = {
             agent: {
@@ -462,7 +462,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             if diverged:
                 for info_a in infos.values():
                     info_a["diverged_reason"] = diverged
-            metrics = task.results(ALL, self._x_o[None], out.success)[0]
+            metrics = task.results(ALL, self._x_o, out.success)[0]
             for info_a in infos.values():
                 info_a["episode_end"] = end
                 info_a["metrics"] = metrics
@@ -476,16 +476,16 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         )
 
     def _task_arrays(self, action: np.ndarray) -> TaskArrays:
-        """What the extra reward terms and constraints see (K = 1 views)."""
+        """What the extra reward terms and constraints see (views with K = 1)."""
         task = self._world.task
         return TaskArrays(
             self._x_o[None],
             self._q[None],
             self._zeta[None],
             action[None],
-            task.team_waypoint,
-            task.goal,
-            task.steps,
+            task.team_waypoint[None],
+            task.goal[None],
+            task.steps.reshape(1),
         )
 
     def _evaluate(self, action: np.ndarray) -> np.ndarray:
@@ -493,10 +493,10 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         observations. ``action``: the requested normalized actions (input constraint)."""
         w = self._world
         kin = w.kinematics
-        kin.time_fraction[0] = w.task.steps[0] / self.max_cycles
+        kin.time_fraction[0] = w.task.time_fraction()
         q_meas, zeta_meas = w.observer.measure(self._q, self._zeta)
         kin(action, self._q, self._zeta, q_meas, zeta_meas, self._x_o)
-        team = kin.team_column()
+        team = kin.team_rows()
         w.task.observe(ALL, team)
         return w.observer.build(w.task, team)
 
@@ -522,12 +522,15 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         self._bind(w)
         zero = self._zero_action
         w.kinematics(zero, self._q, self._zeta, self._q, self._zeta, self._x_o)
-        g = w.kinematics.constraints[None]
+        g = w.kinematics.constraints
         if w.task.constraint_fns:
             s = self._task_arrays(zero)
-            extra = [np.asarray(fn(s, np), float) for fn in w.task.constraint_fns.values()]
+            extra = [
+                np.reshape(np.asarray(fn(s, np), float), self.n)
+                for fn in w.task.constraint_fns.values()
+            ]
             g = np.concatenate([g, np.stack(extra, axis=-1)], axis=-1)
-        rows = g[0].tolist()
+        rows = g.tolist()
         return {
             a: dict(zip(w.task.constraints, rows[i], strict=True))
             for i, a in enumerate(self.possible_agents)
@@ -651,7 +654,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             sim=sim,
             kinematics=kin,
             observer=Observer(scenario, kin),
-            task=task_of(scenario, self, 1, len(scenario.waypoints), np),
+            task=task_of(scenario, self, None, len(scenario.waypoints), np),
             wrench=InternalWrench(sim),
         )
 
@@ -671,9 +674,10 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         return world
 
 
-def task_of(scenario: Scenario, env: Any, num_envs: int, w_max: int, xp: Any) -> Task:
-    """The ``Task`` of ``num_envs`` environments with ``env``'s options (the single env's
-    or the vector env's attributes), all on ``scenario``'s geometry to start with."""
+def task_of(scenario: Scenario, env: Any, num_envs: int | None, w_max: int, xp: Any) -> Task:
+    """The ``Task`` of ``num_envs`` environments (None: one, without a batch axis) with
+    ``env``'s options (the single env's or the vector env's attributes), all on
+    ``scenario``'s geometry to start with."""
     task = Task(
         xp,
         num_envs,
@@ -688,10 +692,10 @@ def task_of(scenario: Scenario, env: Any, num_envs: int, w_max: int, xp: Any) ->
         internal_wrench_every=env.internal_wrench_every,
         **env._extensions,
     )
-    waypoints = np.zeros((num_envs, w_max, 6))
-    waypoints[:, : len(scenario.waypoints)] = scenario.waypoints
-    count = np.full(num_envs, len(scenario.waypoints))
-    task.set_geometry(ALL, waypoints, count, np.full(num_envs, bool(scenario.obstacles)))
+    b, w = task.batch, len(scenario.waypoints)
+    waypoints = np.zeros((*b, w_max, 6))
+    waypoints[..., :w, :] = scenario.waypoints
+    task.set_geometry(ALL, waypoints, np.full(b, w), np.full(b, bool(scenario.obstacles)))
     return task
 
 

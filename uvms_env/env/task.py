@@ -52,7 +52,7 @@ HARD_KINDS = [CONSTRAINTS.index(c) for c in HARD_CONSTRAINTS]  # indices of HARD
 # Rows of the kinematics kernel's team output (``TeamKinematics.team``), (T, K).
 CLEARANCE, MANIPULABILITY, GRASP_ERROR, WAYPOINT_DISTANCE2, VIOLATED, ACTION_SQ = range(6)
 KINDS = slice(6, 6 + NK)
-ALL = slice(None)
+ALL = ...  # every environment, as an index (also of a single environment's 0-d arrays)
 
 TaskFunction = Callable[["TaskArrays", Any], Any]
 
@@ -124,9 +124,13 @@ def episode_end(success: bool, diverged: bool, collision: bool, failed: bool) ->
 class Task:
     """The task's state and rules over K environments of N robots (module docstring).
 
-    ``xp``: numpy or CuPy. ``w_max``: room for waypoints per environment. Arrays (K
-    leading): ``waypoints`` (K, W, 6), ``team_waypoint`` (K, 6), ``robot_index`` (K, N),
-    ``robot_waypoint`` (K, N, 6), ``steps`` and the metrics' accumulators.
+    ``xp``: numpy or CuPy. ``num_envs``: K, or None for one environment without a batch
+    axis: the batch shape B is (K,) or (), and every array and result has it in front
+    (B = (): numpy scalars, so the single env pays a scalar's cost, not an array's, for
+    each operation; the code is the same). ``w_max``: room for waypoints per environment.
+    Arrays: ``waypoints`` B + (W, 6), ``team_waypoint`` and ``goal`` B + (6,),
+    ``robot_index`` B + (N,), ``robot_waypoint`` B + (N, 6), ``steps`` B and the metrics'
+    accumulators. Inputs are in the same shapes: ``team`` (T,) + B, ``x_o`` B + (6,).
 
     Calls, in an episode's order: ``set_geometry`` (when a geometry changes), ``reset``
     (bookkeeping), then per evaluation of the kinematics kernel ``observe`` (state metrics)
@@ -139,7 +143,7 @@ class Task:
     def __init__(
         self,
         xp: Any,
-        num_envs: int,
+        num_envs: int | None,
         n_agents: int,
         w_max: int,
         *,
@@ -154,7 +158,8 @@ class Task:
         extra_constraints: Mapping[str, Any] | None = None,
     ) -> None:
         self.xp = xp
-        self.num_envs = k = num_envs
+        self.num_envs = num_envs
+        self.batch = b = () if num_envs is None else (num_envs,)
         self.n = n = n_agents
         self.weights = weights
         self.terminate = constraint_mode == "terminate"
@@ -173,48 +178,56 @@ class Task:
         # numpy: skip the rare branches (a waypoint reached, the goal near) with one host
         # test; on a GPU that test would cost a synchronization, so they always run
         self._host_tests = xp is np
+        self._any = (lambda mask: mask.any()) if self.batch else bool  # B = (): numpy scalars
         self._hard_many = len(HARD_KINDS) > 1
         self._hard = HARD_KINDS if self._hard_many else HARD_KINDS[0]
-        self._rows = xp.arange(k)
-        self.waypoints = xp.zeros((k, w_max, 6))
-        self.waypoint_count = xp.ones(k, np.int64)
+        self._rows = xp.arange(num_envs) if b else None
+        self.waypoints = xp.zeros((*b, w_max, 6))
+        self.waypoint_count = xp.ones(b, np.int64)
         # the team's active waypoint and the goal side by side: one difference serves both
-        self.targets = xp.zeros((k, 2, 6))
-        self.has_obstacles = xp.zeros(k, bool)
-        self.steps = xp.zeros(k, np.int64)
-        self.team_index = xp.zeros(k, np.int64)
-        self.team_done = xp.zeros(k, bool)
-        self.potential = xp.zeros(k)
-        self.robot_index = xp.zeros((k, n), np.int64)
-        self.robot_done = xp.zeros((k, n), bool)
-        self.robot_waypoint = xp.zeros((k, n, 6))
-        self.min_clearance = xp.zeros(k)
-        self.min_manipulability = xp.zeros(k)
-        self.grasp_drift = xp.zeros(k)
-        self.violations = xp.zeros((k, len(self.constraints)), np.int64)
-        self.effort = xp.zeros(k)
-        self.wrench_sq = xp.zeros(k)
-        self.wrench_samples = xp.zeros(k, np.int64)
+        self.targets = xp.zeros((*b, 2, 6))
+        self.has_obstacles = xp.zeros(b, bool)
+        self.steps = xp.zeros(b, np.int64)
+        self.team_index = xp.zeros(b, np.int64)
+        self.team_done = xp.zeros(b, bool)
+        self.potential = xp.zeros(b)
+        self.robot_index = xp.zeros((*b, n), np.int64)
+        self.robot_done = xp.zeros((*b, n), bool)
+        self.robot_waypoint = xp.zeros((*b, n, 6))
+        self.min_clearance = xp.zeros(b)
+        self.min_manipulability = xp.zeros(b)
+        self.grasp_drift = xp.zeros(b)
+        self.violations = xp.zeros((*b, len(self.constraints)), np.int64)
+        self.effort = xp.zeros(b)
+        self.wrench_sq = xp.zeros(b)
+        self.wrench_samples = xp.zeros(b, np.int64)
 
     @property
     def team_waypoint(self) -> Any:
-        """(K, 6) the team's active waypoint (a view)."""
-        return self.targets[:, 0]
+        """B + (6,): the team's active waypoint (a view)."""
+        return self.targets[..., 0, :]
 
     @property
     def goal(self) -> Any:
-        """(K, 6) the final waypoint (a view)."""
-        return self.targets[:, 1]
+        """B + (6,): the final waypoint (a view)."""
+        return self.targets[..., 1, :]
+
+    def _waypoint_at(self, ids: Any, index: Any) -> Any:
+        """The waypoints of environments ``ids`` at ``index`` (shape B' or B' + (N,))."""
+        if not self.batch:
+            return self.waypoints[index]
+        rows = self._rows[ids]
+        return self.waypoints[rows[:, None] if index.ndim == 2 else rows, index]
 
     # -- geometry and resets -------------------------------------------------------------
     def set_geometry(self, ids: Any, waypoints: Any, counts: Any, has_obstacles: Any) -> None:
-        """Environments ``ids`` take these waypoints ((m, W, 6), zeros beyond each one's
-        ``counts`` (m,)) and obstacle flags (m,): host or device arrays."""
+        """Environments ``ids`` take these waypoints (B' + (W, 6), zeros beyond each one's
+        ``counts`` B') and obstacle flags B': host or device arrays."""
         xp = self.xp
         self.waypoints[ids] = xp.asarray(waypoints)
         self.waypoint_count[ids] = xp.asarray(counts)
         self.has_obstacles[ids] = xp.asarray(has_obstacles)
-        self.goal[ids] = self.waypoints[self._rows[ids], self.waypoint_count[ids] - 1]
+        self.goal[ids] = self._waypoint_at(ids, self.waypoint_count[ids] - 1)
 
     def reset(self, ids: Any) -> None:
         """New episodes in ``ids``: time, metrics, every robot back to its first waypoint."""
@@ -228,20 +241,20 @@ class Task:
         self.wrench_samples[ids] = 0
         self.robot_index[ids] = 0
         self.robot_done[ids] = False
-        self.robot_waypoint[ids] = self.waypoints[ids, :1]
+        self.robot_waypoint[ids] = self.waypoints[ids][..., :1, :]
         self.team_index[ids] = 0
         self.team_done[ids] = False
 
     def start(self, ids: Any, x_o: Any) -> None:
         """After a reset's first evaluation: the team's sequencer sees the true object
-        ``x_o`` (m, 6) and the reward's potential starts there."""
-        self.team_waypoint[ids] = self.waypoints[ids, 0]
-        self._advance_team(ids, self._distances(x_o, ids)[1][:, 0])
+        ``x_o`` B' + (6,) and the reward's potential starts there."""
+        self.team_waypoint[ids] = self.waypoints[ids][..., 0, :]
+        self._advance_team(ids, self._distances(x_o, ids)[1][..., 0])
         self.potential[ids] = self._potential(*self._distances(x_o, ids))
 
     # -- evaluation of the state --------------------------------------------------------
     def observe(self, ids: Any, team: Any) -> None:
-        """The state metrics, from the kinematics kernel's team rows (T, m) of ``ids``."""
+        """The state metrics, from the kinematics kernel's team rows (T,) + B' of ``ids``."""
         xp = self.xp
         clearance = xp.where(self.has_obstacles[ids], team[CLEARANCE], np.inf)
         self.min_clearance[ids] = xp.minimum(self.min_clearance[ids], clearance)
@@ -251,28 +264,30 @@ class Task:
         self.grasp_drift[ids] = xp.maximum(self.grasp_drift[ids], team[GRASP_ERROR])
 
     def advance_robots(self, ids: Any, pose: Any, team: Any) -> bool:
-        """Each robot's sequencer on its own object estimate ``pose`` (m, N, 6): passes its
+        """Each robot's sequencer on its own object estimate ``pose`` B' + (N, 6): passes its
         waypoint within ``WAYPOINT_TOLERANCE``. False when no robot's waypoint changed
         (numpy: then ``robot_waypoint`` needs no copy into the kernel's inputs)."""
         xp = self.xp
         # the kernel's smallest squared distance: a cheap host test that no robot is near
-        if self._host_tests and not (team[WAYPOINT_DISTANCE2] < 1.01 * WAYPOINT_TOLERANCE**2).any():
+        if self._host_tests and not self._any(
+            team[WAYPOINT_DISTANCE2] < 1.01 * WAYPOINT_TOLERANCE**2
+        ):
             return False
         index, done = self.robot_index[ids], self.robot_done[ids]
-        d = pose[:, :, :3] - self.robot_waypoint[ids][:, :, :3]
-        near = ~done & (xp.sqrt((d * d).sum(axis=2)) < WAYPOINT_TOLERANCE)
-        if self._host_tests and not near.any():
+        d = pose[..., :3] - self.robot_waypoint[ids][..., :3]
+        near = ~done & (xp.sqrt((d * d).sum(axis=-1)) < WAYPOINT_TOLERANCE)
+        if self._host_tests and not self._any(near):
             return False
-        last = index + 1 >= self.waypoint_count[ids][:, None]
+        last = index + 1 >= self.waypoint_count[ids][..., None]
         index = index + (near & ~last)
         self.robot_index[ids] = index
         self.robot_done[ids] = done | (near & last)
-        self.robot_waypoint[ids] = self.waypoints[self._rows[ids][:, None], index]
+        self.robot_waypoint[ids] = self._waypoint_at(ids, index)
         return True
 
     def tick(self, diverged: Any) -> Any:
         """A period passed in every environment (before the step's evaluation); returns
-        where the internal wrench is sampled this step ((K,) bool; None: never)."""
+        where the internal wrench is sampled this step (B bool; None: never)."""
         self.steps += 1
         if self.wrench_every <= 0:
             return None
@@ -294,25 +309,30 @@ class Task:
         state: TaskArrays | None = None,
     ) -> StepOutcome:
         """The rules of one step of every environment, after ``tick`` and the evaluation:
-        ``x_o`` (K, 6) the true object, ``team`` (T, K) float64 the kernel's team rows,
-        ``constraint_values`` (K, N, 8) and ``cost`` (K, N) the kernel's, ``diverged`` (K,)
-        the refused steps, ``sampled``/``wrench_sq`` (K,) the internal wrench samples
+        ``x_o`` B + (6,) the true object, ``team`` (T,) + B float64 the kernel's team rows,
+        ``constraint_values`` B + (N, 8) and ``cost`` B + (N,) the kernel's, ``diverged`` B
+        (bool) the refused steps, ``sampled``/``wrench_sq`` B the internal wrench samples
         (``tick``), ``state`` what the extensions see (needed when ``extended``)."""
         xp, w = self.xp, self.weights
-        kinds = team[KINDS].T > 0.0  # (K, 8)
+        kinds = team[KINDS].T > 0.0  # B + (8,)
         n_violated = team[VIOLATED]
         if self.constraint_fns:
             assert state is not None, "extra constraints need the state"
+            shape = (*self.batch, self.n)  # the functions see K = 1 for a single env
             extra = xp.stack(
-                [xp.asarray(fn(state, xp), dtype=float) for fn in self.constraint_fns.values()],
+                [
+                    xp.reshape(xp.asarray(fn(state, xp), dtype=float), shape)
+                    for fn in self.constraint_fns.values()
+                ],
                 axis=-1,
-            )  # (K, N, E)
+            )  # B + (N, E)
             violated = extra > 0.0
             constraint_values = xp.concatenate([constraint_values, extra], axis=-1)
             cost = cost + violated.sum(axis=-1)
-            kinds = xp.concatenate([kinds, violated.any(axis=1)], axis=1)
-            n_violated = n_violated + violated.sum(axis=(1, 2))
-        collision = kinds[:, self._hard].any(axis=1) if self._hard_many else kinds[:, self._hard]
+            kinds = xp.concatenate([kinds, violated.any(axis=-2)], axis=-1)
+            n_violated = n_violated + violated.sum(axis=(-2, -1))
+        hard = kinds[..., self._hard]
+        collision = hard.any(axis=-1) if self._hard_many else hard
         failed = diverged | collision
         if self.terminate:
             failed = failed | (n_violated > 0)
@@ -332,13 +352,13 @@ class Task:
         # reward: potential-based progress towards the team's waypoint
         potential = self._potential(d, dist)
         progress = w.progress * (self.potential - potential)
-        passed = self._advance_team(ALL, dist[:, 0])
+        passed = self._advance_team(ALL, dist[..., 0])
         if passed is not None:
             potential = xp.where(passed, self._potential(*self._distances(x_o)), potential)
             waypoint = passed * w.waypoint
         else:
-            waypoint = xp.zeros(self.num_envs)
-        self.potential = potential
+            waypoint = xp.zeros(self.batch)
+        self.potential[...] = potential
         terms = {
             "progress": progress,
             "waypoint": waypoint,
@@ -349,11 +369,16 @@ class Task:
         }
         if self.reward_fns:
             assert state is not None, "extra reward terms need the state"
-            seen = replace(state, waypoint=self.team_waypoint, success=success, failed=failed)
+            seen = replace(
+                state,
+                waypoint=xp.reshape(self.team_waypoint, (-1, 6)),
+                success=xp.reshape(success, (-1,)),
+                failed=xp.reshape(failed, (-1,)),
+            )
             for name, fn in self.reward_fns.items():
-                terms[name] = xp.broadcast_to(
-                    xp.asarray(fn(seen, xp), dtype=float), (self.num_envs,)
-                )
+                value = xp.asarray(fn(seen, xp), dtype=float)
+                one = xp.broadcast_to(value, (self.num_envs or 1,))  # K = 1: a single env
+                terms[name] = xp.reshape(one, self.batch)
         values = iter(terms.values())
         reward = next(values)
         for value in values:  # in order: REWARD_TERMS, then the extra terms
@@ -371,23 +396,23 @@ class Task:
         )
 
     def _distances(self, x_o: Any, ids: Any = ALL) -> tuple[Any, Any]:
-        """Pose differences (m, 2, 6) of the true object ``x_o`` (m, 6) to the team's
-        active waypoint and to the goal, and their position distances (m, 2)."""
-        d = x_o[:, None, :] - self.targets[ids]
-        p = d[:, :, :3]
-        return d, self.xp.sqrt((p * p).sum(axis=2))
+        """Pose differences B' + (2, 6) of the true object ``x_o`` B' + (6,) to the team's
+        active waypoint and to the goal, and their position distances B' + (2,)."""
+        d = x_o[..., None, :] - self.targets[ids]
+        p = d[..., :3]
+        return d, self.xp.sqrt((p * p).sum(axis=-1))
 
     def _potential(self, d: Any, dist: Any) -> Any:
         """Phi = |p_O - p_wp| + w_attitude |wrap(Theta_O - Theta_wp)| (``_distances``)."""
-        att = wrap_angle(d[:, 0, 3:], self.xp)
-        return dist[:, 0] + self.weights.attitude * self.xp.sqrt((att * att).sum(axis=1))
+        att = wrap_angle(d[..., 0, 3:], self.xp)
+        return dist[..., 0] + self.weights.attitude * self.xp.sqrt((att * att).sum(axis=-1))
 
     def _advance_team(self, ids: Any, dist: Any) -> Any:
         """The team's sequencer passes its waypoint where the true object is within the
         tolerance (``dist`` to the active one); returns where an intermediate waypoint was
         passed, or None when (numpy, checked on the host) none was near."""
         near = dist < WAYPOINT_TOLERANCE
-        if self._host_tests and not near.any():
+        if self._host_tests and not self._any(near):
             return None
         near = near & ~self.team_done[ids]
         index = self.team_index[ids]
@@ -395,21 +420,21 @@ class Task:
         passed = near & ~last
         self.team_index[ids] = index = index + passed
         self.team_done[ids] = self.team_done[ids] | (near & last)
-        self.team_waypoint[ids] = self.waypoints[self._rows[ids], index]
+        self.team_waypoint[ids] = self._waypoint_at(ids, index)
         return passed
 
     def _success(self, d: Any, dist: Any, failed: Any) -> Any:
         """Where the true object is at the goal (position and attitude tolerances) and the
         step did not fail (``_distances``)."""
-        near = dist[:, 1] < self.pos_tol
-        if self._host_tests and not near.any():  # the common case, decided cheaply
+        near = dist[..., 1] < self.pos_tol
+        if self._host_tests and not self._any(near):  # the common case, decided cheaply
             return near
-        att = self.xp.abs(wrap_angle(d[:, 1, 3:], self.xp)).max(axis=1)
+        att = self.xp.abs(wrap_angle(d[..., 1, 3:], self.xp)).max(axis=-1)
         return near & ~failed & (att < self.att_tol)
 
     # -- ended episodes ---------------------------------------------------------------------
     def results(self, ids: Any, x_o: Any, success: Any) -> list[dict[str, Any]]:
-        """The metrics dicts of the episodes ``ids`` that ended at poses ``x_o`` (m, 6)."""
+        """The metrics dicts of the episodes ``ids`` that ended at poses ``x_o`` B' + (6,)."""
         rows = [
             self._host(a)
             for a in (
@@ -426,6 +451,8 @@ class Task:
                 success,
             )
         ]
+        if not self.batch:  # one environment: a batch of one
+            rows = [r[None] for r in rows]
         steps, pose, goal, clearance, manip, violations, wrench, samples, effort, drift, ok = rows
         return [
             episode_result(
@@ -451,7 +478,7 @@ class Task:
         xp = self.xp
         flags = self._host(
             xp.stack([out.success[ids], diverged[ids], out.collision[ids], out.failed[ids]])
-        )
+        ).reshape(4, -1)
         return [episode_end(*(bool(f) for f in col)) for col in flags.T.tolist()]
 
     def _host(self, a: Any) -> np.ndarray:
