@@ -178,7 +178,8 @@ class Task:
         # numpy: skip the rare branches (a waypoint reached, the goal near) with one host
         # test; on a GPU that test would cost a synchronization, so they always run
         self._host_tests = xp is np
-        self._any = (lambda mask: mask.any()) if self.batch else bool  # B = (): numpy scalars
+        # a host test of a mask of shape B (B = (): a numpy scalar, tested as one)
+        self._any = (lambda mask: mask.any()) if self.batch else bool
         self._hard_many = len(HARD_KINDS) > 1
         self._hard = HARD_KINDS if self._hard_many else HARD_KINDS[0]
         self._rows = xp.arange(num_envs) if b else None
@@ -276,7 +277,7 @@ class Task:
         index, done = self.robot_index[ids], self.robot_done[ids]
         d = pose[..., :3] - self.robot_waypoint[ids][..., :3]
         near = ~done & (xp.sqrt((d * d).sum(axis=-1)) < WAYPOINT_TOLERANCE)
-        if self._host_tests and not self._any(near):
+        if self._host_tests and not near.any():  # B + (N,): an array even for B = ()
             return False
         last = index + 1 >= self.waypoint_count[ids][..., None]
         index = index + (near & ~last)
