@@ -14,8 +14,10 @@
 * the resets of all of it.
 
 ``VectorEnv`` (both backends) runs one ``Task`` over its K environments; ``parallel_env``
-runs one with K = 1 on numpy. Nothing here is per-environment Python: what is (rendering,
-random generators, the PettingZoo dicts) stays in the environments.
+runs one for a single environment on numpy, without the batch axis (``num_envs=None``:
+the same code, on numpy scalars rather than 1-element arrays, which cost several times
+more per operation). Nothing here is per-environment Python: what is (rendering, random
+generators, the PettingZoo dicts) stays in the environments.
 
 **Extension points** (environment keywords, accepted by ``parallel_env``, ``VectorEnv``
 and therefore the evaluator): ``extra_reward_terms={"name": fn}`` and
@@ -49,7 +51,7 @@ from uvms_env.env.reward import REWARD_TERMS, RewardWeights
 
 NK = len(CONSTRAINTS)
 HARD_KINDS = [CONSTRAINTS.index(c) for c in HARD_CONSTRAINTS]  # indices of HARD_CONSTRAINTS
-# Rows of the kinematics kernel's team output (``TeamKinematics.team``), (T, K).
+# Rows of the kinematics kernel's team output (``TeamKinematics.team_rows``), (T,) + B.
 CLEARANCE, MANIPULABILITY, GRASP_ERROR, WAYPOINT_DISTANCE2, VIOLATED, ACTION_SQ = range(6)
 KINDS = slice(6, 6 + NK)
 ALL = ...  # every environment, as an index (also of a single environment's 0-d arrays)
@@ -59,12 +61,13 @@ TaskFunction = Callable[["TaskArrays", Any], Any]
 
 @dataclass(frozen=True)
 class TaskArrays:
-    """What an extra reward term or constraint sees, K environments of N robots (float64,
-    arrays of ``xp``; the true state after the step).
+    """What an extra reward term or constraint sees, K environments of N robots (K = 1 for
+    a single env; float64 arrays of ``xp``; the true state after the step).
 
     object_pose (K, 6): p_O, Theta_O; q, zeta (K, N, 10): each robot's generalized
     coordinates and velocities; action (K, N, 8): the requested normalized inputs;
-    waypoint (K, 6): the team's active waypoint (after this step's sequencing), goal (K, 6);
+    waypoint (K, 6): the team's active waypoint (a reward term sees it after this step's
+    sequencing, a constraint before), goal (K, 6);
     steps (K,): periods played; success, failed (K,) bool: None for constraints (they are
     decided from them)."""
 
@@ -80,13 +83,13 @@ class TaskArrays:
 
 
 class StepOutcome(NamedTuple):
-    """One step's results over K environments (arrays of the task's namespace)."""
+    """One step's results (arrays of the task's namespace, batch shape B in front)."""
 
-    reward: Any  # (K,)
-    terms: dict[str, Any]  # name -> (K,), REWARD_TERMS then the extra terms
-    constraint_values: Any  # (K, N, C): C = 8 + extra constraints
-    cost: Any  # (K, N) violated constraints per robot
-    success: Any  # (K,) bool
+    reward: Any  # B
+    terms: dict[str, Any]  # name -> B, REWARD_TERMS then the extra terms
+    constraint_values: Any  # B + (N, C): C = 8 + extra constraints
+    cost: Any  # B + (N,) violated constraints per robot
+    success: Any  # B bool
     failed: Any
     collision: Any
     terminated: Any
