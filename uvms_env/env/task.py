@@ -181,8 +181,6 @@ class Task:
         # numpy: skip the rare branches (a waypoint reached, the goal near) with one host
         # test; on a GPU that test would cost a synchronization, so they always run
         self._host_tests = xp is np
-        # a host test of a mask of shape B (B = (): a numpy scalar, tested as one)
-        self._any = (lambda mask: mask.any()) if self.batch else bool
         self._hard_many = len(HARD_KINDS) > 1
         self._hard = HARD_KINDS if self._hard_many else HARD_KINDS[0]
         self._rows = xp.arange(num_envs) if b else None
@@ -205,6 +203,17 @@ class Task:
         self.effort = xp.zeros(b)
         self.wrench_sq = xp.zeros(b)
         self.wrench_samples = xp.zeros(b, np.int64)
+
+    def __getstate__(self) -> dict:
+        """Pickles name the array namespace (a module is no state)."""
+        return {**self.__dict__, "xp": self.xp.__name__}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update({**state, "xp": importlib.import_module(state["xp"])})
+
+    def _any(self, mask: Any) -> bool:
+        """A host test of a mask of shape B (B = (): a numpy scalar, tested as one)."""
+        return bool(mask.any()) if self.batch else bool(mask)
 
     @property
     def team_waypoint(self) -> Any:
