@@ -125,7 +125,7 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
         row["traceback"] = traceback.format_exc(limit=5)
         row["success"] = False
     row["return"] = total_reward
-    kinds = [row.get(f"violations_{kind}", 0) or 0 for kind in VIOLATION_KINDS]
+    kinds = [v or 0 for k, v in row.items() if k.startswith("violations_")]  # extras too
     row["violation_periods"] = int(sum(kinds))
     row["clean_success"] = bool(row.get("success")) and row["violation_periods"] == 0
     row["interventions"] = interventions
@@ -155,7 +155,8 @@ def flatten_metrics(metrics: dict[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in metrics.items():
         if key == "violations" and isinstance(value, dict):
-            for kind in VIOLATION_KINDS:
+            extra = [k for k in value if k not in VIOLATION_KINDS]  # extra_constraints
+            for kind in (*VIOLATION_KINDS, *extra):
                 out[f"violations_{kind}"] = int(value.get(kind, 0))
         elif key == "policy_time_ms":
             continue  # measured here, where the policy runs
@@ -426,6 +427,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--n-agents", type=int, default=None, help="random family only")
     ap.add_argument("--current", default=None, choices=["none", "mild", "strong"])
     ap.add_argument("--mismatch", type=float, default=None)
+    for flag, what in (("reward-term", "reward term"), ("constraint", "constraint")):
+        ap.add_argument(
+            f"--extra-{flag}",
+            action="append",
+            default=[],
+            metavar="NAME=MODULE:FUNCTION",
+            help=f"an extra {what} fn(s, xp) of the environment (uvms_env.env.task)",
+        )
     ap.add_argument("--out", type=Path, default=Path("runs/eval"))
     ap.add_argument(
         "--backend",
@@ -459,6 +468,14 @@ def main(argv: list[str] | None = None) -> None:
         }.items()
         if v is not None
     }
+    for key, given in (
+        ("extra_reward_terms", args.extra_reward_term),
+        ("extra_constraints", args.extra_constraint),
+    ):
+        if given:
+            if not all("=" in g for g in given):
+                ap.error(f"--{key.replace('_', '-')[:-1]}: expected NAME=MODULE:FUNCTION")
+            overrides[key] = dict(g.split("=", 1) for g in given)
     rows = evaluate(
         args.policy,
         args.scenario or ["paper"],

@@ -116,6 +116,24 @@ def test_float64_equals_single_envs_through_constraint_and_success_ends():
     assert ends == {"success": 8}
 
 
+def test_float64_equals_single_envs_through_waypoints():
+    """Waypoints 0.25 m apart from the start: the team's and every robot's sequencing pass
+    them in the first steps (the waypoint reward, the observed waypoints)."""
+    base = make("short", seed=0)
+    start = np.asarray(base.object_start, float)
+    steps = [start + np.array([dx, 0, 0, 0, 0, 0]) for dx in (0.0, 0.25, 0.5)]
+    scenario = replace(base, waypoints=np.array([*steps, base.waypoints[-1]]))
+    assert _compare(scenario, 2, 6, _uniform(0.2)) == {}
+    env = uvms_env.parallel_env(scenario)
+    env.reset(seed=0)
+    passed = 0.0
+    for _ in range(3):
+        _, _, _, _, infos = env.step({a: np.zeros(8) for a in env.agents})
+        passed += infos[env.possible_agents[0]]["reward_terms"]["waypoint"]
+    assert passed >= env.reward_weights.waypoint  # the test reaches the sequencing
+    assert env.task.robot_index.min() >= 2  # every robot passed two on its own estimate
+
+
 def test_float64_equals_single_envs_through_collisions():
     """A sphere beside the start; the robots are pushed sideways into it."""
     base = make("short", seed=0)

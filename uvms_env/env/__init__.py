@@ -9,7 +9,9 @@
 
 Modules, one job each: ``parallel`` (the env and its documentation), ``observation``
 (local observation layout, noise, waypoint sequencing), ``kinematics`` (the one compiled
-per-step call), ``constraints``, ``reward``, ``metrics``, ``wrench`` (internal wrench),
+per-step call), ``task`` (the task's rules over K environments: reward, termination,
+sequencing, metrics; the one implementation both environments run), ``constraints``,
+``reward`` (weights), ``metrics`` (names, the ended episode's dict), ``wrench`` (internal wrench),
 ``render`` (frames, videos), ``gym_wrapper``, ``registration``.
 
 May import everything in ``uvms_env`` below it (models, dynamics, sim, navigation,
@@ -18,7 +20,7 @@ scenarios), plus pettingzoo, gymnasium and (lazily) matplotlib.
 
 from uvms_env.env.constraints import CONSTRAINTS, MANIPULABILITY_EPS
 from uvms_env.env.gym_wrapper import CoopTransportGymEnv
-from uvms_env.env.metrics import METRICS, EpisodeMetrics, goal_errors
+from uvms_env.env.metrics import METRICS, goal_errors
 from uvms_env.env.observation import (
     OBSERVATION_FIELDS,
     OBSERVATION_SIZE,
@@ -29,6 +31,7 @@ from uvms_env.env.parallel import CoopTransportEnv, parallel_env
 from uvms_env.env.registration import ENV_ID
 from uvms_env.env.render import save_video
 from uvms_env.env.reward import REWARD_TERMS, RewardWeights
+from uvms_env.env.task import Task, TaskArrays
 
 __all__ = [
     "CONSTRAINTS",
@@ -41,8 +44,9 @@ __all__ = [
     "REWARD_TERMS",
     "CoopTransportEnv",
     "CoopTransportGymEnv",
-    "EpisodeMetrics",
     "RewardWeights",
+    "Task",
+    "TaskArrays",
     "goal_errors",
     "make_navigator",
     "parallel_env",

@@ -422,6 +422,11 @@ class TeamKinematics(RebuiltOnUnpickle):
         squared clipped normalized actions)] as floats."""
         return self._team[:6].tolist()
 
+    def team_rows(self) -> np.ndarray:
+        """The whole team output (T,) float64 (a view): the rows ``team`` lists, then the
+        kinds violated (8), ...: the task's input (``uvms_env.env.task``)."""
+        return self._team
+
     @property
     def object_clearance(self) -> float:
         return float(self._team[6 + NK])

@@ -1,8 +1,9 @@
 """Episode metrics, with the names used everywhere (metrics.json, evaluation tables, README).
 
-``EpisodeMetrics`` accumulates one episode; the environment feeds it and puts
-``result()`` into ``infos[agent]["metrics"]`` when the episode ends. The expert's main
-job and the evaluator reuse it (and ``goal_errors``) instead of recomputing.
+``uvms_env.env.task.Task`` accumulates them over K environments (one for the single
+env) and ends in ``episode_result``, whose dict is ``infos[agent]["metrics"]`` when an
+episode ends. The expert's main job and the evaluator reuse it (and ``goal_errors``)
+instead of recomputing.
 
 =========================  ==============================================================
 metric                     meaning
@@ -17,8 +18,8 @@ min_obstacle_clearance_m   smallest clearance of any physical body (vehicles, ar
                            object) to any obstacle over the episode, start included (m);
                            None when the scenario has no obstacle
 min_manipulability         smallest det(Jbar Jbar^T) of any robot, start included
-violations                 per constraint kind: control periods in which at least one
-                           robot violated it (g > 0)
+violations                 per constraint kind (and extra constraint): control periods
+                           in which at least one robot violated it (g > 0)
 internal_wrench_rms        RMS over the sampled periods of the Frobenius norm of the
                            internal (squeeze) wrenches (N, 6), in N and N m; the env
                            samples every period by default; None if never sampled
@@ -36,8 +37,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from typing import Any
-
-import numpy as np
 
 from uvms_env.env.constraints import CONSTRAINTS
 
@@ -67,67 +66,6 @@ def goal_errors(x_o: Sequence[float], goal: Sequence[float]) -> tuple[float, flo
     return pos, att
 
 
-class EpisodeMetrics:
-    """Accumulator of one episode's metrics (see module docstring)."""
-
-    def __init__(self, period: float) -> None:
-        self.period = period
-        self.reset()
-
-    def reset(self) -> None:
-        self.steps = 0
-        self.min_clearance = math.inf
-        self.min_manipulability = math.inf
-        self.grasp_drift = 0.0
-        self.violations = [0] * len(CONSTRAINTS)
-        self.effort = 0.0
-        self._wrench_sq = 0.0
-        self._wrench_samples = 0
-
-    def observe(self, clearance: float, manipulability: float, grasp_error: float) -> None:
-        """State quantities: call at the start and after every period (``clearance``:
-        ``math.inf`` when there is no obstacle)."""
-        self.min_clearance = min(self.min_clearance, clearance)
-        self.min_manipulability = min(self.min_manipulability, manipulability)
-        self.grasp_drift = max(self.grasp_drift, grasp_error)
-
-    def record_step(
-        self,
-        action_sq: float,
-        violated_kinds: Sequence[float] | np.ndarray,
-        internal_wrench_sq: float | None = None,
-    ) -> None:
-        """One period: ``action_sq`` the sum of the squared normalized (clipped) inputs of
-        all robots, ``violated_kinds`` (K,) nonzero where some robot violated that kind
-        (order of ``CONSTRAINTS``), ``internal_wrench_sq`` the squared Frobenius norm of
-        the (N, 6) internal wrench if sampled."""
-        self.steps += 1
-        self.effort += action_sq * self.period
-        for k, v in enumerate(violated_kinds):  # plain Python: K = 8 is too few for numpy
-            if v:
-                self.violations[k] += 1
-        if internal_wrench_sq is not None:
-            self._wrench_sq += internal_wrench_sq
-            self._wrench_samples += 1
-
-    def result(self, x_o: np.ndarray, goal: np.ndarray, success: bool) -> dict[str, Any]:
-        """The metrics dict (plain Python types, JSON-ready) at the end of the episode."""
-        return episode_result(
-            self.period,
-            self.steps,
-            x_o,
-            goal,
-            success,
-            self.min_clearance,
-            self.min_manipulability,
-            self.violations,
-            self._wrench_sq,
-            self._wrench_samples,
-            self.effort,
-            self.grasp_drift,
-        )
-
-
 def episode_result(
     period: float,
     steps: int,
@@ -141,10 +79,12 @@ def episode_result(
     wrench_samples: int,
     effort: float,
     grasp_drift: float,
+    constraints: Sequence[str] = CONSTRAINTS,
 ) -> dict[str, Any]:
     """The metrics dict of an ended episode from its accumulated quantities (plain Python
-    types, JSON-ready): ``EpisodeMetrics`` and the batched environment's arrays both end
-    here. ``min_clearance`` is inf without obstacles; no wrench sample gives None."""
+    types, JSON-ready): the task's accumulated arrays end here. ``constraints``: the
+    names of ``violations``. ``min_clearance`` is inf without obstacles; no wrench sample
+    gives None."""
     pos, att = goal_errors(x_o, goal)
     steps, wrench_samples = int(steps), int(wrench_samples)
     clearance = float(min_clearance)
@@ -156,7 +96,7 @@ def episode_result(
         "final_att_error_rad": att,
         "min_obstacle_clearance_m": clearance if math.isfinite(clearance) else None,
         "min_manipulability": float(min_manipulability),
-        "violations": {k: int(v) for k, v in zip(CONSTRAINTS, violations, strict=True)},
+        "violations": {k: int(v) for k, v in zip(constraints, violations, strict=True)},
         "internal_wrench_rms": (
             math.sqrt(float(wrench_sq) / wrench_samples) if wrench_samples else None
         ),

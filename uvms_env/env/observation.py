@@ -10,7 +10,8 @@ kinematics and its known grasp; no other robot's data and no contact force enter
 table against it. The NMPC expert reads observations through these names.
 
 May import: numpy, casadi, ``uvms_env.dynamics`` (compiled calls), ``uvms_env.navigation``,
-``uvms_env.scenarios`` (types) and ``uvms_env.env.kinematics``.
+``uvms_env.scenarios`` (types), ``uvms_env.env.kinematics`` and (types)
+``uvms_env.env.task``.
 """
 
 from __future__ import annotations
@@ -24,9 +25,10 @@ import numpy as np
 
 from uvms_env.dynamics.compiled import BufferCall, RebuiltOnUnpickle
 from uvms_env.env.kinematics import TeamKinematics
-from uvms_env.navigation import WaypointNavigator, WaypointSequencer, choose_k
+from uvms_env.navigation import WaypointNavigator, choose_k
 
 if TYPE_CHECKING:
+    from uvms_env.env.task import Task
     from uvms_env.scenarios import Scenario
 
 
@@ -184,10 +186,11 @@ def _nav_function(navigator: WaypointNavigator, n: int) -> cs.Function:
 class Observer(RebuiltOnUnpickle):
     """Builds the N local observations of one scenario each step (see module docstring).
 
-    Owns each robot's waypoint sequencer (advanced from that robot's own estimate) and
-    its sensor noise, drawn from the generator given at ``reset``. The kinematics kernel
+    Draws the sensor noise from the generator given at ``reset``. The kinematics kernel
     writes every block of the observation but the navigation twist, which depends on
-    the scenario's navigation functions and is added here."""
+    the scenario's navigation functions and is added here, at each robot's active
+    waypoint: the task's (``uvms_env.env.task.Task.advance_robots``) sequencing, on the
+    robot's own estimate."""
 
     _rebuilt = ("navigator", "_nav")
 
@@ -198,10 +201,7 @@ class Observer(RebuiltOnUnpickle):
         self.kin = kinematics
         self.navigator = make_navigator(scenario)
         self.waypoints = np.asarray(scenario.waypoints, dtype=float)
-        self.sequencers = [
-            WaypointSequencer(self.waypoints, pos_tol=WAYPOINT_TOLERANCE) for _ in range(n)
-        ]
-        self.index = np.zeros(n, dtype=int)
+        self.index = np.zeros(n, dtype=int)  # each robot's active waypoint, as the kernel has it
         self._nav = BufferCall(_nav_function(self.navigator, n))
         self._rows = np.arange(n)
         self._noise_q = scenario.sensor_noise * NOISE_STD_Q
@@ -221,12 +221,11 @@ class Observer(RebuiltOnUnpickle):
     def noisy(self) -> bool:
         return self.scenario.sensor_noise > 0
 
-    def reset(self, rng: np.random.Generator) -> None:
-        """New episode: noise from ``rng``, every robot back to the first waypoint."""
+    def reset(self, rng: np.random.Generator, task: Task) -> None:
+        """New episode: noise from ``rng``, the robots' waypoints as ``task`` (one
+        environment) has them after its reset."""
         self._rng = rng
-        for seq in self.sequencers:
-            seq.reset()
-        self.index[:] = 0
+        self.index[:] = task.robot_index
         self._on_waypoint_change()
 
     def _on_waypoint_change(self) -> None:
@@ -245,15 +244,14 @@ class Observer(RebuiltOnUnpickle):
         self.zeta_meas += zeta
         return self.q_meas, self.zeta_meas
 
-    def build(self, min_waypoint_distance2: float) -> np.ndarray:
+    def build(self, task: Task, team: np.ndarray) -> np.ndarray:
         """The (N, 79) float32 observations, after the kinematics kernel was evaluated on
-        this step's measurements. Advances each robot's own waypoint sequencer first (the
-        kernel's distance to the active waypoint says whether any robot may pass one)."""
+        this step's measurements (``team``: its team rows). Advances each robot's own
+        waypoint sequencing (``task``, one environment) first."""
         kin = self.kin
         obs, pose = kin.observation, kin.pose_estimate
-        if min_waypoint_distance2 < WAYPOINT_TOLERANCE**2:
-            for i, seq in enumerate(self.sequencers):
-                self.index[i] = seq.update(pose[i])  # the exact test is the sequencer's
+        if task.advance_robots(..., pose, team):
+            self.index[:] = task.robot_index
             self._on_waypoint_change()
             obs[:, self._waypoint] = kin.waypoint
         obs[:, self._nav_slice] = self._nav(pose)[0][self._nav_rows]

@@ -2,14 +2,13 @@
 
 May import: numpy, gymnasium, pettingzoo and everything in ``uvms_env`` below ``env``
 (``models``, ``dynamics``, ``sim``, ``navigation``, ``scenarios``) plus the ``env``
-modules it composes (kinematics, observation, constraints, reward, metrics, wrench,
+modules it composes (kinematics, observation, constraints, task, reward, metrics, wrench,
 render).
 """
 
 from __future__ import annotations
 
 import copy
-import math
 import warnings
 from collections import OrderedDict
 from collections.abc import Mapping
@@ -22,9 +21,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from uvms_env.dynamics import NQ, NU
-from uvms_env.env.constraints import CONSTRAINTS, HARD_CONSTRAINTS
 from uvms_env.env.kinematics import TeamKinematics
-from uvms_env.env.metrics import EpisodeMetrics
 from uvms_env.env.observation import (
     FAR_OBSTACLE,
     OBSERVATION_LAYOUT,
@@ -41,7 +38,8 @@ from uvms_env.env.priors import (
     steady_inputs,
 )
 from uvms_env.env.registration import ENV_ID
-from uvms_env.env.reward import RewardWeights, TeamReward
+from uvms_env.env.reward import RewardWeights
+from uvms_env.env.task import ALL, HARD_KINDS, Task, TaskArrays, episode_end
 from uvms_env.env.wrench import InternalWrench
 from uvms_env.scenarios import Scenario, make, replace
 from uvms_env.scenarios.overrides import (
@@ -62,6 +60,12 @@ ENV_OPTIONS: dict[str, Option] = {
     "reward_weights": Option("weights", "overrides of RewardWeights", optional=True),
     "reseed_geometry": Option("bool", "reset(seed=s) also sets a seeded family's geometry"),
     "internal_wrench_every": Option("int", "internal wrench metric period, 0: never", low=0),
+    "extra_reward_terms": Option(
+        "functions", "extra reward terms fn(s, xp) -> (K,) (uvms_env.env.task)", optional=True
+    ),
+    "extra_constraints": Option(
+        "functions", "extra constraints fn(s, xp) -> g (K, N) (uvms_env.env.task)", optional=True
+    ),
     "action_mode": Option(
         "choice", "torque: normalized inputs; residual: around own a_ss", choices=ACTION_MODES
     ),
@@ -85,7 +89,7 @@ RESET_SEED = Option("int", "reset's seed", low=0, optional=True)
 ACTION_KINDS = "fiu"
 # Seeded-family scenarios kept per geometry seed (each costs an IPOPT solve to build).
 GEOMETRY_CACHE_SIZE = 32
-HARD_KINDS = [CONSTRAINTS.index(c) for c in HARD_CONSTRAINTS]  # indices of HARD_CONSTRAINTS
+__all__ = ["HARD_KINDS", "CoopTransportEnv", "episode_end", "parallel_env"]  # re-exported
 
 
 @dataclass
@@ -96,7 +100,7 @@ class _World:
     sim: Simulator
     kinematics: TeamKinematics
     observer: Observer
-    reward: TeamReward
+    task: Task  # the task's rules and bookkeeping, K = 1
     wrench: InternalWrench
     renderer: Any = None
 
@@ -219,7 +223,18 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
 
     **Beyond the API.** `env.sim` and `env.scenario` (global: never feed them to a
     policy), `env.observe()` (observations of the current state, e.g. after
-    `sim.set_state`), `env.constraint_values()`, `env.metrics` (`EpisodeMetrics`).
+    `sim.set_state`), `env.constraint_values()`, `env.task` (the task's rules and this
+    episode's bookkeeping: `uvms_env.env.task.Task` for one environment, the code
+    `VectorEnv` runs over K environments).
+
+    **Extensions** (no change to the package): `extra_reward_terms={"name": fn}` adds
+    `fn(s, xp)` (K,) to the reward, reported as `reward_terms["name"]`;
+    `extra_constraints={"name": fn}` adds a constraint g = `fn(s, xp)` (K, N), g <= 0
+    holds, to `constraint_values`, `cost`, the violation term, `metrics["violations"]` and
+    `constraint_mode="terminate"`. `fn` is a callable or a `"module:function"` string;
+    `s` is a `uvms_env.env.task.TaskArrays` (true object pose, q, zeta, actions,
+    waypoints, steps over K environments, here K = 1) and `xp` numpy or CuPy: the same
+    function serves `VectorEnv` on both backends.
 
     **Arguments**
 
@@ -240,6 +255,8 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
     | reward_weights | dict str -> float | {} | overrides of `RewardWeights` |
     | reseed_geometry | bool | True | seeded families: `reset(seed=s)` uses geometry seed s |
     | internal_wrench_every | int >= 0 | 1 | internal wrench metric every k periods (0: never) |
+    | extra_reward_terms | dict str -> fn | None | extra reward terms (Extensions) |
+    | extra_constraints | dict str -> fn | None | extra constraints (Extensions) |
 
     Every keyword is checked against one typed table (`SCENARIO_OVERRIDES` in
     `uvms_env.scenarios.overrides`, `ENV_OPTIONS` here): a wrong type raises TypeError
@@ -285,6 +302,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         self.reseed_geometry = options.get("reseed_geometry", True)
         self.internal_wrench_every = options.get("internal_wrench_every", 1)
         self.priors = priors_of(options)
+        self._extensions = {k: options.get(k) for k in ("extra_reward_terms", "extra_constraints")}
 
         if isinstance(scenario, Scenario):
             if "n_agents" in overrides:
@@ -321,12 +339,9 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         if self._seeded_geometry and built.seed is not None:
             self._worlds[int(built.seed)] = self._world
         self._seeder = np.random.default_rng(built.seed)
-        self.metrics = EpisodeMetrics(built.period)
         self._zero_action = np.zeros((n, NU))
         self._raw_obs = np.zeros((n, OBSERVATION_SIZE), np.float32)  # what the robots saw last
         self._steady: np.ndarray | None = None  # their a_ss, when the priors use it
-        self._team: list[float] = []
-        self._steps = 0
         self._path: list[np.ndarray] = []
 
     # -- public views ------------------------------------------------------------------
@@ -345,11 +360,16 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
     def action_space(self, agent: str) -> spaces.Box:
         return self.action_spaces[self._agent(agent)]
 
+    @property
+    def task(self) -> Task:
+        """The task's rules and episode bookkeeping (one environment): metrics so far,
+        sequencing."""
+        return self._world.task
+
     def state(self) -> np.ndarray:
         w = self._world
-        wp = w.reward.waypoints[w.reward.sequencer.index]
         return np.concatenate(
-            [w.sim.flat_state, wp, [self._steps / self.max_cycles]], dtype=np.float32
+            [w.sim.flat_state, w.task.team_waypoint, [w.task.time_fraction()]], dtype=np.float32
         )
 
     # -- episode -----------------------------------------------------------------------
@@ -365,13 +385,13 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         w = self._world
         rng = np.random.default_rng(self._seeder.integers(2**63))
         w.sim.reset(seed=int(rng.integers(2**63)))
-        w.observer.reset(rng)
+        w.task.max_cycles = self.max_cycles
+        w.task.reset(ALL)
+        w.observer.reset(rng, w.task)
         self._bind(w)
         self.agents = self.possible_agents[:]
-        self._steps = 0
-        self.metrics.reset()
         obs = self._observe(self._zero_action)
-        w.reward.reset(self._x_o)
+        w.task.start(ALL, self._x_o)
         self._path = [self._x_o[:3].copy()]
         return (
             {a: obs[i] for i, a in enumerate(self.possible_agents)},
@@ -400,45 +420,49 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             diverged = str(exc)  # the simulator kept the last valid state
         except ValueError as exc:  # NaN or inf: the simulator checks before it steps
             raise self._bad_actions(a) from exc
-        self._steps += 1
+        task = w.task
+        task.max_cycles = self.max_cycles  # an attribute a user may change
+        refused = np.bool_(bool(diverged))
+        sampled = task.tick(refused)
         obs = self._observe(a)
         kin = w.kinematics
-        n_violated, action_sq = self._team[4], self._team[5]
-        kinds = kin.kinds_violated.tolist()
-        collision = any(kinds[k] for k in HARD_KINDS)
-        failed = (
-            bool(diverged) or collision or (self.constraint_mode == "terminate" and n_violated > 0)
+        wrench_sq = None
+        if sampled is not None and sampled:
+            wrench_sq = w.wrench(info.tau_applied, info.current)
+        out = task.step(
+            self._x_o,
+            kin.team_rows(),
+            kin.constraints,
+            kin.violated_count,
+            refused,
+            sampled,
+            wrench_sq,
+            self._task_arrays(a) if task.extended else None,
         )
-        x_o = self._x_o.tolist()
-        success = not failed and w.reward.at_goal(x_o)
-        terminated = success or failed
-        truncated = not terminated and self._steps >= self.max_cycles
-
-        every = self.internal_wrench_every
-        sample = not diverged and every > 0 and self._steps % every == 0
-        wrench_sq = w.wrench(info.tau_applied, info.current) if sample else None
-        self.metrics.record_step(action_sq, kinds, wrench_sq)
-        reward, terms = w.reward(x_o, action_sq / a.size, n_violated, success, failed)
+        terminated, truncated = bool(out.terminated), bool(out.truncated)
+        reward = float(out.reward)
+        terms = {name: float(v) for name, v in out.terms.items()}
         if self.render_mode is not None:
             self._path.append(self._x_o[:3].copy())
 
         agents = self.possible_agents
-        g_rows = kin.constraints.tolist()
-        costs = kin.violated_count.tolist()
+        g_rows = out.constraint_values.tolist()
+        costs = out.cost.tolist()
+        names = task.constraints
         infos = {
             agent: {
-                "constraint_values": dict(zip(CONSTRAINTS, g_rows[i], strict=True)),
+                "constraint_values": dict(zip(names, g_rows[i], strict=True)),
                 "cost": costs[i],
                 "reward_terms": dict(terms),
             }
             for i, agent in enumerate(agents)
         }
         if terminated or truncated:
-            end = episode_end(success, bool(diverged), collision, failed)
+            end = task.end_kinds(ALL, out, refused)[0]
             if diverged:
                 for info_a in infos.values():
                     info_a["diverged_reason"] = diverged
-            metrics = self.metrics.result(self._x_o, w.reward.goal, success)
+            metrics = task.results(ALL, self._x_o, out.success)[0]
             for info_a in infos.values():
                 info_a["episode_end"] = end
                 info_a["metrics"] = metrics
@@ -451,18 +475,30 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             infos,
         )
 
+    def _task_arrays(self, action: np.ndarray) -> TaskArrays:
+        """What the extra reward terms and constraints see (views with K = 1)."""
+        task = self._world.task
+        return TaskArrays(
+            self._x_o[None],
+            self._q[None],
+            self._zeta[None],
+            action[None],
+            task.team_waypoint[None],
+            task.goal[None],
+            task.steps.reshape(1),
+        )
+
     def _evaluate(self, action: np.ndarray) -> np.ndarray:
         """Measure, run the kinematics kernel, note the state metrics, build the (N, 79)
         observations. ``action``: the requested normalized actions (input constraint)."""
         w = self._world
         kin = w.kinematics
-        kin.time_fraction[0] = self._steps / self.max_cycles
+        kin.time_fraction[0] = w.task.time_fraction()
         q_meas, zeta_meas = w.observer.measure(self._q, self._zeta)
         kin(action, self._q, self._zeta, q_meas, zeta_meas, self._x_o)
-        self._team = team = kin.team()
-        clearance = team[0] if w.scenario.obstacles else math.inf  # else: padding distance
-        self.metrics.observe(clearance, team[1], team[2])
-        return w.observer.build(team[3])
+        team = kin.team_rows()
+        w.task.observe(ALL, team)
+        return w.observer.build(w.task, team)
 
     def _observe(self, action: np.ndarray) -> np.ndarray:
         """``_evaluate``, kept as the robots' last raw view, then the observation mode."""
@@ -486,9 +522,17 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         self._bind(w)
         zero = self._zero_action
         w.kinematics(zero, self._q, self._zeta, self._q, self._zeta, self._x_o)
-        rows = w.kinematics.constraints.tolist()
+        g = w.kinematics.constraints
+        if w.task.constraint_fns:
+            s = self._task_arrays(zero)
+            extra = [
+                np.reshape(np.asarray(fn(s, np), float), self.n)
+                for fn in w.task.constraint_fns.values()
+            ]
+            g = np.concatenate([g, np.stack(extra, axis=-1)], axis=-1)
+        rows = g.tolist()
         return {
-            a: dict(zip(CONSTRAINTS, rows[i], strict=True))
+            a: dict(zip(w.task.constraints, rows[i], strict=True))
             for i, a in enumerate(self.possible_agents)
         }
 
@@ -610,7 +654,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
             sim=sim,
             kinematics=kin,
             observer=Observer(scenario, kin),
-            reward=TeamReward(scenario, self.reward_weights),
+            task=task_of(scenario, self, None, len(scenario.waypoints), np),
             wrench=InternalWrench(sim),
         )
 
@@ -630,16 +674,29 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         return world
 
 
-def episode_end(success: bool, diverged: bool, collision: bool, failed: bool) -> str:
-    """How an ended episode ended (``infos["episode_end"]``), the first that applies of
-    success, diverged, collision, constraint (another failure), max_cycles."""
-    if success:
-        return "success"
-    if diverged:
-        return "diverged"
-    if collision:
-        return "collision"
-    return "constraint" if failed else "max_cycles"
+def task_of(scenario: Scenario, env: Any, num_envs: int | None, w_max: int, xp: Any) -> Task:
+    """The ``Task`` of ``num_envs`` environments (None: one, without a batch axis) with
+    ``env``'s options (the single env's or the vector env's attributes), all on
+    ``scenario``'s geometry to start with."""
+    task = Task(
+        xp,
+        num_envs,
+        scenario.n_agents,
+        w_max,
+        weights=env.reward_weights,
+        constraint_mode=env.constraint_mode,
+        max_cycles=env.max_cycles,
+        period=scenario.period,
+        success_pos_tol=scenario.success_pos_tol,
+        success_att_tol=scenario.success_att_tol,
+        internal_wrench_every=env.internal_wrench_every,
+        **env._extensions,
+    )
+    b, w = task.batch, len(scenario.waypoints)
+    waypoints = np.zeros((*b, w_max, 6))
+    waypoints[..., :w, :] = scenario.waypoints
+    task.set_geometry(ALL, waypoints, np.full(b, w), np.full(b, bool(scenario.obstacles)))
+    return task
 
 
 def priors_of(options: Mapping[str, Any]) -> Priors:

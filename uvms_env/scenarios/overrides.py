@@ -28,9 +28,10 @@ CURRENT_PRESETS = ("none", "mild", "strong")
 @dataclass(frozen=True)
 class Option:
     """One keyword option. ``kind``: "int", "float" (finite), "bool", "choice" (one of
-    ``choices``) or "weights" (a mapping name -> finite float; the names are checked by
-    their consumer). ``low``/``high`` bound numbers (inclusive unless ``*_open``);
-    ``optional``: None is allowed too."""
+    ``choices``), "weights" (a mapping name -> finite float; the names are checked by
+    their consumer) or "functions" (a mapping name -> callable or "module:function"
+    string; imported and checked by their consumer). ``low``/``high`` bound numbers
+    (inclusive unless ``*_open``); ``optional``: None is allowed too."""
 
     kind: str
     doc: str
@@ -49,6 +50,8 @@ class Option:
             text = "bool"
         elif self.kind == "weights":
             text = "dict name -> finite float"
+        elif self.kind == "functions":
+            text = "dict name -> callable or 'module:function'"
         else:
             text = f"{'finite float' if self.kind == 'float' else 'int'}{self._range()}"
         return f"None or {text}" if self.optional else text
@@ -81,6 +84,8 @@ class Option:
             return bool(value)
         if self.kind == "weights":
             return self._check_weights(name, value)
+        if self.kind == "functions":
+            return self._check_functions(name, value)
         if isinstance(value, bool | np.bool_):
             raise self._error(name, value, TypeError)
         if self.kind == "int":
@@ -116,6 +121,17 @@ class Option:
                 raise ValueError(what)
             out[key] = float(w)
         return out
+
+    def _check_functions(self, name: str, value: Any) -> dict[str, Any]:
+        if not isinstance(value, Mapping):
+            raise self._error(name, value, TypeError)
+        for key, fn in value.items():
+            if not isinstance(key, str) or not (callable(fn) or isinstance(fn, str)):
+                raise TypeError(
+                    f"{name}[{key!r}]: expected a callable or 'module:function' under a str "
+                    f"key, got {fn!r}"
+                )
+        return dict(value)
 
     def _error(self, name: str, value: Any, kind: type[Exception]) -> Exception:
         got = f"{value!r} ({type(value).__name__})"

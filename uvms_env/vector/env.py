@@ -17,8 +17,9 @@ step of the truth simulator (``BatchedSimulator``), the kinematics kernel of the
 environment (``env.kinematics.team_function``: observations, pose estimates, constraint
 values, team reductions), the navigation twist at each robot's active waypoint
 (``navigation.parametric``) and, when sampled, the internal wrench (the chain's own
-function). The rest (sequencing, reward, termination, metrics) is numpy over arrays of
-K. Python runs per environment only where an environment's own random generator must
+function). The rest (sequencing, reward, termination, metrics) is array code over K
+(``uvms_env.env.task.Task``, the code the single environment runs with K = 1). Python
+runs per environment only where an environment's own random generator must
 be drawn from (sensor noise, ocean current: a loop over K when they are switched on, so
 that every draw is the single environment's) and for environments whose episode ended
 (their metrics dict and their reset).
@@ -57,7 +58,6 @@ from uvms_env.env.kinematics import (
     segment_inputs,
     team_function,
 )
-from uvms_env.env.metrics import episode_result
 from uvms_env.env.observation import (
     FAR_OBSTACLE,
     NOISE_STD_Q,
@@ -65,21 +65,20 @@ from uvms_env.env.observation import (
     OBSERVATION_LAYOUT,
     OBSERVATION_SIZE,
     OBSERVATION_STRUCTURE,
-    WAYPOINT_TOLERANCE,
 )
 from uvms_env.env.parallel import (
     ACTION_KINDS,
     CONSTRAINT_MODES,
-    HARD_KINDS,
     RESET_SEED,
     _make_scenario,
-    episode_end,
     observation_space,
     priors_of,
     split_keywords,
+    task_of,
 )
 from uvms_env.env.priors import BASE_FEATURES, prior_functions, steady_inputs
-from uvms_env.env.reward import REWARD_TERMS, RewardWeights
+from uvms_env.env.reward import RewardWeights
+from uvms_env.env.task import TaskArrays
 from uvms_env.navigation.parametric import parametric_twist_function
 from uvms_env.scenarios import Scenario
 from uvms_env.scenarios.overrides import Option
@@ -88,7 +87,7 @@ from uvms_env.vector.bank import NAV_PARAMETERS, SEEDED_FAMILIES, GeometryBank, 
 from uvms_env.vector.kernels import BatchedFunction, available_cores
 from uvms_env.vector.simulator import BACKENDS, ENVELOPE, INACCURATE, OK, BatchedSimulator
 
-ALL = slice(None)  # every environment, as an index
+ALL = slice(None)  # every environment, as an index (also the task's)
 VECTOR_OPTIONS: dict[str, Option] = {
     "geometry_pool": Option(
         "int", "seeded families: episodes cycle through this many bank seeds", low=1, optional=True
@@ -144,15 +143,18 @@ class VectorEnv:
 
     | key | shape | meaning |
     |---|---|---|
-    | constraint_values | (K, N, 8) | g <= 0 holds, order of `CONSTRAINTS` |
+    | constraint_values | (K, N, 8 + E) | g <= 0 holds: `CONSTRAINTS`, then E extra ones |
     | cost | (K, N) | violated constraints per robot |
-    | reward_terms | dict name -> (K,) | the terms of the shared reward |
+    | reward_terms | dict name -> (K,) | the terms of the shared reward (extra terms last) |
     | success | (K,) bool | the episode succeeded this step |
     | episode_end | (K,) object | "" or success, collision, constraint, diverged, max_cycles |
     | final_observation | (K, N, 79) | last observation of the envs that ended (else zeros) |
     | final_state | (K, 20 N + 19) or None | `state()` before the resets, when an env ended |
     | metrics | (K,) object | the ended episodes' metrics (`uvms_env.env.metrics`) or None |
     | diverged_reason | (K,) object | why a step was refused ("" elsewhere) |
+
+    **Extensions**: `extra_reward_terms` and `extra_constraints` as in `parallel_env`; the
+    functions receive the K environments' arrays (CuPy ones on a GPU) and `xp`.
 
     **Float32** (`dtype="float32"`): every compiled call in single precision, rewards and
     metrics in float64 from its results; the fast mode. Its deviation from float64 is
@@ -194,6 +196,7 @@ class VectorEnv:
         self.internal_wrench_every = options.get("internal_wrench_every", 1)
         self.priors = priors_of(options)
         self.geometry_pool: int | None = vector.get("geometry_pool")
+        self._extensions = {k: options.get(k) for k in ("extra_reward_terms", "extra_constraints")}
 
         if isinstance(scenario, Scenario):
             if "n_agents" in overrides:
@@ -290,17 +293,9 @@ class VectorEnv:
         self._nav_tables: dict[int, np.ndarray] = {}  # id(scenario) -> navigation table
         w_max = 3 if self.family == "random" else len(base.waypoints)
         self._w_max = w_max
-        self._waypoints = xp.zeros((k, w_max, 6))
-        self._waypoint_count = xp.ones(k, np.int64)
         self._nav_table = xp.zeros((k, w_max, NAV_PARAMETERS))
-        self._has_obstacles = xp.zeros(k, bool)
-        self._robot_index = xp.zeros((k, n), np.int64)
-        self._robot_done = xp.zeros((k, n), bool)
-        self._team_index = xp.zeros(k, np.int64)
-        self._team_done = xp.zeros(k, bool)
-        self._potential = xp.zeros(k)
-        self._steps = xp.zeros(k, np.int64)
-        self._hard_kinds = xp.asarray(HARD_KINDS)
+        # the task's rules and episode bookkeeping over the K environments (their arrays)
+        self.task = task_of(base, self, k, w_max, xp)
         # episode bookkeeping of the resets (host: read in Python per ended environment)
         self._episode = np.zeros(k, np.int64)
         self._episode_base = np.zeros(k, np.int64)
@@ -315,7 +310,6 @@ class VectorEnv:
         # operand in its arithmetic)
         self._noise_q = xp.asarray(base.sensor_noise * NOISE_STD_Q)
         self._noise_zeta = xp.asarray(base.sensor_noise * NOISE_STD_ZETA)
-        self._metrics_reset(slice(None), init=True)
         self._obs = xp.zeros((k, n, OBSERVATION_SIZE), np.float32)
         # a_ss of the robots' current observations, kept beside them when the priors use it
         self._steady = xp.zeros((k, n, NU))
@@ -383,8 +377,8 @@ class VectorEnv:
     def _state(self) -> Any:
         xp, k = self.xp, self.num_envs
         x = self.sim.x[:, :k].T.astype(np.float64)
-        wp = self._waypoints[xp.arange(k), self._team_index]
-        full = xp.concatenate([x, wp, (self._steps / self.max_cycles)[:, None]], axis=1)
+        wp = self.task.team_waypoint
+        full = xp.concatenate([x, wp, self.task.time_fraction()[:, None]], axis=1)
         return full.astype(np.float32)
 
     # -- episodes -----------------------------------------------------------------------
@@ -484,10 +478,8 @@ class VectorEnv:
             ).reshape(-1)
         xp, real = self.xp, self._real
         cols = self._on_device(np.array([i for i, _ in changed]))
-        self._waypoints[cols] = xp.asarray(waypoints)
-        self._waypoint_count[cols] = xp.asarray(count)
+        self.task.set_geometry(cols, waypoints, count, obstacles)
         self._nav_table[cols] = xp.asarray(nav)
-        self._has_obstacles[cols] = xp.asarray(obstacles)
         for target, rows in (
             (self._cylinders, cylinders),
             (self._spheres, spheres),
@@ -525,20 +517,17 @@ class VectorEnv:
         if len(ids) == self.num_envs:  # all of them: the kernels' full path, no gathering
             ids = slice(0, self.num_envs)
         ids = self._on_device(ids)
-        self._steps[ids] = 0
-        self._metrics_reset(ids)
-        self._robot_index[ids] = 0
-        self._robot_done[ids] = False
-        self._waypoint_in[:, ids] = self.xp.tile(self._waypoints[ids, 0], (1, self.n)).T
-        self._waypoint_in[:, self.num_envs :] = self._waypoint_in[:, :1]  # padding lanes
+        self.task.reset(ids)
+        self._copy_robot_waypoints(ids)
         self._a[:, ids] = 0.0
         self._evaluate(ids)
-        # the team's sequencer on the true object (TeamReward.reset)
-        self._team_index[ids] = 0
-        self._team_done[ids] = False
-        x_o = self._object_pose(ids)
-        self._advance_team(ids, x_o)
-        self._potential[ids] = self._potential_of(ids, x_o)
+        self.task.start(ids, self._object_pose(ids))
+
+    def _copy_robot_waypoints(self, ids: Any) -> None:
+        """The robots' active waypoints of ``ids`` into the kinematics kernel's inputs."""
+        wp = self.task.robot_waypoint[ids]
+        self._waypoint_in[:, ids] = wp.reshape(wp.shape[0], self.n * 6).T
+        self._waypoint_in[:, self.num_envs :] = self._waypoint_in[:, :1]  # padding lanes
 
     # -- stepping -------------------------------------------------------------------------
     def step(
@@ -554,43 +543,28 @@ class VectorEnv:
         # numpy's functions dispatch to CuPy's for CuPy arrays (NEP 18): one formula
         command = self.priors.command(self._obs, a, self._ring, self._steady)
         code = self.sim.step(command * xp.asarray(self.sim.tau_max), current)
-        self._steps += 1
+        task = self.task
+        task.max_cycles = self.max_cycles  # an attribute a user may change
         diverged = code != OK
+        sampled = task.tick(diverged)
         self._a[:, :k] = a.reshape(k, n * NU).T
-        all_envs = slice(0, k)
+        all_envs = slice(0, k)  # the simulator's and kernels' arrays have padding lanes
         self._evaluate(all_envs)
         team = self._kin_out[4][:, :k].astype(np.float64)
-        kinds = team[6 : 6 + NK] > 0.0
-        n_violated, action_sq = team[4], team[5]
-        collision = kinds[self._hard_kinds].any(axis=0)
-        failed = diverged | collision
-        if self.constraint_mode == "terminate":
-            failed |= n_violated > 0
         x_o = self._object_pose(all_envs)
-        success = ~failed & self._at_goal(x_o)
-        terminated = success | failed
-        truncated = ~terminated & (self._steps >= self.max_cycles)
-
         wrench_sq = None
-        every = self.internal_wrench_every
-        if every > 0:
-            sampled = ~diverged & (self._steps % every == 0)
-            if sampled.any():
-                wrench_sq = xp.where(sampled, self._internal_wrench_sq(), 0.0)
-                self._wrench_sq += wrench_sq
-                self._wrench_samples += sampled
-        self._m_steps += 1
-        self._effort += action_sq * self._base.period
-        self._violations += kinds.T
-
-        reward, terms = self._reward(x_o, action_sq / (n * NU), n_violated, success, failed)
+        if sampled is not None and sampled.any():
+            wrench_sq = xp.where(sampled, self._internal_wrench_sq(), 0.0)
         g = self._kin_out[2][:, :k].reshape(n, NK, k).transpose(2, 0, 1).astype(np.float64)
         cost = self._kin_out[3][:, :k].reshape(n, 6, k)[:, 4].T.astype(np.int64)
-        ended = terminated | truncated
+        state = self._task_arrays(x_o, a) if task.extended else None
+        out = task.step(x_o, team, g, cost, diverged, sampled, wrench_sq, state)
+        reward, terms, success = out.reward, out.terms, out.success
+        ended = out.terminated | out.truncated
         final_obs = xp.zeros((k, n, *self.single_observation_space.shape), np.float32)
         infos: dict[str, Any] = {
-            "constraint_values": g,
-            "cost": cost,
+            "constraint_values": out.constraint_values,
+            "cost": out.cost,
             "reward_terms": terms,
             "success": success,
             "episode_end": np.full(k, "", dtype=object),
@@ -609,10 +583,8 @@ class VectorEnv:
             on = self._on_device(done)
             infos["final_observation"][on] = self._view(on)
             infos["final_state"] = self._state()  # before the reset, for central critics
-            flags = self._host(xp.stack([success[on], diverged[on], collision[on], failed[on]]))
-            for row, i in enumerate(done.tolist()):
-                infos["episode_end"][i] = episode_end(*(bool(f) for f in flags[:, row]))
-            infos["metrics"][done] = self._metrics_results(on, x_o[on], flags[0])
+            infos["episode_end"][done] = task.end_kinds(on, out, diverged)
+            infos["metrics"][done] = task.results(on, x_o[on], success[on])
             self._autoreset(done)
         if self.backend == "cuda":
             for key in ("constraint_values", "cost", "success", "final_observation", "final_state"):
@@ -623,10 +595,18 @@ class VectorEnv:
         return (
             self._export(self._view(ALL)),
             self._export(reward),
-            self._export(terminated),
-            self._export(truncated),
+            self._export(out.terminated),
+            self._export(out.truncated),
             infos,
         )
+
+    def _task_arrays(self, x_o: Any, action: Any) -> TaskArrays:
+        """What the extra reward terms and constraints see, over the K environments."""
+        n, k, task = self.n, self.num_envs, self.task
+        x = self.sim.x
+        q = x[: NQ * n, :k].T.reshape(k, n, NQ).astype(np.float64)
+        zeta = x[NQ * n : 2 * NQ * n, :k].T.reshape(k, n, NQ).astype(np.float64)
+        return TaskArrays(x_o, q, zeta, action, task.team_waypoint, task.goal, task.steps)
 
     def restart(self, env_ids: Any) -> np.ndarray:
         """End the episodes of ``env_ids`` where they stand and start their next ones, as the
@@ -712,7 +692,8 @@ class VectorEnv:
         waypoints, add the navigation twist; the observations land in ``self._obs[ids]``."""
         xp, n, k = self.xp, self.n, self.num_envs
         full = isinstance(ids, slice)
-        self._time_fraction[0, ids] = self._steps[ids] / self.max_cycles
+        task = self.task
+        self._time_fraction[0, ids] = task.time_fraction(ids)
         x = self.sim.x
         q, zeta = x[: NQ * n], x[NQ * n : 2 * NQ * n]
         if self._noisy:
@@ -744,28 +725,16 @@ class VectorEnv:
             for full_out, part in zip(self._kin_out, out, strict=True):
                 full_out[:, ids] = part[:, :m]
         obs_rows, pose_rows, team = out[0][:, :m], out[1][:, :m], out[4][:, :m]
-        # state metrics (EpisodeMetrics.observe)
-        clearance = xp.where(self._has_obstacles[ids], team[0], np.inf)
-        xp.minimum(self._min_clearance[ids], clearance, out=clearance)
-        self._min_clearance[ids] = clearance
-        self._min_manip[ids] = xp.minimum(self._min_manip[ids], team[1])
-        self._grasp_drift[ids] = xp.maximum(self._grasp_drift[ids], team[2])
+        team = team.astype(np.float64)
+        task.observe(ids, team)
         obs = obs_rows.reshape(n, OBSERVATION_SIZE, m).transpose(2, 0, 1).astype(np.float64)
         pose = pose_rows.reshape(n, 6, m).transpose(2, 0, 1).astype(np.float64)  # (m, N, 6)
-        # each robot's own sequencer, on its own estimate (WaypointSequencer.update)
-        index, done = self._robot_index[ids], self._robot_done[ids]
+        # each robot's own sequencing, on its own estimate
+        if task.advance_robots(ids, pose, team):
+            self._copy_robot_waypoints(ids)
         env_rows = xp.arange(k)[ids]
-        wp = self._waypoints[env_rows[:, None], index]
-        near = ~done & (xp.linalg.norm(pose[:, :, :3] - wp[:, :, :3], axis=2) < WAYPOINT_TOLERANCE)
-        if bool(near.any()):
-            last = index + 1 >= self._waypoint_count[ids][:, None]
-            index = index + (near & ~last)
-            done = done | (near & last)
-            self._robot_index[ids], self._robot_done[ids] = index, done
-            wp = self._waypoints[env_rows[:, None], index]
-            self._waypoint_in[:, ids] = wp.reshape(m, n * 6).T
-            self._waypoint_in[:, k:] = self._waypoint_in[:, :1]  # padding lanes
-        obs[:, :, _WAYPOINT] = wp
+        index = task.robot_index[ids]
+        obs[:, :, _WAYPOINT] = task.robot_waypoint[ids]
         obs[:, :, _NAV] = self._navigation_twist(env_rows, index, pose)
         self._obs[ids] = obs
         if self._prior_kernels is not None:  # a_ss on the device, from the same expression
@@ -814,133 +783,12 @@ class VectorEnv:
         )[0][:, : self.num_envs].astype(np.float64)
         return self.xp.einsum("ij,ij->j", out, out)
 
-    # -- reward and sequencing of the team (TeamReward) ---------------------------------
     def _object_pose(self, ids: Any) -> np.ndarray:
         n = self.n
         return self.sim.x[2 * NQ * n : 2 * NQ * n + 6, ids].T.astype(np.float64)
 
-    def _team_waypoint(self, ids: Any) -> Any:
-        return self._waypoints[self.xp.arange(self.num_envs)[ids], self._team_index[ids]]
-
-    def _potential_of(self, ids: Any, x_o: Any) -> Any:
-        xp = self.xp
-        wp = self._team_waypoint(ids)
-        att = xp.sqrt((_wrap(x_o[:, 3:] - wp[:, 3:], xp) ** 2).sum(axis=1))
-        dist = xp.linalg.norm(x_o[:, :3] - wp[:, :3], axis=1)
-        return dist + self.reward_weights.attitude * att
-
-    def _advance_team(self, ids: Any, x_o: np.ndarray) -> np.ndarray:
-        """The team's sequencer passes its waypoint where the true object reached it;
-        returns where an intermediate waypoint was passed (index changed)."""
-        wp = self._team_waypoint(ids)
-        near = ~self._team_done[ids] & (
-            self.xp.linalg.norm(x_o[:, :3] - wp[:, :3], axis=1) < WAYPOINT_TOLERANCE
-        )
-        last = self._team_index[ids] + 1 >= self._waypoint_count[ids]
-        passed = near & ~last
-        self._team_index[ids] = self._team_index[ids] + passed
-        self._team_done[ids] = self._team_done[ids] | (near & last)
-        return passed
-
-    def _reward(
-        self,
-        x_o: np.ndarray,
-        mean_sq_action: np.ndarray,
-        n_violated: np.ndarray,
-        success: np.ndarray,
-        failed: np.ndarray,
-    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        xp, w, all_envs = self.xp, self.reward_weights, slice(None)
-        potential = self._potential_of(all_envs, x_o)
-        progress = w.progress * (self._potential - potential)
-        passed = self._advance_team(all_envs, x_o)
-        if bool(passed.any()):
-            potential = xp.where(passed, self._potential_of(all_envs, x_o), potential)
-        self._potential = potential
-        terms = {
-            "progress": progress,
-            "waypoint": xp.where(passed, w.waypoint, 0.0),
-            "success": xp.where(success, w.success, 0.0),
-            "violation": 0.0 - w.violation * n_violated / self.n - xp.where(failed, w.failure, 0.0),
-            "effort": 0.0 - w.effort * mean_sq_action,
-        }
-        reward = xp.zeros(self.num_envs)
-        for name in REWARD_TERMS:  # the single env's summation order
-            reward = reward + terms[name]
-        return reward, terms
-
-    def _at_goal(self, x_o: Any) -> Any:
-        xp, s = self.xp, self._base
-        goal = self._waypoints[xp.arange(self.num_envs), self._waypoint_count - 1]
-        pos = xp.linalg.norm(x_o[:, :3] - goal[:, :3], axis=1)
-        att = xp.abs(_wrap(x_o[:, 3:] - goal[:, 3:], xp)).max(axis=1)
-        return (pos < s.success_pos_tol) & (att < s.success_att_tol)
-
-    # -- metrics (EpisodeMetrics, as arrays) ------------------------------------------------
-    def _metrics_reset(self, ids: Any, init: bool = False) -> None:
-        if init:
-            xp, k = self.xp, self.num_envs
-            self._m_steps = xp.zeros(k, np.int64)
-            self._min_clearance = xp.zeros(k)
-            self._min_manip = xp.zeros(k)
-            self._grasp_drift = xp.zeros(k)
-            self._violations = xp.zeros((k, NK), np.int64)
-            self._effort = xp.zeros(k)
-            self._wrench_sq = xp.zeros(k)
-            self._wrench_samples = xp.zeros(k, np.int64)
-        self._m_steps[ids] = 0
-        self._min_clearance[ids] = np.inf
-        self._min_manip[ids] = np.inf
-        self._grasp_drift[ids] = 0.0
-        self._violations[ids] = 0
-        self._effort[ids] = 0.0
-        self._wrench_sq[ids] = 0.0
-        self._wrench_samples[ids] = 0
-
-    def _metrics_results(self, ids: Any, x_o: Any, success: np.ndarray) -> list[dict[str, Any]]:
-        """The ended episodes' metrics dicts, from host copies of their rows."""
-        goal = self._waypoints[ids, self._waypoint_count[ids] - 1]
-        rows = [
-            self._host(a)
-            for a in (
-                self._m_steps[ids],
-                x_o,
-                goal,
-                self._min_clearance[ids],
-                self._min_manip[ids],
-                self._violations[ids],
-                self._wrench_sq[ids],
-                self._wrench_samples[ids],
-                self._effort[ids],
-                self._grasp_drift[ids],
-            )
-        ]
-        steps, pose, goal, clearance, manip, violations, wrench, samples, effort, drift = rows
-        return [
-            episode_result(
-                self._base.period,
-                steps[j],
-                pose[j].tolist(),
-                goal[j].tolist(),
-                bool(success[j]),
-                clearance[j],
-                manip[j],
-                violations[j].tolist(),
-                wrench[j],
-                samples[j],
-                effort[j],
-                drift[j],
-            )
-            for j in range(len(steps))
-        ]
-
     def close(self) -> None:
         """Nothing to release (no windows, no processes); for the Gymnasium contract."""
-
-
-def _wrap(angle: Any, xp: Any = np) -> Any:
-    """Wrapped into [-pi, pi]: IEEE remainder by 2 pi (``math.remainder``, as the single env)."""
-    return angle - 2 * np.pi * xp.round(angle / (2 * np.pi))
 
 
 def _padded_columns(ids: Any, padded: int, xp: Any = np) -> Any:
