@@ -2,7 +2,8 @@
 each trains for a tiny budget and writes the same progress.csv and evaluations.csv
 columns and the same config.json keys; every engine's ``--help`` lists the same shared
 options; the old flag names still work, with a deprecation warning; the learning-curve
-figure draws runs of all three."""
+figure draws runs of all three; every PPO engine takes PPO-Lagrangian's dual step the same
+way (and RLlib's env runners apply each new multiplier)."""
 
 from __future__ import annotations
 
@@ -69,18 +70,27 @@ def _rows(path: Path) -> list[dict[str, str]]:
 
 
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory) -> dict[str, Path]:
+def local_ray():
+    """A local Ray for this module's RLlib runs, shut down after them (the engine leaves
+    the one it starts running, which another module's ``ray.init`` would meet)."""
+    ray = pytest.importorskip("ray")
+    pytest.importorskip("ray.rllib")
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    if started:
+        ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory, request) -> dict[str, Path]:
     """A run folder per available engine, 64 robot-steps each."""
     folders: dict[str, Path] = {}
     base = tmp_path_factory.mktemp("engines")
-    started_ray = False
     for engine in ENGINES:
         if engine == "rllib":
-            ray = pytest.importorskip("ray")
-            pytest.importorskip("ray.rllib")
-            if not ray.is_initialized():
-                ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
-                started_ray = True
+            request.getfixturevalue("local_ray")
         if engine == "torchrl":
             pytest.importorskip("torchrl", minversion="0.14")
         out = base / engine
@@ -97,10 +107,6 @@ def trained(tmp_path_factory) -> dict[str, Path]:
             ]
         )
         folders[engine] = out
-    if started_ray:
-        import ray
-
-        ray.shutdown()
     return folders
 
 
@@ -253,7 +259,7 @@ DUAL += ["--cost-limit", "0.2"]
 
 @pytest.mark.parametrize("engine", ["sb3", "torchrl", "rllib"])
 def test_ppo_lagrangian_takes_the_dual_step_from_each_rollouts_episode_cost(
-    engine, tmp_path, monkeypatch
+    engine, tmp_path, monkeypatch, request
 ):
     """Every PPO engine: after each rollout the multiplier moves by lr (mean episode cost -
     limit), clipped at 0, from 0.5; config.json keeps the last. RLlib's env runners hold
@@ -262,7 +268,7 @@ def test_ppo_lagrangian_takes_the_dual_step_from_each_rollouts_episode_cost(
         pytest.importorskip("torchrl", minversion="0.14")
     held: list[list[float]] = []
     if engine == "rllib":
-        pytest.importorskip("ray.rllib")
+        request.getfixturevalue("local_ray")
         from baselines.distributed import rllib_train
         from baselines.distributed.rllib_env import runner_envs
 
@@ -290,8 +296,7 @@ def test_ppo_lagrangian_takes_the_dual_step_from_each_rollouts_episode_cost(
         assert held == [pytest.approx([float(r["multiplier"])] * 2, rel=1e-5) for r in rows]
 
 
-def test_rllib_resumes_with_the_last_multiplier(tmp_path):
-    pytest.importorskip("ray.rllib")
+def test_rllib_resumes_with_the_last_multiplier(local_ray, tmp_path):
     out = tmp_path / "rllib"
     _cost_run("rllib", out, 64, DUAL)
     first = json.loads((out / "config.json").read_text())["cost"]["final_multiplier"]
