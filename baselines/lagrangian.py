@@ -21,9 +21,10 @@ Costs (per robot, per step; the environment's constraint values g <= 0 hold):
 
 An engine applies it where its rewards are made: ``Lagrangian.penalize`` on a step's
 batched constraint values, ``Lagrangian.end_rollout`` once per rollout. The SB3 engine's
-VecEnv wrapper is ``baselines.rl.cost.CostPenalty``. Written here because the RL
-libraries have no constrained RL and the safe-RL ones (OmniSafe, safety-gymnasium)
-bring their own environment loop and pins.
+VecEnv wrapper is ``baselines.rl.cost.CostPenalty``; RLlib's envs penalize their own steps
+(``baselines.distributed.rllib_env``) and hand their episode costs to the driver's dual
+step. Written here because the RL libraries have no constrained RL and the safe-RL ones
+(OmniSafe, safety-gymnasium) bring their own environment loop and pins.
 
 May import: numpy and ``uvms_env.env.constraints``.
 """
@@ -97,6 +98,16 @@ class Lagrangian:
             ended = np.flatnonzero(done)
             self._finished.extend(self._episode[ended].tolist())
             self._episode[ended] = 0.0
+
+    def take_finished(self) -> list[float]:
+        """The costs of the episodes ended since the last call, handed over: where the
+        episodes run elsewhere (RLlib's env runners), the driver's ``Lagrangian`` ``add``s
+        them before its ``end_rollout``."""
+        finished, self._finished = self._finished, []
+        return finished
+
+    def add(self, episode_costs: list[float]) -> None:
+        self._finished.extend(float(c) for c in episode_costs)
 
     def penalize(self, g: Any, count: Any, done: np.ndarray) -> np.ndarray:
         """``g`` and ``count`` are only read for their kind of cost (the other may be

@@ -2,7 +2,8 @@
 each trains for a tiny budget and writes the same progress.csv and evaluations.csv
 columns and the same config.json keys; every engine's ``--help`` lists the same shared
 options; the old flag names still work, with a deprecation warning; the learning-curve
-figure draws runs of all three."""
+figure draws runs of all three; every PPO engine takes PPO-Lagrangian's dual step the same
+way (and RLlib's env runners apply each new multiplier)."""
 
 from __future__ import annotations
 
@@ -69,18 +70,27 @@ def _rows(path: Path) -> list[dict[str, str]]:
 
 
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory) -> dict[str, Path]:
+def local_ray():
+    """A local Ray for this module's RLlib runs, shut down after them (the engine leaves
+    the one it starts running, which another module's ``ray.init`` would meet)."""
+    ray = pytest.importorskip("ray")
+    pytest.importorskip("ray.rllib")
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    if started:
+        ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory, request) -> dict[str, Path]:
     """A run folder per available engine, 64 robot-steps each."""
     folders: dict[str, Path] = {}
     base = tmp_path_factory.mktemp("engines")
-    started_ray = False
     for engine in ENGINES:
         if engine == "rllib":
-            ray = pytest.importorskip("ray")
-            pytest.importorskip("ray.rllib")
-            if not ray.is_initialized():
-                ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
-                started_ray = True
+            request.getfixturevalue("local_ray")
         if engine == "torchrl":
             pytest.importorskip("torchrl", minversion="0.14")
         out = base / engine
@@ -97,10 +107,6 @@ def trained(tmp_path_factory) -> dict[str, Path]:
             ]
         )
         folders[engine] = out
-    if started_ray:
-        import ray
-
-        ray.shutdown()
     return folders
 
 
@@ -218,43 +224,107 @@ def test_rllib_envs_per_runner_and_team_size_flags_are_deprecated():
     assert args.env_option == ["max_cycles=9", "n_agents=3"]
 
 
-def test_the_cost_is_refused_clearly_where_an_engine_cannot_apply_it(tmp_path):
-    with pytest.raises(ValueError, match="--cost is not available"):
-        main(["--engine", "rllib", "--cost", "magnitude", "--out", str(tmp_path / "rllib")])
-
-
-@pytest.mark.parametrize("engine", ["sb3", "torchrl"])
-def test_ppo_lagrangian_takes_the_dual_step_from_each_rollouts_episode_cost(engine, tmp_path):
-    """Every PPO engine that applies the cost: after each rollout the multiplier moves by
-    lr (mean episode cost - limit), clipped at 0, from 0.5; config.json keeps the last."""
-    if engine == "torchrl":
-        pytest.importorskip("torchrl", minversion="0.14")
-    out = tmp_path / engine
-    cost = ["--cost", "magnitude", "--cost-weight", "0.5", "--multiplier-lr", "0.1"]
-    cost += ["--cost-limit", "0.2"]
+def _cost_run(engine: str, out: Path, robot_steps: int, cost: list[str], *extra: str) -> None:
     main(
         [
             "--engine",
             engine,
             "--robot-steps",
-            "192",
+            str(robot_steps),
             "--out",
             str(out),
             *COMMON[:-4],
             *cost,
             *ENGINE_ARGS[engine],
+            *extra,
         ]
     )
-    rows = _rows(out / "progress.csv")
-    assert len(rows) == 3
-    multiplier = 0.5
+
+
+def _check_dual_steps(rows: list[dict[str, str]], start: float, lr: float, limit: float) -> float:
+    """Each row's multiplier is the previous one moved by lr (its episode cost - limit),
+    clipped at 0; returns the last."""
+    multiplier = start
     for row in rows:
         mean = float(row["episode_cost_mean"])  # 6-step episodes end in every rollout
         assert mean > 0.0  # exploration violates the speed limits
-        multiplier = max(0.0, multiplier + 0.1 * (mean - 0.2))
+        multiplier = max(0.0, multiplier + lr * (mean - limit))
         assert float(row["multiplier"]) == pytest.approx(multiplier, rel=1e-5)
+    return multiplier
+
+
+DUAL = ["--cost", "magnitude", "--cost-weight", "0.5", "--multiplier-lr", "0.1"]
+DUAL += ["--cost-limit", "0.2"]
+
+
+@pytest.mark.parametrize("engine", ["sb3", "torchrl", "rllib"])
+def test_ppo_lagrangian_takes_the_dual_step_from_each_rollouts_episode_cost(
+    engine, tmp_path, monkeypatch, request
+):
+    """Every PPO engine: after each rollout the multiplier moves by lr (mean episode cost -
+    limit), clipped at 0, from 0.5; config.json keeps the last. RLlib's env runners hold
+    each new multiplier before the next iteration samples."""
+    if engine == "torchrl":
+        pytest.importorskip("torchrl", minversion="0.14")
+    held: list[list[float]] = []
+    if engine == "rllib":
+        request.getfixturevalue("local_ray")
+        from baselines.distributed import rllib_train
+        from baselines.distributed.rllib_env import runner_envs
+
+        step = rllib_train.Engine.dual_step
+
+        def recording(self):
+            stats = step(self)
+            held.extend(
+                self.algorithm.env_runner_group.foreach_env_runner(
+                    lambda r: [e.lagrangian.multiplier for e in runner_envs(r)]
+                )
+            )
+            return stats
+
+        monkeypatch.setattr(rllib_train.Engine, "dual_step", recording)
+    out = tmp_path / engine
+    _cost_run(engine, out, 192, DUAL)
+    rows = _rows(out / "progress.csv")
+    assert len(rows) == 3
+    multiplier = _check_dual_steps(rows, 0.5, 0.1, 0.2)
     config = json.loads((out / "config.json").read_text())
     assert config["cost"]["final_multiplier"] == pytest.approx(multiplier, rel=1e-5)
+    if engine == "rllib":
+        # the local runner's 2 env copies, each with the row's multiplier
+        assert held == [pytest.approx([float(r["multiplier"])] * 2, rel=1e-5) for r in rows]
+
+
+def test_rllib_resumes_with_the_last_multiplier(local_ray, tmp_path):
+    out = tmp_path / "rllib"
+    _cost_run("rllib", out, 64, DUAL)
+    first = json.loads((out / "config.json").read_text())["cost"]["final_multiplier"]
+    assert first != 0.5
+    _cost_run("rllib", out, 128, DUAL, "--resume", str(out))
+    config = json.loads((out / "config.json").read_text())
+    assert config["resumes"] == 1 and config["cost"]["multiplier"] == first
+    rows = _rows(out / "progress.csv")
+    assert [int(r["iteration"]) for r in rows] == [1, 2]
+    last = _check_dual_steps(rows[1:], first, 0.1, 0.2)
+    assert config["cost"]["final_multiplier"] == pytest.approx(last, rel=1e-5)
+
+
+def test_rllib_subtracts_the_weighted_cost_from_every_robots_reward(trained, tmp_path):
+    """A fixed penalty (lr 0) of weight 2: the first iteration samples the same episodes
+    as the plain run (same seeds, same initial policy), each robot's return lower by 2
+    times its episode cost (RLlib's return sums the robots')."""
+    out = tmp_path / "rllib"
+    fixed = ["--cost", "magnitude", "--cost-weight", "2", "--multiplier-lr", "0"]
+    _cost_run("rllib", out, 64, fixed, "--eval-every", "64", "--eval-episodes", "1")
+    (plain,) = _rows(trained["rllib"] / "progress.csv")
+    (row,) = _rows(out / "progress.csv")
+    assert row["episodes"] == plain["episodes"] and float(row["multiplier"]) == 2.0
+    penalty = 2.0 * 2 * float(row["episode_cost_mean"])  # weight x robots x cost per robot
+    assert penalty > 0.1
+    assert float(row["episode_return_mean"]) == pytest.approx(
+        float(plain["episode_return_mean"]) - penalty, abs=1e-4
+    )
 
 
 def test_sac_writes_the_same_records_and_a_last_row_at_the_budget(tmp_path):

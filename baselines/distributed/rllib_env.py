@@ -12,7 +12,14 @@ geometry pool of P. The single env builds each of its geometries once (an IPOPT 
 one and the same context (``vector_index`` 0), so v is the order in which this process
 built them.
 
-May import: gymnasium, ray.rllib and ``uvms_env``; imported only where Ray is.
+With ``cost`` in the config (``baselines.lagrangian.CostSettings`` as a dict), each step
+subtracts the multiplier times each robot's constraint cost from that robot's reward
+(PPO-Lagrangian) and keeps the ended episodes' per-robot costs; the driver takes them from
+every env runner after an iteration (``take_episode_costs``), steps the multiplier and sets
+it on every env (``set_multiplier``).
+
+May import: gymnasium, ray.rllib, numpy, ``baselines.lagrangian`` and ``uvms_env``; imported
+only where Ray is.
 """
 
 from __future__ import annotations
@@ -20,8 +27,11 @@ from __future__ import annotations
 import itertools
 from typing import Any
 
+import numpy as np
 from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
+from baselines.lagrangian import CostSettings, Lagrangian
+from uvms_env.env.constraints import CONSTRAINTS
 from uvms_env.vector.seeding import episode_seed
 
 ENV_NAME = "uvms_coop"
@@ -30,8 +40,8 @@ _BUILT = itertools.count()  # sub-envs built in this process (see module docstri
 
 class UVMSMultiAgentEnv(ParallelPettingZooEnv):
     """``config``: ``scenario``, ``overrides`` (env options), ``seed``, ``geometry_pool``
-    (None: no pool), ``envs_per_runner``, ``num_env_runners``; RLlib's ``EnvContext`` adds
-    the runner's index."""
+    (None: no pool), ``envs_per_runner``, ``num_env_runners``, ``cost`` (None: none); RLlib's
+    ``EnvContext`` adds the runner's index."""
 
     def __init__(self, config: dict[str, Any]) -> None:
         import uvms_env
@@ -51,6 +61,10 @@ class UVMSMultiAgentEnv(ParallelPettingZooEnv):
             scenario=config["scenario"], seed=self._upcoming, **config.get("overrides", {})
         )
         super().__init__(env)
+        cost = config.get("cost")
+        self.lagrangian = (
+            Lagrangian(CostSettings(**cost), len(self.possible_agents)) if cost else None
+        )
 
     def _draw(self) -> int:
         self._episodes += 1
@@ -63,8 +77,52 @@ class UVMSMultiAgentEnv(ParallelPettingZooEnv):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         del seed  # RLlib's seed repeats per runner; ours differ per runner and episode
         obs, infos = self.par_env.reset(seed=self._next_seed(), options=options)
+        if self.lagrangian is not None:
+            self.lagrangian.reset()  # an episode cut short by a reset has no cost
         return obs, infos or {}
+
+    def step(self, action_dict: dict):
+        obs, rewards, terminated, truncated, infos = super().step(action_dict)
+        if self.lagrangian is None:
+            return obs, rewards, terminated, truncated, infos
+        # team episodes: every robot steps until the episode ends for all of them
+        agents = self.possible_agents
+        g = [[infos[a]["constraint_values"][c] for c in CONSTRAINTS] for a in agents]
+        count = [float(infos[a]["cost"]) for a in agents]
+        done = np.array([bool(terminated[a] or truncated[a]) for a in agents])
+        cost = self.lagrangian.penalize(g, count, done)
+        multiplier = self.lagrangian.multiplier
+        for a, c in zip(agents, cost.tolist(), strict=True):
+            infos[a]["constraint_cost"] = c
+            rewards[a] = float(rewards[a]) - multiplier * c
+        return obs, rewards, terminated, truncated, infos
+
+    def set_multiplier(self, value: float) -> None:
+        if self.lagrangian is not None:
+            self.lagrangian.multiplier = float(value)
+
+    def take_episode_costs(self) -> list[float]:
+        """The per-robot costs of the episodes ended since the last call."""
+        return self.lagrangian.take_finished() if self.lagrangian is not None else []
 
 
 def make_env(config: dict[str, Any]) -> UVMSMultiAgentEnv:
     return UVMSMultiAgentEnv(config)
+
+
+def runner_envs(runner: Any) -> list[UVMSMultiAgentEnv]:
+    """An env runner's envs (none where it has no env: the driver's runner beside remote
+    ones)."""
+    vector = getattr(runner, "env", None)
+    return [e.unwrapped for e in getattr(vector, "envs", [])]
+
+
+def take_episode_costs(runner: Any) -> list[float]:
+    """``EnvRunnerGroup.foreach_env_runner``: the runner's ended episodes' robot costs."""
+    return [c for env in runner_envs(runner) for c in env.take_episode_costs()]
+
+
+def set_multiplier(runner: Any, value: float) -> None:
+    """``EnvRunnerGroup.foreach_env_runner``: the multiplier on each of the runner's envs."""
+    for env in runner_envs(runner):
+        env.set_multiplier(value)

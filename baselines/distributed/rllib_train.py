@@ -13,21 +13,28 @@ layer (``baselines.runs``) writes the records and evaluations; the run folder al
 
 Differences from the SB3 engine: no observation or reward normalization (RLlib would
 keep the statistics in its connectors, which the per-agent policy loader does not run),
-the action spread is RLlib's learned state-dependent log-std, and no ``--cost``: the
-multiplier would have to be broadcast to the remote env runners after every dual step
-(``baselines.lagrangian.Lagrangian`` is the piece an env-runner callback would use).
+the action spread is RLlib's learned state-dependent log-std.
 
-May import: ray (inside functions), torch, ``baselines.runs``, ``baselines.distributed``
-and ``uvms_env``.
+``--cost`` (PPO-Lagrangian, ``baselines.lagrangian``): each env subtracts the multiplier
+times each robot's constraint cost from that robot's reward and keeps its ended episodes'
+costs (``baselines.distributed.rllib_env``). After each iteration the driver takes those
+costs from every env runner, takes the dual step and sets the new multiplier on every
+runner's envs, so the next iteration samples with it. As with SB3, the progress rows'
+returns are those of the penalized reward.
+
+May import: ray (inside functions), torch, ``baselines.runs``, ``baselines.lagrangian``,
+``baselines.distributed`` and ``uvms_env``.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 from pathlib import Path
 from typing import Any
 
+from baselines.lagrangian import Lagrangian
 from baselines.options import add_deprecated
 from baselines.runs import Run, seeded_pool
 
@@ -71,8 +78,10 @@ def build_config(
     hyperparameters: dict[str, Any],
     rollout_fragment_length: int | str = "auto",
     envs_per_runner: int = DEFAULTS["num_envs"],
+    cost: dict[str, Any] | None = None,
 ):
-    """RLlib's PPO config: one ``RLModule`` (``POLICY_ID``) for every robot."""
+    """RLlib's PPO config: one ``RLModule`` (``POLICY_ID``) for every robot; ``cost``:
+    ``baselines.lagrangian.CostSettings`` as a dict (None: no cost)."""
     from ray.rllib.algorithms.ppo import PPOConfig
     from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
     from ray.rllib.core.rl_module.multi_rl_module import MultiRLModuleSpec
@@ -89,6 +98,7 @@ def build_config(
         "geometry_pool": geometry_pool,
         "envs_per_runner": envs_per_runner,
         "num_env_runners": num_env_runners,
+        "cost": cost,
     }
     return (
         PPOConfig()
@@ -117,7 +127,8 @@ def _shared(agent_id: Any, *args: Any, **kwargs: Any) -> str:
 
 OPTIONS_NOTE = (
     "--num-envs counts the env copies of each env runner; --hp KEY=JSON: an argument of "
-    "PPOConfig.training()"
+    "PPOConfig.training(); --cost: every env runner's envs get the multiplier after each "
+    "iteration's dual step"
 )
 
 
@@ -149,13 +160,11 @@ class Engine:
     def __init__(self, run: Run, algo: str, args: argparse.Namespace) -> None:
         if algo not in ALGOS:
             raise ValueError(f"unknown algorithm {algo!r} for RLlib; expected one of {ALGOS}")
-        if run.settings.cost is not None:
-            raise ValueError(
-                "--cost is not available with the rllib engine (the multiplier would have to "
-                "reach the remote env runners after every dual step); use --engine sb3"
-            )
         self.run, self.args = run, args
         self.algorithm: Any = None
+        # the driver's side of PPO-Lagrangian: the multiplier and its dual step
+        cost = run.settings.cost
+        self.lagrangian = Lagrangian(cost, robots=1) if cost is not None else None
         self.robot_steps = 0
 
     def build(self) -> dict[str, Any]:
@@ -183,6 +192,7 @@ class Engine:
             hp,
             fragment if fragment == "auto" else int(fragment),
             s.num_envs,
+            s.cost.as_dict() if s.cost is not None else None,
         )
         self.algorithm = config.build_algo()
         if s.resume is not None:
@@ -192,6 +202,8 @@ class Engine:
             self.algorithm.restore_from_path(str(checkpoint.resolve()))
             self.robot_steps = int(self.run.previous.get("robot_steps", 0))
             print(f"resuming {checkpoint} at {self.robot_steps} robot-steps")
+        if self.lagrangian is not None:  # the runners' envs may come from the checkpoint
+            self.broadcast_multiplier()
         return {
             "num_env_runners": a.num_env_runners,
             "geometry_pool": pool,
@@ -212,9 +224,33 @@ class Engine:
             steps, summary = iteration_summary(self.algorithm.train())
             self.robot_steps += steps
             iteration += 1
-            self.run.after_iteration(self, self.robot_steps, summary=summary)
+            self.run.after_iteration(self, self.robot_steps, summary=summary, **self.dual_step())
         self.iterations_done = iteration
         return self.robot_steps
+
+    def dual_step(self) -> dict[str, Any]:
+        """PPO-Lagrangian after an iteration: the episode costs from every env runner, the
+        dual step, the new multiplier on every runner's envs; the progress row's cost and
+        multiplier ({} without a cost)."""
+        if self.lagrangian is None:
+            return {}
+        from baselines.distributed.rllib_env import take_episode_costs
+
+        for costs in self.algorithm.env_runner_group.foreach_env_runner(take_episode_costs):
+            self.lagrangian.add(costs)
+        episode_cost = self.lagrangian.end_rollout()
+        self.broadcast_multiplier()
+        return {"episode_cost": episode_cost, "multiplier": self.lagrangian.multiplier}
+
+    def broadcast_multiplier(self) -> None:
+        """Sets the multiplier on every env of every env runner."""
+        from baselines.distributed.rllib_env import set_multiplier
+
+        assert self.lagrangian is not None
+        value = self.lagrangian.multiplier
+        self.algorithm.env_runner_group.foreach_env_runner(
+            functools.partial(set_multiplier, value=value)
+        )
 
     def save(self, folder: Path) -> None:
         target = folder if folder != self.run.folder else folder / "checkpoint"
