@@ -316,13 +316,11 @@ class Run:
         lengths: list[float] | None = None,
         episode_cost: float | None = None,
         multiplier: float | None = None,
-        summary: tuple[int, float | None, float | None] | None = None,
     ) -> dict[str, Any]:
         """One progress row at ``robot_steps`` done in all: the training episodes that
-        ended in the iteration (raw team returns and lengths), or where the library keeps
-        only their ``summary`` (count, mean return, mean length)."""
-        if summary is None:
-            summary = (len(returns or []), _mean(returns), _mean(lengths))
+        ended in the iteration (their team returns, the environment's shared reward with
+        no normalization and no cost penalty, and lengths), the cost and multiplier."""
+        summary = (len(returns or []), _mean(returns), _mean(lengths))
         if multiplier is not None:
             self.multiplier = multiplier
         now = time.perf_counter()

@@ -65,6 +65,11 @@ class UVMSMultiAgentEnv(ParallelPettingZooEnv):
         self.lagrangian = (
             Lagrangian(CostSettings(**cost), len(self.possible_agents)) if cost else None
         )
+        # the team's return (the shared reward, unpenalized) and length of the running
+        # episode, and those of the episodes ended since the driver last took them: what
+        # every engine records, where RLlib's own means sum the robots' penalized rewards
+        self._return, self._length = 0.0, 0
+        self._finished: list[tuple[float, int]] = []
 
     def _draw(self) -> int:
         self._episodes += 1
@@ -77,16 +82,21 @@ class UVMSMultiAgentEnv(ParallelPettingZooEnv):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         del seed  # RLlib's seed repeats per runner; ours differ per runner and episode
         obs, infos = self.par_env.reset(seed=self._next_seed(), options=options)
+        self._return, self._length = 0.0, 0
         if self.lagrangian is not None:
             self.lagrangian.reset()  # an episode cut short by a reset has no cost
         return obs, infos or {}
 
     def step(self, action_dict: dict):
         obs, rewards, terminated, truncated, infos = super().step(action_dict)
-        if self.lagrangian is None:
-            return obs, rewards, terminated, truncated, infos
         # team episodes: every robot steps until the episode ends for all of them
         agents = self.possible_agents
+        self._return += float(rewards[agents[0]])  # shared: the same for every robot
+        self._length += 1
+        if terminated[agents[0]] or truncated[agents[0]]:
+            self._finished.append((self._return, self._length))
+        if self.lagrangian is None:
+            return obs, rewards, terminated, truncated, infos
         g = [[infos[a]["constraint_values"][c] for c in CONSTRAINTS] for a in agents]
         count = [float(infos[a]["cost"]) for a in agents]
         done = np.array([bool(terminated[a] or truncated[a]) for a in agents])
@@ -100,6 +110,11 @@ class UVMSMultiAgentEnv(ParallelPettingZooEnv):
     def set_multiplier(self, value: float) -> None:
         if self.lagrangian is not None:
             self.lagrangian.multiplier = float(value)
+
+    def take_episodes(self) -> list[tuple[float, int]]:
+        """(team return, length) of the episodes ended since the last call."""
+        out, self._finished = self._finished, []
+        return out
 
     def take_episode_costs(self) -> list[float]:
         """The per-robot costs of the episodes ended since the last call."""
@@ -120,6 +135,12 @@ def runner_envs(runner: Any) -> list[UVMSMultiAgentEnv]:
 def take_episode_costs(runner: Any) -> list[float]:
     """``EnvRunnerGroup.foreach_env_runner``: the runner's ended episodes' robot costs."""
     return [c for env in runner_envs(runner) for c in env.take_episode_costs()]
+
+
+def take_episodes(runner: Any) -> list[tuple[float, int]]:
+    """``EnvRunnerGroup.foreach_env_runner``: the runner's ended episodes (team return,
+    length)."""
+    return [e for env in runner_envs(runner) for e in env.take_episodes()]
 
 
 def set_multiplier(runner: Any, value: float) -> None:

@@ -19,8 +19,9 @@ the action spread is RLlib's learned state-dependent log-std.
 times each robot's constraint cost from that robot's reward and keeps its ended episodes'
 costs (``baselines.distributed.rllib_env``). After each iteration the driver takes those
 costs from every env runner, takes the dual step and sets the new multiplier on every
-runner's envs, so the next iteration samples with it. As with SB3, the progress rows'
-returns are those of the penalized reward.
+runner's envs, so the next iteration samples with it. The progress rows' returns are
+the environment's team returns of the episodes ended in the iteration (unpenalized), as
+every engine records them.
 
 May import: ray (inside functions), torch, ``baselines.runs``, ``baselines.lagrangian``,
 ``baselines.distributed`` and ``uvms_env``.
@@ -142,16 +143,13 @@ def add_arguments(g: Any) -> None:
     add_deprecated(g, "--num-envs", "--num-envs-per-env-runner", type=int)
 
 
-def iteration_summary(result: dict[str, Any]) -> tuple[int, tuple]:
-    """(robot-steps sampled in the iteration, (episodes ended in it, mean return, mean
-    length)) from RLlib's result (its means are smoothed over recent episodes)."""
+def iteration_robot_steps(result: dict[str, Any]) -> int:
+    """Robot-steps sampled in the iteration, from RLlib's result."""
     runners = result.get("env_runners", {})
     agent_steps = runners.get("num_agent_steps_sampled") or 0
     if isinstance(agent_steps, dict):  # per agent id in multi-agent runs
         agent_steps = sum(agent_steps.values())
-    episodes = runners.get("num_episodes") or 0
-    summary = (int(episodes), runners.get("episode_return_mean"), runners.get("episode_len_mean"))
-    return int(agent_steps), summary
+    return int(agent_steps)
 
 
 class Engine:
@@ -221,12 +219,27 @@ class Engine:
         budget, limit = self.run.settings.robot_steps, self.args.iterations
         iteration = 0
         while self.robot_steps < budget and (limit is None or iteration < limit):
-            steps, summary = iteration_summary(self.algorithm.train())
-            self.robot_steps += steps
+            self.robot_steps += iteration_robot_steps(self.algorithm.train())
             iteration += 1
-            self.run.after_iteration(self, self.robot_steps, summary=summary, **self.dual_step())
+            returns, lengths = self.episodes()
+            self.run.after_iteration(
+                self, self.robot_steps, returns=returns, lengths=lengths, **self.dual_step()
+            )
         self.iterations_done = iteration
         return self.robot_steps
+
+    def episodes(self) -> tuple[list[float], list[float]]:
+        """The team returns (unpenalized) and lengths of the training episodes every env
+        runner ended in the iteration, as the other engines record them (RLlib's own
+        means are smoothed over recent episodes and sum the robots' penalized rewards)."""
+        from baselines.distributed.rllib_env import take_episodes
+
+        ended = [
+            e
+            for part in self.algorithm.env_runner_group.foreach_env_runner(take_episodes)
+            for e in part
+        ]
+        return [float(r) for r, _ in ended], [float(n) for _, n in ended]
 
     def dual_step(self) -> dict[str, Any]:
         """PPO-Lagrangian after an iteration: the episode costs from every env runner, the

@@ -181,12 +181,14 @@ def make_vec_env(
         from baselines.rl.mappo import CentralStateVecEnv
 
         venv = CentralStateVecEnv(venv)
+    # VecMonitor below the cost penalty: episodes' returns are the environment's team reward
+    # (neither normalized nor penalized), what every engine records in progress.csv
+    venv = VecMonitor(venv)
     if cost is not None:
         from baselines.rl.cost import CostPenalty
 
         venv = CostPenalty(venv, cost)
-    # VecMonitor: raw (unnormalized) episode returns and lengths -> rollout/ep_rew_mean.
-    return VecMonitor(venv)
+    return venv
 
 
 def find_resume(path: Path) -> tuple[Path, Path, Path | None]:
