@@ -67,3 +67,37 @@ def test_init_actor_refuses_priors_the_clone_cannot_carry_over(tmp_path):
             tmp_path,
             [*PRIORS, "--env-option", "hold_stiffness=0.5", "--init-actor", "dagger:pretrained"],
         )
+
+
+def test_the_critic_warmup_keeps_the_actor_and_trains_the_critic(tmp_path):
+    import torch
+    from stable_baselines3 import PPO
+
+    from baselines.train import main
+
+    def run(name: str, warmup: int):
+        out = tmp_path / name
+        main(
+            [
+                "--engine", "sb3", "--scenario", "random", "--env-option", "n_agents=2",
+                *PRIORS, "--init-actor", "dagger:pretrained", "--num-envs", "1",
+                "--hp", "n_steps=64", "--robot-steps", "256", "--checkpoint-every", "0",
+                "--critic-warmup", str(warmup), "--no-progress", "--out", str(out),
+            ]
+        )  # fmt: skip
+        return PPO.load(out / "model.zip", device="cpu").policy
+
+    _, init = _built(tmp_path, [*PRIORS, "--init-actor", "dagger:pretrained"])
+    start = PPO.load(init / "model.zip", device="cpu").policy
+    kept, moved = run("warm", 10_000), run("cold", 0)
+
+    def actor(p) -> list[torch.Tensor]:
+        return [*p.mlp_extractor.policy_net.parameters(), *p.action_net.parameters(), p.log_std]
+
+    def critic(p) -> list[torch.Tensor]:
+        return [*p.mlp_extractor.value_net.parameters(), *p.value_net.parameters()]
+
+    same = lambda a, b: all(torch.equal(x, y) for x, y in zip(a, b, strict=True))  # noqa: E731
+    assert same(actor(kept), actor(start))
+    assert not same(critic(kept), critic(start))
+    assert not same(actor(moved), actor(start))

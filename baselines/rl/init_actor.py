@@ -114,3 +114,18 @@ def initialize(model: Any, venv: Any, net: MLPPolicyNet, residual_scale: float) 
     venv.obs_rms.var = np.maximum(std**2 - venv.epsilon, 0.0)
     venv.obs_rms.count = STATS_COUNT
     venv.clip_obs = INPUT_CLIP
+
+
+def freeze_actor(policy: Any, frozen: bool) -> None:
+    """Stop (or restart) the actor's updates: its layers, output and log std; the critic
+    learns alone meanwhile (``--critic-warmup``: an initialized actor is not moved by
+    the advantages of an untrained critic)."""
+    params = [
+        *policy.mlp_extractor.policy_net.parameters(),
+        *policy.action_net.parameters(),
+        policy.log_std,
+    ]
+    for p in params:
+        p.requires_grad_(not frozen)
+        if frozen:
+            p.grad = None

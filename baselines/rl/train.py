@@ -129,6 +129,13 @@ def add_arguments(g: Any) -> None:
         help="PPO's actor starts as a clone: dagger:pretrained, dagger:PATH or bc:PATH "
         "(needs action_mode=residual, observation_mode=features; baselines.rl.init_actor)",
     )
+    g.add_argument(
+        "--critic-warmup",
+        type=int,
+        default=0,
+        metavar="ROBOT_STEPS",
+        help="PPO: the actor stays fixed for this many robot-steps while the critic learns",
+    )
 
 
 def env_settings(
@@ -381,6 +388,7 @@ class Engine:
             "torch_threads": torch.get_num_threads(),
             "filter": {"penalty": a.filter_penalty} if self.shield is not None else None,
             "init_actor": getattr(a, "init_actor", None),
+            "critic_warmup": getattr(a, "critic_warmup", 0),
         }
 
     def learn(self) -> int:
@@ -437,6 +445,11 @@ def _progress_callback(engine: Engine) -> Any:
             self.returns: list[float] = []
             self.lengths: list[float] = []
             self.last = self.model.num_timesteps
+            self.warmup = getattr(engine.args, "critic_warmup", 0) if engine.algo == "ppo" else 0
+            if self.warmup > self.model.num_timesteps:
+                from baselines.rl.init_actor import freeze_actor
+
+                freeze_actor(self.model.policy, True)
 
         def _on_step(self) -> bool:
             for i, info in enumerate(self.locals["infos"]):
@@ -447,6 +460,11 @@ def _progress_callback(engine: Engine) -> Any:
 
         def _on_rollout_end(self) -> None:
             steps = self.model.num_timesteps
+            if self.warmup and steps >= self.warmup:  # the update that follows moves the actor
+                from baselines.rl.init_actor import freeze_actor
+
+                freeze_actor(self.model.policy, False)
+                self.warmup = 0
             if engine.algo == "sac" and steps - self.last < SAC_ROW_STEPS * self.model.n_envs:
                 return
             self._row(steps)
