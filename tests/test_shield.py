@@ -11,6 +11,8 @@ import json
 import numpy as np
 import pytest
 
+from baselines.imitation.policy import ClonedPolicy
+from baselines.policies import cloned_path
 from baselines.rl.shield import SHIELD_COLUMNS, Shield, ShieldPenalty
 from nmpc_expert import make_filter
 from uvms_env.env.priors import steady_inputs
@@ -60,9 +62,6 @@ def test_the_training_filter_decides_as_the_evaluation_filter():
     for row in ref:
         for f in row:
             f.reset()
-    from baselines.imitation.policy import ClonedPolicy
-    from baselines.policies import cloned_path
-
     clones = [
         ClonedPolicy(AgentSpec.from_scenario(env.scenarios[0], i), cloned_path("dagger", None))
         for i in range(N)
