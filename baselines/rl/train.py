@@ -19,6 +19,10 @@ the run folder gets ``model.zip``, ``vecnormalize.pkl`` (SAC: ``replay_buffer.pk
 exploration: SB3's gSDE, ``--hp use_sde=true --hp sde_sample_freq=8``.
 ``--central-critic``: MAPPO, the critic reads the global state (``baselines.rl.mappo``);
 without it, IPPO with parameter sharing.
+``--filter``: shielded training, each robot's command through the expert's safety filter
+before the env, the reward minus ``--filter-penalty`` W times the squared correction
+(``baselines.rl.shield``; its per-iteration figures in ``shield.csv``). ``--init-actor
+dagger:pretrained``: PPO's actor starts as the DAgger clone (``baselines.rl.init_actor``).
 
 May import: numpy, torch and stable-baselines3 (inside the engine), ``baselines.runs``,
 ``baselines.lagrangian``, ``baselines.rl`` and ``uvms_env``.
@@ -105,6 +109,33 @@ def add_arguments(g: Any) -> None:
         action="store_true",
         help="MAPPO: the critic also reads the global state (PPO, vector env)",
     )
+    g.add_argument(
+        "--filter",
+        action="store_true",
+        help="shielded training: every robot's command passes the expert's safety filter "
+        "before the env (vector env; baselines.rl.shield)",
+    )
+    g.add_argument(
+        "--filter-penalty",
+        type=float,
+        default=1.0,
+        metavar="W",
+        help="with --filter: each robot's reward minus W |a_safe - a_prop|^2 (command space)",
+    )
+    g.add_argument(
+        "--init-actor",
+        default=None,
+        metavar="SOURCE",
+        help="PPO's actor starts as a clone: dagger:pretrained, dagger:PATH or bc:PATH "
+        "(needs action_mode=residual, observation_mode=features; baselines.rl.init_actor)",
+    )
+    g.add_argument(
+        "--critic-warmup",
+        type=int,
+        default=0,
+        metavar="ROBOT_STEPS",
+        help="PPO: the actor stays fixed for this many robot-steps while the critic learns",
+    )
 
 
 def env_settings(
@@ -143,13 +174,15 @@ def make_vec_env(
     env_threads: int | None = DEFAULT_ENV_THREADS,
     cost: CostSettings | None = None,
     central_critic: bool = False,
+    filter_penalty: float | None = None,
 ):
     """``VecMonitor`` (over ``CostPenalty`` with ``cost``) over ``num_envs`` env copies as
     ``num_envs * N`` robot sub-environments:
     one ``VectorEnv`` (``vec_env="vector"``: in ``dtype``, on ``env_threads`` threads, None:
     all cores; seeded families: episodes on the first ``geometry_pool`` bank geometries,
     0 or None: each copy keeps its first) or ``num_envs`` ``parallel_env`` (``"single"``,
-    which ignores the other three)."""
+    which ignores the other three). ``filter_penalty`` (vector env): shielded training,
+    ``baselines.rl.shield.ShieldPenalty`` with that weight right over the env."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     kwargs = {**TRAIN_ENV_DEFAULTS, **overrides}
@@ -170,7 +203,13 @@ def make_vec_env(
             ),
             seed=seed,
         )
+        if filter_penalty is not None:
+            from baselines.rl.shield import Shield, ShieldPenalty
+
+            venv = ShieldPenalty(venv, Shield(venv.vector_env, filter_penalty))
     else:
+        if filter_penalty is not None:
+            raise ValueError("shielded training (--filter) needs the vector env")
         import uvms_env
 
         def factory(k: int):
@@ -236,10 +275,15 @@ class Engine:
             raise ValueError(f"unknown algorithm {algo!r}; expected one of {ALGOS}")
         if args.central_critic and (algo != "ppo" or args.vec_env != "vector"):
             raise ValueError("a central critic (MAPPO) needs --algo ppo on the vector env")
+        if getattr(args, "filter", False) and args.vec_env != "vector":
+            raise ValueError("shielded training (--filter) needs --vec-env vector")
+        if getattr(args, "init_actor", None) and algo != "ppo":
+            raise ValueError("--init-actor initializes PPO's actor (--algo ppo)")
         self.run, self.algo, self.args = run, algo, args
         self.model: Any = None
         self.venv: Any = None
         self.penalty: Any = None
+        self.shield: Any = None
 
     def build(self) -> dict[str, Any]:
         import torch
@@ -259,6 +303,16 @@ class Engine:
         if not isinstance(policy_extra, dict):
             raise ValueError(f"policy_kwargs must be a JSON object, got {policy_extra!r}")
         chosen_policy_kwargs = {**POLICY_KWARGS[algo], **policy_extra}
+        clone = None
+        if getattr(a, "init_actor", None) and s.resume is None:
+            from baselines.rl import init_actor
+            from baselines.rl.policy import priors_from_options
+
+            init_actor.check_priors(priors_from_options(s.env_options()))
+            clone = init_actor.load_clone(a.init_actor)
+            if "log_std_init" not in policy_extra:
+                chosen_policy_kwargs.pop("log_std_init", None)
+            chosen_policy_kwargs = init_actor.policy_kwargs(clone, chosen_policy_kwargs)
         env = {
             "vec_env": a.vec_env,
             "dtype": a.dtype,
@@ -274,6 +328,7 @@ class Engine:
             **env,
             cost=s.cost,
             central_critic=a.central_critic,
+            filter_penalty=a.filter_penalty if getattr(a, "filter", False) else None,
         )
         cls = {"ppo": PPO, "sac": SAC}[algo]
         if s.resume is not None:
@@ -309,12 +364,22 @@ class Engine:
                 verbose=0,
                 **hp,
             )
+            if clone is not None:
+                from baselines.rl import init_actor
+                from baselines.rl.policy import priors_from_options
+
+                scale = priors_from_options(s.env_options()).residual_scale
+                init_actor.initialize(model, venv, clone, scale)
         if algo == "ppo":
             hp["batch_size"] = model.batch_size  # the one used (a resumed model keeps its own)
         # SB3's own scalars go to tensorboard; the shared progress.csv is the run's
         model.set_logger(configure(str(self.run.folder), ["tensorboard"]))
         self.model, self.venv = model, venv
         self.penalty = find_layer(venv, CostPenalty)
+        from baselines.rl.shield import ShieldPenalty
+
+        shielded = find_layer(venv, ShieldPenalty)
+        self.shield = shielded.shield if shielded is not None else None
         return {
             **settings,
             "robot_sub_envs": venv.num_envs,
@@ -323,6 +388,9 @@ class Engine:
             "policy_kwargs": chosen_policy_kwargs,
             "central_critic": a.central_critic,
             "torch_threads": torch.get_num_threads(),
+            "filter": {"penalty": a.filter_penalty} if self.shield is not None else None,
+            "init_actor": getattr(a, "init_actor", None),
+            "critic_warmup": getattr(a, "critic_warmup", 0),
         }
 
     def learn(self) -> int:
@@ -371,7 +439,7 @@ def _progress_callback(engine: Engine) -> Any:
     that ended (one per env copy: its first robot's)."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    run, penalty = engine.run, engine.penalty
+    run, penalty, shield = engine.run, engine.penalty, engine.shield
 
     class ProgressCallback(BaseCallback):
         def _init_callback(self) -> None:
@@ -379,6 +447,11 @@ def _progress_callback(engine: Engine) -> Any:
             self.returns: list[float] = []
             self.lengths: list[float] = []
             self.last = self.model.num_timesteps
+            self.warmup = getattr(engine.args, "critic_warmup", 0) if engine.algo == "ppo" else 0
+            if self.warmup > self.model.num_timesteps:
+                from baselines.rl.init_actor import freeze_actor
+
+                freeze_actor(self.model.policy, True)
 
         def _on_step(self) -> bool:
             for i, info in enumerate(self.locals["infos"]):
@@ -389,6 +462,11 @@ def _progress_callback(engine: Engine) -> Any:
 
         def _on_rollout_end(self) -> None:
             steps = self.model.num_timesteps
+            if self.warmup and steps >= self.warmup:  # the update that follows moves the actor
+                from baselines.rl.init_actor import freeze_actor
+
+                freeze_actor(self.model.policy, False)
+                self.warmup = 0
             if engine.algo == "sac" and steps - self.last < SAC_ROW_STEPS * self.model.n_envs:
                 return
             self._row(steps)
@@ -409,6 +487,10 @@ def _progress_callback(engine: Engine) -> Any:
                 multiplier=penalty.multiplier if penalty is not None else None,
             )
             self.returns, self.lengths = [], []
+            if shield is not None:  # the correction penalty, its own record (shield.csv)
+                from baselines.rl.shield import write_summary
+
+                write_summary(run.folder, shield.summary(steps))
 
     return ProgressCallback()
 

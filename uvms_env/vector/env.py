@@ -314,6 +314,12 @@ class VectorEnv:
         # a_ss of the robots' current observations, kept beside them when the priors use it
         self._steady = xp.zeros((k, n, NU))
         self._started = False
+        # ``command_filter(raw_obs, commands, first)`` -> commands: replaces each step's
+        # normalized inputs before they reach the simulator (a safety filter in the
+        # training loop); raw_obs (K, N, 79) are the observations the actions answer,
+        # commands (K, N, 8) float64 what the action mode made of them, first (K,) bool
+        # marks the environments whose episode starts with this step. None: no filter.
+        self.command_filter: Any = None
         self._set_geometry(np.arange(k), [base] * k)
 
     # -- backends -----------------------------------------------------------------------
@@ -542,6 +548,8 @@ class VectorEnv:
             current = xp.asarray(np.array([c.step(self._base.period) for c in self._currents]))
         # numpy's functions dispatch to CuPy's for CuPy arrays (NEP 18): one formula
         command = self.priors.command(self._obs, a, self._ring, self._steady)
+        if self.command_filter is not None:
+            command = self.command_filter(self._obs, command, self._steps == 0)
         code = self.sim.step(command * xp.asarray(self.sim.tau_max), current)
         task = self.task
         task.max_cycles = self.max_cycles  # an attribute a user may change

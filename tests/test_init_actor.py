@@ -1,0 +1,103 @@
+"""Expert-initialized PPO (``--init-actor``): before any update, the PPO policy's
+deterministic action is the DAgger clone's on held states (states of a clone rollout)."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import pytest
+
+import uvms_env
+from baselines.imitation.policy import ClonedPolicy
+from baselines.policies import cloned_path
+from baselines.rl.policy import SB3Policy
+from baselines.train import build_parser, settings_from
+from uvms_env.policy import AgentSpec
+
+PRIORS = [
+    "--env-option", "action_mode=residual", "--env-option", "observation_mode=features",
+    "--env-option", "residual_scale=1.0",
+]  # fmt: skip
+
+
+def _built(tmp_path, extra: list[str]) -> tuple[argparse.Namespace, object]:
+    """An initialized model saved before any training step (the engine's build and save)."""
+    from baselines.rl.train import Engine
+    from baselines.runs import Run
+
+    argv = [
+        "--engine", "sb3", "--scenario", "random", "--env-option", "n_agents=2",
+        "--num-envs", "1", "--out", str(tmp_path / "run"), *extra,
+    ]  # fmt: skip
+    args = build_parser("sb3").parse_args(argv)
+    settings = settings_from(args, {"num_envs": 1, "geometry_pool": 16})
+    run = Run.start(settings, "sb3", "ppo", argv)
+    engine = Engine(run, "ppo", args)
+    run.write_config(**engine.build())
+    engine.save(run.folder)
+    engine.close()
+    return args, run.folder
+
+
+def test_the_initialized_actor_acts_as_the_clone(tmp_path):
+    _, folder = _built(tmp_path, [*PRIORS, "--init-actor", "dagger:pretrained"])
+    env = uvms_env.parallel_env(scenario="random", n_agents=2, seed=31)
+    obs, _ = env.reset(seed=31)
+    specs = [AgentSpec.from_scenario(env.scenario, i) for i in range(2)]
+    clone = [ClonedPolicy(s, cloned_path("dagger", None)) for s in specs]
+    ppo = [SB3Policy(s, "ppo", folder) for s in specs]
+    gaps = []
+    for _ in range(60):  # held states: the clone's own rollout
+        actions = {}
+        for i, agent in enumerate(env.agents):
+            a_clone, a_ppo = clone[i].act(obs[agent]), ppo[i].act(obs[agent])
+            gaps.append(np.abs(a_clone - a_ppo).max())
+            actions[agent] = a_clone
+        obs, *_ = env.step(actions)
+    # float32 layers on both sides, the same weights: agreement to rounding
+    assert max(gaps) < 1e-4
+
+
+def test_init_actor_refuses_priors_the_clone_cannot_carry_over(tmp_path):
+    with pytest.raises(ValueError, match="action_mode=residual"):
+        _built(tmp_path, ["--init-actor", "dagger:pretrained"])
+    with pytest.raises(ValueError, match="hold"):
+        _built(
+            tmp_path,
+            [*PRIORS, "--env-option", "hold_stiffness=0.5", "--init-actor", "dagger:pretrained"],
+        )
+
+
+def test_the_critic_warmup_keeps_the_actor_and_trains_the_critic(tmp_path):
+    import torch
+    from stable_baselines3 import PPO
+
+    from baselines.train import main
+
+    def run(name: str, warmup: int):
+        out = tmp_path / name
+        main(
+            [
+                "--engine", "sb3", "--scenario", "random", "--env-option", "n_agents=2",
+                *PRIORS, "--init-actor", "dagger:pretrained", "--num-envs", "1",
+                "--hp", "n_steps=64", "--robot-steps", "256", "--checkpoint-every", "0",
+                "--critic-warmup", str(warmup), "--no-progress", "--out", str(out),
+            ]
+        )  # fmt: skip
+        return PPO.load(out / "model.zip", device="cpu").policy
+
+    _, init = _built(tmp_path, [*PRIORS, "--init-actor", "dagger:pretrained"])
+    start = PPO.load(init / "model.zip", device="cpu").policy
+    kept, moved = run("warm", 10_000), run("cold", 0)
+
+    def actor(p) -> list[torch.Tensor]:
+        return [*p.mlp_extractor.policy_net.parameters(), *p.action_net.parameters(), p.log_std]
+
+    def critic(p) -> list[torch.Tensor]:
+        return [*p.mlp_extractor.value_net.parameters(), *p.value_net.parameters()]
+
+    same = lambda a, b: all(torch.equal(x, y) for x, y in zip(a, b, strict=True))  # noqa: E731
+    assert same(actor(kept), actor(start))
+    assert not same(critic(kept), critic(start))
+    assert not same(actor(moved), actor(start))
