@@ -176,13 +176,14 @@ def make_vec_env(
     central_critic: bool = False,
     filter_penalty: float | None = None,
 ):
-    """``VecMonitor`` (over ``CostPenalty`` with ``cost``) over ``num_envs`` env copies as
+    """``CostPenalty`` (with ``cost``) over ``ShieldPenalty`` (with ``filter_penalty``) over
+    ``VecMonitor`` over ``num_envs`` env copies as
     ``num_envs * N`` robot sub-environments:
     one ``VectorEnv`` (``vec_env="vector"``: in ``dtype``, on ``env_threads`` threads, None:
     all cores; seeded families: episodes on the first ``geometry_pool`` bank geometries,
     0 or None: each copy keeps its first) or ``num_envs`` ``parallel_env`` (``"single"``,
     which ignores the other three). ``filter_penalty`` (vector env): shielded training,
-    ``baselines.rl.shield.ShieldPenalty`` with that weight right over the env."""
+    ``baselines.rl.shield.ShieldPenalty`` with that weight."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     kwargs = {**TRAIN_ENV_DEFAULTS, **overrides}
@@ -203,10 +204,6 @@ def make_vec_env(
             ),
             seed=seed,
         )
-        if filter_penalty is not None:
-            from baselines.rl.shield import Shield, ShieldPenalty
-
-            venv = ShieldPenalty(venv, Shield(venv.vector_env, filter_penalty))
     else:
         if filter_penalty is not None:
             raise ValueError("shielded training (--filter) needs the vector env")
@@ -220,9 +217,14 @@ def make_vec_env(
         from baselines.rl.mappo import CentralStateVecEnv
 
         venv = CentralStateVecEnv(venv)
-    # VecMonitor below the cost penalty: episodes' returns are the environment's team reward
-    # (neither normalized nor penalized), what every engine records in progress.csv
+    # VecMonitor below the filter's and the cost's penalties: episodes' returns are the
+    # environment's team reward (neither normalized nor penalized), as every engine records
+    vector_env = getattr(venv, "vector_env", None)
     venv = VecMonitor(venv)
+    if filter_penalty is not None:
+        from baselines.rl.shield import Shield, ShieldPenalty
+
+        venv = ShieldPenalty(venv, Shield(vector_env, filter_penalty))
     if cost is not None:
         from baselines.rl.cost import CostPenalty
 

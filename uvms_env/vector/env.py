@@ -549,7 +549,7 @@ class VectorEnv:
         # numpy's functions dispatch to CuPy's for CuPy arrays (NEP 18): one formula
         command = self.priors.command(self._obs, a, self._ring, self._steady)
         if self.command_filter is not None:
-            command = self.command_filter(self._obs, command, self._steps == 0)
+            command = self.command_filter(self._obs, command, self.task.steps == 0)
         code = self.sim.step(command * xp.asarray(self.sim.tau_max), current)
         task = self.task
         task.max_cycles = self.max_cycles  # an attribute a user may change
