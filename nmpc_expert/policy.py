@@ -193,6 +193,8 @@ class LocalController:
         self.solver.reset()
         self.rate_offset[:] = 0.0
         self.disturbance[:] = 0.0
+        if self.solver_name == "rti":
+            self.solver.input_offset[:] = 0.0
         self.innovation_var[:] = self._innovation_var0
         self._lower[:], self._upper[:] = self._bounds[0], self._bounds[1]
         if self.settings.disturbance_observer:
@@ -274,9 +276,28 @@ class LocalController:
             a = self._applied[self._input_of_rate]
             step[self._actuated & (np.abs(a) >= 1.0 - 1e-9) & (a * nu < 0)] = 0.0
         np.clip(self.disturbance + step, -limit, limit, out=self.disturbance)
+        if s.observer_input_gain > 0:
+            self._offset_input_reference()
         w = s.margin_forgetting
         self.innovation_var += w * (nu * nu - self.innovation_var)
         self._apply_margin()
+
+    def _offset_input_reference(self) -> None:
+        """The steady-state input reference a_ss is the nominal model's; shift it by the
+        input that cancels ``observer_input_gain`` * d on the vehicle's linear rates in
+        one period, Gamma_0[j, k] da_k = -g d_j (k the rate's thruster, Gamma_0 of the
+        last linearization), clipped to ``observer_input_limit``; see the settings."""
+        gain = self.solver.input_sensitivity()
+        if gain is None:
+            return
+        s = self.settings
+        m = NX // 2
+        offset = self.solver.input_offset
+        for j in range(3):  # surge, sway, heave
+            k = self._input_of_rate[j]
+            if gain[m + j, k] > 1e-9:
+                shift = -s.observer_input_gain * self.disturbance[j] / gain[m + j, k]
+                offset[k] = np.clip(shift, -s.observer_input_limit, s.observer_input_limit)
 
     def _apply_margin(self) -> None:
         """Speed bounds tightened by min(k sigma, margin_limit) (observer controller)."""

@@ -38,7 +38,7 @@ FEASIBILITY_TOL = 1e-6
 SOFT = 8  # DAQP's sense flag of a soft row
 # DAQP exit flags that mean "solved" (1: optimal, 2: optimal with soft rows violated)
 _SOLVED = {1: "optimal", 2: "soft_optimal"}
-_G_T, _E = 7, 8  # ``qp_builder`` outputs g_t and e (see ``ocp.build_qp_builder``)
+_G_T, _E, _A_REF = 7, 8, 9  # ``qp_builder`` outputs g_t and e (see ``ocp.build_qp_builder``)
 
 
 class ExtraRows(Protocol):
@@ -89,6 +89,9 @@ class RTISolver:
         # d: added to every interval's predicted end state (the disturbance observer's
         # estimate, written in place by the controller; zeros: the paper's model)
         self.disturbance = np.zeros(NX)
+        # a shift of the steady-state input reference a_ss of every interval (written in
+        # place by the controller: the input that cancels d; zeros: the paper's cost)
+        self.input_offset = np.zeros(NU)
         self.has_plan = False
         self.stats: dict[str, Any] = {}
         nz, nc = n * NU, n * NC
@@ -148,12 +151,19 @@ class RTISolver:
     def solve_qp(self) -> tuple[np.ndarray, dict[str, Any]]:
         """Build and solve the condensed QP around (xbar, abar); returns the input steps
         da (N * 8) and solver info; raises RuntimeError if the QP failed."""
-        h, f, c, lb, ub, lbc, ubc, *_ = self._build(
+        built = self._build(
             self.xbar, self.abar, self.theta, self.xd, self.vd, self.weights, self.disturbance
         )
+        h, f, c, lb, ub, lbc, ubc = built[:7]
         f, lb, ub, lbc, ubc = (v.reshape(-1) for v in (f, lb, ub, lbc, ubc))  # views
         if self.cost is not None:
             h, f = self.cost
+        elif np.any(self.input_offset):
+            # a_ref -> clip(a_ref + offset): f = 2 R (abar - a_ref) moves by -2 R (shift)
+            a_ref = built[_A_REF].reshape(-1)
+            shift = np.clip(a_ref + np.tile(self.input_offset, self.n), -1.0, 1.0) - a_ref
+            o = WEIGHT_OFFSETS["r_u"]
+            f = f - 2.0 * np.tile(self.weights[o : o + NU], self.n) * shift
         if self.extra is not None:
             out = self._build.outputs
             c_x, lo_x, up_x = self.extra.rows(self.xbar, out[_G_T], out[_E].reshape(-1))

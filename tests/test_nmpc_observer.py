@@ -101,8 +101,21 @@ def test_observer_converges_to_an_injected_generalized_force(env):
     np.testing.assert_allclose(pol._lower[:NQ], lower[:NQ] + margin)
     np.testing.assert_array_equal(pol._upper[NQ:], upper[NQ:])
     assert margin.max() > 0 and not pol.rate_offset.any()  # the bound shift is off
+    # the input reference's shift: on the surge thruster, the input that cancels
+    # observer_input_gain of the surge estimate in one period of the plant (a finite
+    # difference through the plant, not the controller's linearization); no shift on
+    # the inputs of the angular rates and joints
+    k = int(np.argmax(np.asarray(default_model().B)[0]))
+    shift = pol.solver.input_offset.copy()
+    assert 0 < abs(shift[k]) < s.observer_input_limit
+    bumped = a.copy()
+    bumped[k] += shift[k]
+    cancel = (plant(x, bumped, pol.theta, True) - plant(x, a, pol.theta, True))[NQ]
+    np.testing.assert_allclose(cancel, -s.observer_input_gain * pol.disturbance[0], rtol=0.05)
+    linear = np.asarray(default_model().B)[:3].argmax(axis=1)
+    assert not np.delete(shift, linear).any()
     pol.reset()  # back to the cold start: no estimate, the initial margin
-    assert not pol.disturbance.any()
+    assert not pol.disturbance.any() and not pol.solver.input_offset.any()
     np.testing.assert_allclose(pol._upper[:NQ], upper[:NQ] - s.margin_initial)
     np.testing.assert_allclose(pol._lower[:NQ], lower[:NQ] + s.margin_initial)
     np.testing.assert_array_equal(pol._upper[NQ:], upper[NQ:])
