@@ -181,6 +181,8 @@ class NMPCSettings:
         for name in ("observer_gain", "margin_forgetting"):
             if not 0 < getattr(self, name) <= 1:
                 raise ValueError(f"{name} must lie in (0, 1], got {getattr(self, name)}")
+        if not 0 <= self.offset_gain <= 1:
+            raise ValueError(f"offset_gain must lie in [0, 1], got {self.offset_gain}")
         for name in (
             "observer_limit",
             "observer_input_gain",
@@ -188,12 +190,6 @@ class NMPCSettings:
             "margin_gain",
             "margin_limit",
             "margin_initial",
-        ):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
-        if not 0 <= self.offset_gain <= 1:
-            raise ValueError(f"offset_gain must lie in [0, 1], got {self.offset_gain}")
-        for name in (
             "goal_integral_gain",
             "goal_integral_radius",
             "goal_integral_limit",

@@ -524,12 +524,8 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
         w.kinematics(zero, self._q, self._zeta, self._q, self._zeta, self._x_o)
         g = w.kinematics.constraints
         if w.task.constraint_fns:
-            s = self._task_arrays(zero)
-            extra = [
-                np.reshape(np.asarray(fn(s, np), float), self.n)
-                for fn in w.task.constraint_fns.values()
-            ]
-            g = np.concatenate([g, np.stack(extra, axis=-1)], axis=-1)
+            extra = w.task.extra_constraint_values(self._task_arrays(zero))
+            g = np.concatenate([g, extra], axis=-1)
         rows = g.tolist()
         return {
             a: dict(zip(w.task.constraints, rows[i], strict=True))

@@ -331,14 +331,7 @@ class Task:
         n_violated = team[VIOLATED]
         if self.constraint_fns:
             assert state is not None, "extra constraints need the state"
-            shape = (*self.batch, self.n)  # the functions see K = 1 for a single env
-            extra = xp.stack(
-                [
-                    xp.reshape(xp.asarray(fn(state, xp), dtype=float), shape)
-                    for fn in self.constraint_fns.values()
-                ],
-                axis=-1,
-            )  # B + (N, E)
+            extra = self.extra_constraint_values(state)
             violated = extra > 0.0
             constraint_values = xp.concatenate([constraint_values, extra], axis=-1)
             cost = cost + violated.sum(axis=-1)
@@ -406,6 +399,18 @@ class Task:
             collision,
             terminated,
             truncated,
+        )
+
+    def extra_constraint_values(self, state: TaskArrays) -> Any:
+        """B + (N, E): the user's extra constraints of ``state`` (the functions see K = 1
+        for a single environment; their values take the batch shape here)."""
+        xp, shape = self.xp, (*self.batch, self.n)
+        return xp.stack(
+            [
+                xp.reshape(xp.asarray(fn(state, xp), dtype=float), shape)
+                for fn in self.constraint_fns.values()
+            ],
+            axis=-1,
         )
 
     def _distances(self, x_o: Any, ids: Any = ALL) -> tuple[Any, Any]:

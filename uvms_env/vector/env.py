@@ -320,6 +320,7 @@ class VectorEnv:
         # commands (K, N, 8) float64 what the action mode made of them, first (K,) bool
         # marks the environments whose episode starts with this step. None: no filter.
         self.command_filter: Any = None
+        self._tau_max = xp.asarray(self.sim.tau_max)  # the saturations, where the step runs
         self._set_geometry(np.arange(k), [base] * k)
 
     # -- backends -----------------------------------------------------------------------
@@ -550,7 +551,7 @@ class VectorEnv:
         command = self.priors.command(self._obs, a, self._ring, self._steady)
         if self.command_filter is not None:
             command = self.command_filter(self._obs, command, self.task.steps == 0)
-        code = self.sim.step(command * xp.asarray(self.sim.tau_max), current)
+        code = self.sim.step(command * self._tau_max, current)
         task = self.task
         task.max_cycles = self.max_cycles  # an attribute a user may change
         diverged = code != OK
