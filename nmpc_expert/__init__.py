@@ -9,7 +9,8 @@ controller per robot, behind the shared policy interface (``uvms_env.policy``).
 Modules (one job each): ``ocp`` (the
 OCP's compiled pieces and the RTI's QP), ``rti`` (fast default solver), ``ipopt_solver``
 (reference solver), ``safety_filter`` (the expert's constraints around any
-policy), ``workspace`` (the filter's workspace rows), ``reference``
+policy), ``filter_batch`` (many robots' filters with their QP builders in one
+lane-parallel call), ``workspace`` (the filter's workspace rows), ``reference``
 (navigation-function reference over the horizon), ``observation`` (reading the own
 observation), ``settings``, ``policy``, ``rollout`` (closed loop + metrics),
 ``figures``, ``__main__`` (the main job). The prediction model (MODEL section 5) and the

@@ -98,6 +98,7 @@ class OCPFunctions:
     interval: cs.Function  # (x, a, theta) -> (F, Phi, Gamma)
     outputs: cs.Function  # (x, theta, xd, vd) -> (r 12, Jr 12x20, c NC, Jc NCx20)
     qp_builder: cs.Function  # see build_qp_builder
+    qp_builder_graph: cs.Function  # the same, symbolic: for lane-batched builds
     object_state: cs.Function  # (x, theta) -> (x_O, v_O)
     steady_input: cs.Function  # (x, theta, v_d) -> a_ss (8)
 
@@ -283,13 +284,15 @@ def ocp_functions(
     steady = build_steady_input(uvms, obj, model)
     builder = build_qp_builder(interval, outputs, steady, horizon)
     tag = f"{shape}_{ring_radius:.4f}_n{horizon}_h{period:g}_s{substeps}".replace(".", "p")
-    compiled = compile_function(_renamed(builder, tag))
+    graph = _renamed(builder, tag)
+    compiled = compile_function(graph)
     return OCPFunctions(
         horizon=horizon,
         model=model,
         interval=interval,
         outputs=outputs,
         qp_builder=compiled,
+        qp_builder_graph=graph,
         object_state=model.object_state,
         steady_input=steady,
     )

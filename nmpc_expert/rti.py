@@ -130,9 +130,24 @@ class RTISolver:
         )
         self._qp: daqp.Model | None = None
         self.cost = cost
+        self._loaded = False  # the builder's outputs were set by ``load_build``
+
+    def build_inputs(self) -> tuple[np.ndarray, ...]:
+        """The QP builder's inputs around the current (xbar, abar), in its order: what
+        ``solve_qp`` would evaluate it on (for a caller that evaluates many at once)."""
+        return (self.xbar, self.abar, self.theta, self.xd, self.vd, self.weights, self.disturbance)
+
+    def load_build(self, outputs: list[np.ndarray]) -> None:
+        """The builder's outputs on ``build_inputs()``, evaluated elsewhere (column-major
+        nonzeros, as CasADi lays them out): the next ``solve_qp`` uses them instead of
+        evaluating the builder itself."""
+        for mine, theirs in zip(self._build.outputs, outputs, strict=True):
+            mine.reshape(-1)[:] = theirs
+        self._loaded = True
 
     def reset(self) -> None:
         self.has_plan = False
+        self._loaded = False
         self.a_prev = None
         self._qp = None
         self.xbar[:] = 0.0
@@ -151,9 +166,10 @@ class RTISolver:
     def solve_qp(self) -> tuple[np.ndarray, dict[str, Any]]:
         """Build and solve the condensed QP around (xbar, abar); returns the input steps
         da (N * 8) and solver info; raises RuntimeError if the QP failed."""
-        built = self._build(
-            self.xbar, self.abar, self.theta, self.xd, self.vd, self.weights, self.disturbance
-        )
+        if self._loaded:
+            built, self._loaded = self._build.outputs, False
+        else:
+            built = self._build(*self.build_inputs())
         h, f, c, lb, ub, lbc, ubc = built[:7]
         f, lb, ub, lbc, ubc = (v.reshape(-1) for v in (f, lb, ub, lbc, ubc))  # views
         if self.cost is not None:

@@ -57,6 +57,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -92,6 +93,17 @@ FILTER_OFFSET_LIMIT = 2.0
 WORKSPACE_MARGIN = 0.2
 WORKSPACE_RATE = 0.5
 WORKSPACE_SCALE = 0.1
+
+
+@dataclass
+class _Decision:
+    """What ``SafetyFilter.begin`` hands to ``finish``."""
+
+    start: float
+    proposed: float
+    proposal: np.ndarray
+    had_plan: bool
+    backup: np.ndarray
 
 
 class SafetyFilter(LocalController):
@@ -167,6 +179,13 @@ class SafetyFilter(LocalController):
         self.interventions = 0
 
     def act(self, obs: np.ndarray) -> np.ndarray:
+        return self.finish(self.begin(obs))
+
+    def begin(self, obs: np.ndarray) -> _Decision:
+        """The first half of ``act``: the proposal, the measurement and the plan shifted
+        and linearized at the proposal, up to the QP builder's evaluation (which
+        ``finish`` does, unless the solver's ``load_build`` got it from a batched call:
+        ``nmpc_expert.filter_batch``)."""
         start = time.perf_counter()
         proposal = np.asarray(self.policy.act(obs), dtype=np.float64).reshape(-1)
         proposed = time.perf_counter()
@@ -187,6 +206,13 @@ class SafetyFilter(LocalController):
         solver.shift(self._x0.copy(), a_lin)  # with no plan yet, the tail holds a_lin
         backup = solver.abar[0].copy()
         solver.abar[0] = a_lin  # linearize u_0 at the proposal: da_0 = 0 passes it
+        return _Decision(start, proposed, proposal, had_plan, backup)
+
+    def finish(self, decision: _Decision) -> np.ndarray:
+        """The second half of ``act``: the QP, its fallback, and the bookkeeping."""
+        start, proposed, proposal = decision.start, decision.proposed, decision.proposal
+        had_plan, backup = decision.had_plan, decision.backup
+        solver = self.solver
         status, info = "ok", {}
         try:
             action, info = solver.iterate()

@@ -186,3 +186,65 @@ def test_cli_collect_bc_dagger_evaluate(tmp_path):
     assert [r["error"] for r in rows] == ["", "", ""]
     assert all(r["episode_steps"] == STEPS for r in rows)
     assert all(r["policy_time_ms_median"] < 5 for r in rows)
+
+
+def test_safe_distillation_labels_are_the_filters_correction_of_the_network(tmp_path):
+    """``dagger --init dagger:pretrained --expert self+filter``: each label is the safety
+    filter's answer to the current network's own action, per robot, from its own
+    observations; the network is fine-tuned, its input normalization kept."""
+    pytest.importorskip("daqp")
+    from baselines.imitation.network import MLPPolicyNet
+    from baselines.imitation.policy import ClonedPolicy
+    from baselines.policies import cloned_path
+    from nmpc_expert import make_filter
+    from uvms_env.policy import AgentSpec
+
+    out = tmp_path / "distill"
+    main(["dagger", "--init", "dagger:pretrained", "--expert", "self+filter", "--scenario",
+          "short:1", "--iterations", "1", "--beta", "0", "--max-cycles", str(STEPS), "--epochs",
+          "1", "--save-data", "--out", str(out)])  # fmt: skip
+    info = json.loads((out / "train.json").read_text())
+    assert info["init"] == "dagger:pretrained" and info["expert"] == "self+filter"
+    assert info["samples"] == 2 * STEPS  # no demonstrations: the rollout alone
+    start = MLPPolicyNet.load(cloned_path("dagger", None))
+    tuned = MLPPolicyNet.load(out / "policy.pt")
+    assert np.array_equal(tuned.obs_mean.numpy(), start.obs_mean.numpy())
+    assert not np.allclose(tuned.numpy_weights()[0][0], start.numpy_weights()[0][0])
+
+    _, _, eps = read_dataset(out / "data", "iter_1")
+    seed = info["seed"] + 1000  # iteration 1, first scenario
+    env = uvms_env.parallel_env(scenario="short", seed=seed, internal_wrench_every=0)
+    env.reset(seed=seed)
+    intervened = 0
+    for i, ep in enumerate(eps):
+        spec = AgentSpec.from_scenario(env.scenario, i)
+        path = out / "iter_0" / "policy.pt"
+        teacher = make_filter(lambda s, p=path: ClonedPolicy(s, p))(spec)
+        learner = ClonedPolicy(spec, path)
+        teacher.reset()
+        for o, label in zip(ep.observations[:-1], ep.actions, strict=True):
+            proposal = learner.act(o)
+            np.testing.assert_allclose(teacher.act(o), label, atol=1e-4)
+            teacher.executed(proposal)  # the learner drove (beta 0)
+            intervened += int(np.max(np.abs(label - np.clip(proposal, -1, 1))) > 1e-3)
+    assert intervened > 0  # the labels are corrections, not the proposals
+
+
+def test_history_probe_aligns_each_stream_with_its_own_past(tmp_path):
+    """``history_probe``: the previous-action inputs of step t are the label of step t-1
+    of the same robot's stream (a_ss at its first step), never another stream's."""
+    from baselines.imitation.history_probe import VARIANTS, history_inputs
+
+    data = tmp_path / "data" / "tiny"
+    main(["collect", "--scenario", "short", "--episodes", "2", "--max-cycles", str(STEPS),
+          "--expert", "baselines.imitation.scripted:expert", "--out", str(data)])  # fmt: skip
+    inputs, labels, held = history_inputs(data)
+    assert set(inputs) == set(VARIANTS) and len(labels) == 4 * STEPS == len(held)
+    current, with_action = inputs["current"], inputs["+ previous action"]
+    assert np.array_equal(with_action[:, 8:], current)  # a_ss stays last
+    for start in range(0, 4 * STEPS, STEPS):  # one stream per robot and episode
+        rows = slice(start, start + STEPS)
+        prev = with_action[rows, :8]
+        assert np.array_equal(prev[1:], labels[rows][:-1])
+        assert np.array_equal(prev[0], np.clip(current[start, -8:], -1, 1))
+    assert held[: 2 * STEPS].all() and not held[2 * STEPS :].any()  # held out by episode

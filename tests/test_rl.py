@@ -171,7 +171,8 @@ def test_cli_records_the_env_path(tmp_path, vec_env):
 @pytest.mark.parametrize(
     ("algo", "name"),
     [
-        ("ppo", "ppo"),
+        ("ppo", "ppo"),  # the DAgger clone fine-tuned on random N = 2
+        ("ppo", "ppo_short"),
         ("sac", "sac"),
         ("ppo", "ppo_vector"),
         ("ppo", "ppo_v0"),

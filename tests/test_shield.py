@@ -207,3 +207,35 @@ def test_shielded_training_needs_the_vector_env(tmp_path):
                 "--out", str(tmp_path / "x"),
             ]
         )  # fmt: skip
+
+
+def test_batched_builders_match_one_by_one_and_fall_back_without_a_compiler(monkeypatch):
+    """The lane-parallel QP builders (``nmpc_expert.filter_batch``) give the same filtered
+    commands as each filter's own ``act`` (1e-9, random proposals, 8 steps); without a C++
+    compiler the shield warns and filters one robot after another, before any filter
+    moves."""
+    from nmpc_expert.filter_batch import BatchedFilterStep
+
+    envs = [_env(action_mode="torque") for _ in range(3)]
+    batched, single = Shield(envs[0]), Shield(envs[1], batched=False)
+
+    def no_compiler(self, funcs):
+        raise RuntimeError("the batched CPU backend needs a C++ compiler")
+
+    monkeypatch.setattr(BatchedFilterStep, "_function", no_compiler)
+    fallback = Shield(envs[2])
+    rng = np.random.default_rng(1)
+    for env in envs:
+        env.reset(seed=5)
+    for t in range(8):
+        actions = rng.uniform(-1, 1, (K, N, 8))
+        if t == 0:
+            with pytest.warns(UserWarning, match="one by one"):
+                envs[2].step(actions)
+        else:
+            envs[2].step(actions)
+        envs[0].step(actions)
+        envs[1].step(actions)
+        np.testing.assert_allclose(batched.safe, single.safe, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(fallback.safe, single.safe, rtol=0, atol=1e-9)
+        assert np.any(np.abs(single.safe - single.proposal) > 1e-3)  # it did correct

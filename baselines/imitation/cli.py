@@ -35,6 +35,14 @@ alone: a linear map, on ``features`` a linear feedback around a_ss), ``--loss-sc
 expert's in every component (the expert's otherwise; ``learner_share`` reports how often
 it drove).
 ``--scenario NAME:EPISODES`` overrides ``--episodes-per-iteration`` for one scenario.
+
+Safe distillation (``dagger --init SOURCE --expert self+filter``): the teacher is the
+expert's safety filter around the current network itself, so each label is the smallest
+correction of the network's own action that the robot's local model predicts safe; a
+network that needs no correction is a fixed point. ``--init`` starts from an existing
+clone (``dagger:pretrained``, ``bc:PATH``, ``dagger:PATH``) instead of fitting ``--data``
+(then optional), and every iteration fine-tunes the current network on the aggregate
+(its input normalization kept) instead of retraining from scratch.
 """
 
 from __future__ import annotations
@@ -54,9 +62,10 @@ import numpy as np
 
 from baselines.imitation import bc, dataset
 from baselines.imitation.features import FEATURES, LEGACY_FEATURES, canonical_features
+from baselines.imitation.network import MLPPolicyNet
 from baselines.imitation.policy import ClonedPolicy
 from baselines.imitation.rollout import rollouts
-from baselines.policies import PolicySource
+from baselines.policies import PolicySource, cloned_path
 from baselines.runs import TRAIN_ENV_DEFAULTS, hardware, write_json
 
 
@@ -158,7 +167,7 @@ def _features(name: str) -> str:
 
 def _common(args: argparse.Namespace) -> dict[str, Any]:
     return {
-        "data": [str(p) for p in args.data],
+        "data": [str(p) for p in args.data or []],
         "epochs": args.epochs,
         "hidden": list(args.hidden),
         "lr": args.lr,
@@ -222,14 +231,31 @@ def train_bc(args: argparse.Namespace) -> None:
     print(f"bc: {len(obs)} samples, final loss {losses[-1]:.4g}; saved {args.out / 'policy.pt'}")
 
 
+# ``--expert`` value of safe distillation: the safety filter around the current network
+SELF_FILTER = "self+filter"
+
+
+def _init_network(source: str) -> MLPPolicyNet:
+    """``--init``: the network of a ``bc:`` / ``dagger:`` source."""
+    parsed = PolicySource.parse(source)
+    if parsed.name not in ("bc", "dagger") or parsed.filtered:
+        raise SystemExit(f"--init takes bc:PATH or dagger:PATH (or :pretrained), got {source!r}")
+    return MLPPolicyNet.load(cloned_path(parsed.name, parsed.arg))
+
+
 def train_dagger(args: argparse.Namespace) -> None:
     start = time.time()
-    obs, act, ring, n_streams = dataset.read_many(args.data)
+    if not args.data and args.init is None:
+        raise SystemExit("dagger needs --data (demonstrations) or --init (a clone to start from)")
+    obs = act = ring = None
+    n_streams = 0
+    if args.data:
+        obs, act, ring, n_streams = dataset.read_many(args.data)
     scenarios = args.scenario or ["short"]
     log = args.out / "dagger_loss.csv"
     log.unlink(missing_ok=True)
 
-    def fit(o: np.ndarray, a: np.ndarray, r: np.ndarray, k: int):
+    def fit(o: np.ndarray, a: np.ndarray, r: np.ndarray, k: int, start_net=None):
         return bc.fit(
             o,
             a,
@@ -237,7 +263,8 @@ def train_dagger(args: argparse.Namespace) -> None:
             epochs=args.epochs,
             lr=args.lr,
             hidden=tuple(args.hidden),
-            features=args.features,
+            net=start_net,
+            features=args.features if start_net is None else start_net.features,
             seed=args.seed + k,
             val_fraction=0.05,
             log_path=log,
@@ -245,15 +272,24 @@ def train_dagger(args: argparse.Namespace) -> None:
             **_fit_options(args),
         )
 
-    net, losses = fit(obs, act, ring, 0)
-    expert = PolicySource.parse(args.expert).factory(args.seed)
-    history: list[dict[str, Any]] = [
-        {"iteration": 0, "beta": 1.0, "samples": len(obs), "loss": losses[-1]}
-    ]
+    if args.init is None:
+        net, losses = fit(obs, act, ring, 0)
+        history: list[dict[str, Any]] = [
+            {"iteration": 0, "beta": 1.0, "samples": len(obs), "loss": losses[-1]}
+        ]
+    else:
+        net = _init_network(args.init)
+        history = [{"iteration": 0, "init": args.init, "samples": 0 if obs is None else len(obs)}]
+    distill = args.expert == SELF_FILTER
+    expert = None if distill else PolicySource.parse(args.expert).factory(args.seed)
     obs_space = act_space = None
     for k in range(1, args.iterations + 1):
         path = args.out / f"iter_{k - 1}" / "policy.pt"
         net.save(path, {"method": "dagger", "iteration": k - 1})
+        if distill:
+            from nmpc_expert import make_filter  # the expert is optional at import time
+
+            expert = make_filter(lambda spec, p=path: ClonedPolicy(spec, p))
         beta = args.beta**k
         row: dict[str, Any] = {"iteration": k, "beta": beta}
         new_streams = []
@@ -299,9 +335,12 @@ def train_dagger(args: argparse.Namespace) -> None:
         # visits itself (before they join the training data)
         if acted.any():
             row["learner_state_rmse"] = _rmse(net, new_obs[acted], new_act[acted], new_ring[acted])
-        obs, act = np.concatenate([obs, new_obs]), np.concatenate([act, new_act])
-        ring = np.concatenate([ring, new_ring])
-        net, losses = fit(obs, act, ring, k)
+        if obs is None:
+            obs, act, ring = new_obs, new_act, new_ring
+        else:
+            obs, act = np.concatenate([obs, new_obs]), np.concatenate([act, new_act])
+            ring = np.concatenate([ring, new_ring])
+        net, losses = fit(obs, act, ring, k, None if args.init is None else net)
         row.update(
             samples=len(obs),
             new_samples=len(new_obs),
@@ -324,6 +363,7 @@ def train_dagger(args: argparse.Namespace) -> None:
         "constraint_mode": args.constraint_mode,
         "n_agents": args.n_agents,
         "expert": args.expert,
+        "init": args.init,
         "demo_robot_streams": n_streams,
         "samples": len(obs),
         "history": history,
@@ -338,11 +378,15 @@ def _add_env_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n-agents", type=int, default=None, help="random family only")
     p.add_argument("--max-cycles", type=int, default=None, help="cap on the episode length")
     p.add_argument("--constraint-mode", default=None, choices=["penalize", "terminate"])
-    p.add_argument("--expert", default="nmpc", help="any baselines.evaluate --policy source")
+    p.add_argument(
+        "--expert",
+        default="nmpc",
+        help=f"any baselines.evaluate --policy source; dagger: also {SELF_FILTER}",
+    )
 
 
-def _add_train_args(p: argparse.ArgumentParser, epochs: int) -> None:
-    p.add_argument("--data", type=Path, action="append", required=True, help="data/NAME")
+def _add_train_args(p: argparse.ArgumentParser, epochs: int, data_required: bool = True) -> None:
+    p.add_argument("--data", type=Path, action="append", required=data_required, help="data/NAME")
     p.add_argument("--epochs", type=int, default=epochs)
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--lr-schedule", default="constant", choices=bc.LR_SCHEDULES)
@@ -377,7 +421,10 @@ def main(argv: list[str] | None = None) -> None:
     _add_train_args(b, epochs=50)
     b.add_argument("--out", type=Path, default=Path("runs/bc"))
     d = sub.add_parser("dagger", help="DAgger with the expert relabelling")
-    _add_train_args(d, epochs=30)
+    _add_train_args(d, epochs=30, data_required=False)
+    d.add_argument(
+        "--init", default=None, help="start from this clone (dagger:pretrained, bc:PATH, ...)"
+    )
     d.add_argument(
         "--scenario",
         action="append",
