@@ -173,6 +173,7 @@ def test_cli_records_the_env_path(tmp_path, vec_env):
     [
         ("ppo", "ppo"),  # the DAgger clone fine-tuned on random N = 2
         ("ppo", "ppo_short"),
+        ("ppo", "ppo_shielded"),  # the same with the safety filter in training
         ("sac", "sac"),
         ("ppo", "ppo_vector"),
         ("ppo", "ppo_v0"),
