@@ -1,6 +1,6 @@
 """How much of the expert's action the current observation explains, and how much history.
 
-    python -m baselines.imitation.history_probe --data data/r2c [--epochs 30]
+    python -m baselines.imitation.history_probe --data data/r2c [--data ...] [--epochs 30]
 
 Fits the same MLP (128-128 tanh, a residual on the expert's steady input a_ss, the
 ``features`` inputs, per-component inverse-variance weights) on one demonstration
@@ -11,7 +11,9 @@ dataset four times, with the inputs
 * ``+ previous action``: also the expert's previous action;
 * ``+ both``;
 
-and prints each fit's weighted MSE on held-out episodes (every fifth robot stream pair).
+and prints each fit's weighted MSE on the training data and on held-out episodes (every
+fifth episode: the datasets hold two robot streams per episode, ``random`` N = 2); a large
+gap between the two says the fit is short of data.
 Why: a gap between ``current`` and the history inputs measures how much of the expert's
 decision comes from its memory (warm start, input-step bound, estimators), which no policy
 of the current observation can reproduce. Use clean demonstrations (``collect`` without
@@ -37,10 +39,14 @@ ACT = 8
 VARIANTS = ("current", "+ previous observation", "+ previous action", "+ both")
 
 
-def history_inputs(data: Path) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+def history_inputs(
+    data: Path | list[Path],
+) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
     """Inputs per variant (a_ss last: the network's residual base), labels, and the
-    held-out mask (by episode)."""
-    _, _, episodes = read_dataset(*split_path(data))
+    held-out mask (by episode) of one or more ``collect`` datasets."""
+    episodes = []
+    for path in [data] if isinstance(data, Path) else data:
+        episodes += read_dataset(*split_path(path))[2]
     parts: dict[str, list[np.ndarray]] = {v: [] for v in VARIANTS}
     labels, held = [], []
     for j, ep in enumerate(episodes):
@@ -58,7 +64,8 @@ def history_inputs(data: Path) -> tuple[dict[str, np.ndarray], np.ndarray, np.nd
     return inputs, np.concatenate(labels), np.concatenate(held)
 
 
-def held_out_loss(x: np.ndarray, y: np.ndarray, held: np.ndarray, epochs: int) -> float:
+def fit_losses(x: np.ndarray, y: np.ndarray, held: np.ndarray, epochs: int) -> tuple[float, float]:
+    """(training, held-out) weighted MSE of the MLP fitted on the rows not held out."""
     torch.manual_seed(0)
     net = MLPPolicyNet(x.shape[1], ACT, (128, 128), features="features")
     net.set_normalization(x[~held])
@@ -78,21 +85,26 @@ def held_out_loss(x: np.ndarray, y: np.ndarray, held: np.ndarray, epochs: int) -
             sched.step()
     net.eval()
     with torch.no_grad():
-        err = net(torch.as_tensor(x[held])) - torch.as_tensor(y[held])
-        return float(((err**2) * weight).mean())
+        losses = []
+        for rows in (~held, held):
+            err = net(torch.as_tensor(x[rows])) - torch.as_tensor(y[rows])
+            losses.append(float(((err**2) * weight).mean()))
+    return losses[0], losses[1]
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m baselines.imitation.history_probe")
-    ap.add_argument("--data", type=Path, required=True, help="a collect dataset, data/NAME")
+    ap.add_argument(
+        "--data", type=Path, action="append", required=True, help="a collect dataset, data/NAME"
+    )
     ap.add_argument("--epochs", type=int, default=30)
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     inputs, labels, held = history_inputs(args.data)
     print(f"{len(labels)} samples, {int(held.sum())} held out")
     for name, x in inputs.items():
-        loss = held_out_loss(x, labels, held, args.epochs)
-        print(f"{name:>24}: {x.shape[1]} inputs, held-out weighted MSE {loss:.2e}")
+        train, test = fit_losses(x, labels, held, args.epochs)
+        print(f"{name:>24}: {x.shape[1]} inputs, weighted MSE {train:.2e} fit, {test:.2e} held out")
 
 
 if __name__ == "__main__":
