@@ -10,7 +10,9 @@ Three settings per K: no filter, ``Shield(batched=False)`` and ``Shield()`` (one
 lane-parallel call of the K N QP builders per step). Each figure is the median of three
 timed windows of ``--seconds``/3 after one warm-up window; the first run compiles the
 lane-parallel builder (about a minute, cached on disk). Figures are for the environment
-and the filters only: a training run adds the policy and its updates.
+and the filters only: a training run adds the policy and its updates. A last line times
+the QP builder alone (the bar's, horizon 3), per robot: the scalar compiled call against
+one lane-parallel call for 64 robots.
 """
 
 from __future__ import annotations
@@ -47,6 +49,38 @@ def rate(k: int, n: int, mode: str, seconds: float) -> float:
     return float(np.median(windows))
 
 
+def builder_us() -> tuple[float, float]:
+    """(scalar, lanes) microseconds per robot of the filter's QP builder."""
+    from nmpc_expert.ocp import ocp_functions
+    from nmpc_expert.safety_filter import FILTER_HORIZON
+    from nmpc_expert.settings import NMPCSettings
+    from uvms_env.dynamics.compiled import BufferCall
+    from uvms_env.vector.kernels import BatchedFunction
+
+    s = NMPCSettings.paper(horizon=FILTER_HORIZON)
+    funcs = ocp_functions("bar", 0.0, FILTER_HORIZON, s.period, s.substeps)
+    scalar, lanes = BufferCall(funcs.qp_builder), BatchedFunction(funcs.qp_builder_graph)
+    rng = np.random.default_rng(0)
+    g = funcs.qp_builder
+    args = [0.1 * rng.standard_normal(g.size_in(i)[::-1]) for i in range(g.n_in())]
+    times = []
+    for _ in range(3):
+        start = time.perf_counter()
+        for _ in range(500):
+            scalar(*args)
+        times.append((time.perf_counter() - start) / 500)
+    k = lanes.padded(64)
+    batch = [np.ascontiguousarray(np.repeat(a.reshape(-1, 1), k, 1)) for a in args]
+    out = lanes(batch)
+    batched = []
+    for _ in range(3):
+        start = time.perf_counter()
+        for _ in range(20):
+            lanes(batch, 1, out)
+        batched.append((time.perf_counter() - start) / 20 / k)
+    return 1e6 * float(np.median(times)), 1e6 * float(np.median(batched))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--num-envs", type=int, nargs="+", default=[4, 16])
@@ -62,6 +96,8 @@ def main() -> None:
             f"| {k} | {k * args.n_agents} | {r['none']:,.0f} | {r['single']:,.0f} | "
             f"{r['batched']:,.0f} | {r['batched'] / r['single']:.2f}x |"
         )
+    scalar, lanes = builder_us()
+    print(f"QP builder per robot: {scalar:.0f} us scalar, {lanes:.0f} us in lanes")
 
 
 if __name__ == "__main__":
