@@ -39,18 +39,16 @@ class BatchedFilterStep:
 
     def __init__(self, threads: int = 1) -> None:
         self.threads = int(threads)
-        self._batched: dict[int, Any] = {}  # id(OCPFunctions) -> BatchedFunction
-        self._keep: list[Any] = []  # the OCPFunctions keyed by id stay alive
+        # id(OCPFunctions) -> (those functions, kept alive so the id stays theirs; their
+        # builder batched)
+        self._batched: dict[int, tuple[Any, Any]] = {}
 
     def _function(self, funcs: Any) -> Any:
-        fn = self._batched.get(id(funcs))
-        if fn is None:
+        if id(funcs) not in self._batched:
             from uvms_env.vector.kernels import BatchedFunction
 
-            fn = BatchedFunction(funcs.qp_builder_graph, "float64")
-            self._batched[id(funcs)] = fn
-            self._keep.append(funcs)
-        return fn
+            self._batched[id(funcs)] = (funcs, BatchedFunction(funcs.qp_builder_graph, "float64"))
+        return self._batched[id(funcs)][1]
 
     def __call__(self, filters: Sequence[SafetyFilter], observations: Sequence[np.ndarray]):
         if len(filters) != len(observations):

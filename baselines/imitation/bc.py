@@ -14,6 +14,7 @@ the epochs (a lower final loss at the same cost).
 from __future__ import annotations
 
 import csv
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -80,41 +81,25 @@ def fit(
     y = torch.as_tensor(np.clip(act, -1, 1), dtype=torch.float32)
     xv, yv = x[val_idx], y[val_idx]
     x, y = x[train_idx], y[train_idx]
-    opt = torch.optim.Adam(net.parameters(), lr=lr)
-    steps_per_epoch = max(1, -(-len(x) // batch_size))
-    sched = (
-        torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * steps_per_epoch)
-        if lr_schedule == "cosine"
-        else None
-    )
 
     def weighted_mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         return ((pred - target) ** 2 * weight).mean()
 
     losses: list[float] = []
     rows = []
-    bar = tqdm(range(epochs), desc=stage, disable=not progress, unit="epoch")
-    for epoch in bar:
-        net.train()
-        order = torch.randperm(len(x), generator=gen)
-        total = 0.0
-        for k in range(0, len(x), batch_size):
-            idx = order[k : k + batch_size]
-            loss = weighted_mse(net(x[idx]), y[idx])
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            if sched is not None:
-                sched.step()
-            total += loss.item() * len(idx)
-        losses.append(total / max(1, len(x)))
+    bar = tqdm(total=epochs, desc=stage, disable=not progress, unit="epoch")
+    steps = train_epochs(net, x, y, weight, epochs, batch_size, lr, lr_schedule, gen)
+    for epoch, train_loss in enumerate(steps):
+        losses.append(train_loss)
         net.eval()
         val = float("nan")
         if n_val:
             with torch.no_grad():
                 val = weighted_mse(net(xv), yv).item()
         rows.append([stage, epoch, len(x), losses[-1], val])
+        bar.update()
         bar.set_postfix(loss=f"{losses[-1]:.3g}", val=f"{val:.3g}")
+    bar.close()
     net.eval()
     if log_path is not None:
         log_path = Path(log_path)
@@ -126,3 +111,39 @@ def fit(
                 w.writerow(LOG_FIELDS)
             w.writerows(rows)
     return net, losses
+
+
+def train_epochs(
+    net: MLPPolicyNet,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    weight: torch.Tensor,
+    epochs: int,
+    batch_size: int,
+    lr: float,
+    lr_schedule: str,
+    gen: torch.Generator,
+) -> Iterator[float]:
+    """Adam on the weighted MSE of ``net`` over (x, y), shuffled by ``gen``; yields each
+    epoch's mean training loss (the network left in training mode until then)."""
+    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    steps_per_epoch = max(1, -(-len(x) // batch_size))
+    sched = (
+        torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * steps_per_epoch)
+        if lr_schedule == "cosine"
+        else None
+    )
+    for _ in range(epochs):
+        net.train()
+        order = torch.randperm(len(x), generator=gen)
+        total = 0.0
+        for k in range(0, len(x), batch_size):
+            idx = order[k : k + batch_size]
+            loss = ((net(x[idx]) - y[idx]) ** 2 * weight).mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            if sched is not None:
+                sched.step()
+            total += loss.item() * len(idx)
+        yield total / max(1, len(x))

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from baselines.imitation.bc import loss_weights
+from baselines.imitation.bc import loss_weights, train_epochs
 from baselines.imitation.dataset import read_dataset, split_path
 from baselines.imitation.features import prepare
 from baselines.imitation.network import MLPPolicyNet
@@ -71,18 +71,9 @@ def fit_losses(x: np.ndarray, y: np.ndarray, held: np.ndarray, epochs: int) -> t
     net.set_normalization(x[~held])
     weight = torch.as_tensor(loss_weights(y, "std"))
     xt, yt = torch.as_tensor(x[~held]), torch.as_tensor(y[~held])
-    opt = torch.optim.Adam(net.parameters(), 1e-3)
-    batches = -(-len(xt) // 256)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, epochs * batches)
-    for _ in range(epochs):
-        order = torch.randperm(len(xt))
-        for k in range(0, len(xt), 256):
-            i = order[k : k + 256]
-            loss = (((net(xt[i]) - yt[i]) ** 2) * weight).mean()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            sched.step()
+    gen = torch.Generator().manual_seed(0)
+    for _ in train_epochs(net, xt, yt, weight, epochs, 256, 1e-3, "cosine", gen):
+        pass
     net.eval()
     with torch.no_grad():
         losses = []
