@@ -36,37 +36,16 @@ from uvms_env.dynamics.compiled import BufferCall
 from uvms_env.dynamics.local_model import NX, ModelParams
 from uvms_env.dynamics.spatial import wrap_angle
 from uvms_env.dynamics.uvms import default_model
-from uvms_env.env.observation import NAV_K_MAX, NAV_K_MIN, WAYPOINT_TOLERANCE
-from uvms_env.navigation import WaypointNavigator, choose_k
+from uvms_env.navigation import WaypointNavigator, task_navigator
 from uvms_env.policy import AgentSpec
 
 SOLVERS = ("rti", "ipopt")
 
 
-@cache
-def _navigator(
-    waypoints: bytes, n_wp: int, workspace, obstacles, team_radius: float
-) -> WaypointNavigator:
-    wps = np.frombuffer(waypoints).reshape(n_wp, 6)
-    k = NAV_K_MIN
-    for wp in wps:
-        try:
-            k = max(k, choose_k(wp[:3], workspace, obstacles, team_radius))
-        except ValueError:
-            k = NAV_K_MAX
-    return WaypointNavigator(
-        wps, workspace, obstacles, team_radius, k=k, pos_tol=WAYPOINT_TOLERANCE
-    )
-
-
 def navigator_for(spec: AgentSpec) -> WaypointNavigator:
-    """The navigation reference every robot of the task uses (the environment's rule:
-    k = max(NAV_K_MIN, choose_k per waypoint), sequencing tolerance WAYPOINT_TOLERANCE),
-    rebuilt from the robot's own spec. Cached: it is read-only after construction."""
-    wps = np.ascontiguousarray(spec.waypoints, dtype=float)
-    return _navigator(
-        wps.tobytes(), len(wps), spec.workspace, tuple(spec.obstacles), float(spec.team_radius)
-    )
+    """The navigation reference every robot of the task uses (the environment's rule,
+    ``uvms_env.navigation.task_navigator``), rebuilt from the robot's own spec."""
+    return task_navigator(spec.waypoints, spec.workspace, spec.obstacles, spec.team_radius)
 
 
 def local_parameters(spec: AgentSpec) -> np.ndarray:

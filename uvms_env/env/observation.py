@@ -17,7 +17,6 @@ May import: numpy, casadi, ``uvms_env.dynamics`` (compiled calls), ``uvms_env.na
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import casadi as cs
@@ -25,7 +24,7 @@ import numpy as np
 
 from uvms_env.dynamics.compiled import BufferCall, RebuiltOnUnpickle
 from uvms_env.env.kinematics import TeamKinematics
-from uvms_env.navigation import WaypointNavigator, choose_k
+from uvms_env.navigation import WaypointNavigator, task_navigator
 
 if TYPE_CHECKING:
     from uvms_env.env.task import Task
@@ -138,38 +137,11 @@ def observation_bounds() -> tuple[np.ndarray, np.ndarray]:
 NOISE_STD_Q = np.array([0.02] * 3 + [0.01] * 3 + [0.01] * 4)
 NOISE_STD_ZETA = np.array([0.01] * 3 + [0.005] * 3 + [0.005] * 4)
 
-# Each robot passes a waypoint when its own object estimate is this close (m); the
-# navigation module's default. Attitude is not required at intermediate waypoints.
-WAYPOINT_TOLERANCE = 0.3
-# Navigation-function exponent: the navigation module's paper value, raised per scenario
-# when its empirical rule (choose_k) needs more to remove spurious minima.
-NAV_K_MIN = 6.0
-NAV_K_MAX = 50.0
-
-
-@lru_cache(maxsize=64)
 def make_navigator(scenario: Scenario) -> WaypointNavigator:
-    """The waypoint navigator every robot uses for a scenario (scenario constants only).
-
-    ``k = max(NAV_K_MIN, choose_k(waypoint) for every waypoint)`` (``NAV_K_MAX`` if the
-    rule finds none); other parameters are the navigation module's defaults. Cached per
-    scenario object (choose_k costs ~0.1 s per waypoint)."""
-    k = NAV_K_MIN
-    for wp in scenario.waypoints:
-        try:
-            k = max(
-                k,
-                choose_k(wp[:3], scenario.workspace, scenario.obstacles, scenario.team_radius),
-            )
-        except ValueError:
-            k = NAV_K_MAX
-    return WaypointNavigator(
-        scenario.waypoints,
-        scenario.workspace,
-        scenario.obstacles,
-        scenario.team_radius,
-        k=k,
-        pos_tol=WAYPOINT_TOLERANCE,
+    """The waypoint navigator every robot uses for a scenario (the task's rule:
+    ``uvms_env.navigation.task_navigator``)."""
+    return task_navigator(
+        scenario.waypoints, scenario.workspace, scenario.obstacles, scenario.team_radius
     )
 
 

@@ -46,7 +46,7 @@ from uvms_env.dynamics import NU
 from uvms_env.dynamics.spatial import wrap_angle
 from uvms_env.env.constraints import CONSTRAINTS, HARD_CONSTRAINTS
 from uvms_env.env.metrics import episode_result
-from uvms_env.env.observation import WAYPOINT_TOLERANCE
+from uvms_env.navigation.task_rules import WAYPOINT_TOLERANCE
 from uvms_env.env.reward import REWARD_TERMS, RewardWeights
 
 NK = len(CONSTRAINTS)

@@ -6,6 +6,8 @@
   ``-grad phi``; CasADi version for MPC; empirical choice of ``k``.
 * :mod:`.waypoints`: waypoint sequencing and the desired object twist
   ``[v_d; ZYX Euler-angle rates]``.
+* :mod:`.task_rules`: the task's sequencing tolerance and its rule for ``k``, one source
+  for the environment and the expert.
 * :mod:`.parametric`: the same twist with the scene as inputs, branch-free, so that
   environments of different geometries share one compiled (batched) function.
 
@@ -32,9 +34,19 @@ from .parametric import (
     parametric_velocity,
     twist_parameters,
 )
+from .task_rules import (
+    NAV_K_MAX,
+    NAV_K_MIN,
+    WAYPOINT_TOLERANCE,
+    navigation_gain,
+    task_navigator,
+)
 from .waypoints import WaypointNavigator, WaypointSequencer, euler_rates_to_body_rates
 
 __all__ = [
+    "NAV_K_MAX",
+    "NAV_K_MIN",
+    "WAYPOINT_TOLERANCE",
     "N_CYLINDERS",
     "N_SPHERES",
     "Cylinder",
@@ -49,9 +61,11 @@ __all__ = [
     "descend",
     "euler_rates_to_body_rates",
     "field_parameters",
+    "navigation_gain",
     "parametric_twist_function",
     "parametric_velocity",
     "sample_free_points",
+    "task_navigator",
     "twist_parameters",
     "wrap_angle",
 ]
