@@ -46,8 +46,8 @@ from uvms_env.dynamics import NU
 from uvms_env.dynamics.spatial import wrap_angle
 from uvms_env.env.constraints import CONSTRAINTS, HARD_CONSTRAINTS
 from uvms_env.env.metrics import episode_result
-from uvms_env.navigation.task_rules import WAYPOINT_TOLERANCE
 from uvms_env.env.reward import REWARD_TERMS, RewardWeights
+from uvms_env.navigation.task_rules import WAYPOINT_TOLERANCE
 
 NK = len(CONSTRAINTS)
 HARD_KINDS = [CONSTRAINTS.index(c) for c in HARD_CONSTRAINTS]  # indices of HARD_CONSTRAINTS

@@ -46,9 +46,9 @@ from .waypoints import WaypointNavigator, WaypointSequencer, euler_rates_to_body
 __all__ = [
     "NAV_K_MAX",
     "NAV_K_MIN",
-    "WAYPOINT_TOLERANCE",
     "N_CYLINDERS",
     "N_SPHERES",
+    "WAYPOINT_TOLERANCE",
     "Cylinder",
     "NavigationField",
     "Obstacle",
