@@ -185,7 +185,7 @@ class RunSettings:
 def seeded_pool(scenario: str, overrides: dict[str, Any], pool: int | None) -> int | None:
     """The geometry pool a run uses: seeded families only (a fixed scenario has one
     geometry), 0 or None: no pool."""
-    from uvms_env.vector.bank import SEEDED_FAMILIES
+    from uvms_env.scenarios import SEEDED_FAMILIES
 
     seeded = scenario in SEEDED_FAMILIES and overrides.get("reseed_geometry", True)
     return pool if seeded and pool else None

@@ -473,13 +473,13 @@ def test_seeded_family_geometry_follows_reset_seed():
     env.reset(seed=2)
     goal_2 = env.scenario.waypoints[-1].copy()
     assert not np.allclose(goal_1, goal_2)
-    world = env._world
+    world = env.sim
     env.reset()
-    assert env._world is world  # reset() keeps the geometry
+    assert env.sim is world  # reset() keeps the geometry
     env.reset(seed=1)
     assert np.allclose(env.scenario.waypoints[-1], goal_1)
     env.reset(seed=2)
-    assert env._world is world  # cached
+    assert env.sim is world  # cached: the same compiled objects
     fixed = uvms_env.parallel_env("short", seed=1, reseed_geometry=False, max_cycles=1)
     fixed.reset(seed=2)
     assert np.allclose(fixed.scenario.waypoints[-1], goal_1)

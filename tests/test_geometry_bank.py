@@ -9,8 +9,8 @@ import pytest
 from uvms_env.env.observation import make_navigator
 from uvms_env.navigation.parametric import twist_parameters
 from uvms_env.scenarios import make
-from uvms_env.vector import bank as bank_module
-from uvms_env.vector.bank import GeometryBank, main
+from uvms_env.scenarios import bank as bank_module
+from uvms_env.scenarios.bank import GeometryBank, main
 
 
 def test_a_stored_geometry_is_the_built_one_and_is_not_built_again(tmp_path, monkeypatch):

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from uvms_env.env.parallel import ENV_OPTIONS, priors_of
+from uvms_env.env.options import ENV_OPTIONS, priors_of
 from uvms_env.env.priors import Priors
 from uvms_env.policy import AgentSpec
 

@@ -9,9 +9,7 @@ kinematics and its known grasp; no other robot's data and no contact force enter
 (name -> slice) is generated from it, and a test checks the environment's docstring
 table against it. The NMPC expert reads observations through these names.
 
-May import: numpy, casadi, ``uvms_env.dynamics`` (compiled calls), ``uvms_env.navigation``,
-``uvms_env.scenarios`` (types), ``uvms_env.env.kinematics`` and (types)
-``uvms_env.env.task``.
+May import: numpy, ``uvms_env.navigation`` and ``uvms_env.scenarios`` (types).
 """
 
 from __future__ import annotations
@@ -19,15 +17,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import casadi as cs
 import numpy as np
 
-from uvms_env.dynamics.compiled import BufferCall, RebuiltOnUnpickle
-from uvms_env.env.kinematics import TeamKinematics
 from uvms_env.navigation import WaypointNavigator, task_navigator
 
 if TYPE_CHECKING:
-    from uvms_env.env.task import Task
     from uvms_env.scenarios import Scenario
 
 
@@ -137,94 +131,10 @@ def observation_bounds() -> tuple[np.ndarray, np.ndarray]:
 NOISE_STD_Q = np.array([0.02] * 3 + [0.01] * 3 + [0.01] * 4)
 NOISE_STD_ZETA = np.array([0.01] * 3 + [0.005] * 3 + [0.005] * 4)
 
+
 def make_navigator(scenario: Scenario) -> WaypointNavigator:
     """The waypoint navigator every robot uses for a scenario (the task's rule:
     ``uvms_env.navigation.task_navigator``)."""
     return task_navigator(
         scenario.waypoints, scenario.workspace, scenario.obstacles, scenario.team_radius
     )
-
-
-def _nav_function(navigator: WaypointNavigator, n: int) -> cs.Function:
-    """All robots' desired twists towards every waypoint in one SX call: (6, N) -> (6, K N),
-    column k N + i for waypoint k at robot i's estimate."""
-    x = cs.SX.sym("x_O", 6, n)
-    fns = [navigator.casadi_function(k) for k in range(len(navigator.sequencer))]
-    return cs.Function(
-        "nav_twists", [x], [cs.horzcat(*[f(x[:, i]) for f in fns for i in range(n)])]
-    )
-
-
-class Observer(RebuiltOnUnpickle):
-    """Builds the N local observations of one scenario each step (see module docstring).
-
-    Draws the sensor noise from the generator given at ``reset``. The kinematics kernel
-    writes every block of the observation but the navigation twist, which depends on
-    the scenario's navigation functions and is added here, at each robot's active
-    waypoint: the task's (``uvms_env.env.task.Task.advance_robots``) sequencing, on the
-    robot's own estimate."""
-
-    _rebuilt = ("navigator", "_nav")
-
-    def __init__(self, scenario: Scenario, kinematics: TeamKinematics) -> None:
-        self._init_args = (scenario, kinematics)
-        self.scenario = scenario
-        self.n = n = scenario.n_agents
-        self.kin = kinematics
-        self.navigator = make_navigator(scenario)
-        self.waypoints = np.asarray(scenario.waypoints, dtype=float)
-        self.index = np.zeros(n, dtype=int)  # each robot's active waypoint, as the kernel has it
-        self._nav = BufferCall(_nav_function(self.navigator, n))
-        self._rows = np.arange(n)
-        self._noise_q = scenario.sensor_noise * NOISE_STD_Q
-        self._noise_zeta = scenario.sensor_noise * NOISE_STD_ZETA
-        self.q_meas = np.zeros((n, 10))
-        self.zeta_meas = np.zeros((n, 10))
-        self._rng = np.random.default_rng(0)
-        self._waypoint = OBSERVATION_STRUCTURE["waypoint"]
-        self._nav_slice = OBSERVATION_STRUCTURE["nav_velocity"]
-        self._on_waypoint_change()
-
-    def __setstate__(self, state: dict) -> None:
-        super().__setstate__(state)
-        self._on_waypoint_change()  # the constructor reset the kernel's waypoints
-
-    @property
-    def noisy(self) -> bool:
-        return self.scenario.sensor_noise > 0
-
-    def reset(self, rng: np.random.Generator, task: Task) -> None:
-        """New episode: noise from ``rng``, the robots' waypoints as ``task`` (one
-        environment) has them after its reset."""
-        self._rng = rng
-        self.index[:] = task.robot_index
-        self._on_waypoint_change()
-
-    def _on_waypoint_change(self) -> None:
-        self.kin.waypoint[:] = self.waypoints[self.index]
-        self._nav_rows = self.index * self.n + self._rows
-
-    def measure(self, q: np.ndarray, zeta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """What the robots' sensors read: the true q, zeta (N, 10) plus noise (the same
-        arrays when there is no noise)."""
-        if not self.noisy:
-            return q, zeta
-        noise = self._rng.standard_normal((2, self.n, 10))
-        np.multiply(noise[0], self._noise_q, out=self.q_meas)
-        self.q_meas += q
-        np.multiply(noise[1], self._noise_zeta, out=self.zeta_meas)
-        self.zeta_meas += zeta
-        return self.q_meas, self.zeta_meas
-
-    def build(self, task: Task, team: np.ndarray) -> np.ndarray:
-        """The (N, 79) float32 observations, after the kinematics kernel was evaluated on
-        this step's measurements (``team``: its team rows). Advances each robot's own
-        waypoint sequencing (``task``, one environment) first."""
-        kin = self.kin
-        obs, pose = kin.observation, kin.pose_estimate
-        if task.advance_robots(..., pose, team):
-            self.index[:] = task.robot_index
-            self._on_waypoint_change()
-            obs[:, self._waypoint] = kin.waypoint
-        obs[:, self._nav_slice] = self._nav(pose)[0][self._nav_rows]
-        return obs.astype(np.float32)

@@ -27,6 +27,8 @@ COMMON_OVERRIDES = SCENARIO_FIELDS
 # The random family's team size when n_agents is not given: fixed, so that an
 # environment built without it has the same agents every time.
 RANDOM_DEFAULT_AGENTS = 2
+PAPER_AGENTS = 2  # the paper's team, also the short family's
+RANDOM_MAX_WAYPOINTS = 3  # the random family draws 1..3 waypoints
 
 
 def _configure(
@@ -107,8 +109,8 @@ def paper(**settings) -> Scenario:
     Grasps 1.6 m apart on the 1.8 m bar, both vehicles heading along the object's x
     axis; obstacles, start pose, waypoints and load shares as in the paper.
     """
-    n = settings.pop("n_agents", 2)
-    if n != 2:
+    n = settings.pop("n_agents", PAPER_AGENTS)
+    if n != PAPER_AGENTS:
         raise ValueError(f"the paper scenario has exactly 2 agents, got n_agents={n}")
     return _configure(
         "paper",
@@ -160,7 +162,7 @@ def random(**settings) -> Scenario:
         [nominal_configuration(start, l, y) for l, y in zip(offsets, yaws, strict=True)]
     )
     r_team = team_radius(start, q_probe, "ring", ring) + 0.2
-    n_wp = int(rng.integers(1, 4))
+    n_wp = int(rng.integers(1, RANDOM_MAX_WAYPOINTS + 1))
     waypoints = np.zeros((n_wp, 6))
     pos = start[:3]
     for k in range(n_wp):
@@ -220,8 +222,8 @@ def short(**settings) -> Scenario:
     random horizontal direction (depth and heading unchanged), no obstacles, 300 periods
     (36 s; the navigation reference needs ~12 s). The paper scenario's first leg takes
     ~45 s and passes an obstacle; this variant makes RL on 2 CPU cores feasible."""
-    n = settings.pop("n_agents", 2)
-    if n != 2:
+    n = settings.pop("n_agents", PAPER_AGENTS)
+    if n != PAPER_AGENTS:
         raise ValueError(f"the short scenario has exactly 2 agents, got n_agents={n}")
     rng = np.random.default_rng(settings.get("seed"))
     start = np.array([-0.7, 0.0, 0.72, 0.04, -0.07, 0.0])
@@ -246,6 +248,20 @@ def short(**settings) -> Scenario:
 
 
 FAMILIES: dict[str, Callable[..., Scenario]] = {"paper": paper, "random": random, "short": short}
+# The families whose geometry is drawn from the seed (``reset(seed=s)`` of an environment
+# then sets geometry s); the paper's is fixed.
+SEEDED_FAMILIES = ("random", "short")
+
+
+def default_agents(family: str) -> int:
+    """The team size of ``family`` when ``n_agents`` is not given."""
+    return RANDOM_DEFAULT_AGENTS if family == "random" else PAPER_AGENTS
+
+
+def max_waypoints(family: str | None, scenario: Scenario) -> int:
+    """Room for waypoints that every geometry of ``family`` fits in (``scenario``: one
+    of them; a built Scenario, family None, keeps its own)."""
+    return RANDOM_MAX_WAYPOINTS if family == "random" else len(scenario.waypoints)
 
 
 def make(name: str = "paper", **overrides) -> Scenario:

@@ -2,7 +2,7 @@
 batched environment copies a start instead of solving for one.
 
 Building a geometry of the ``random`` family costs ~0.5 s (an inverse-kinematics and a
-static-equilibrium NLP, and the navigation gain search of ``make_navigator``); ``short``
+static-equilibrium NLP, and the navigation gain search of ``navigation.task_navigator``); ``short``
 ~0.02 s. A ``VectorEnv`` that auto-resets thousands of environments cannot pay that in a
 step, so each geometry is built once per (family, team size, seed), stored here and read
 back (~1 ms):
@@ -20,8 +20,11 @@ are keyed by a hash of the code that builds them (the scenario and navigation mo
 and the model parameters): a change there starts a new bank instead of serving stale
 geometries.
 
-May import: numpy, ``uvms_env.scenarios``, ``uvms_env.navigation``, ``uvms_env.env``
-(the navigator every robot uses) and ``uvms_env.dynamics.compiled`` (the cache folder).
+It is also where the environments get the geometry of a seed (``geometry_of_seed``): the
+single and the batched environment take the same scenario from here.
+
+May import: numpy, ``uvms_env.scenarios``, ``uvms_env.navigation`` and
+``uvms_env.dynamics.compiled`` (the cache folder).
 """
 
 from __future__ import annotations
@@ -40,16 +43,15 @@ from typing import Any
 import numpy as np
 
 from uvms_env.dynamics.compiled import cache_dir
-from uvms_env.env.observation import make_navigator
 from uvms_env.navigation.parametric import N_CYLINDERS, N_SPHERES, twist_parameters
-from uvms_env.scenarios import Scenario, make, replace
-from uvms_env.vector.kernels import available_cores
+from uvms_env.navigation.task_rules import task_navigator
+from uvms_env.scenarios.config import Scenario
+from uvms_env.scenarios.families import SEEDED_FAMILIES, make, replace
 
 #: Entries of one waypoint's navigation parameters (``parametric_twist_function``'s inputs
 #: after ``x``, matrices column-major): goal 6, workspace 4, cylinders 4 x 5, spheres
 #: 5 x 5, gains 5.
 NAV_PARAMETERS = 6 + 4 + 4 * N_CYLINDERS + 5 * N_SPHERES + 5
-SEEDED_FAMILIES = ("random", "short")
 
 
 @dataclass(frozen=True)
@@ -69,7 +71,9 @@ class Geometry:
 def navigation_table(scenario: Scenario) -> np.ndarray:
     """(waypoints, NAV_PARAMETERS): each waypoint's parameters of the shared navigation
     function, from the navigator every robot of ``scenario`` uses."""
-    nav = make_navigator(scenario)
+    nav = task_navigator(
+        scenario.waypoints, scenario.workspace, scenario.obstacles, scenario.team_radius
+    )
     rows = []
     for i in range(len(scenario.waypoints)):
         parts = twist_parameters(nav, i, N_CYLINDERS, N_SPHERES)
@@ -87,7 +91,7 @@ def _code_key() -> str:
     """Hash of the sources a geometry is built from."""
     root = Path(__file__).resolve().parent.parent
     files = sorted((root / "scenarios").glob("*.py")) + sorted((root / "navigation").glob("*.py"))
-    files += [root / "models" / "parameters.toml", root / "env" / "observation.py"]
+    files += [root / "models" / "parameters.toml"]
     digest = hashlib.sha256()
     for f in files:
         digest.update(f.read_bytes())
@@ -186,7 +190,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("family", choices=SEEDED_FAMILIES)
     parser.add_argument("--n-agents", type=int, default=2)
     parser.add_argument("--seeds", type=_seed_range, default=range(0, 256), help="start:stop")
-    parser.add_argument("--workers", type=int, default=available_cores())
+    parser.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)))
     args = parser.parse_args(argv)
     bank = GeometryBank(args.family, args.n_agents)
     built = bank.fill(args.seeds, workers=args.workers, progress=True)

@@ -1,0 +1,370 @@
+"""The code that drives the task, written once for one environment and for K.
+
+``EnvCore`` runs the flow of an episode around the task's rules (``uvms_env.env.task``) on
+a physics engine: seeding and resets, the check of the actions, the action mode, the step
+(simulator, time, evaluation, rules), each robot's observation (the engine's kernel, the
+robot's own waypoint sequencing and navigation twist, the observation mode), ``state()``,
+the constraint values of a state and what an ended episode reports.
+
+``parallel_env`` runs it for one environment, batch shape B = (), on ``ScalarEngine``
+(``uvms_env.env.engine``: the scalar compiled functions); ``VectorEnv`` for K environments,
+B = (K,), on ``BatchedEngine`` (``uvms_env.vector.engine``: SIMD lanes, or a GPU). The
+environments only turn their APIs (dicts of agents; arrays, automatic resets, tensors)
+into calls here. An engine owns the truth simulator and the compiled per-step calls of its
+batch and exposes them through the methods ``EnvCore`` calls (``Engine``).
+
+Indices: ``ids`` index the engine's and the task's arrays (``...`` for one environment; a
+slice or an index array of ``xp`` for K), ``rows`` are the same environments as host
+ints, for what Python does per environment (each one's random generators).
+
+May import: numpy and the ``env`` modules of the task's rules, its options and the
+observation's layout.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from uvms_env.dynamics import NQ, NU
+from uvms_env.env.observation import (
+    NOISE_STD_Q,
+    NOISE_STD_ZETA,
+    OBSERVATION_SIZE,
+    OBSERVATION_STRUCTURE,
+)
+from uvms_env.env.options import EnvSetup
+from uvms_env.env.priors import Priors, steady_inputs
+from uvms_env.env.task import Task, TaskArrays
+from uvms_env.scenarios import Scenario, max_waypoints
+
+# Action dtype kinds accepted: float, signed and unsigned int (not bool, complex, str, object).
+ACTION_KINDS = "fiu"
+SEED_LIMIT = 2**63
+_WAYPOINT = OBSERVATION_STRUCTURE["waypoint"]
+_NAV = OBSERVATION_STRUCTURE["nav_velocity"]
+
+
+class Engine:
+    """The physics and per-step kernels of one batch (B = () or (K,)), float64 results:
+    the calls ``EnvCore`` makes (``uvms_env.env.engine.ScalarEngine``,
+    ``uvms_env.vector.engine.BatchedEngine``). The priors' a_ss and features run on the
+    host here; an engine with device kernels for them overrides ``steady``/``features``."""
+
+    xp: Any  # the array namespace of the step: numpy, or CuPy on a GPU
+    tau_max: Any  # (8,) saturations, on the step's device
+    noisy: bool  # the scenario has sensor noise
+
+    def set_geometry(self, rows: list[int], scenarios: list[Scenario]) -> None:
+        raise NotImplementedError
+
+    def reset(self, rows: list[int], sim_seeds: list[int]) -> None:
+        """The start state and the truth-model draws of ``rows`` from these seeds."""
+        raise NotImplementedError
+
+    def step(self, tau: Any) -> Any:
+        """One period of inputs B + (N, 8); returns the refused steps, B bool."""
+        raise NotImplementedError
+
+    def diverged_reasons(self, rows: list[int]) -> list[str]:
+        raise NotImplementedError
+
+    def measure(self, ids: Any, q_noise: Any, zeta_noise: Any) -> None:
+        """The sensors of ``ids`` read the true state plus these B' + (N, 10) noises."""
+        raise NotImplementedError
+
+    def evaluate(self, ids: Any, action: Any, time_fraction: Any, measured: bool = True) -> tuple:
+        """The kinematics kernel of ``ids`` on the requested actions B' + (N, 8) (None:
+        zeros): observations B' + (N, 79), own object estimates B' + (N, 6), team rows
+        (T,) + B', constraint values B' + (N, 8), costs B' + (N,). ``measured``: on the
+        sensors' readings (else on the true state)."""
+        raise NotImplementedError
+
+    def set_waypoints(self, ids: Any, waypoints: Any) -> None:
+        """Each robot's active waypoint B' + (N, 6), an input of the kernel."""
+        raise NotImplementedError
+
+    def nav_twist(self, ids: Any, index: Any, pose: Any) -> Any:
+        """B' + (N, 6): each robot's navigation twist towards waypoint ``index`` at ``pose``."""
+        raise NotImplementedError
+
+    def wrench_sq(self, sampled: Any) -> Any:
+        """B: the internal wrench's squared norm after the step where ``sampled``."""
+        raise NotImplementedError
+
+    def object_pose(self, ids: Any) -> Any:
+        raise NotImplementedError
+
+    def robots(self) -> tuple[Any, Any]:
+        """q, zeta B + (N, 10) float64, the true state."""
+        raise NotImplementedError
+
+    def flat_state(self) -> Any:
+        """B + (20 N + 12,) float64: q, zeta, object pose and twist."""
+        raise NotImplementedError
+
+    def steady(self, raw: Any, ring: float) -> Any:
+        """a_ss of raw observations (..., 79) -> (..., 8) float64."""
+        return steady_inputs(raw, ring)
+
+    def features(self, raw: Any, steady: Any, priors: Priors, ring: float) -> Any:
+        """The features observation of raw observations whose a_ss is ``steady``."""
+        return priors.observe(raw, ring, steady)
+
+
+class EnvCore:
+    """The task driven over one environment (``num_envs=None``) or K (module docstring).
+
+    ``first_seeds``: each environment's seed before any seeded reset (None: entropy)."""
+
+    def __init__(
+        self,
+        setup: EnvSetup,
+        engine: Engine,
+        num_envs: int | None,
+        first_seeds: Sequence[int | None],
+    ) -> None:
+        self.setup = setup
+        self.engine = engine
+        self.xp = xp = engine.xp
+        self.num_envs = num_envs
+        self.batched = num_envs is not None
+        self.k = k = num_envs or 1
+        self.all: Any = slice(0, k) if self.batched else ...
+        self.n = n = setup.n_agents
+        self.priors = setup.priors
+        self.ring = setup.scenario.object_ring_radius  # one object per core
+        self.max_cycles = setup.max_cycles()
+        s = setup.scenario
+        self.task = Task(
+            xp,
+            num_envs,
+            n,
+            max_waypoints(setup.family, s),
+            weights=setup.reward_weights,
+            constraint_mode=setup.constraint_mode,
+            max_cycles=self.max_cycles,
+            period=s.period,
+            success_pos_tol=s.success_pos_tol,
+            success_att_tol=s.success_att_tol,
+            internal_wrench_every=setup.internal_wrench_every,
+            **setup.extensions,
+        )
+        self.seeders = [np.random.default_rng(seed) for seed in first_seeds]
+        self.noise_rngs = [np.random.default_rng(0) for _ in range(k)]
+        batch = (k,) if self.batched else ()
+        self.obs = xp.zeros((*batch, n, OBSERVATION_SIZE), np.float32)  # the raw views
+        self.steady = xp.zeros((*batch, n, NU)) if self.priors.needs_steady else None
+        # on the device: CuPy takes no numpy operand in its arithmetic
+        self._noise_q = xp.asarray(s.sensor_noise * NOISE_STD_Q)
+        self._noise_zeta = xp.asarray(s.sensor_noise * NOISE_STD_ZETA)
+        self.scenarios: list[Scenario] = [s] * k
+        self._geometry_set = np.zeros(k, bool)
+        # ``command_filter(raw_obs, commands, first)`` -> commands: replaces each step's
+        # normalized inputs before they reach the simulator (a safety filter in the
+        # training loop); raw_obs B + (N, 79) are the observations the actions answer,
+        # commands B + (N, 8) float64 what the action mode made of them, first B bool
+        # marks the environments whose episode starts with this step. None: no filter.
+        self.command_filter: Any = None
+        self.set_geometry(list(range(k)), [s] * k)
+        self.g: Any = None  # the last step's constraint values and costs (the kernel's)
+        self.cost: Any = None
+
+    def __getstate__(self) -> dict:
+        """Pickles name the array namespace (a module is no state)."""
+        return {**self.__dict__, "xp": self.xp.__name__}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update({**state, "xp": importlib.import_module(state["xp"])})
+
+    # -- indices ------------------------------------------------------------------------
+    def ids_of(self, rows: list[int]) -> Any:
+        """The array index of host ``rows``."""
+        if not self.batched:
+            return ...
+        if len(rows) == self.k:
+            return self.all  # every environment: the kernels' full path, no gathering
+        return rows if self.xp is np else self.xp.asarray(rows)
+
+    def host(self, a: Any) -> np.ndarray:
+        """A numpy copy of a step array."""
+        return np.asarray(a) if self.xp is np else self.xp.asnumpy(a)
+
+    # -- geometry, seeds and resets -------------------------------------------------------
+    def set_geometry(self, rows: list[int], scenarios: Sequence[Scenario]) -> None:
+        """Environments ``rows`` take these scenarios' geometries (the task's waypoints,
+        the engine's kernel inputs); unchanged ones are skipped."""
+        changed = [
+            (i, s)
+            for i, s in zip(rows, scenarios, strict=True)
+            if not (self.scenarios[i] is s and self._geometry_set[i])
+        ]
+        if not changed:
+            return
+        m, n, w_max = len(changed), self.n, self.task.waypoints.shape[-2]
+        waypoints = np.zeros((m, w_max, 6))
+        count, obstacles = np.zeros(m, np.int64), np.zeros(m, bool)
+        for row, (i, s) in enumerate(changed):
+            if s.n_agents != n:
+                raise ValueError(f"environment {i}: {s.n_agents} agents, the batch has {n}")
+            w = len(s.waypoints)
+            if w > w_max:
+                raise ValueError(f"environment {i}: {w} waypoints, the batch has room for {w_max}")
+            waypoints[row, :w] = s.waypoints
+            count[row], obstacles[row] = w, bool(s.obstacles)
+            self.scenarios[i] = s
+            self._geometry_set[i] = True
+        ids = [i for i, _ in changed]
+        if not self.batched:
+            waypoints, count, obstacles = waypoints[0], count[0], obstacles[0]
+        self.task.set_geometry(self.ids_of(ids), waypoints, count, obstacles)
+        self.engine.set_geometry(ids, [s for _, s in changed])
+
+    def seed(self, rows: list[int], seeds: Sequence[int]) -> None:
+        """Environments ``rows`` restart their generators from ``seeds``; a seeded family
+        also takes geometry ``seed`` (``EnvSetup.geometry``)."""
+        for i, s in zip(rows, seeds, strict=True):
+            self.seeders[i] = np.random.default_rng(s)
+        if self.setup.seeded:
+            self.set_geometry(rows, [self.setup.geometry(int(s)) for s in seeds])
+
+    def reset(self, rows: list[int]) -> None:
+        """New episodes in ``rows``: the next draws of each one's generator (truth model,
+        current, sensor noise), the start state, the task's bookkeeping and the first
+        observations (in ``obs``)."""
+        sim_seeds = []
+        for i in rows:
+            rng = np.random.default_rng(self.seeders[i].integers(SEED_LIMIT))
+            sim_seeds.append(int(rng.integers(SEED_LIMIT)))
+            self.noise_rngs[i] = rng
+        self.engine.reset(rows, sim_seeds)
+        ids = self.ids_of(rows)
+        self.task.max_cycles = self.max_cycles
+        self.task.reset(ids)
+        self.engine.set_waypoints(ids, self.task.robot_waypoint[ids])
+        self.evaluate(ids, rows, None)
+        self.task.start(ids, self.engine.object_pose(ids))
+
+    # -- one step -------------------------------------------------------------------------
+    def check_actions(self, actions: Any, where: str = "") -> Any:
+        """B + (N, 8) float64 actions of the step's namespace; ValueError naming the
+        environment and agent otherwise (``where``: how the caller names the array)."""
+        xp, shape = self.xp, ((self.k,) if self.batched else ()) + (self.n, NU)
+        if actions.shape != shape:
+            hint = ""
+            if self.batched and actions.ndim == 3 and actions.shape[0] != self.k:
+                hint = f" (num_envs is {self.k})"
+            raise ValueError(
+                f"{where or 'actions'} must have shape {shape}, got {actions.shape}{hint}"
+            )
+        if actions.dtype.kind not in ACTION_KINDS:
+            raise ValueError(
+                f"{where or 'actions'} must be float or int (not bool, complex, str or object), "
+                f"got {actions.dtype}"
+            )
+        a = actions.astype(np.float64, copy=False)
+        if not bool(xp.isfinite(a.sum())):
+            bad = self.host(xp.argwhere(~xp.isfinite(a))[0]).tolist()
+            agent = f"uvms_{bad[-2]}"
+            env = f"environment {bad[0]}, " if self.batched else ""
+            raise ValueError(f"action of {env}agent {agent!r} contains NaN or inf")
+        return a
+
+    def step(self, a: Any) -> tuple[Any, Any]:
+        """One period of every environment on checked actions ``a`` B + (N, 8): returns
+        the task's ``StepOutcome`` and the refused steps (B bool)."""
+        task, engine = self.task, self.engine
+        command = self.priors.command(self.obs, a, self.ring, self.steady)
+        if self.command_filter is not None:
+            command = self.command_filter(self.obs, command, task.steps == 0)
+        diverged = engine.step(command * engine.tau_max)
+        task.max_cycles = self.max_cycles  # an attribute a user may change
+        sampled = task.tick(diverged)
+        rows = list(range(self.k)) if engine.noisy else []
+        team = self.evaluate(self.all, rows, a)
+        x_o = engine.object_pose(self.all)
+        wrench_sq = None
+        if sampled is not None and task._any(sampled):
+            wrench_sq = engine.wrench_sq(sampled)
+        state = self.task_arrays(x_o, a) if task.extended else None
+        out = task.step(x_o, team, self.g, self.cost, diverged, sampled, wrench_sq, state)
+        return out, diverged
+
+    def evaluate(self, ids: Any, rows: list[int], action: Any) -> Any:
+        """Measure, run the kinematics kernel, note the state metrics, sequence each
+        robot's waypoints, add the navigation twists: the raw observations of ``ids`` land
+        in ``obs`` (their a_ss in ``steady``); returns the kernel's team rows."""
+        task, engine = self.task, self.engine
+        if engine.noisy:
+            self._measure(ids, rows)
+        obs, pose, team, g, cost = engine.evaluate(ids, action, task.time_fraction(ids))
+        self.g, self.cost = g, cost
+        task.observe(ids, team)
+        if task.advance_robots(ids, pose, team):  # each robot on its own estimate
+            engine.set_waypoints(ids, task.robot_waypoint[ids])
+        obs[..., _WAYPOINT] = task.robot_waypoint[ids]
+        obs[..., _NAV] = engine.nav_twist(ids, task.robot_index[ids], pose)
+        self.obs[ids] = obs
+        if self.steady is not None:  # from the float32 observations the robots see
+            self.steady[ids] = engine.steady(self.obs[ids], self.ring)
+        return team
+
+    def _measure(self, ids: Any, rows: list[int]) -> None:
+        """Sensor noise from each environment's own generator."""
+        draws = [self.noise_rngs[i].standard_normal((2, self.n, NQ)) for i in rows]
+        noise = self.xp.asarray(np.stack(draws) if self.batched else draws[0])
+        q, zeta = noise[..., 0, :, :], noise[..., 1, :, :]
+        self.engine.measure(ids, q * self._noise_q, zeta * self._noise_zeta)
+
+    def task_arrays(self, x_o: Any, action: Any) -> TaskArrays:
+        """What the extra reward terms and constraints see (K = 1 for one environment)."""
+        q, zeta = self.engine.robots()
+        t = self.task
+        if self.batched:
+            return TaskArrays(x_o, q, zeta, action, t.team_waypoint, t.goal, t.steps)
+        return TaskArrays(
+            x_o[None], q[None], zeta[None], action[None], t.team_waypoint[None],
+            t.goal[None], t.steps.reshape(1),
+        )  # fmt: skip
+
+    # -- views ------------------------------------------------------------------------------
+    def view(self, ids: Any) -> Any:
+        """A copy of the observations of ``ids`` in the observation mode."""
+        raw = self.obs[ids]
+        if self.priors.observation_mode == "raw":
+            return raw.copy()
+        return self.engine.features(raw, self.steady[ids], self.priors, self.ring)
+
+    def state(self) -> Any:
+        """B + (20 N + 19,) float32: the true state, the team's waypoint, the time fraction."""
+        xp, task = self.xp, self.task
+        parts = [self.engine.flat_state(), task.team_waypoint, task.time_fraction()[..., None]]
+        return xp.concatenate(parts, axis=-1).astype(np.float32)
+
+    def constraint_values(self) -> Any:
+        """B + (N, C): the constraint values of the current true state with zero actions
+        (no measurement, no sequencing, the episode does not advance)."""
+        engine, task = self.engine, self.task
+        g = engine.evaluate(self.all, None, task.time_fraction(), measured=False)[3]
+        if task.constraint_fns:
+            zero = self.xp.zeros((*g.shape[:-1], NU))
+            extra = task.extra_constraint_values(
+                self.task_arrays(engine.object_pose(self.all), zero)
+            )
+            g = self.xp.concatenate([g, extra], axis=-1)
+        return g
+
+    # -- ended episodes ---------------------------------------------------------------------
+    def ended(self, rows: list[int], out: Any, diverged: Any) -> tuple[list, list, list]:
+        """How the episodes of ``rows`` ended, their metrics and why their step was refused
+        (lists over ``rows``)."""
+        ids = self.ids_of(rows)
+        task = self.task
+        kinds = task.end_kinds(ids, out, diverged)
+        metrics = task.results(ids, self.engine.object_pose(ids), out.success[ids])
+        refused = self.host(diverged[ids]).reshape(-1)
+        reasons = self.engine.diverged_reasons(rows) if refused.any() else [""] * len(rows)
+        return kinds, metrics, [r if f else "" for r, f in zip(reasons, refused, strict=True)]
