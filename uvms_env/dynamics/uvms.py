@@ -112,45 +112,10 @@ class UVMSModel:
         )
         h_rb = self.kindyn.coriolis_term(base, qm, zeta[:6], zeta[6:])
 
-        # Vehicle hydrodynamics and mass mismatch (an extra rigid mass at r_g = origin,
-        # which Kirchhoff's form describes exactly).
-        nu = zeta[:6]
-        vc_body = rot.T @ v_c
-        nu_r = nu - cs.vertcat(vc_body, cs.DM.zeros(3))
-        m_a = cs.diag(p[PARAMETER_LAYOUT["vehicle_added_mass"]])
-        dm = p[PARAMETER_LAYOUT["vehicle_extra_mass"]]
-        inertia = cs.DM(prm.vehicle.inertia) / prm.vehicle.mass
-        m_extra = cs.diag(cs.vertcat(dm, dm, dm, dm * inertia))
-        m_veh = m_a + m_extra
-        h_veh = (
-            m_a @ (-current_twist_rate(nu[3:], vc_body))
-            + kirchhoff_coriolis(m_a, nu_r)
-            + kirchhoff_coriolis(m_extra, nu)
-            + diagonal_damping(
-                nu_r,
-                p[PARAMETER_LAYOUT["vehicle_damping_linear"]],
-                p[PARAMETER_LAYOUT["vehicle_damping_quadratic"]],
-            )
-        )
+        m_veh, h_veh = self._vehicle_hydro(zeta[:6], rot, v_c, p)
         mass = m_rb + cs.diagcat(m_veh, cs.DM.zeros(4, 4))
         bias = h_rb + cs.vertcat(h_veh, p[PARAMETER_LAYOUT["joint_damping"]] * zeta[6:])
-
-        # Arm links: strip theory in each link frame.
-        am_scale = p[PARAMETER_LAYOUT["arm_added_mass_scale"]]
-        drag_scale = p[PARAMETER_LAYOUT["arm_drag_scale"]]
-        for link in self.links:
-            v_l, r_l = self._body_twist(link.name, base, qm, q, zeta, qdot)
-            j_l = cs.jacobian(v_l, zeta)
-            jdot_l = cs.jtimes(v_l, q, qdot)
-            v_r = v_l - cs.vertcat(r_l.T @ v_c, cs.DM.zeros(3))
-            m_al = am_scale * cs.DM(link.added_mass)
-            wrench = (
-                m_al @ (jdot_l - current_twist_rate(v_l[3:], r_l.T @ v_c))
-                + kirchhoff_coriolis(m_al, v_r)
-                + strip_damping(v_r, link.strips, link.coef, drag_scale)
-            )
-            mass = mass + j_l.T @ m_al @ j_l
-            bias = bias + j_l.T @ wrench
+        mass, bias = self._add_arm_hydro(mass, bias, base, q, zeta, qdot, v_c, p)
 
         pot = self._potential(base, qm, p)
         bias = bias + self.qdot_map(q).T @ cs.gradient(pot, q)
@@ -178,6 +143,61 @@ class UVMSModel:
         self.manipulability = cs.Function("manipulability", [q], [cs.det(jbar @ jbar.T)])
         self.body_points = cs.Function("body_points", [q], [cs.horzcat(*points)])
         self.qdot_matrix = cs.Function("qdot_matrix", [q], [self.qdot_map(q)])
+
+    def _vehicle_hydro(
+        self, nu: cs.SX, rot: cs.SX, v_c: cs.SX, p: cs.SX
+    ) -> tuple[cs.SX, cs.SX]:
+        """The vehicle's hydrodynamic mass and bias and its mass mismatch (an extra rigid
+        mass at r_g = origin, which Kirchhoff's form describes exactly)."""
+        prm = self.params
+        vc_body = rot.T @ v_c
+        nu_r = nu - cs.vertcat(vc_body, cs.DM.zeros(3))
+        m_a = cs.diag(p[PARAMETER_LAYOUT["vehicle_added_mass"]])
+        dm = p[PARAMETER_LAYOUT["vehicle_extra_mass"]]
+        inertia = cs.DM(prm.vehicle.inertia) / prm.vehicle.mass
+        m_extra = cs.diag(cs.vertcat(dm, dm, dm, dm * inertia))
+        h_veh = (
+            m_a @ (-current_twist_rate(nu[3:], vc_body))
+            + kirchhoff_coriolis(m_a, nu_r)
+            + kirchhoff_coriolis(m_extra, nu)
+            + diagonal_damping(
+                nu_r,
+                p[PARAMETER_LAYOUT["vehicle_damping_linear"]],
+                p[PARAMETER_LAYOUT["vehicle_damping_quadratic"]],
+            )
+        )
+        return m_a + m_extra, h_veh
+
+    def _add_arm_hydro(
+        self,
+        mass: cs.SX,
+        bias: cs.SX,
+        base: cs.SX,
+        q: cs.SX,
+        zeta: cs.SX,
+        qdot: cs.SX,
+        v_c: cs.SX,
+        p: cs.SX,
+    ) -> tuple[cs.SX, cs.SX]:
+        """``mass`` and ``bias`` plus the arm links' hydrodynamics: strip theory in each
+        link frame."""
+        qm = q[6:]
+        am_scale = p[PARAMETER_LAYOUT["arm_added_mass_scale"]]
+        drag_scale = p[PARAMETER_LAYOUT["arm_drag_scale"]]
+        for link in self.links:
+            v_l, r_l = self._body_twist(link.name, base, qm, q, zeta, qdot)
+            j_l = cs.jacobian(v_l, zeta)
+            jdot_l = cs.jtimes(v_l, q, qdot)
+            v_r = v_l - cs.vertcat(r_l.T @ v_c, cs.DM.zeros(3))
+            m_al = am_scale * cs.DM(link.added_mass)
+            wrench = (
+                m_al @ (jdot_l - current_twist_rate(v_l[3:], r_l.T @ v_c))
+                + kirchhoff_coriolis(m_al, v_r)
+                + strip_damping(v_r, link.strips, link.coef, drag_scale)
+            )
+            mass = mass + j_l.T @ m_al @ j_l
+            bias = bias + j_l.T @ wrench
+        return mass, bias
 
     def frame_pose(self, frame: str) -> cs.Function:
         """Inertial pose (p, R) of a URDF frame ("vehicle", "arm_base", "link_i", "ee")."""

@@ -133,6 +133,43 @@ def _clearance_geometry(cyl: cs.SX, sph: cs.SX) -> tuple[cs.SX, cs.SX]:
     )
 
 
+def _obstacle_features(pose: cs.SX, cyl: cs.SX, sph: cs.SX) -> tuple[list, list, list]:
+    """Per obstacle slot: its observed features (dx dy dz radius is_cylinder from the own
+    object estimate ``pose``), its surface distance and its validity flag."""
+    feats, dists, valid = [], [], []
+    for k in range(cyl.shape[1]):
+        c = cyl[:, k]
+        dx, dy = c[0] - pose[0], c[1] - pose[1]
+        feats.append(cs.vertcat(dx, dy, 0.0, c[2], 1.0))
+        dists.append(cs.sqrt(dx * dx + dy * dy + 1e-18) - c[2])
+        valid.append(c[3])
+    for k in range(sph.shape[1]):
+        sp = sph[:, k]
+        d = sp[:3] - pose[:3]
+        feats.append(cs.vertcat(d, sp[3], 0.0))
+        dists.append(cs.sqrt(cs.dot(d, d) + 1e-18) - sp[3])
+        valid.append(sp[4])
+    return feats, dists, valid
+
+
+def _body_clearance(
+    uvms: UVMSModel, q: cs.SX, cyl: cs.SX, sph: cs.SX, ws: cs.SX
+) -> tuple[cs.SX, cs.SX]:
+    """The robot's physical bodies at ``q`` (vehicle ball, arm capsules): their smallest
+    clearance to the obstacles and their largest excess beyond the workspace."""
+    prm = uvms.params
+    pts = uvms.body_points(q)
+    r_veh, r_tube = prm.vehicle.bounding_radius, prm.arm.tube_radius
+    cyl_g, sph_g = _clearance_geometry(cyl, sph)
+    own = capsule_clearance(pts[:, 0], pts[:, 0], r_veh, cyl_g, sph_g)
+    for k in range(1, pts.shape[1] - 1):
+        own = cs.fmin(own, capsule_clearance(pts[:, k], pts[:, k + 1], r_tube, cyl_g, sph_g))
+    excess = ball_excess(
+        [(pts[:, 0], r_veh)] + [(pts[:, k], r_tube) for k in range(1, pts.shape[1])], ws
+    )
+    return own, excess
+
+
 def robot_function(
     uvms: UVMSModel,
     n_cyl: int,
@@ -162,21 +199,7 @@ def robot_function(
     pose = cs.vertcat(p_ee - arm, _euler_zyx(r_o))
     v_ee = uvms.ee_jacobian(q_est) @ z_est
     twist = cs.vertcat(v_ee[:3] + cs.cross(arm, v_ee[3:]), v_ee[3:])
-    feats, dists, valid = [], [], []
-    for k in range(n_cyl):
-        c = cyl[:, k]
-        dx, dy = c[0] - pose[0], c[1] - pose[1]
-        feats.append(cs.vertcat(dx, dy, 0.0, c[2], 1.0))
-        dists.append(cs.sqrt(dx * dx + dy * dy + 1e-18) - c[2])
-        valid.append(c[3])
-    for k in range(n_sph):
-        sp = sph[:, k]
-        d = sp[:3] - pose[:3]
-        feats.append(cs.vertcat(d, sp[3], 0.0))
-        dists.append(cs.sqrt(cs.dot(d, d) + 1e-18) - sp[3])
-        valid.append(sp[4])
-    sizes = dict(layout)
-    observed = sizes["obstacles"] // len(far)
+    observed = dict(layout)["obstacles"] // len(far)
     e_wp = pose[:3] - wp[:3]
     blocks = {
         "q": q_est,
@@ -185,7 +208,7 @@ def robot_function(
         "object_twist": twist,
         "waypoint": wp,
         "goal": goal,
-        "obstacles": _nearest(feats, dists, valid, observed, cs.DM(list(far))),
+        "obstacles": _nearest(*_obstacle_features(pose, cyl, sph), observed, cs.DM(list(far))),
         "load_share": static[0],
         "grasp_offset": static[1:4],
         "grasp_rotation": static[4:13],
@@ -201,15 +224,7 @@ def robot_function(
 
     # The true state: physical bodies, grasp error, constraints.
     manip = uvms.manipulability(q)
-    pts = uvms.body_points(q)
-    r_veh, r_tube = prm.vehicle.bounding_radius, prm.arm.tube_radius
-    cyl_g, sph_g = _clearance_geometry(cyl, sph)
-    own = capsule_clearance(pts[:, 0], pts[:, 0], r_veh, cyl_g, sph_g)
-    for k in range(1, pts.shape[1] - 1):
-        own = cs.fmin(own, capsule_clearance(pts[:, k], pts[:, k + 1], r_tube, cyl_g, sph_g))
-    excess = ball_excess(
-        [(pts[:, 0], r_veh)] + [(pts[:, k], r_tube) for k in range(1, pts.shape[1])], ws
-    )
+    own, excess = _body_clearance(uvms, q, cyl, sph, ws)
     p_ee_t, _ = uvms.ee_pose(q)
     e = p_ee_t - (x_o[:3] + rot_zyx(x_o[3:]) @ offset)
     g = robot_constraints(

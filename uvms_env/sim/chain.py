@@ -31,6 +31,7 @@ the same generated C can also run one environment per SIMD lane or GPU thread.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import casadi as cs
@@ -197,6 +198,30 @@ def manifold_projection(
     return cs.Function(f"grasp_projection_n{n}", [x, pp, po, grasp], [out], {"cse": True})
 
 
+def _rk4(rhs: Callable[[cs.MX], cs.MX], x: cs.MX, h: cs.MX, substeps: int) -> cs.MX:
+    """``substeps`` classical Runge-Kutta steps of ``x' = rhs(x)`` over ``h``."""
+    dt = h / substeps
+    xk = x
+    for _ in range(substeps):
+        k1 = rhs(xk)
+        k2 = rhs(xk + dt / 2 * k1)
+        k3 = rhs(xk + dt / 2 * k2)
+        k4 = rhs(xk + dt * k3)
+        xk = xk + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return xk
+
+
+def _squeeze(lam: cs.MX, x_o: cs.MX, grasp: cs.MX, n: int, solve6: cs.Function) -> cs.MX:
+    """The internal wrench: the grasp wrenches ``lam`` (6, n) minus their projection on
+    the range of A^T, A = G^T = [J_O1^T .. J_ON^T] (full row rank: every J_Oi is
+    invertible), so pinv(A) = A^T (A A^T)^-1 and A A^T = sum_i J_Oi^T J_Oi: one 6x6 solve
+    instead of a pseudo-inverse."""
+    r_o = rot_zyx(x_o[3:])
+    j_o = [grasp_jacobian(r_o, grasp[:3, i]) for i in range(n)]
+    y = solve6(sum(j.T @ j for j in j_o), sum(j.T @ lam[:, i] for i, j in enumerate(j_o)))
+    return cs.horzcat(*[lam[:, i] - j @ y for i, j in enumerate(j_o)])
+
+
 def build_chain(
     n: int,
     uvms: UVMSModel,
@@ -249,14 +274,7 @@ def build_chain(
 
     rhs = cs.Function("chain_rhs", args, [rhs_expr(x)])
     h = cs.MX.sym("h")
-    dt = h / substeps
-    xk = x
-    for _ in range(substeps):
-        k1 = rhs_expr(xk)
-        k2 = rhs_expr(xk + dt / 2 * k1)
-        k3 = rhs_expr(xk + dt / 2 * k2)
-        k4 = rhs_expr(xk + dt * k3)
-        xk = xk + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    xk = _rk4(rhs_expr, x, h, substeps)
     residual = grasp_residual(uvms).map(n, "serial")
 
     def residuals(xx: cs.MX) -> tuple[cs.MX, cs.MX]:
@@ -276,14 +294,8 @@ def build_chain(
         *[blk @ v_o_dot for blk in cs.horzsplit(outs[6], list(range(0, 6 * n + 1, 6)))]
     )
     wrenches = cs.Function("chain_wrenches", args, [lam])
-    # The squeeze: lam minus its projection on the range of A^T, A = G^T = [J_O1^T ..
-    # J_ON^T] (full row rank: every J_Oi is invertible), so pinv(A) = A^T (A A^T)^-1 and
-    # A A^T = sum_i J_Oi^T J_Oi: one 6x6 solve instead of a pseudo-inverse.
     _, _, x_o, _ = unpack(x)
-    r_o = rot_zyx(x_o[3:])
-    j_o = [grasp_jacobian(r_o, grasp[:3, i]) for i in range(n)]
-    y = solve6(sum(j.T @ j for j in j_o), sum(j.T @ lam[:, i] for i, j in enumerate(j_o)))
-    internal = cs.horzcat(*[lam[:, i] - j @ y for i, j in enumerate(j_o)])
+    internal = _squeeze(lam, x_o, grasp, n, solve6)
     internal_wrench = cs.Function(f"chain_internal_wrench_n{n}", args, [internal])
     q, zeta, x_o, v_o = unpack(x)
     err, err_dot = residual(q, zeta, grasp, cs.repmat(x_o, 1, n), cs.repmat(v_o, 1, n))
