@@ -49,62 +49,32 @@ _NAV = OBSERVATION_STRUCTURE["nav_velocity"]
 
 
 class Engine:
-    """The physics and per-step kernels of one batch (B = () or (K,)), float64 results:
-    the calls ``EnvCore`` makes (``uvms_env.env.engine.ScalarEngine``,
-    ``uvms_env.vector.engine.BatchedEngine``). The priors' a_ss and features run on the
-    host here; an engine with device kernels for them overrides ``steady``/``features``."""
+    """The physics and per-step kernels of one batch, B = () or (K,), float64 results
+    (``uvms_env.env.engine.ScalarEngine``, ``uvms_env.vector.engine.BatchedEngine``).
+    What ``EnvCore`` calls:
+
+    | call | does |
+    |---|---|
+    | `set_geometry(rows, scenarios)` | kernel inputs (and simulators) of new geometries |
+    | `reset(rows, sim_seeds)` | start state, truth-model and current draws of `rows` |
+    | `step(tau)` | one period of inputs B + (N, 8); returns the refused steps, B bool |
+    | `diverged_reasons(rows)` | why the last step of `rows` was refused |
+    | `measure(ids, q_noise, zeta_noise)` | the sensors read the true state plus noise |
+    | `evaluate(ids, action, time_fraction, measured)` | the kinematics kernel (below) |
+    | `set_waypoints(ids, waypoints)` | each robot's active waypoint B' + (N, 6) |
+    | `nav_twist(ids, index, pose)` | B' + (N, 6) navigation twists towards waypoints `index` |
+    | `wrench_sq(sampled)` | B: the internal wrench's squared norm where sampled |
+    | `object_pose(ids)`, `robots()`, `flat_state()` | the true state |
+
+    ``evaluate`` runs the kernel on the requested actions B' + (N, 8) (None: zeros) and
+    the sensors' readings (``measured=False``: the true state); it returns observations
+    B' + (N, 79), own object estimates B' + (N, 6), team rows (T,) + B', constraint values
+    B' + (N, 8) and costs B' + (N,). The priors' a_ss and features run on the host here;
+    an engine with device kernels for them overrides ``steady`` and ``features``."""
 
     xp: Any  # the array namespace of the step: numpy, or CuPy on a GPU
     tau_max: Any  # (8,) saturations, on the step's device
     noisy: bool  # the scenario has sensor noise
-
-    def set_geometry(self, rows: list[int], scenarios: list[Scenario]) -> None:
-        raise NotImplementedError
-
-    def reset(self, rows: list[int], sim_seeds: list[int]) -> None:
-        """The start state and the truth-model draws of ``rows`` from these seeds."""
-        raise NotImplementedError
-
-    def step(self, tau: Any) -> Any:
-        """One period of inputs B + (N, 8); returns the refused steps, B bool."""
-        raise NotImplementedError
-
-    def diverged_reasons(self, rows: list[int]) -> list[str]:
-        raise NotImplementedError
-
-    def measure(self, ids: Any, q_noise: Any, zeta_noise: Any) -> None:
-        """The sensors of ``ids`` read the true state plus these B' + (N, 10) noises."""
-        raise NotImplementedError
-
-    def evaluate(self, ids: Any, action: Any, time_fraction: Any, measured: bool = True) -> tuple:
-        """The kinematics kernel of ``ids`` on the requested actions B' + (N, 8) (None:
-        zeros): observations B' + (N, 79), own object estimates B' + (N, 6), team rows
-        (T,) + B', constraint values B' + (N, 8), costs B' + (N,). ``measured``: on the
-        sensors' readings (else on the true state)."""
-        raise NotImplementedError
-
-    def set_waypoints(self, ids: Any, waypoints: Any) -> None:
-        """Each robot's active waypoint B' + (N, 6), an input of the kernel."""
-        raise NotImplementedError
-
-    def nav_twist(self, ids: Any, index: Any, pose: Any) -> Any:
-        """B' + (N, 6): each robot's navigation twist towards waypoint ``index`` at ``pose``."""
-        raise NotImplementedError
-
-    def wrench_sq(self, sampled: Any) -> Any:
-        """B: the internal wrench's squared norm after the step where ``sampled``."""
-        raise NotImplementedError
-
-    def object_pose(self, ids: Any) -> Any:
-        raise NotImplementedError
-
-    def robots(self) -> tuple[Any, Any]:
-        """q, zeta B + (N, 10) float64, the true state."""
-        raise NotImplementedError
-
-    def flat_state(self) -> Any:
-        """B + (20 N + 12,) float64: q, zeta, object pose and twist."""
-        raise NotImplementedError
 
     def steady(self, raw: Any, ring: float) -> Any:
         """a_ss of raw observations (..., 79) -> (..., 8) float64."""
