@@ -8,8 +8,10 @@ how much tighter the expert keeps them, as fractions of (or margins beyond) thos
 ``vehicle_speed``, ``joint_speed``, ``joint_position``, ``pitch_margin`` and
 ``manipulability_eps`` are derived properties.
 
-May import: numpy, the standard library, ``uvms_env.models`` and
-``uvms_env.env.constraints``.
+The default period is the scenarios' control period (``uvms_env.scenarios.Scenario``).
+
+May import: numpy, the standard library, ``uvms_env.models``, ``uvms_env.scenarios``
+(the default control period) and ``uvms_env.env.constraints``.
 """
 
 from __future__ import annotations
@@ -21,6 +23,10 @@ import numpy as np
 # The module, not its constants: read at use, so the definition there is the only one.
 from uvms_env.env import constraints as task_constraints
 from uvms_env.models import load_parameters
+from uvms_env.scenarios import Scenario
+
+# The control period is the scenario's (one definition: ``Scenario.period``'s default).
+_SCENARIO_PERIOD: float = {f.name: f.default for f in fields(Scenario)}["period"]
 
 
 @dataclass(frozen=True)
@@ -29,8 +35,9 @@ class NMPCSettings:
 
     horizon: int = 5
     """Np, number of shooting intervals (paper: 5)."""
-    period: float = 0.12
-    """h [s], sampling time and shooting interval (paper: 0.12 s)."""
+    period: float = _SCENARIO_PERIOD
+    """h [s], sampling time and shooting interval: the scenarios' control period (the
+    paper's); it must equal the scenario's (``LocalController`` checks)."""
     substeps: int = 2
     """RK4 substeps per interval: with the joints' armature and friction the fastest mode
     has a time constant of ~0.05 s; one RK4 step of 0.12 s sits at the edge of RK4's

@@ -215,6 +215,8 @@ def test_expert_limits_are_the_environments_by_default_and_tighten_relative_to_t
     ):
         with pytest.raises(ValueError):
             NMPCSettings(**loose)  # type: ignore[arg-type]
+    # the control period is the scenario's, not a second 0.12
+    assert NMPCSettings().period == make("paper").period
     # the limits themselves are not settings: no number to retype
     for name in ("vehicle_speed", "joint_speed", "joint_position", "pitch_margin"):
         assert name not in NMPCSettings.field_names()
