@@ -20,7 +20,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-# The module, not its constants: read at use, so the definition there is the only one.
+# ``task_constraints`` as a module, its constants read at use: the definition there stays
+# the only one (redefining it moves the expert's bounds too).
 from uvms_env.env import constraints as task_constraints
 from uvms_env.models import load_parameters
 from uvms_env.scenarios import Scenario
