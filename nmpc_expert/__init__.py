@@ -21,12 +21,11 @@ May import: numpy, scipy, casadi, matplotlib, tqdm and ``uvms_env``. Never ``bas
 
 from nmpc_expert.policy import NMPCPolicy, make_policy
 from nmpc_expert.safety_filter import SafetyFilter, make_filter
-from nmpc_expert.settings import (
-    CONTROLLERS,
-    MANIPULABILITY_EPS,
-    NMPCSettings,
-    controller_settings,
-)
+from nmpc_expert.settings import CONTROLLERS, NMPCSettings, controller_settings
+
+# Re-exported for compatibility: the environment's definition (the expert's bound is
+# ``NMPCSettings.manipulability_eps``, derived from it).
+from uvms_env.env.constraints import MANIPULABILITY_EPS
 
 __all__ = [
     "CONTROLLERS",

@@ -9,16 +9,20 @@
   steps with hard saturation bounds and the soft constraints of x_1..x_N as rows.
 
 The Jacobian of f used for the sensitivities drops the terms that are small at the speeds
-of this task (|v| <= 0.5 m/s, |w| <= 0.1 rad/s): the configuration dependence of the mass
-matrix times the acceleration and of the velocity-dependent forces. It keeps the
-kinematics, the restoring forces (roll and pitch are passive), the full velocity
-dependence (damping, Coriolis, the object's share) and the input matrix. The defects
-(F(x_k, a_k) - x_{k+1}) are exact, so the RTI converges to a dynamically consistent plan;
-the exact AD Jacobian would cost ~11x more per call and ~200 s of compilation.
+of this task (within the vehicle speed limits of ``parameters.toml``, ``[limits]``): the
+configuration dependence of the mass matrix times the acceleration and of the
+velocity-dependent forces. It keeps the kinematics, the restoring forces (roll and pitch
+are passive), the full velocity dependence (damping, Coriolis, the object's share) and
+the input matrix. The defects (F(x_k, a_k) - x_{k+1}) are exact, so the RTI converges to
+a dynamically consistent plan; the exact AD Jacobian would cost ~11x more per call and
+~200 s of compilation.
 
 Soft constraints (NC = 17 per node, normalized by their limits so one penalty fits all):
 body twist of the vehicle (6), joint rates (4), joint angles (4), object pitch (1),
 vehicle pitch (1), manipulability (1). They apply to x_1..x_N, never to the measured x_0.
+Their limits are not numbers here: they enter through the weight vector (``lower``,
+``upper``, ``scale``), built from ``NMPCSettings``, whose limits are the environment's
+(the model's ``[limits]`` and ``uvms_env.env.constraints``), tightened relative to them.
 The vehicle pitch is the environment's other representation constraint; it is passive
 (the arm's reaction tilts the vehicle) and never nears its bound under the expert, but a
 cloned policy inside the safety filter tilted a vehicle past it (``safety_filter``).

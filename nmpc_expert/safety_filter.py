@@ -71,12 +71,13 @@ from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 
 # The filter's horizon: 3 periods (0.36 s) instead of the expert's 5. Its constraints are
 # on speeds (relative degree one in the inputs; the joints' fastest mode is ~0.05 s) and
-# on angles behind a 15% back-off, so a short look-ahead suffices; each period costs
-# ~0.15 ms of linearization. On 6 tuning episodes (random N = 2, seed 7, both DAgger
-# clones) horizons 3 and 5 gave the same successes, violations and interventions, at
-# 0.89-0.99 vs 1.16-1.40 ms per decision.
+# on angles behind the back-off (``NMPCSettings.backoff``), so a short look-ahead
+# suffices; each period costs ~0.15 ms of linearization. On 6 tuning episodes (random
+# N = 2, seed 7, both DAgger clones) horizons 3 and 5 gave the same successes,
+# violations and interventions, at 0.89-0.99 vs 1.16-1.40 ms per decision.
 FILTER_HORIZON = 3
-# |rate offset| clip of the filter's estimator, in speed limits (the expert's: 1.0).
+# |rate offset| clip of the filter's estimator, in speed limits (the expert's:
+# ``NMPCSettings.offset_limit``).
 # Filtered PPO (random N = 2, seed 7, episode 0): the other robot pulled one joint 0.15-0.16
 # rad/s against the prediction for tens of periods; the estimate was right to 0.005 rad/s,
 # but clipped at one limit (0.1 rad/s) it could not shift the bound far enough, and the

@@ -1,6 +1,17 @@
 """Settings of the NMPC expert: one typed, frozen, validated dataclass.
 
-May import: numpy and the standard library only.
+The constraint limits are not settings: they are the environment's (one source per limit),
+read when used: the physical ones from the model's parameters (``uvms_env.models``,
+``parameters.toml`` ``[limits]``), the manipulability bound and the pitch margin from the
+task's constraint definitions (``uvms_env.env.constraints``). ``NMPCSettings`` only holds
+how much tighter the expert keeps them, as fractions of (or margins beyond) those limits:
+``vehicle_speed``, ``joint_speed``, ``joint_position``, ``pitch_margin`` and
+``manipulability_eps`` are derived properties.
+
+The default period is the scenarios' control period (``uvms_env.scenarios.Scenario``).
+
+May import: numpy, the standard library, ``uvms_env.models``, ``uvms_env.scenarios``
+(the default control period) and ``uvms_env.env.constraints``.
 """
 
 from __future__ import annotations
@@ -9,11 +20,14 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-# Manipulability bound det(Jbar Jbar^T) >= MANIPULABILITY_EPS (actuated 6x8 Jacobian). The
-# paper gives no number; at the paper scenario's start the value is ~4.2 and it falls
-# towards 0 only near arm singularities, so 0.5 keeps a wide margin while never binding in
-# normal transport.
-MANIPULABILITY_EPS = 0.5
+# ``task_constraints`` as a module, its constants read at use: the definition there stays
+# the only one (redefining it moves the expert's bounds too).
+from uvms_env.env import constraints as task_constraints
+from uvms_env.models import load_parameters
+from uvms_env.scenarios import Scenario
+
+# The control period is the scenario's (one definition: ``Scenario.period``'s default).
+_SCENARIO_PERIOD: float = {f.name: f.default for f in fields(Scenario)}["period"]
 
 
 @dataclass(frozen=True)
@@ -22,8 +36,9 @@ class NMPCSettings:
 
     horizon: int = 5
     """Np, number of shooting intervals (paper: 5)."""
-    period: float = 0.12
-    """h [s], sampling time and shooting interval (paper: 0.12 s)."""
+    period: float = _SCENARIO_PERIOD
+    """h [s], sampling time and shooting interval: the scenarios' control period (the
+    paper's); it must equal the scenario's (``LocalController`` checks)."""
     substeps: int = 2
     """RK4 substeps per interval: with the joints' armature and friction the fastest mode
     has a time constant of ~0.05 s; one RK4 step of 0.12 s sits at the edge of RK4's
@@ -147,22 +162,55 @@ class NMPCSettings:
     """Exact-penalty weight (per unit of normalized violation) of the soft state constraints."""
     slack_l2: float = 10.0
     """Quadratic penalty on the same slacks (keeps the QP strictly convex)."""
-    vehicle_speed: tuple[float, float] = (0.5, 0.1)
-    """Limits per body axis: translational [m/s], rotational [rad/s] (paper)."""
-    joint_speed: float = 0.1
-    """|qd_m| [rad/s] (paper)."""
-    joint_position: float = 2.0
-    """|q_m| [rad] (paper)."""
-    pitch_margin: float = 0.2
-    """|theta_O|, |theta_i| <= pi/2 - pitch_margin [rad] (object and vehicle pitch, the
-    representation singularity)."""
-    manipulability_eps: float = MANIPULABILITY_EPS
-    """Lower bound of det(Jbar Jbar^T)."""
+    vehicle_speed_fraction: tuple[float, float] = (1.0, 1.0)
+    """The expert's vehicle speed limits per body axis (``vehicle_speed``) as fractions of
+    the model's (translational, rotational), each in (0, 1]; 1: the environment's limits."""
+    joint_speed_fraction: float = 1.0
+    """The expert's |qd_m| limit (``joint_speed``) as a fraction of the model's, in (0, 1]."""
+    joint_position_fraction: float = 1.0
+    """The expert's |q_m| limit (``joint_position``) as a fraction of the model's, in (0, 1]."""
+    pitch_margin_extra: float = 0.0
+    """[rad] the expert's pitch margin (``pitch_margin``) beyond the environment's
+    representation margin, >= 0."""
+    manipulability_factor: float = 1.0
+    """The expert's manipulability bound (``manipulability_eps``) as a multiple of the
+    environment's, >= 1."""
     backoff: float = 0.85
     """The NMPC uses backoff * limit for speeds and joint positions, so that model error
     and the soft-constraint slack do not reach the true limit."""
     fallback_after_ms: float = 50.0
     """A decision slower than this counts as 'slow' in the stats (never blocks)."""
+
+    @property
+    def vehicle_speed(self) -> tuple[float, float]:
+        """Limits per body axis: translational [m/s], rotational [rad/s] (the model's
+        ``vehicle_linear_speed``, ``vehicle_angular_speed`` times ``vehicle_speed_fraction``)."""
+        lim = load_parameters().limits
+        f_lin, f_ang = self.vehicle_speed_fraction
+        return (f_lin * lim.vehicle_linear_speed, f_ang * lim.vehicle_angular_speed)
+
+    @property
+    def joint_speed(self) -> float:
+        """|qd_m| limit [rad/s]: the model's ``joint_speed`` times ``joint_speed_fraction``."""
+        return self.joint_speed_fraction * load_parameters().limits.joint_speed
+
+    @property
+    def joint_position(self) -> float:
+        """|q_m| limit [rad]: the model's ``joint_position`` times ``joint_position_fraction``."""
+        return self.joint_position_fraction * load_parameters().limits.joint_position
+
+    @property
+    def pitch_margin(self) -> float:
+        """|theta_O|, |theta_i| <= pi/2 - pitch_margin [rad] (object and vehicle pitch, the
+        representation singularity): the environment's ``REPRESENTATION_MARGIN`` plus
+        ``pitch_margin_extra``."""
+        return task_constraints.REPRESENTATION_MARGIN + self.pitch_margin_extra
+
+    @property
+    def manipulability_eps(self) -> float:
+        """Lower bound of det(Jbar Jbar^T): the environment's ``MANIPULABILITY_EPS`` times
+        ``manipulability_factor``."""
+        return self.manipulability_factor * task_constraints.MANIPULABILITY_EPS
 
     def __post_init__(self) -> None:
         if self.horizon < 1 or self.substeps < 1:
@@ -203,6 +251,24 @@ class NMPCSettings:
             raise ValueError(f"offset_limit must be >= 0, got {self.offset_limit}")
         if not 0 < self.backoff <= 1:
             raise ValueError(f"backoff must lie in (0, 1], got {self.backoff}")
+        # tighten only: a looser bound than the environment's would plan into violations
+        fractions = (
+            *self.vehicle_speed_fraction,
+            self.joint_speed_fraction,
+            self.joint_position_fraction,
+        )
+        if len(self.vehicle_speed_fraction) != 2 or not all(0 < f <= 1 for f in fractions):
+            raise ValueError(
+                "vehicle_speed_fraction (2), joint_speed_fraction and joint_position_fraction "
+                f"must lie in (0, 1], got {self.vehicle_speed_fraction}, "
+                f"{self.joint_speed_fraction}, {self.joint_position_fraction}"
+            )
+        if not self.pitch_margin_extra >= 0:
+            raise ValueError(f"pitch_margin_extra must be >= 0, got {self.pitch_margin_extra}")
+        if not self.manipulability_factor >= 1:
+            raise ValueError(
+                f"manipulability_factor must be >= 1, got {self.manipulability_factor}"
+            )
         if not 0 < self.pitch_margin < np.pi / 2:
             raise ValueError(f"pitch_margin must lie in (0, pi/2), got {self.pitch_margin}")
 

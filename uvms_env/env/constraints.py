@@ -7,9 +7,10 @@ state after the step (the physical system is what must stay safe, not an estimat
 kind              g (<= 0 means satisfied)
 ================  ========================================================================
 input             max_k |a_k| - 1: a requested normalized input beyond the saturation
-joint_limit       max_m |q_m| - 2 rad
-joint_speed       max_m |qdot_m| - 0.1 rad/s
-vehicle_speed     max(max |u, v, w| - 0.5 m/s, max |p, q, r| - 0.1 rad/s)
+joint_limit       max_m |q_m| - ``joint_position``
+joint_speed       max_m |qdot_m| - ``joint_speed``
+vehicle_speed     max(max |u, v, w| - ``vehicle_linear_speed``,
+                  max |p, q, r| - ``vehicle_angular_speed``)
 manipulability    eps - det(Jbar Jbar^T), eps = ``MANIPULABILITY_EPS``, Jbar the 8 actuated
                   columns of the end-effector Jacobian (about 4.2 at the paper's start)
 representation    max(|theta_O|, |theta_i|) - (pi/2 - ``REPRESENTATION_MARGIN``): object and
@@ -27,8 +28,11 @@ inside the vehicle sphere), the object is capsules of its tube radius along its 
 Vertical cylinders are infinite in z. The object is shared, so its collision and
 workspace terms enter every robot's value.
 
-Limits come from ``parameters.toml`` (``[limits]``). May import: numpy, casadi and
-``uvms_env.models``.
+One source per limit: the physical limits (the ``joint_position``, ... above) are the
+model's, ``parameters.toml`` (``[limits]``, read through ``params.limits``); the task's
+own two, ``MANIPULABILITY_EPS`` and ``REPRESENTATION_MARGIN``, are defined here and
+nowhere else. The expert's bounds (``nmpc_expert.settings``) are derived from both,
+never retyped. May import: numpy, casadi and ``uvms_env.models``.
 """
 
 from __future__ import annotations
@@ -52,9 +56,12 @@ CONSTRAINTS = (
 HARD_CONSTRAINTS = ("collision",)
 
 # The paper leaves eps open. det(Jbar Jbar^T) is ~4.2 at the paper scenario's start and
-# falls towards 0 as the arm stretches out or folds; 0.5 leaves the arm room to work.
+# falls towards 0 only as the arm stretches out or folds near a singularity; 0.5 leaves the
+# arm room to work and never binds in normal transport. Read at call time by
+# ``robot_constraints`` and by the expert's settings (``nmpc_expert.settings``).
 MANIPULABILITY_EPS = 0.5
-# Margin from the Euler singularity |theta| = pi/2 where T(Theta) blows up (rad).
+# Margin from the Euler singularity |theta| = pi/2 where T(Theta) blows up (rad); the
+# object's and the vehicles' pitch bound, for the environment and the expert alike.
 REPRESENTATION_MARGIN = 0.2
 # Clearances beyond this read as this (m): no obstacle nearby, or none at all.
 MAX_CLEARANCE = 100.0

@@ -1,4 +1,7 @@
-"""Typed, read-only view of ``parameters.toml``."""
+"""Typed, read-only view of ``parameters.toml``.
+
+May import: the standard library and numpy.
+"""
 
 from __future__ import annotations
 
@@ -67,6 +70,10 @@ class ObjectParameters:
 
 @dataclass(frozen=True)
 class Limits:
+    """The physical limits (``[limits]``): the one source of the input saturations, the
+    environment's joint, joint-rate and vehicle-speed constraints and the expert's bounds
+    on them (``uvms_env.env.constraints``, ``nmpc_expert.settings``)."""
+
     vehicle_force: float
     vehicle_moment: float
     joint_torque: float
@@ -113,9 +120,14 @@ def _fields(table: dict, cls: type) -> dict:
 
 
 @cache
-def load_parameters(path: Path = PARAMETER_FILE) -> Parameters:
-    """Load the parameter file (cached: the file is read once per process)."""
-    raw = tomllib.loads(Path(path).read_text())
+def load_parameters(path: Path | None = None) -> Parameters:
+    """Load the parameter file, ``PARAMETER_FILE`` by default (cached: the file is read
+    once per process).
+
+    Every limit of the testbed is read from here, by the environment and the expert alike;
+    ``PARAMETER_FILE`` is looked up at call time so that a test can point it at an edited
+    copy (then ``load_parameters.cache_clear()``) and see every user move together."""
+    raw = tomllib.loads(Path(PARAMETER_FILE if path is None else path).read_text())
     obj = raw["object"]
     return Parameters(
         water_density=float(raw["environment"]["water_density"]),
