@@ -36,13 +36,27 @@ from typing import Any
 
 import numpy as np
 
-from uvms_env.env.constraints import CONSTRAINTS
+from uvms_env.env.constraints import CONSTRAINTS, MANIPULABILITY_EPS
+from uvms_env.models import load_parameters
 
 COSTS = ("count", "magnitude")
-# The scale of each constraint's limit (order of CONSTRAINTS): one unit of normalized cost
-# is a violation by the whole limit.
-SCALES = np.array([1.0, 2.0, 0.1, 0.1, 0.5, 1.0, 1.0, 1.0])
-assert len(SCALES) == len(CONSTRAINTS)
+
+
+def constraint_scales() -> np.ndarray:
+    """The scale of each constraint's limit (order of CONSTRAINTS), read from the limits'
+    one source: one unit of normalized cost is a violation by the whole limit (vehicle
+    speed: by the angular limit, the tighter one in its units; the rest: 1)."""
+    lim = load_parameters().limits
+    scale = {
+        "joint_limit": lim.joint_position,
+        "joint_speed": lim.joint_speed,
+        "vehicle_speed": lim.vehicle_angular_speed,
+        "manipulability": MANIPULABILITY_EPS,
+    }
+    return np.array([scale.get(c, 1.0) for c in CONSTRAINTS])
+
+
+SCALES = constraint_scales()
 
 
 @dataclass

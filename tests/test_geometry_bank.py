@@ -8,8 +8,8 @@ import pytest
 
 from uvms_env.env.observation import make_navigator
 from uvms_env.navigation.parametric import twist_parameters
-from uvms_env.scenarios import make
 from uvms_env.scenarios import bank as bank_module
+from uvms_env.scenarios import make
 from uvms_env.scenarios.bank import GeometryBank, main
 
 

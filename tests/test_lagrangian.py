@@ -8,6 +8,7 @@ import pytest
 from baselines.lagrangian import SCALES, CostSettings, magnitude_cost
 from baselines.rl.cost import CostPenalty
 from uvms_env.env.constraints import CONSTRAINTS
+from uvms_env.models import load_parameters
 
 
 def test_magnitude_cost_is_the_normalized_excess():
@@ -16,7 +17,7 @@ def test_magnitude_cost_is_the_normalized_excess():
     g[CONSTRAINTS.index("joint_speed")] = 0.05  # 0.15 rad/s against 0.1
     g[CONSTRAINTS.index("joint_limit")] = 0.2  # 2.2 rad against 2
     assert magnitude_cost(g) == pytest.approx(0.05 / 0.1 + 0.2 / 2.0)
-    assert SCALES[CONSTRAINTS.index("joint_speed")] == 0.1
+    assert SCALES[CONSTRAINTS.index("joint_speed")] == load_parameters().limits.joint_speed
 
 
 def test_bad_settings_are_refused():

@@ -14,6 +14,11 @@ from typing import Any
 import casadi as cs
 import numpy as np
 
+# Pitch this close to +-pi/2 makes ZYX Euler-angle rates stiff without bound: the simulator
+# reports a period that fails there as reaching the representation's singularity, and no
+# scenario may start or pass a waypoint there.
+SINGULARITY_MARGIN = 0.1  # rad
+
 Sym = cs.SX | cs.MX | cs.DM
 
 

@@ -59,11 +59,12 @@ from uvms_env.env.constraints import (
     robot_constraints,
 )
 from uvms_env.navigation import Cylinder
+from uvms_env.sim.chain import NG  # grasp per robot: offset l_i (3), R_Oi column-major (9)
 
 if TYPE_CHECKING:
     from uvms_env.scenarios import Scenario
 
-NG = 12  # grasp per robot: offset l_i (3), R_Oi column-major (9); the simulator's layout
+
 # Each kind of obstacle list is padded up to the next of these sizes (see PAD_* in
 # constraints), so a few compiled kernels serve every scenario of a team size; longer
 # lists are used as they are.

@@ -54,7 +54,7 @@ from typing import Any
 import casadi as cs
 import numpy as np
 
-from uvms_env.dynamics import ObjectModel
+from uvms_env.dynamics import NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall, compile_function
 from uvms_env.dynamics.local_model import build_local_model, build_steady_input
 from uvms_env.dynamics.spatial import wrap_angle, wrap_angle_sx
@@ -63,7 +63,7 @@ from uvms_env.env.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
 from uvms_env.scenarios.geometry import NOMINAL_ARM
 
 OBS_DIM = OBSERVATION_SIZE  # the raw observation
-ACT_DIM = 8
+ACT_DIM = NU  # the action
 BASE_FEATURES = 76  # featurize
 FEATURES_SIZE = BASE_FEATURES + ACT_DIM  # observation_mode="features": featurize and a_ss
 OBSTACLE_RANGE = 5.0  # m; obstacle offsets beyond this are scaled down to it

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from uvms_env.dynamics.spatial import SINGULARITY_MARGIN
 from uvms_env.models import load_parameters
 from uvms_env.navigation import Cylinder, Sphere, Workspace
 from uvms_env.scenarios.overrides import CURRENT_PRESETS, SCENARIO_FIELDS, SCENARIO_OVERRIDES
@@ -113,7 +114,7 @@ def validate(s: Scenario) -> None:
         SCENARIO_OVERRIDES[name].check(name, getattr(s, name))
     if not (np.isfinite(s.period) and s.period > 0):
         raise ValueError(f"period must be a finite float > 0, got {s.period!r}")
-    if abs(s.object_start[4]) >= np.pi / 2 - 0.1:
+    if abs(s.object_start[4]) >= np.pi / 2 - SINGULARITY_MARGIN:
         raise ValueError("object_start pitch is too close to the Euler singularity |theta| = pi/2")
     for k, wp in enumerate(np.vstack([s.object_start[None], s.waypoints])):
         what = "object_start" if k == 0 else f"waypoint {k - 1}"

@@ -20,7 +20,7 @@ import numpy as np
 from uvms_env.dynamics import NP, NQ, NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall, RebuiltOnUnpickle, compile_function
 from uvms_env.dynamics.payload import NPO, OBJECT_PARAMETER_LAYOUT
-from uvms_env.dynamics.spatial import rot_zyx
+from uvms_env.dynamics.spatial import SINGULARITY_MARGIN, rot_zyx
 from uvms_env.dynamics.uvms import PARAMETER_LAYOUT, default_model, scale_damping
 from uvms_env.sim.chain import ChainFunctions, build_chain, state_size
 from uvms_env.sim.current import OceanCurrent
@@ -41,9 +41,6 @@ STABILIZATION = 10.0
 DRIFT_TOL_POSE = 1e-5  # m and rad
 DRIFT_TOL_TWIST = 1e-4  # m/s and rad/s
 MAX_REFINEMENTS = 4  # halvings: down to 1/16 of a period (128 substeps at the default 8)
-# Pitch this close to +-pi/2 makes the Euler-angle rates of the state stiff without bound:
-# a period that fails there is reported as reaching the representation's singularity.
-SINGULARITY_MARGIN = 0.1  # rad
 # What the simulator promises at the end of every period (README): the grasp pose error
 # after the projection. One Newton step from an accepted drift lands at ~1e-9 or below.
 GRASP_TOL = 1e-6  # m and rad
