@@ -177,3 +177,28 @@ def test_each_committed_model_names_the_docs_tables_that_use_it():
             table = "\n".join(line for line in section.splitlines() if line.startswith("|"))
             short = card["name"].removeprefix("ppo:baselines/pretrained/")
             assert short in table, (folder.name, entry)
+
+
+# ---------------------------------------------------------------- observations, metrics
+
+
+def test_the_observation_table_is_the_layout_the_env_builds():
+    """Every part of the raw observation, by name and index range, in layout order."""
+    from uvms_env.env import OBSERVATION_STRUCTURE
+
+    rows = table_after(OPTIONS_PAGE, "Observations")
+    documented = []
+    for row in rows:
+        name = re.match(r"`(\w+)`", row["meaning"])
+        assert name, row
+        first, _, last = row["index"].partition("-")
+        documented.append((name.group(1), int(first), int(last or first) + 1))
+    code = [(name, s.start, s.stop) for name, s in OBSERVATION_STRUCTURE.items()]
+    assert documented == code
+
+
+def test_the_metrics_table_lists_every_metric_once():
+    from uvms_env.env.metrics import METRICS
+
+    names = [code_name(r["metric"]) for r in table_after(OPTIONS_PAGE, "Episode metrics")]
+    assert sorted(names) == sorted(METRICS) and len(names) == len(set(names))
