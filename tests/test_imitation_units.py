@@ -210,13 +210,13 @@ def test_dataset_round_trip(tmp_path):
 
 
 def test_the_committed_clones_earlier_feature_name_reads_as_features():
-    """The ``bc`` and ``dagger`` models were saved when the feature set was ``uvms-v2``:
-    they load as ``features``, the environment's observation mode's name."""
+    """The committed ``dagger`` model was saved when the feature set was ``uvms-v2``:
+    it loads as ``features``, the environment's observation mode's name."""
     import torch
 
     from baselines.policies import PRETRAINED
 
-    for name in ("bc", "dagger", "dagger_linear"):
+    for name in ("dagger",):
         path = PRETRAINED / name / "policy.pt"
         saved = torch.load(path, map_location="cpu", weights_only=False)["features"]
         net = MLPPolicyNet.load(path)

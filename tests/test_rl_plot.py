@@ -18,11 +18,11 @@ def _run(folder, seed: int, rung: str) -> None:
     steps = np.arange(1, 6) * 1000
     with open(folder / "progress.csv", "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["time/total_timesteps", "rollout/ep_rew_mean", "lagrangian/episode_cost"])
+        w.writerow(["robot_steps", "episode_return_mean", "episode_cost_mean"])
         w.writerows([[t, -t / 100 + seed, 50 - t / 200] for t in steps])
     with open(folder / "evaluations.csv", "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["timesteps", "rung", "success_rate", "clean_success_rate"])
+        w.writerow(["robot_steps", "rung", "success_rate", "clean_success_rate"])
         w.writerows([[t, rung, 0.25 * (seed + 1), 0.0] for t in steps[1::2]])
 
 

@@ -1,4 +1,5 @@
-"""Scale-out of the baselines: Ray RLlib training, Ray evaluation, marl-eval output and a
-BenchMARL task. Ray, RLlib and BenchMARL are optional (``pip install -e ".[distributed]"``):
+"""Scale-out of the baselines: Ray RLlib training, Ray evaluation and marl-eval output (the
+BenchMARL task is an example: examples/benchmarl). Ray and RLlib are optional
+(``pip install -e ".[distributed]"``):
 each module imports them only inside the functions that need them, except the RLlib
 modules, which are only imported on demand."""

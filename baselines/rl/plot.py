@@ -6,16 +6,14 @@
 
 Top: success rate and mean return of the periodic evaluations (``baselines.evaluate``,
 fixed seeds, deterministic policy); bottom: the final position error of those
-evaluations and the training episodes' mean return. Runs written before the shared
-schemas (SB3's logger columns, ``timesteps``) are read through ``LEGACY_COLUMNS``: the
-committed ``baselines/pretrained`` runs have them.
+evaluations and the training episodes' mean return.
 
     python -m baselines.rl.plot --group "PPO-Lag=runs/a0,runs/a1,runs/a2" --group ... \
         --out docs/figures/learning_curves_seeds.png
 
 ``--group NAME=RUN,RUN,...``: runs of one variant over training seeds, drawn as the mean
 and its 95% confidence band (Student t over the seeds) of the training episodes' return,
-their constraint cost per robot (``lagrangian/episode_cost``) and the evaluations'
+their constraint cost per robot (``episode_cost_mean``) and the evaluations'
 success and clean success on the training rung.
 """
 
@@ -29,26 +27,13 @@ from typing import Any
 
 import numpy as np
 
-# Earlier runs' column names -> the shared schemas' (SB3's logger, the old RLlib trainer).
-LEGACY_COLUMNS = {
-    "time/total_timesteps": "robot_steps",
-    "timesteps": "robot_steps",
-    "rollout/ep_rew_mean": "episode_return_mean",
-    "rollout/ep_len_mean": "episode_len_mean",
-    "lagrangian/episode_cost": "episode_cost_mean",
-    "lagrangian/multiplier": "multiplier",
-}
-
 
 def read_csv(path: Path) -> dict[str, np.ndarray]:
-    """The columns of a CSV as float arrays, earlier names renamed (``LEGACY_COLUMNS``)."""
+    """The columns of a CSV as float arrays (missing or non-numeric cells: NaN)."""
     with open(path, newline="") as fh:
         rows = list(csv.DictReader(fh))
     keys = list(rows[0]) if rows else []
-    return {
-        LEGACY_COLUMNS.get(k, k): np.array([_num(r.get(k)) for r in rows], dtype=float)
-        for k in keys
-    }
+    return {k: np.array([_num(r.get(k)) for r in rows], dtype=float) for k in keys}
 
 
 def _num(x: str | None) -> float:
@@ -76,7 +61,7 @@ def label(run: Path) -> str:
     if cfg.exists():
         c = json.loads(cfg.read_text())
         minutes = (c.get("wall_time_s") or float("nan")) / 60
-        steps = c.get("robot_steps", c.get("timesteps_done", 0))
+        steps = c.get("robot_steps", 0)
         engine = c.get("engine", "sb3")
         return f"{engine} {c['algo'].upper()} ({steps:,} steps, {minutes:.1f} min)"
     return run.name
@@ -204,9 +189,8 @@ def _rung_evaluations(run: Path) -> dict[str, np.ndarray] | None:
     ]
     if not rows:
         return None
-    steps = "robot_steps" if "robot_steps" in rows[0] else "timesteps"
-    out = {k: np.array([_num(r[k]) for r in rows]) for k in ("success_rate", "clean_success_rate")}
-    return {"robot_steps": np.array([_num(r[steps]) for r in rows]), **out}
+    keys = ("robot_steps", "success_rate", "clean_success_rate")
+    return {k: np.array([_num(r[k]) for r in rows]) for k in keys}
 
 
 def _first_rung(path: Path) -> dict[str, np.ndarray]:

@@ -1,7 +1,7 @@
 """BenchMARL tasks over the batched environment: ``uvms/paper``, ``uvms/short``,
 ``uvms/random_n2``, ``uvms/random_n4``, and one command to run BenchMARL's algorithms:
 
-    python -m baselines.distributed.benchmarl_task --algorithm mappo --task uvms/random_n2 \\
+    python examples/benchmarl/benchmarl_task.py --algorithm mappo --task uvms/random_n2 \\
         --frames 1000000 --seed 0 --out runs/benchmarl
 
 Each task is a ``UVMSTask`` member whose ``UVMSTaskClass`` builds BenchMARL's env as one
@@ -12,10 +12,10 @@ continuous-action algorithms by its config name).
 
 BenchMARL 1.5.2 (the newest) needs ``torchrl>=0.10,<0.12`` and imports
 ``torchrl.collectors.SyncDataCollector``, which torchrl 0.14 no longer has, while this
-project's TorchRL env is tested with torchrl 0.14.1: install BenchMARL in its own venv
-(README, "Scale out").
+project's TorchRL env is tested with torchrl 0.14.1. It is therefore an example outside
+the package, run in a virtual environment of its own (this folder's README).
 
-May import: torch, torchrl, benchmarl and ``uvms_env.vector``; imported only on demand.
+Imports torch, torchrl, benchmarl and ``uvms_env.vector``.
 """
 
 from __future__ import annotations
@@ -167,7 +167,7 @@ def experiment(algorithm: str, task_name: str, frames: int, seed: int, out: Path
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(
-        prog="python -m baselines.distributed.benchmarl_task",
+        prog="python examples/benchmarl/benchmarl_task.py",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
