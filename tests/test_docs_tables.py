@@ -60,7 +60,7 @@ def env_rows() -> dict[str, dict[str, str]]:
 
 
 def test_every_environment_option_has_one_row_and_no_row_is_stale(env_rows):
-    from uvms_env.env.parallel import ENV_OPTIONS
+    from uvms_env.env.options import ENV_OPTIONS
     from uvms_env.scenarios.overrides import SCENARIO_OVERRIDES
 
     code = set(SCENARIO_OVERRIDES) | set(ENV_OPTIONS)
@@ -69,7 +69,7 @@ def test_every_environment_option_has_one_row_and_no_row_is_stale(env_rows):
 
 
 def test_environment_option_types_are_the_codes(env_rows):
-    from uvms_env.env.parallel import ENV_OPTIONS
+    from uvms_env.env.options import ENV_OPTIONS
     from uvms_env.scenarios.overrides import SCENARIO_OVERRIDES
 
     for name, option in {**SCENARIO_OVERRIDES, **ENV_OPTIONS}.items():
@@ -83,7 +83,7 @@ def test_environment_option_defaults_are_what_an_env_built_without_them_uses(env
     import dataclasses
 
     import uvms_env
-    from uvms_env.env.parallel import ENV_OPTIONS
+    from uvms_env.env.options import ENV_OPTIONS
     from uvms_env.scenarios import make
     from uvms_env.scenarios.config import Scenario
     from uvms_env.scenarios.overrides import SCENARIO_FIELDS
