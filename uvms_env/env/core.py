@@ -38,6 +38,7 @@ from uvms_env.env.observation import (
 )
 from uvms_env.env.options import EnvSetup
 from uvms_env.env.priors import Priors, steady_inputs
+from uvms_env.env.reward import RewardWeights
 from uvms_env.env.task import Task, TaskArrays
 from uvms_env.scenarios import Scenario, max_waypoints
 
@@ -338,3 +339,52 @@ class EnvCore:
         refused = self.host(diverged[ids]).reshape(-1)
         reasons = self.engine.diverged_reasons(rows) if refused.any() else [""] * len(rows)
         return kinds, metrics, [r if f else "" for r, f in zip(reasons, refused, strict=True)]
+
+
+class CoreViews:
+    """What ``parallel_env`` and ``VectorEnv`` expose of their ``EnvCore`` (``_core``)."""
+
+    _core: EnvCore
+
+    @property
+    def task(self) -> Task:
+        """The task's rules and the episode bookkeeping (B = () or (K,))."""
+        return self._core.task
+
+    @property
+    def priors(self) -> Priors:
+        return self._core.priors
+
+    @property
+    def constraint_mode(self) -> str:
+        return self._core.setup.constraint_mode
+
+    @property
+    def reward_weights(self) -> RewardWeights:
+        return self._core.setup.reward_weights
+
+    @property
+    def reseed_geometry(self) -> bool:
+        return self._core.setup.options.get("reseed_geometry", True)
+
+    @property
+    def internal_wrench_every(self) -> int:
+        return self._core.setup.internal_wrench_every
+
+    @property
+    def max_cycles(self) -> int:
+        """Truncation; a user may change it between steps."""
+        return self._core.max_cycles
+
+    @max_cycles.setter
+    def max_cycles(self, value: int) -> None:
+        self._core.max_cycles = int(value)
+
+    @property
+    def command_filter(self) -> Any:
+        """``command_filter(raw_obs, commands, first)`` -> commands, or None (``EnvCore``)."""
+        return self._core.command_filter
+
+    @command_filter.setter
+    def command_filter(self, fn: Any) -> None:
+        self._core.command_filter = fn

@@ -21,7 +21,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from uvms_env.dynamics import NU
-from uvms_env.env.core import ACTION_KINDS, EnvCore
+from uvms_env.env.core import ACTION_KINDS, CoreViews, EnvCore
 from uvms_env.env.engine import ScalarEngine
 from uvms_env.env.observation import OBSERVATION_STRUCTURE
 from uvms_env.env.options import (
@@ -30,17 +30,15 @@ from uvms_env.env.options import (
     resolve,
     state_structure,
 )
-from uvms_env.env.priors import Priors
 from uvms_env.env.registration import ENV_ID
-from uvms_env.env.reward import RewardWeights
-from uvms_env.env.task import HARD_KINDS, Task, episode_end
+from uvms_env.env.task import HARD_KINDS, episode_end
 from uvms_env.scenarios import Scenario
 from uvms_env.sim import Simulator
 
 __all__ = ["HARD_KINDS", "CoopTransportEnv", "episode_end", "parallel_env"]  # re-exported
 
 
-class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
+class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     """Cooperative transport: N underwater vehicle-manipulator systems carry one object.
 
     | | |
@@ -255,40 +253,6 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray]):
     def sim(self) -> Simulator:
         """The truth simulator (global information: never feed it to a policy)."""
         return self._engine.sim
-
-    @property
-    def task(self) -> Task:
-        """The task's rules and episode bookkeeping (one environment): metrics so far,
-        sequencing."""
-        return self._core.task
-
-    @property
-    def priors(self) -> Priors:
-        return self._core.priors
-
-    @property
-    def constraint_mode(self) -> str:
-        return self._core.setup.constraint_mode
-
-    @property
-    def reward_weights(self) -> RewardWeights:
-        return self._core.setup.reward_weights
-
-    @property
-    def reseed_geometry(self) -> bool:
-        return self._core.setup.options.get("reseed_geometry", True)
-
-    @property
-    def internal_wrench_every(self) -> int:
-        return self._core.setup.internal_wrench_every
-
-    @property
-    def max_cycles(self) -> int:
-        return self._core.max_cycles
-
-    @max_cycles.setter
-    def max_cycles(self, value: int) -> None:
-        self._core.max_cycles = int(value)
 
     def observation_space(self, agent: str) -> spaces.Box:
         return self.observation_spaces[self._agent(agent)]

@@ -47,10 +47,9 @@ import numpy as np
 from gymnasium import spaces
 
 from uvms_env.dynamics import NU
-from uvms_env.env.core import EnvCore
+from uvms_env.env.core import CoreViews, EnvCore
 from uvms_env.env.observation import OBSERVATION_STRUCTURE
 from uvms_env.env.options import RESET_SEED, observation_space, resolve
-from uvms_env.env.task import Task
 from uvms_env.scenarios import Scenario
 from uvms_env.scenarios.overrides import Option
 from uvms_env.vector.engine import DIVERGED_REASONS, BatchedEngine
@@ -66,7 +65,7 @@ VECTOR_OPTIONS: dict[str, Option] = {
 __all__ = ["DIVERGED_REASONS", "VECTOR_OPTIONS", "VectorEnv"]
 
 
-class VectorEnv:
+class VectorEnv(CoreViews):
     """K environments of one scenario family and team size, stepped together.
 
     Construct: ``VectorEnv(scenario="paper", num_envs=1, backend="cpu", dtype="float64",
@@ -180,11 +179,6 @@ class VectorEnv:
         return self._engine.sim
 
     @property
-    def task(self) -> Task:
-        """The task's rules and the K environments' episode bookkeeping."""
-        return self._core.task
-
-    @property
     def scenarios(self) -> list[Scenario]:
         return self._core.scenarios
 
@@ -192,27 +186,6 @@ class VectorEnv:
     def scenario(self) -> Scenario:
         """Environment 0's scenario (every environment's: ``scenarios``)."""
         return self._core.scenarios[0]
-
-    @property
-    def priors(self) -> Any:
-        return self._core.priors
-
-    @property
-    def max_cycles(self) -> int:
-        return self._core.max_cycles
-
-    @max_cycles.setter
-    def max_cycles(self, value: int) -> None:
-        self._core.max_cycles = int(value)
-
-    @property
-    def command_filter(self) -> Any:
-        """``command_filter(raw_obs, commands, first)`` -> commands, or None (``EnvCore``)."""
-        return self._core.command_filter
-
-    @command_filter.setter
-    def command_filter(self, fn: Any) -> None:
-        self._core.command_filter = fn
 
     def _host(self, a: Any) -> np.ndarray:
         """A numpy copy of a step array, for Python code and the caller's host data."""
