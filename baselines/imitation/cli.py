@@ -52,7 +52,6 @@ import json
 import os
 import platform
 import time
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -61,7 +60,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from baselines.imitation import bc, dataset
-from baselines.imitation.features import FEATURES, LEGACY_FEATURES, canonical_features
+from baselines.imitation.features import FEATURES
 from baselines.imitation.network import MLPPolicyNet
 from baselines.imitation.policy import ClonedPolicy
 from baselines.imitation.rollout import rollouts
@@ -151,18 +150,6 @@ def collect(args: argparse.Namespace) -> None:
 def _write_json(path: Path, payload: dict[str, Any]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json(path, payload)
-
-
-def _features(name: str) -> str:
-    """``--features``: an earlier name is accepted for one release, with a warning."""
-    if name in LEGACY_FEATURES:
-        warnings.warn(
-            f"--features {name} is deprecated and will be removed in the next release; "
-            f"use --features {canonical_features(name)}",
-            FutureWarning,
-            stacklevel=2,
-        )
-    return canonical_features(name)
 
 
 def _common(args: argparse.Namespace) -> dict[str, Any]:
@@ -395,9 +382,7 @@ def _add_train_args(p: argparse.ArgumentParser, epochs: int, data_required: bool
         "--loss-scale", default="none", choices=bc.LOSS_SCALES, help="std: per-component 1/var"
     )
     p.add_argument("--hidden", type=int, nargs="*", default=[128, 128], help="widths; none: linear")
-    p.add_argument(
-        "--features", default="features", choices=FEATURES, type=_features, help="input set"
-    )
+    p.add_argument("--features", default="features", choices=FEATURES, help="input set")
     p.add_argument("--seed", type=int, default=0)
 
 

@@ -20,8 +20,7 @@ from uvms_env.env.constraints import CONSTRAINTS
 class CostPenalty(VecEnvWrapper):
     """Subtracts ``multiplier * cost`` from each robot sub-environment's reward and keeps
     each ended episode's cost; ``infos[i]["constraint_cost"]`` is the step's cost. Wraps
-    ``uvms_env.vector.sb3.VectorVecEnv`` or ``baselines.rl.vec_env.ParallelVecEnv``
-    directly (it reads their constraint values)."""
+    ``uvms_env.vector.sb3.VectorVecEnv`` directly (it reads its constraint values)."""
 
     def __init__(self, venv: VecEnv, settings: CostSettings) -> None:
         super().__init__(venv)
