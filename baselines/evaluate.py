@@ -405,7 +405,7 @@ def write_outputs(rows: list[dict[str, Any]], seed: int, out: Path) -> list[dict
     return summaries
 
 
-def main(argv: list[str] | None = None) -> None:
+def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="python -m baselines.evaluate",
         description=__doc__,
@@ -458,7 +458,11 @@ def main(argv: list[str] | None = None) -> None:
         default=0,
         help="the step_count recorded in the marl-eval JSON (e.g. the policy's training steps)",
     )
-    args = ap.parse_args(argv)
+    return ap
+
+
+def env_overrides(ap: argparse.ArgumentParser, args: argparse.Namespace) -> dict[str, Any]:
+    """The environment keywords of the command line (``ap.error`` on a malformed one)."""
     overrides = {
         k: v
         for k, v in {
@@ -476,6 +480,13 @@ def main(argv: list[str] | None = None) -> None:
             if not all("=" in g for g in given):
                 ap.error(f"--{key.replace('_', '-')[:-1]}: expected NAME=MODULE:FUNCTION")
             overrides[key] = dict(g.split("=", 1) for g in given)
+    return overrides
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    overrides = env_overrides(ap, args)
     rows = evaluate(
         args.policy,
         args.scenario or ["paper"],

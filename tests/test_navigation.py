@@ -296,7 +296,7 @@ def _random_scene(
                 field = NavigationField(goal, ws, obstacles, team_radius)
             except ValueError:
                 continue
-            if field.clearance(goal) > margin:
+            if PointField(field).clearance(goal) > margin:
                 return goal, ws, obstacles
 
 

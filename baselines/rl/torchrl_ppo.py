@@ -191,6 +191,38 @@ def build_modules(env: Any, hp: dict[str, Any]) -> tuple[Any, Any, ActorNet, Cri
     return actor, critic, actor_net, critic_net
 
 
+def ppo_loss(actor: Any, critic: Any, hp: dict[str, Any]) -> Any:
+    """TorchRL's clipped PPO loss over the group's keys, with GAE as its value estimator."""
+    from torchrl.objectives import ClipPPOLoss, ValueEstimators
+
+    from uvms_env.vector.torchrl_env import GROUP
+
+    loss = ClipPPOLoss(
+        actor_network=actor,
+        critic_network=critic,
+        clip_epsilon=hp["clip_epsilon"],
+        entropy_bonus=hp["entropy_coef"] > 0,
+        entropy_coeff=hp["entropy_coef"],
+        critic_coeff=hp["critic_coef"],
+        loss_critic_type="l2",
+        normalize_advantage=True,
+    )
+    loss.set_keys(
+        reward=(GROUP, "reward"),
+        action=(GROUP, "action"),
+        value=(GROUP, "state_value"),
+        done=(GROUP, "done"),
+        terminated=(GROUP, "terminated"),
+        advantage=(GROUP, "advantage"),
+        value_target=(GROUP, "value_target"),
+    )
+    # The advantages are normalized over the minibatch's rows and robots together (one
+    # shared policy), which TorchRL's multi-agent warning asks to confirm on every call.
+    warnings.filterwarnings("ignore", "You requested advantage normalization", UserWarning)
+    loss.make_value_estimator(ValueEstimators.GAE, gamma=hp["gamma"], lmbda=hp["gae_lambda"])
+    return loss
+
+
 class EpisodeTracker:
     """The team's episode returns and lengths (unscaled reward), and the running spread of
     the discounted return that scales the reward (VecNormalize's ``ret_rms``), carried
@@ -281,9 +313,6 @@ class Engine:
         from torchrl.collectors import Collector
         from torchrl.data import LazyTensorStorage, ReplayBuffer
         from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
-        from torchrl.objectives import ClipPPOLoss, ValueEstimators
-
-        from uvms_env.vector.torchrl_env import GROUP
 
         s, a, hp = self.run.settings, self.args, self.hp
         device = parse_device(a.device, a.backend)
@@ -301,29 +330,7 @@ class Engine:
             self.costs = StepCosts(env.vector_env)
             self.lagrangian = Lagrangian(s.cost, s.num_envs * n)
         actor, critic, actor_net, critic_net = build_modules(env, hp)
-        loss = ClipPPOLoss(
-            actor_network=actor,
-            critic_network=critic,
-            clip_epsilon=hp["clip_epsilon"],
-            entropy_bonus=hp["entropy_coef"] > 0,
-            entropy_coeff=hp["entropy_coef"],
-            critic_coeff=hp["critic_coef"],
-            loss_critic_type="l2",
-            normalize_advantage=True,
-        )
-        loss.set_keys(
-            reward=(GROUP, "reward"),
-            action=(GROUP, "action"),
-            value=(GROUP, "state_value"),
-            done=(GROUP, "done"),
-            terminated=(GROUP, "terminated"),
-            advantage=(GROUP, "advantage"),
-            value_target=(GROUP, "value_target"),
-        )
-        # The advantages are normalized over the minibatch's rows and robots together (one
-        # shared policy), which TorchRL's multi-agent warning asks to confirm on every call.
-        warnings.filterwarnings("ignore", "You requested advantage normalization", UserWarning)
-        loss.make_value_estimator(ValueEstimators.GAE, gamma=hp["gamma"], lmbda=hp["gae_lambda"])
+        loss = ppo_loss(actor, critic, hp)
         optimizer = torch.optim.Adam(loss.parameters(), lr=hp["lr"])
         tracker = EpisodeTracker(s.num_envs, hp["gamma"], dev)
         if s.resume is not None:

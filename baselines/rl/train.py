@@ -256,9 +256,7 @@ class Engine:
 
     def build(self) -> dict[str, Any]:
         import torch
-        from stable_baselines3 import PPO, SAC
         from stable_baselines3.common.logger import configure
-        from stable_baselines3.common.vec_env import VecNormalize
 
         from baselines.rl.cost import CostPenalty, find_layer
 
@@ -298,46 +296,13 @@ class Engine:
             central_critic=a.central_critic,
             filter_penalty=a.filter_penalty if getattr(a, "filter", False) else None,
         )
-        cls = {"ppo": PPO, "sac": SAC}[algo]
         if s.resume is not None:
-            model_path, norm_path, buffer_path = find_resume(Path(s.resume))
-            venv = VecNormalize.load(str(norm_path), venv)
-            venv.training = True
-            model = cls.load(model_path, env=venv, device="cpu")
-            if buffer_path is not None and hasattr(model, "load_replay_buffer"):
-                model.load_replay_buffer(buffer_path)
-            if algo == "sac":
-                hp["gradient_steps"] = model.gradient_steps
-            print(f"resuming {model_path} at {model.num_timesteps} robot-steps")
+            model, venv = self._resumed(venv, hp)
         else:
-            venv = VecNormalize(venv, clip_obs=10.0)
-            if algo == "sac":
-                hp.setdefault("gradient_steps", venv.num_envs)
             if algo == "ppo" and "batch_size" not in hyperparameters:
                 rollout = hp["n_steps"] * venv.num_envs
                 hp["batch_size"] = max(PPO_MIN_BATCH, rollout // PPO_MINIBATCHES)
-            policy: Any = "MlpPolicy"
-            policy_kwargs = {"net_arch": NET, **chosen_policy_kwargs}
-            if a.central_critic:
-                from baselines.rl.mappo import CentralCriticPolicy, CentralStateVecEnv
-
-                policy = CentralCriticPolicy
-                policy_kwargs["local_dim"] = find_layer(venv, CentralStateVecEnv).local_dim
-            model = cls(
-                policy,
-                venv,
-                seed=s.seed,
-                device="cpu",
-                policy_kwargs=policy_kwargs,
-                verbose=0,
-                **hp,
-            )
-            if clone is not None:
-                from baselines.rl import init_actor
-                from baselines.rl.policy import priors_from_options
-
-                scale = priors_from_options(s.env_options()).residual_scale
-                init_actor.initialize(model, venv, clone, scale)
+            model, venv = self._new_model(venv, hp, chosen_policy_kwargs, clone)
         if algo == "ppo":
             hp["batch_size"] = model.batch_size  # the one used (a resumed model keeps its own)
         # SB3's own scalars go to tensorboard; the shared progress.csv is the run's
@@ -360,6 +325,54 @@ class Engine:
             "init_actor": getattr(a, "init_actor", None),
             "critic_warmup": getattr(a, "critic_warmup", 0),
         }
+
+    def _resumed(self, venv: Any, hp: dict[str, Any]) -> tuple[Any, Any]:
+        """The model and normalized env of ``--resume`` (SAC: its replay buffer and its
+        gradient steps, recorded into ``hp``)."""
+        from stable_baselines3 import PPO, SAC
+        from stable_baselines3.common.vec_env import VecNormalize
+
+        model_path, norm_path, buffer_path = find_resume(Path(self.run.settings.resume))
+        venv = VecNormalize.load(str(norm_path), venv)
+        venv.training = True
+        model = {"ppo": PPO, "sac": SAC}[self.algo].load(model_path, env=venv, device="cpu")
+        if buffer_path is not None and hasattr(model, "load_replay_buffer"):
+            model.load_replay_buffer(buffer_path)
+        if self.algo == "sac":
+            hp["gradient_steps"] = model.gradient_steps
+        print(f"resuming {model_path} at {model.num_timesteps} robot-steps")
+        return model, venv
+
+    def _new_model(
+        self, venv: Any, hp: dict[str, Any], policy_kwargs: dict[str, Any], clone: Any
+    ) -> tuple[Any, Any]:
+        """A new model on the normalized env (MAPPO's policy with ``--central-critic``, the
+        actor from ``clone`` with ``--init-actor``)."""
+        from stable_baselines3 import PPO, SAC
+        from stable_baselines3.common.vec_env import VecNormalize
+
+        from baselines.rl.cost import find_layer
+
+        s = self.run.settings
+        venv = VecNormalize(venv, clip_obs=10.0)
+        if self.algo == "sac":
+            hp.setdefault("gradient_steps", venv.num_envs)
+        policy: Any = "MlpPolicy"
+        kwargs = {"net_arch": NET, **policy_kwargs}
+        if self.args.central_critic:
+            from baselines.rl.mappo import CentralCriticPolicy, CentralStateVecEnv
+
+            policy = CentralCriticPolicy
+            kwargs["local_dim"] = find_layer(venv, CentralStateVecEnv).local_dim
+        cls = {"ppo": PPO, "sac": SAC}[self.algo]
+        model = cls(policy, venv, seed=s.seed, device="cpu", policy_kwargs=kwargs, verbose=0, **hp)
+        if clone is not None:
+            from baselines.rl import init_actor
+            from baselines.rl.policy import priors_from_options
+
+            scale = priors_from_options(s.env_options()).residual_scale
+            init_actor.initialize(model, venv, clone, scale)
+        return model, venv
 
     def learn(self) -> int:
         remaining = max(0, self.run.settings.robot_steps - self.model.num_timesteps)
