@@ -49,7 +49,7 @@ def test_single_env_applies_them_to_the_true_state():
     agents = ext.possible_agents
     ext.reset(seed=3)
     plain.reset(seed=3)
-    periods = 0
+    periods = any_periods = 0
     for act in _actions(3, 25, 1)[:, 0]:
         actions = {a: act[i] for i, a in enumerate(agents)}
         _, r, _, tr, info = ext.step(actions)
@@ -60,6 +60,7 @@ def test_single_env_applies_them_to_the_true_state():
         assert terms["tilt"] == pytest.approx(-0.5 * np.abs(st.x_O[3:5]).sum(), abs=TOL)
         violated = g > 0
         periods += bool(violated.any())
+        any_periods += any(info[a]["cost"] > 0 for a in agents)  # any constraint, any robot
         extra_violation = -ext.reward_weights.violation * violated.sum() / len(agents)
         assert terms["violation"] == pytest.approx(terms0["violation"] + extra_violation, abs=TOL)
         assert r[agents[0]] == pytest.approx(r0[agents[0]] + terms["tilt"] + extra_violation)
@@ -69,6 +70,9 @@ def test_single_env_applies_them_to_the_true_state():
     assert tr[agents[0]]
     metrics = info[agents[0]]["metrics"]
     assert metrics["violations"]["slow_joints"] == periods > 0  # the test can fail
+    # periods, not kinds: a period with several violated constraints counts once
+    assert metrics["violation_periods"] == any_periods >= periods
+    assert metrics["clean_success"] is False
     assert ext.constraint_values()[agents[0]].keys() == info[agents[0]]["constraint_values"].keys()
 
 
@@ -120,6 +124,8 @@ def test_vector_env_agrees_with_single_envs(backend):
                 ends += 1
                 mine, theirs = infos["metrics"][i], head["metrics"]
                 assert mine["violations"] == theirs["violations"]
+                assert mine["violation_periods"] == theirs["violation_periods"]
+                assert mine["clean_success"] == theirs["clean_success"]
                 assert "slow_joints" in mine["violations"]
                 assert mine["control_effort"] == pytest.approx(theirs["control_effort"], abs=TOL)
                 env.reset()
