@@ -10,13 +10,14 @@ episode everywhere and the decision time is measured in one place: around each a
 
 Callers attach what they need without another loop:
 
+* ``on_reset(env, obs)`` after the reset, before the policies are built;
 * ``execute(index, policy, obs, action)`` right after agent ``index``'s decision: returns
   the action actually applied (DAgger's mixing, exploration noise) and may read the
   policy's ``stats`` of that decision;
 * ``on_step(step)`` after each ``env.step``: trajectories, frames, dataset records.
 
-Only the public env API is used (``reset(seed=)``, ``step``, ``agents``, ``scenario``,
-``infos[agent]["metrics"]``).
+Only the public env API is used (``reset(seed=)``, ``step``, ``agents``,
+``possible_agents``, ``scenario``, ``infos[agent]["metrics"]``).
 May import: numpy and ``uvms_env.policy``.
 """
 
