@@ -106,8 +106,8 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
         if job.max_cycles is not None:
             kwargs["max_cycles"] = job.max_cycles
         env = uvms_env.parallel_env(scenario=job.scenario, seed=job.seed, **kwargs)
-        factory = PolicySource.parse(job.policy).factory(job.seed)
-        episode = play(env, checked(factory), job.seed, on_step=record, on_reset=reached)
+        factory = checked(PolicySource.parse(job.policy), job.seed)
+        episode = play(env, factory, job.seed, on_step=record, on_reset=reached)
         env.close()
         row.update(flatten_metrics(episode.metrics))
     except Exception as exc:  # a failing policy must not stop the evaluation
@@ -130,11 +130,16 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
     return row
 
 
-def checked(factory: PolicyFactory) -> PolicyFactory:
-    """``factory`` whose policies are checked against the interface when built."""
+def checked(source: PolicySource, seed: int) -> PolicyFactory:
+    """The source's policies, each checked against the interface as it is built. The
+    source's factory is made with the first policy, after the env's reset: a source that
+    fails (a missing model) fails an episode whose reach is known."""
+    made: list[PolicyFactory] = []
 
     def build(spec: AgentSpec) -> Policy:
-        policy = factory(spec)
+        if not made:
+            made.append(source.factory(seed))
+        policy = made[0](spec)
         check_policy(policy)
         return policy
 

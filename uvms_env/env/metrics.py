@@ -21,7 +21,8 @@ min_obstacle_clearance_m   smallest clearance of any physical body (vehicles, ar
 min_manipulability         smallest det(Jbar Jbar^T) of any robot, start included
 violations                 per constraint kind (and extra constraint): control periods
                            in which at least one robot violated it (g > 0)
-violation_periods          control periods in which any robot violated any constraint
+violation_periods          the violation periods of all kinds: the sum of ``violations``
+                           (a period with two violated kinds counts twice)
 internal_wrench_rms        RMS over the sampled periods of the Frobenius norm of the
                            internal (squeeze) wrenches (N, 6), in N and N m; the env
                            samples every period by default; None if never sampled
@@ -80,7 +81,6 @@ def episode_result(
     min_clearance: float,
     min_manipulability: float,
     violations: Sequence[int],
-    violation_periods: int,
     wrench_sq: float,
     wrench_samples: int,
     effort: float,
@@ -92,19 +92,20 @@ def episode_result(
     names of ``violations``. ``min_clearance`` is inf without obstacles; no wrench sample
     gives None."""
     pos, att = goal_errors(x_o, goal)
+    periods = {k: int(v) for k, v in zip(constraints, violations, strict=True)}
     steps, wrench_samples = int(steps), int(wrench_samples)
     clearance = float(min_clearance)
     return {
         "success": bool(success),
-        "clean_success": bool(success) and int(violation_periods) == 0,
+        "clean_success": bool(success) and not any(periods.values()),
         "episode_steps": steps,
         "sim_time_s": steps * period,
         "final_pos_error_m": pos,
         "final_att_error_rad": att,
         "min_obstacle_clearance_m": clearance if math.isfinite(clearance) else None,
         "min_manipulability": float(min_manipulability),
-        "violations": {k: int(v) for k, v in zip(constraints, violations, strict=True)},
-        "violation_periods": int(violation_periods),
+        "violations": periods,
+        "violation_periods": sum(periods.values()),
         "internal_wrench_rms": (
             math.sqrt(float(wrench_sq) / wrench_samples) if wrench_samples else None
         ),

@@ -200,7 +200,6 @@ class Task:
         self.min_manipulability = xp.zeros(b)
         self.grasp_drift = xp.zeros(b)
         self.violations = xp.zeros((*b, len(self.constraints)), np.int64)
-        self.violation_periods = xp.zeros(b, np.int64)
         self.effort = xp.zeros(b)
         self.wrench_sq = xp.zeros(b)
         self.wrench_samples = xp.zeros(b, np.int64)
@@ -250,7 +249,6 @@ class Task:
         self.min_manipulability[ids] = np.inf
         self.grasp_drift[ids] = 0.0
         self.violations[ids] = 0
-        self.violation_periods[ids] = 0
         self.effort[ids] = 0.0
         self.wrench_sq[ids] = 0.0
         self.wrench_samples[ids] = 0
@@ -353,7 +351,6 @@ class Task:
         action_sq = team[ACTION_SQ]
         self.effort += action_sq * self.period
         self.violations += kinds
-        self.violation_periods += kinds.any(axis=-1)
         if wrench_sq is not None:
             self.wrench_sq += wrench_sq
             self.wrench_samples += sampled
@@ -465,7 +462,6 @@ class Task:
                 self.min_clearance[ids],
                 self.min_manipulability[ids],
                 self.violations[ids],
-                self.violation_periods[ids],
                 self.wrench_sq[ids],
                 self.wrench_samples[ids],
                 self.effort[ids],
@@ -475,8 +471,7 @@ class Task:
         ]
         if not self.batch:  # one environment: a batch of one
             rows = [r[None] for r in rows]
-        steps, pose, goal, clearance, manip, violations, periods, *rest = rows
-        wrench, samples, effort, drift, ok = rest
+        steps, pose, goal, clearance, manip, violations, wrench, samples, effort, drift, ok = rows
         return [
             episode_result(
                 self.period,
@@ -487,7 +482,6 @@ class Task:
                 clearance[j],
                 manip[j],
                 violations[j].tolist(),
-                periods[j],
                 wrench[j],
                 samples[j],
                 effort[j],
