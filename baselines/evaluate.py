@@ -27,7 +27,6 @@ import dataclasses
 import hashlib
 import json
 import os
-import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
@@ -41,14 +40,15 @@ from baselines.policies import PolicySource, check_policy
 from baselines.stats import bootstrap_mean_interval, wilson_interval
 from uvms_env.env.constraints import CONSTRAINTS
 from uvms_env.env.metrics import METRICS
+from uvms_env.episode import decision_time_summary
+from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 
 VIOLATION_KINDS = CONSTRAINTS
 BACKENDS = ("process", "ray")
-# numeric per-episode metrics averaged with bootstrap intervals (same names as the env's)
-MEAN_METRICS = (
-    *(m for m in METRICS if m not in ("success", "violations", "policy_time_ms")),
-    "return",
-)
+# numeric per-episode metrics averaged with bootstrap intervals (same names as the env's);
+# success and clean success are rates, the violations are counted per kind
+NOT_AVERAGED = ("success", "clean_success", "violations", "violation_periods", "policy_time_ms")
+MEAN_METRICS = (*(m for m in METRICS if m not in NOT_AVERAGED), "return")
 
 
 def episode_seed(seed: int, scenario: str, index: int) -> int:
@@ -72,7 +72,7 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
     """Play one episode; never raises (errors become failed episodes)."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import uvms_env
-    from uvms_env.policy import AgentSpec
+    from uvms_env.episode import Step, play
 
     row: dict[str, Any] = {
         "policy": job.policy,
@@ -81,64 +81,69 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
         "seed": job.seed,
         "error": "",
     }
-    times: list[float] = []
+    times: list[np.ndarray] = []  # kept here too: a failed episode reports its decisions
     path: list[list[float]] = []
     filtered, interventions, deviation = 0, 0, 0.0  # safety-filter decisions (``+filter``)
     total_reward = 0.0
+
+    def reached(env: Any, _obs: Any) -> None:
+        row["current_within_reach"] = within_reach(env.scenario)
+
+    def record(step: Step) -> None:
+        nonlocal filtered, interventions, deviation, total_reward
+        times.append(step.decision_ms)
+        for policy in step.policies.values():
+            if "intervened" in policy.stats:
+                filtered += 1
+                interventions += bool(policy.stats["intervened"])
+                deviation += float(policy.stats["intervention"])
+        total_reward += float(next(iter(step.rewards.values()))) if step.rewards else 0.0
+        if job.record_path:
+            path.append(step.env.unwrapped.sim.state.x_O[:3].tolist())
+
     try:
         kwargs = dict(job.overrides)
         if job.max_cycles is not None:
             kwargs["max_cycles"] = job.max_cycles
         env = uvms_env.parallel_env(scenario=job.scenario, seed=job.seed, **kwargs)
-        obs, infos = env.reset(seed=job.seed)
-        row["current_within_reach"] = within_reach(env.scenario)
-        factory = PolicySource.parse(job.policy).factory(job.seed)
-        policies = {}
-        for i, agent in enumerate(env.possible_agents):
-            policy = factory(AgentSpec.from_scenario(env.scenario, i))
-            check_policy(policy)
-            policy.reset()
-            policies[agent] = policy
-        final_info: dict[str, Any] = {}
-        while env.agents:
-            actions = {}
-            for agent in env.agents:
-                start = time.perf_counter()
-                actions[agent] = policies[agent].act(obs[agent])
-                times.append(time.perf_counter() - start)
-                stats = policies[agent].stats
-                if "intervened" in stats:
-                    filtered += 1
-                    interventions += bool(stats["intervened"])
-                    deviation += float(stats["intervention"])
-            obs, rewards, _, _, infos = env.step(actions)
-            total_reward += float(next(iter(rewards.values()))) if rewards else 0.0
-            if job.record_path:
-                path.append(env.unwrapped.sim.state.x_O[:3].tolist())
-            for info in infos.values():
-                if "metrics" in info:
-                    final_info = info["metrics"]
+        factory = checked(PolicySource.parse(job.policy), job.seed)
+        episode = play(env, factory, job.seed, on_step=record, on_reset=reached)
         env.close()
-        row.update(flatten_metrics(final_info))
+        row.update(flatten_metrics(episode.metrics))
     except Exception as exc:  # a failing policy must not stop the evaluation
         row["error"] = f"{type(exc).__name__}: {exc}"
         row["traceback"] = traceback.format_exc(limit=5)
         row["success"] = False
     row["return"] = total_reward
-    kinds = [v or 0 for k, v in row.items() if k.startswith("violations_")]  # extras too
-    row["violation_periods"] = int(sum(kinds))
-    row["clean_success"] = bool(row.get("success")) and row["violation_periods"] == 0
+    if row["error"]:  # no env metrics: the episode did not end
+        row["violation_periods"] = 0
+        row["clean_success"] = False
     row["interventions"] = interventions
     row["filtered_decisions"] = filtered
     row["intervention_rate"] = interventions / filtered if filtered else None
     row["intervention_mean"] = deviation / filtered if filtered else None
-    ms = np.array(times) * 1e3
-    row["policy_time_ms_median"] = float(np.median(ms)) if len(ms) else float("nan")
-    row["policy_time_ms_p95"] = float(np.quantile(ms, 0.95)) if len(ms) else float("nan")
-    row["policy_time_ms_max"] = float(ms.max()) if len(ms) else float("nan")
-    row["_decision_ms"] = ms.tolist()
+    timing = decision_time_summary(np.concatenate(times) if times else np.zeros(0))
+    for key in ("median", "p95", "max"):
+        row[f"policy_time_ms_{key}"] = timing[key] if timing else float("nan")
+    row["_decision_ms"] = np.concatenate(times).tolist() if times else []
     row["_path"] = path
     return row
+
+
+def checked(source: PolicySource, seed: int) -> PolicyFactory:
+    """The source's policies, each checked against the interface as it is built. The
+    source's factory is made with the first policy, after the env's reset: a source that
+    fails (a missing model) fails an episode whose reach is known."""
+    made: list[PolicyFactory] = []
+
+    def build(spec: AgentSpec) -> Policy:
+        if not made:
+            made.append(source.factory(seed))
+        policy = made[0](spec)
+        check_policy(policy)
+        return policy
+
+    return build
 
 
 def within_reach(scenario: Any) -> bool:
@@ -159,7 +164,7 @@ def flatten_metrics(metrics: dict[str, Any]) -> dict[str, Any]:
             for kind in (*VIOLATION_KINDS, *extra):
                 out[f"violations_{kind}"] = int(value.get(kind, 0))
         elif key == "policy_time_ms":
-            continue  # measured here, where the policy runs
+            continue  # a dict: the row has its parts
         elif isinstance(value, bool | int | float | np.floating | np.integer) or value is None:
             out[key] = value
     return out
@@ -405,7 +410,7 @@ def write_outputs(rows: list[dict[str, Any]], seed: int, out: Path) -> list[dict
     return summaries
 
 
-def main(argv: list[str] | None = None) -> None:
+def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="python -m baselines.evaluate",
         description=__doc__,
@@ -458,7 +463,11 @@ def main(argv: list[str] | None = None) -> None:
         default=0,
         help="the step_count recorded in the marl-eval JSON (e.g. the policy's training steps)",
     )
-    args = ap.parse_args(argv)
+    return ap
+
+
+def env_overrides(ap: argparse.ArgumentParser, args: argparse.Namespace) -> dict[str, Any]:
+    """The environment keywords of the command line (``ap.error`` on a malformed one)."""
     overrides = {
         k: v
         for k, v in {
@@ -476,6 +485,13 @@ def main(argv: list[str] | None = None) -> None:
             if not all("=" in g for g in given):
                 ap.error(f"--{key.replace('_', '-')[:-1]}: expected NAME=MODULE:FUNCTION")
             overrides[key] = dict(g.split("=", 1) for g in given)
+    return overrides
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    overrides = env_overrides(ap, args)
     rows = evaluate(
         args.policy,
         args.scenario or ["paper"],

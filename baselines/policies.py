@@ -130,7 +130,7 @@ def _rllib(arg: str | None, seed: int) -> PolicyFactory:
 
 
 def _torchrl(arg: str | None, seed: int) -> PolicyFactory:
-    from baselines.rl.torchrl_ppo import factory
+    from baselines.rl.torchrl_policy import factory
 
     return factory(arg)
 

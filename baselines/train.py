@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from baselines.lagrangian import COSTS, CostSettings
-from baselines.options import add_deprecated, key_value_pairs
+from baselines.options import key_value_pairs
 
 ENGINES = ("sb3", "torchrl", "rllib")
 ENGINE_MODULES = {
@@ -116,24 +116,6 @@ def add_shared_arguments(ap: argparse.ArgumentParser, engine: str, algos: tuple[
         "--multiplier-lr", type=float, default=0.0, help="dual step size (0: fixed penalty)"
     )
     g.add_argument("--no-progress", action="store_true", help="no progress lines")
-    add_deprecated(g, "--robot-steps", "--total-timesteps", "--total-steps", type=int)
-    add_deprecated(g, "--num-envs", "--n-envs", type=int)
-    g.add_argument("--n-agents", action=_TeamSize, help=argparse.SUPPRESS, type=int)
-
-
-class _TeamSize(argparse.Action):
-    """Deprecated ``--n-agents K``: ``--env-option n_agents=K``."""
-
-    def __call__(self, parser: Any, namespace: Any, values: Any, option_string: Any = None):
-        import warnings
-
-        warnings.warn(
-            "--n-agents is deprecated for training and will be removed in the next release; "
-            "use --env-option n_agents=K",
-            FutureWarning,
-            stacklevel=2,
-        )
-        namespace.env_option = [*namespace.env_option, f"n_agents={values}"]
 
 
 def build_parser(engine: str) -> argparse.ArgumentParser:

@@ -20,7 +20,6 @@ import argparse
 import json
 import os
 import time
-import warnings
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -29,19 +28,6 @@ import numpy as np
 
 from nmpc_expert.rollout import run_episode
 from nmpc_expert.settings import CONTROLLERS, controller_settings
-
-
-class _Deprecated(argparse.Action):
-    """``--max-steps``: the old name of ``--max-cycles``, kept for one release."""
-
-    def __call__(self, parser, namespace, values, option_string=None) -> None:
-        warnings.warn(
-            f"{option_string} is deprecated and will be removed in the next release; "
-            "use --max-cycles",
-            FutureWarning,
-            stacklevel=2,
-        )
-        setattr(namespace, self.dest, values)
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -62,9 +48,6 @@ def main(argv: list[str] | None = None) -> dict:
         "controller (default and only choice with ipopt)",
     )
     ap.add_argument("--max-cycles", type=int, default=None, help="episode length cap")
-    ap.add_argument(
-        "--max-steps", type=int, dest="max_cycles", action=_Deprecated, help=argparse.SUPPRESS
-    )
     ap.add_argument("--out", type=Path, default=Path("runs/paper"))
     ap.add_argument("--no-figures", action="store_true")
     args = ap.parse_args(argv)

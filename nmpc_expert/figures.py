@@ -68,10 +68,44 @@ def make_figures(
     """Write the figures into ``out``; returns the file names written."""
     out.mkdir(parents=True, exist_ok=True)
     lim = load_parameters().limits
-    t, q, zeta, x_o, act = arr["t"], arr["q"], arr["zeta"], arr["x_o"], arr["action"]
-    n = q.shape[1]
-    written = []
+    t, q = arr["t"], arr["q"]
+    written = [
+        _trajectory_figure(arr, scenario, out),
+        _object_figure(arr, scenario, out),
+        _manipulability_figure(arr, out),
+        _per_robot(
+            out / "joint_states.png",
+            t,
+            q[:, :, 6:],
+            [f"q{j + 1}" for j in range(4)],
+            lim.joint_position,
+            "limit",
+            "[rad]",
+            "Joint-level states",
+            lw=1.5,
+            legend=7,
+        ),
+        _per_robot(
+            out / "inputs.png",
+            t,
+            arr["action"],
+            ["X", "Y", "Z", "N", "tau1", "tau2", "tau3", "tau4"],
+            1.0,
+            "saturation",
+            "(a = tau / tau_max)",
+            "Control inputs (normalized: 10 N / 10 N m vehicle, 2 N m joints)",
+            lw=0.8,
+            legend=6,
+        ),
+        _velocities_figure(arr, lim, out),
+    ]
+    if animate:
+        written += _animation(arr, scenario, out)
+    return written
 
+
+def _trajectory_figure(arr: dict[str, np.ndarray], scenario, out: Path) -> str:
+    t, q, x_o = arr["t"], arr["q"], arr["x_o"]
     fig, ax = plt.subplots(figsize=(7, 6))
     _draw_scene(ax, scenario)
     ax.plot(x_o[:, 0], x_o[:, 1], "b-", lw=1, label="object")
@@ -87,8 +121,11 @@ def make_figures(
     ax.legend(loc="upper left", fontsize=8)
     fig.savefig(out / "trajectory.png", dpi=110)
     plt.close(fig)
-    written.append("trajectory.png")
+    return "trajectory.png"
 
+
+def _object_figure(arr: dict[str, np.ndarray], scenario, out: Path) -> str:
+    t, x_o = arr["t"], arr["x_o"]
     fig, axs = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
     for j, name in enumerate("xyz"):
         axs[0].plot(t, x_o[:, j], label=name)
@@ -107,11 +144,13 @@ def make_figures(
     fig.suptitle("Object coordinates")
     fig.savefig(out / "object.png", dpi=110)
     plt.close(fig)
-    written.append("object.png")
+    return "object.png"
 
+
+def _manipulability_figure(arr: dict[str, np.ndarray], out: Path) -> str:
+    t, man = arr["t"], arr["manipulability"]
     fig, ax = plt.subplots(figsize=(8, 3.5))
-    man = arr["manipulability"]
-    for i in range(n):
+    for i in range(man.shape[1]):
         ax.plot(t, man[:, i], label=f"UVMS {i}")
     ax.axhline(MANIPULABILITY_EPS, color="r", ls="--", label="eps")
     ax.set_ylim(bottom=0)
@@ -121,37 +160,12 @@ def make_figures(
     fig.tight_layout()
     fig.savefig(out / "manipulability.png", dpi=110)
     plt.close(fig)
-    written.append("manipulability.png")
+    return "manipulability.png"
 
-    written.append(
-        _per_robot(
-            out / "joint_states.png",
-            t,
-            q[:, :, 6:],
-            [f"q{j + 1}" for j in range(4)],
-            lim.joint_position,
-            "limit",
-            "[rad]",
-            "Joint-level states",
-            lw=1.5,
-            legend=7,
-        )
-    )
-    written.append(
-        _per_robot(
-            out / "inputs.png",
-            t,
-            act,
-            ["X", "Y", "Z", "N", "tau1", "tau2", "tau3", "tau4"],
-            1.0,
-            "saturation",
-            "(a = tau / tau_max)",
-            "Control inputs (normalized: 10 N / 10 N m vehicle, 2 N m joints)",
-            lw=0.8,
-            legend=6,
-        )
-    )
 
+def _velocities_figure(arr: dict[str, np.ndarray], lim, out: Path) -> str:
+    t, zeta = arr["t"], arr["zeta"]
+    n = zeta.shape[1]
     fig, axs = plt.subplots(n, 3, figsize=(12, 2.6 * n), sharex=True, squeeze=False)
     for i in range(n):
         for j, lab in enumerate("uvw"):
@@ -172,11 +186,7 @@ def make_figures(
     fig.tight_layout()
     fig.savefig(out / "velocities.png", dpi=110)
     plt.close(fig)
-    written.append("velocities.png")
-
-    if animate:
-        written += _animation(arr, scenario, out)
-    return written
+    return "velocities.png"
 
 
 def _animation(arr: dict[str, np.ndarray], scenario, out: Path, frames: int = 50) -> list[str]:

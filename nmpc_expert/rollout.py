@@ -1,16 +1,16 @@
-"""Closed loop of one NMPCPolicy per robot on the PettingZoo environment, with metrics.
+"""One NMPCPolicy per robot played by the episode driver (``uvms_env.episode``), with the
+trajectory the figures and the .npz file need.
 
 Each policy gets only its own agent's observation. The trajectory (true states, inputs,
-constraint values, decision times) is recorded for the figures and the .npz file; the
-metrics are the environment's (``uvms_env.env.metrics``) plus ``policy_time_ms`` and the
-expert's own counters (fallbacks, waypoint order).
+constraint values, decision times) is recorded per step; the metrics are the driver's
+(the environment's plus ``policy_time_ms``) and the expert's own counters (fallbacks,
+waypoint order).
 
 May import: numpy, tqdm, ``uvms_env`` and this package.
 """
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -21,6 +21,7 @@ import uvms_env
 from nmpc_expert.policy import NMPCPolicy
 from nmpc_expert.settings import NMPCSettings
 from uvms_env.env.constraints import CONSTRAINTS, MANIPULABILITY_EPS
+from uvms_env.episode import Step, play
 from uvms_env.policy import AgentSpec
 
 
@@ -52,67 +53,46 @@ def run_episode(
     **overrides: Any,
 ) -> tuple[dict[str, Any], dict[str, np.ndarray], Any]:
     """Run one episode; returns (metrics, trajectory arrays, the env's scenario)."""
-    env = uvms_env.parallel_env(scenario=scenario, seed=seed, **overrides)
     if max_steps is not None:
-        env.max_cycles = max_steps
-    obs, _ = env.reset(seed=seed)
-    sc = env.scenario
-    pols = {
-        a: NMPCPolicy(AgentSpec.from_scenario(sc, i), solver=solver, settings=settings)
-        for i, a in enumerate(env.agents)
-    }
-    agents = list(pols)
+        overrides["max_cycles"] = max_steps
+    env = uvms_env.parallel_env(scenario=scenario, seed=seed, **overrides)
     traj = Trajectory()
-    order_ok, last_wp = True, np.zeros(len(agents), dtype=int)
-    metrics: dict[str, Any] = {}
-    total = env.max_cycles
-    bar = tqdm(total=total, desc=f"{scenario} NMPC ({solver})", unit="step", disable=not progress)
+    order_ok, last_wp = True, None
+    desc = f"{scenario} NMPC ({solver})"
+    bar = tqdm(total=env.max_cycles, desc=desc, unit="step", disable=not progress)
 
-    def record(actions: np.ndarray, cvals: dict | None, times: np.ndarray, wp: np.ndarray):
-        st = env.sim.state
+    def record(step: Step) -> None:
+        nonlocal order_ok, last_wp
+        agents = list(step.policies)
+        wp = np.array([step.policies[a].stats["waypoint_index"] for a in agents])
+        last = np.zeros_like(wp) if last_wp is None else last_wp
+        order_ok &= bool(np.all((wp == last) | (wp == last + 1)))
+        last_wp = wp
+        st = step.env.unwrapped.sim.state
         traj.t.append(st.t)
         traj.q.append(st.q.copy())
         traj.zeta.append(st.zeta.copy())
         traj.x_o.append(st.x_O.copy())
         traj.v_o.append(st.v_O.copy())
-        traj.action.append(actions)
-        if cvals is not None:
-            traj.manipulability.append(
-                np.array([MANIPULABILITY_EPS - cvals[a]["manipulability"] for a in agents])
-            )
+        traj.action.append(np.stack([step.actions[a] for a in agents]))
+        g = [step.infos[a]["constraint_values"]["manipulability"] for a in agents]
+        traj.manipulability.append(MANIPULABILITY_EPS - np.array(g))
         traj.waypoint.append(wp)
-        traj.policy_ms.append(times)
-
-    while True:
-        actions, times = {}, np.zeros(len(agents))
-        for i, a in enumerate(agents):
-            t0 = time.perf_counter()
-            actions[a] = pols[a].act(obs[a])
-            times[i] = (time.perf_counter() - t0) * 1e3
-        wp = np.array([pols[a].stats["waypoint_index"] for a in agents])
-        order_ok &= bool(np.all((wp == last_wp) | (wp == last_wp + 1)))
-        last_wp = wp
-        obs, _, term, trunc, infos = env.step(actions)
-        cvals = {a: infos[a]["constraint_values"] for a in agents}
-        record(np.stack([actions[a] for a in agents]), cvals, times, wp)
+        traj.policy_ms.append(step.decision_ms)
         bar.update(1)
-        if any(term.values()) or any(trunc.values()):
-            metrics = dict(infos[agents[0]]["metrics"])
-            metrics["episode_end"] = infos[agents[0]].get("episode_end")
-            break
+
+    def nmpc(spec: AgentSpec) -> NMPCPolicy:
+        return NMPCPolicy(spec, solver=solver, settings=settings)
+
+    episode = play(env, nmpc, seed, on_step=record)
     bar.close()
-    arr = traj.arrays()
-    pt = arr["policy_ms"].ravel()
-    metrics["policy_time_ms"] = {
-        "median": float(np.median(pt)),
-        "p95": float(np.percentile(pt, 95)),
-        "max": float(pt.max()),
-    }
-    metrics["fallbacks"] = int(sum(p.fallbacks for p in pols.values()))
+    metrics = episode.metrics
+    metrics["episode_end"] = episode.end
+    metrics["fallbacks"] = int(sum(p.fallbacks for p in episode.policies.values()))
     metrics["waypoints_in_order"] = bool(order_ok)
     metrics["solver"] = solver
     metrics["scenario"] = scenario
     metrics["seed"] = seed
-    metrics["n_agents"] = len(agents)
+    metrics["n_agents"] = len(episode.policies)
     metrics["constraint_kinds"] = list(CONSTRAINTS)
-    return metrics, arr, sc
+    return metrics, traj.arrays(), env.scenario

@@ -14,6 +14,7 @@ import numpy as np
 import pettingzoo
 import pytest
 from gymnasium.utils.env_checker import check_env
+from nav_points import twist
 from pettingzoo.test import parallel_api_test, parallel_seed_test
 
 import uvms_env
@@ -207,7 +208,7 @@ def test_observation_contents_at_start(env, paper):
         assert np.allclose(o[s["object_pose"]], paper.object_start, atol=1e-6)
         assert np.allclose(o[s["waypoint"]], paper.waypoints[0])
         assert np.allclose(o[s["goal"]], paper.waypoints[-1])
-        assert np.allclose(o[s["nav_velocity"]], nav.twist(paper.object_start, 0), atol=1e-6)
+        assert np.allclose(o[s["nav_velocity"]], twist(nav, paper.object_start, 0), atol=1e-6)
         assert np.allclose(o[s["grasp_offset"]], paper.grasp_offsets[i])
         assert np.allclose(o[s["grasp_rotation"]], paper.grasp_rotations[i].reshape(-1))
         assert o[s["load_share"]][0] == pytest.approx(0.5)

@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+from script_loader import load_script
 
 import uvms_env
 from baselines.imitation.cli import main
@@ -233,7 +234,8 @@ def test_safe_distillation_labels_are_the_filters_correction_of_the_network(tmp_
 def test_history_probe_aligns_each_stream_with_its_own_past(tmp_path):
     """``history_probe``: the previous-action inputs of step t are the label of step t-1
     of the same robot's stream (a_ss at its first step), never another stream's."""
-    from baselines.imitation.history_probe import VARIANTS, history_inputs
+    probe = load_script("history_probe")
+    VARIANTS, history_inputs = probe.VARIANTS, probe.history_inputs
 
     data = tmp_path / "data" / "tiny"
     main(["collect", "--scenario", "short", "--episodes", "2", "--max-cycles", str(STEPS),

@@ -130,7 +130,7 @@ def _batch(scenes, rng):
         inside = nav.fields[i].clearance_batch(x[:, :3]) > 0.0
         pick = rng.choice(x[inside == (e % 2 == 0)])  # free and not free in turn
         ref.append(np.asarray(nav.casadi_function(i)(pick)).ravel())
-        free.append(nav.fields[i].clearance(pick[:3]) > 0.0)
+        free.append(nav.fields[i].clearance_batch(pick[None, :3])[0] > 0.0)
         for col, value in zip(columns, [pick, *twist_parameters(nav, i)], strict=True):
             col.append(np.asarray(value).ravel(order="F"))
     inputs = [np.ascontiguousarray(np.stack(col, axis=1)) for col in columns]

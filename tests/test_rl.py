@@ -1,5 +1,5 @@
-"""RL baselines: the parameter-sharing VecEnv adapter, training end to end, and the
-committed pretrained models reproducing their recorded evaluation."""
+"""RL baselines: the SB3 engine's VecEnv stack, training end to end, and the committed
+pretrained models reproducing their recorded evaluation."""
 
 from __future__ import annotations
 
@@ -10,80 +10,13 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-import uvms_env
 from baselines.evaluate import evaluate
 from baselines.rl.policy import PRETRAINED_DIR
 from baselines.rl.train import find_resume, make_vec_env
-from baselines.rl.vec_env import ParallelVecEnv
 from baselines.runs import RunSettings
 from baselines.train import main, train
 
 SEED = 7
-
-
-def _factory(**kwargs):
-    return lambda k: uvms_env.parallel_env(scenario="short", seed=SEED + k, **kwargs)
-
-
-def _reference(copy: int, episode: int, copies: int = 2, **kwargs):
-    """Copy ``copy`` of ``copies``, its ``episode``-th episode: seeded SEED + k + K e."""
-    env = uvms_env.parallel_env(scenario="short", seed=SEED + copy, **kwargs)
-    obs, _ = env.reset(seed=SEED + copy + copies * episode)
-    return env, obs
-
-
-def _actions(venv: ParallelVecEnv, t: int) -> np.ndarray:
-    rng = np.random.default_rng(t)
-    return rng.uniform(-0.3, 0.3, (venv.num_envs, 8)).astype(np.float32)
-
-
-def test_agent_order_and_truncation_auto_reset():
-    kwargs = {"max_cycles": 3}
-    venv = ParallelVecEnv(_factory(**kwargs), 2, seed=SEED)
-    n = venv.n_agents
-    assert venv.agents == list(venv.envs[0].possible_agents) == ["uvms_0", "uvms_1"]
-    assert venv.num_envs == 2 * n
-    obs = venv.reset()
-    refs = [_reference(c, 0, **kwargs) for c in range(2)]
-    for c, (_, robs) in enumerate(refs):
-        for a, agent in enumerate(venv.agents):
-            np.testing.assert_array_equal(obs[c * n + a], robs[agent])
-    for t in range(3):
-        acts = _actions(venv, t)
-        obs, rewards, dones, infos = venv.step(acts)
-        for c, (env, _) in enumerate(refs):
-            step = {agent: acts[c * n + a] for a, agent in enumerate(venv.agents)}
-            robs, rrew, rterm, rtrunc, _ = env.step(step)
-            for a, agent in enumerate(venv.agents):
-                i = c * n + a
-                assert rewards[i] == pytest.approx(rrew[agent])
-                assert dones[i] == (t == 2)
-                if t < 2:
-                    np.testing.assert_array_equal(obs[i], robs[agent])
-                    assert "terminal_observation" not in infos[i]
-                else:  # truncated: terminal observation in infos, obs of the new episode
-                    assert rtrunc[agent] and not rterm[agent]
-                    np.testing.assert_array_equal(infos[i]["terminal_observation"], robs[agent])
-                    assert infos[i]["TimeLimit.truncated"] is True
-                    assert infos[i]["episode_end"] == "max_cycles"
-    for c in range(2):  # auto-reset with the copy's next episode seed
-        _, new = _reference(c, 1, **kwargs)
-        for a, agent in enumerate(venv.agents):
-            np.testing.assert_array_equal(obs[c * n + a], new[agent])
-    venv.close()
-
-
-def test_termination_is_not_truncation():
-    # Inputs beyond +-1 violate the input constraint: "terminate" mode ends at once.
-    venv = ParallelVecEnv(_factory(constraint_mode="terminate", max_cycles=50), 1, seed=SEED)
-    venv.reset()
-    _, _, dones, infos = venv.step(np.full((venv.num_envs, 8), 2.0, np.float32))
-    assert dones.all()
-    for info in infos:
-        assert info["TimeLimit.truncated"] is False
-        assert info["terminal_observation"].shape == venv.observation_space.shape
-        assert "metrics" in info
-    venv.close()
 
 
 def test_train_save_resume_evaluate(tmp_path):
@@ -132,22 +65,17 @@ def test_make_vec_env_paths():
     assert inner.internal_wrench_every == 0  # TRAIN_ENV_DEFAULTS reach the batched env
     paper = make_vec_env("paper", 1, 0, {}, dtype="float64", geometry_pool=1024)
     assert paper.venv.vector_env.geometry_pool is None  # a fixed geometry: no pool
-    single = make_vec_env("short", 2, 0, {"max_cycles": 10}, vec_env="single")
-    assert isinstance(single.venv, ParallelVecEnv) and single.num_envs == 4
-    for venv in (vector, paper, single):
+    for venv in (vector, paper):
         assert venv.reset().shape == (venv.num_envs, 79)
         venv.close()
-    with pytest.raises(ValueError, match="vec_env"):
-        make_vec_env("short", 1, 0, {}, vec_env="subproc")
+    with pytest.raises(ValueError, match="dtype"):
+        make_vec_env("short", 1, 0, {}, dtype="float16")
 
 
-@pytest.mark.parametrize(
-    "vec_env", ["vector", pytest.param("single", marks=pytest.mark.slow)]
-)  # the single path's VecEnv: test_make_vec_env_paths and the ParallelVecEnv tests above
-def test_cli_records_the_env_path(tmp_path, vec_env):
-    out = tmp_path / vec_env
+def test_cli_records_the_env_settings(tmp_path):
+    out = tmp_path / "run"
     argv = ["--algo", "ppo", "--robot-steps", "64", "--num-envs", "2", "--out", str(out)]
-    argv += ["--vec-env", vec_env, "--dtype", "float64", "--geometry-pool", "8"]
+    argv += ["--dtype", "float64", "--geometry-pool", "8"]
     argv += ["--env-option", "max_cycles=10", "--no-progress", "--checkpoint-every", "1000"]
     argv += ["--hp", "n_steps=16", "--hp", "batch_size=32", "--hp", "n_epochs=1"]
     argv += ["--hp", 'policy_kwargs={"log_std_init": -2.0}']
@@ -159,10 +87,7 @@ def test_cli_records_the_env_path(tmp_path, vec_env):
 
     log_std = PPO.load(out / "model.zip", device="cpu").policy.log_std.detach().numpy()
     assert log_std.shape == (8,) and np.all(np.abs(log_std + 2.0) < 0.05)  # moved little
-    expected = {
-        "vector": {"vec_env": "vector", "dtype": "float64", "geometry_pool": 8, "env_threads": 1},
-        "single": {"vec_env": "single", "dtype": None, "geometry_pool": None, "env_threads": None},
-    }[vec_env]
+    expected = {"dtype": "float64", "geometry_pool": 8, "env_threads": 1}
     assert {key: engine[key] for key in expected} == expected
     assert config["robot_steps"] == 64 and engine["robot_sub_envs"] == 4
     assert len(config["eval"]["episodes"]) == 2  # evaluated on single envs after training

@@ -26,25 +26,15 @@ def _first_observations(seed: int) -> dict[str, np.ndarray]:
     return obs
 
 
-@pytest.mark.parametrize("adapter", ["vector", "parallel"])
-def test_both_sb3_adapters_start_the_second_episode_on_the_rules_seed(adapter):
-    """Two copies, 2-step episodes: after the automatic reset, copy k's robots observe
-    what a single env reset with seed (3 + k + 2) mod 5 (vector: a pool of 5) or 3 + k + 2
-    (parallel) observes."""
-    from baselines.rl.vec_env import ParallelVecEnv
+def test_the_sb3_adapter_starts_the_second_episode_on_the_rules_seed():
+    """Two copies, 2-step episodes, a pool of 5: after the automatic reset, copy k's robots
+    observe what a single env reset with seed (3 + k + 2) mod 5 observes."""
     from uvms_env.vector import VectorEnv
     from uvms_env.vector.sb3 import VectorVecEnv
 
-    pool = 5 if adapter == "vector" else None
-    if adapter == "vector":
-        inner = VectorEnv("short", 2, dtype="float64", max_cycles=2, geometry_pool=5, threads=1)
-        venv = VectorVecEnv(inner, seed=3)
-    else:
-
-        def factory(k: int):
-            return uvms_env.parallel_env(scenario="short", max_cycles=2)
-
-        venv = ParallelVecEnv(factory, 2, seed=3)
+    pool = 5
+    inner = VectorEnv("short", 2, dtype="float64", max_cycles=2, geometry_pool=5, threads=1)
+    venv = VectorVecEnv(inner, seed=3)
     obs = venv.reset()
     for k in range(2):
         first = _first_observations(episode_seed(3, k, 0, 2, pool))

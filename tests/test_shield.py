@@ -196,19 +196,6 @@ def test_a_filtered_training_run_writes_the_run_records(tmp_path):
     assert (out / "model.zip").exists()
 
 
-def test_shielded_training_needs_the_vector_env(tmp_path):
-    from baselines.train import main
-
-    with pytest.raises(ValueError, match="vector"):
-        main(
-            [
-                "--engine", "sb3", "--scenario", "random", "--env-option", "n_agents=2",
-                "--vec-env", "single", "--filter", "--robot-steps", "64",
-                "--out", str(tmp_path / "x"),
-            ]
-        )  # fmt: skip
-
-
 def test_batched_builders_match_one_by_one_and_fall_back_without_a_compiler(monkeypatch):
     """The lane-parallel QP builders (``nmpc_expert.filter_batch``) give the same filtered
     commands as each filter's own ``act`` (1e-9, random proposals, 8 steps); without a C++

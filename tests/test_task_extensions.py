@@ -49,7 +49,7 @@ def test_single_env_applies_them_to_the_true_state():
     agents = ext.possible_agents
     ext.reset(seed=3)
     plain.reset(seed=3)
-    periods = 0
+    periods = all_kinds = 0
     for act in _actions(3, 25, 1)[:, 0]:
         actions = {a: act[i] for i, a in enumerate(agents)}
         _, r, _, tr, info = ext.step(actions)
@@ -60,6 +60,8 @@ def test_single_env_applies_them_to_the_true_state():
         assert terms["tilt"] == pytest.approx(-0.5 * np.abs(st.x_O[3:5]).sum(), abs=TOL)
         violated = g > 0
         periods += bool(violated.any())
+        kinds = info[agents[0]]["constraint_values"]
+        all_kinds += sum(any(info[a]["constraint_values"][k] > 0 for a in agents) for k in kinds)
         extra_violation = -ext.reward_weights.violation * violated.sum() / len(agents)
         assert terms["violation"] == pytest.approx(terms0["violation"] + extra_violation, abs=TOL)
         assert r[agents[0]] == pytest.approx(r0[agents[0]] + terms["tilt"] + extra_violation)
@@ -69,6 +71,9 @@ def test_single_env_applies_them_to_the_true_state():
     assert tr[agents[0]]
     metrics = info[agents[0]]["metrics"]
     assert metrics["violations"]["slow_joints"] == periods > 0  # the test can fail
+    # every kind's periods, built-in and extra
+    assert metrics["violation_periods"] == all_kinds >= periods
+    assert metrics["clean_success"] is False
     assert ext.constraint_values()[agents[0]].keys() == info[agents[0]]["constraint_values"].keys()
 
 
@@ -120,6 +125,8 @@ def test_vector_env_agrees_with_single_envs(backend):
                 ends += 1
                 mine, theirs = infos["metrics"][i], head["metrics"]
                 assert mine["violations"] == theirs["violations"]
+                assert mine["violation_periods"] == theirs["violation_periods"]
+                assert mine["clean_success"] == theirs["clean_success"]
                 assert "slow_joints" in mine["violations"]
                 assert mine["control_effort"] == pytest.approx(theirs["control_effort"], abs=TOL)
                 env.reset()

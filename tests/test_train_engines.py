@@ -1,9 +1,9 @@
 """One training layer under three engines (``baselines.train --engine {sb3,torchrl,rllib}``):
 each trains for a tiny budget and writes the same progress.csv and evaluations.csv
 columns and the same config.json keys; every engine's ``--help`` lists the same shared
-options; the old flag names still work, with a deprecation warning; the learning-curve
-figure draws runs of all three; every PPO engine takes PPO-Lagrangian's dual step the same
-way (and RLlib's env runners apply each new multiplier)."""
+options; the learning-curve figure draws runs of all three; every PPO engine takes
+PPO-Lagrangian's dual step the same way (and RLlib's env runners apply each new
+multiplier)."""
 
 from __future__ import annotations
 
@@ -196,33 +196,6 @@ def test_every_engine_lists_the_same_shared_options(capsys):
         text = capsys.readouterr().out
         shared = text[text.index(SHARED_GROUP) :].split(f"{engine} engine:")[0]
         assert all(f in shared for f in flags), engine
-        # deprecated aliases are accepted but not advertised
-        assert "--n-envs" not in text and "--total-timesteps" not in text
-
-
-@pytest.mark.parametrize(
-    ("old", "new", "dest"),
-    [
-        (["--n-envs", "3"], ["--num-envs", "3"], "num_envs"),
-        (["--total-timesteps", "99"], ["--robot-steps", "99"], "robot_steps"),
-        (["--total-steps", "99"], ["--robot-steps", "99"], "robot_steps"),
-    ],
-)
-def test_old_flags_still_parse_with_a_deprecation_warning(old, new, dest):
-    for engine in ENGINES:
-        ap = build_parser(engine)
-        with pytest.warns(FutureWarning, match=f"{old[0]} is deprecated.*{new[0]}"):
-            args = ap.parse_args(old)
-        assert getattr(args, dest) == getattr(ap.parse_args(new), dest)
-
-
-def test_rllib_envs_per_runner_and_team_size_flags_are_deprecated():
-    ap = build_parser("rllib")
-    with pytest.warns(FutureWarning, match="--num-envs-per-env-runner"):
-        assert ap.parse_args(["--num-envs-per-env-runner", "5"]).num_envs == 5
-    with pytest.warns(FutureWarning, match="n_agents"):
-        args = ap.parse_args(["--env-option", "max_cycles=9", "--n-agents", "3"])
-    assert args.env_option == ["max_cycles=9", "n_agents=3"]
 
 
 def _cost_run(engine: str, out: Path, robot_steps: int, cost: list[str], *extra: str) -> None:

@@ -4,7 +4,9 @@ Layers, lowest first (a layer imports only those below it):
 ``models`` (parameters, URDF) -> ``dynamics`` (CasADi functions of one UVMS and of the
 object) -> ``sim`` (closed-chain truth simulator) ; ``navigation`` (navigation function)
 -> ``scenarios`` (validated task configs; used by ``sim``) -> ``env`` (the PettingZoo
-environment, its Gymnasium view, rendering; imports all of the above).
+environment, its Gymnasium view, rendering; imports all of the above). Beside them:
+``policy`` (the per-robot policy interface) and ``episode`` (the one closed-loop episode
+driver every evaluation and rollout plays through).
 
     import uvms_env
     env = uvms_env.parallel_env(scenario="paper")  # PettingZoo ParallelEnv

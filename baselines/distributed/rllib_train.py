@@ -36,7 +36,6 @@ from pathlib import Path
 from typing import Any
 
 from baselines.lagrangian import Lagrangian
-from baselines.options import add_deprecated
 from baselines.runs import Run, seeded_pool
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -140,7 +139,6 @@ def add_arguments(g: Any) -> None:
     g.add_argument("--num-cpus", type=int, default=None, help="local Ray only")
     g.add_argument("--iterations", type=int, default=None, help="stop after this many too")
     g.add_argument("--rollout-fragment-length", default="auto", help="env steps per runner request")
-    add_deprecated(g, "--num-envs", "--num-envs-per-env-runner", type=int)
 
 
 def iteration_robot_steps(result: dict[str, Any]) -> int:

@@ -52,7 +52,6 @@ import json
 import os
 import platform
 import time
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -61,7 +60,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from baselines.imitation import bc, dataset
-from baselines.imitation.features import FEATURES, LEGACY_FEATURES, canonical_features
+from baselines.imitation.dataset import AgentStream
+from baselines.imitation.features import FEATURES
 from baselines.imitation.network import MLPPolicyNet
 from baselines.imitation.policy import ClonedPolicy
 from baselines.imitation.rollout import rollouts
@@ -151,18 +151,6 @@ def collect(args: argparse.Namespace) -> None:
 def _write_json(path: Path, payload: dict[str, Any]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json(path, payload)
-
-
-def _features(name: str) -> str:
-    """``--features``: an earlier name is accepted for one release, with a warning."""
-    if name in LEGACY_FEATURES:
-        warnings.warn(
-            f"--features {name} is deprecated and will be removed in the next release; "
-            f"use --features {canonical_features(name)}",
-            FutureWarning,
-            stacklevel=2,
-        )
-    return canonical_features(name)
 
 
 def _common(args: argparse.Namespace) -> dict[str, Any]:
@@ -255,25 +243,8 @@ def train_dagger(args: argparse.Namespace) -> None:
     log = args.out / "dagger_loss.csv"
     log.unlink(missing_ok=True)
 
-    def fit(o: np.ndarray, a: np.ndarray, r: np.ndarray, k: int, start_net=None):
-        return bc.fit(
-            o,
-            a,
-            ring_radius=r,
-            epochs=args.epochs,
-            lr=args.lr,
-            hidden=tuple(args.hidden),
-            net=start_net,
-            features=args.features if start_net is None else start_net.features,
-            seed=args.seed + k,
-            val_fraction=0.05,
-            log_path=log,
-            stage=f"dagger_{k}",
-            **_fit_options(args),
-        )
-
     if args.init is None:
-        net, losses = fit(obs, act, ring, 0)
+        net, losses = _dagger_fit(args, log, obs, act, ring, 0)
         history: list[dict[str, Any]] = [
             {"iteration": 0, "beta": 1.0, "samples": len(obs), "loss": losses[-1]}
         ]
@@ -282,7 +253,6 @@ def train_dagger(args: argparse.Namespace) -> None:
         history = [{"iteration": 0, "init": args.init, "samples": 0 if obs is None else len(obs)}]
     distill = args.expert == SELF_FILTER
     expert = None if distill else PolicySource.parse(args.expert).factory(args.seed)
-    obs_space = act_space = None
     for k in range(1, args.iterations + 1):
         path = args.out / f"iter_{k - 1}" / "policy.pt"
         net.save(path, {"method": "dagger", "iteration": k - 1})
@@ -290,46 +260,9 @@ def train_dagger(args: argparse.Namespace) -> None:
             from nmpc_expert import make_filter  # the expert is optional at import time
 
             expert = make_filter(lambda spec, p=path: ClonedPolicy(spec, p))
-        beta = args.beta**k
-        row: dict[str, Any] = {"iteration": k, "beta": beta}
-        new_streams = []
-        for j, entry in enumerate(scenarios):
-            scenario, episodes = _scenario_episodes(entry, args.episodes_per_iteration)
-            overrides = env_overrides(scenario, args)
-            if obs_space is None:
-                obs_space, act_space = _spaces(scenario, overrides)
-            streams, metrics = rollouts(
-                _env_factory(scenario, overrides, args.max_cycles),
-                expert,
-                episodes,
-                args.seed + 1000 * k + 100 * j,
-                learner=lambda spec, p=path: ClonedPolicy(spec, p),
-                beta=beta,
-                desc=f"dagger {k} {scenario}",
-                noise=args.noise,
-                gate=args.gate,
-            )
-            new_streams += streams
-            row[f"rollouts_{scenario}"] = _summary(metrics)
-        if args.save_data:
-            dataset.write_dataset(
-                new_streams,
-                args.out / "data",
-                f"iter_{k}",
-                obs_space,
-                act_space,
-                algorithm=f"DAgger iteration {k}, labels {args.expert}",
-                # one environment to recover only when the rollouts had one scenario
-                spec=_env_spec(scenario, overrides, args.max_cycles)
-                if len(scenarios) == 1
-                else None,
-            )
-        new_obs = np.concatenate([np.stack(s.observations[:-1]) for s in new_streams])
-        new_act = np.concatenate([np.stack(s.actions) for s in new_streams])
-        new_ring = np.concatenate(
-            [np.full(len(s.actions), s.object_ring_radius) for s in new_streams]
-        )
-        acted = np.concatenate([s.learner_acted for s in new_streams])
+        row: dict[str, Any] = {"iteration": k, "beta": args.beta**k}
+        new_streams = _dagger_rollouts(args, k, expert, path, scenarios, row)
+        new_obs, new_act, new_ring, acted = _stacked(new_streams)
         learner_share = np.mean(acted)
         # the quantity DAgger drives down: the current network's error on the states it
         # visits itself (before they join the training data)
@@ -340,7 +273,7 @@ def train_dagger(args: argparse.Namespace) -> None:
         else:
             obs, act = np.concatenate([obs, new_obs]), np.concatenate([act, new_act])
             ring = np.concatenate([ring, new_ring])
-        net, losses = fit(obs, act, ring, k, None if args.init is None else net)
+        net, losses = _dagger_fit(args, log, obs, act, ring, k, None if args.init is None else net)
         row.update(
             samples=len(obs),
             new_samples=len(new_obs),
@@ -353,6 +286,104 @@ def train_dagger(args: argparse.Namespace) -> None:
     info = {
         "method": "dagger",
         **_common(args),
+        **_dagger_settings(args, scenarios),
+        "demo_robot_streams": n_streams,
+        "samples": len(obs),
+        "history": history,
+        "train_wall_s": round(time.time() - start, 1),
+    }
+    net.save(args.out / "policy.pt", info)
+    _write_json(args.out / "train.json", info)
+    print(f"saved {args.out / 'policy.pt'} ({len(obs)} samples, {info['train_wall_s']} s)")
+
+
+def _dagger_fit(
+    args: argparse.Namespace,
+    log: Path,
+    obs: np.ndarray,
+    act: np.ndarray,
+    ring: np.ndarray,
+    k: int,
+    start_net: MLPPolicyNet | None = None,
+) -> tuple[MLPPolicyNet, list[float]]:
+    """Iteration ``k``'s fit on the aggregate (its own seed and loss-log stage), from
+    ``start_net`` when given, else from scratch."""
+    return bc.fit(
+        obs,
+        act,
+        ring_radius=ring,
+        epochs=args.epochs,
+        lr=args.lr,
+        hidden=tuple(args.hidden),
+        net=start_net,
+        features=args.features if start_net is None else start_net.features,
+        seed=args.seed + k,
+        val_fraction=0.05,
+        log_path=log,
+        stage=f"dagger_{k}",
+        **_fit_options(args),
+    )
+
+
+def _dagger_rollouts(
+    args: argparse.Namespace,
+    k: int,
+    expert: Any,
+    path: Path,
+    scenarios: list[str],
+    row: dict[str, Any],
+) -> list[AgentStream]:
+    """Iteration ``k``'s rollouts of the clone saved at ``path`` on every scenario, labelled
+    by ``expert`` with the iteration's ``row["beta"]`` (the summaries go into ``row``);
+    written as a dataset with --save-data."""
+    streams: list[AgentStream] = []
+    for j, entry in enumerate(scenarios):
+        scenario, episodes = _scenario_episodes(entry, args.episodes_per_iteration)
+        overrides = env_overrides(scenario, args)
+        new, metrics = rollouts(
+            _env_factory(scenario, overrides, args.max_cycles),
+            expert,
+            episodes,
+            args.seed + 1000 * k + 100 * j,
+            learner=lambda spec, p=path: ClonedPolicy(spec, p),
+            beta=row["beta"],
+            desc=f"dagger {k} {scenario}",
+            noise=args.noise,
+            gate=args.gate,
+        )
+        streams += new
+        row[f"rollouts_{scenario}"] = _summary(metrics)
+    if args.save_data:
+        first, _ = _scenario_episodes(scenarios[0], args.episodes_per_iteration)
+        overrides = env_overrides(first, args)
+        obs_space, act_space = _spaces(first, overrides)
+        dataset.write_dataset(
+            streams,
+            args.out / "data",
+            f"iter_{k}",
+            obs_space,
+            act_space,
+            algorithm=f"DAgger iteration {k}, labels {args.expert}",
+            # one environment to recover only when the rollouts had one scenario
+            spec=_env_spec(first, overrides, args.max_cycles) if len(scenarios) == 1 else None,
+        )
+    return streams
+
+
+def _stacked(
+    streams: list[AgentStream],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Observations, expert labels, ring radii and learner-acted flags, stream after
+    stream (each stream's last observation has no label)."""
+    obs = np.concatenate([np.stack(s.observations[:-1]) for s in streams])
+    act = np.concatenate([np.stack(s.actions) for s in streams])
+    ring = np.concatenate([np.full(len(s.actions), s.object_ring_radius) for s in streams])
+    acted = np.concatenate([s.learner_acted for s in streams])
+    return obs, act, ring, acted
+
+
+def _dagger_settings(args: argparse.Namespace, scenarios: list[str]) -> dict[str, Any]:
+    return {
         "scenarios": scenarios,
         "iterations": args.iterations,
         "episodes_per_iteration": args.episodes_per_iteration,
@@ -364,14 +395,7 @@ def train_dagger(args: argparse.Namespace) -> None:
         "n_agents": args.n_agents,
         "expert": args.expert,
         "init": args.init,
-        "demo_robot_streams": n_streams,
-        "samples": len(obs),
-        "history": history,
-        "train_wall_s": round(time.time() - start, 1),
     }
-    net.save(args.out / "policy.pt", info)
-    _write_json(args.out / "train.json", info)
-    print(f"saved {args.out / 'policy.pt'} ({len(obs)} samples, {info['train_wall_s']} s)")
 
 
 def _add_env_args(p: argparse.ArgumentParser) -> None:
@@ -395,9 +419,7 @@ def _add_train_args(p: argparse.ArgumentParser, epochs: int, data_required: bool
         "--loss-scale", default="none", choices=bc.LOSS_SCALES, help="std: per-component 1/var"
     )
     p.add_argument("--hidden", type=int, nargs="*", default=[128, 128], help="widths; none: linear")
-    p.add_argument(
-        "--features", default="features", choices=FEATURES, type=_features, help="input set"
-    )
+    p.add_argument("--features", default="features", choices=FEATURES, help="input set")
     p.add_argument("--seed", type=int, default=0)
 
 

@@ -24,13 +24,14 @@ the ones the learner has to master, yet reached by the learner's own small error
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
 from baselines.imitation.dataset import AgentStream
+from uvms_env.episode import Step, play
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 
 
@@ -57,64 +58,86 @@ def rollouts(
     metrics: list[dict] = []
     bar = tqdm(total=episodes, desc=desc, disable=not progress, unit="ep")
     for ep in range(episodes):
-        ep_seed = seed + ep
-        env = env_factory(ep_seed)
-        obs, _ = env.reset(seed=ep_seed)
-        agents = list(env.possible_agents)
-        specs = [AgentSpec.from_scenario(env.scenario, i) for i in range(len(agents))]
-        experts: list[Policy] = [expert(s) for s in specs]
-        learners: list[Policy] | None = [learner(s) for s in specs] if learner else None
-        for p in experts + (learners or []):
-            p.reset()
-        ring = specs[0].object_ring_radius
-        ep_streams = {a: AgentStream.start(obs[a], ep_seed, ring) for a in agents}
-        end: dict = {}
-        steps = 0
-        while env.agents:
-            actions = {}
-            for i, a in enumerate(agents):
-                s = ep_streams[a]
-                start = time.perf_counter()
-                label = np.asarray(experts[i].act(obs[a]), dtype=np.float32)
-                s.solve_ms.append((time.perf_counter() - start) * 1e3)
-                stats = getattr(experts[i], "stats", None) or {}
-                s.iterations.append(int(stats.get("iterations", 0) or 0))
-                s.fallbacks.append(int(stats.get("fallbacks", 0) or 0))
-                s.actions.append(label)
-                executed = label
-                use_learner = learners is not None and rng.random() >= beta
-                if use_learner:
-                    proposal = np.asarray(learners[i].act(obs[a]), dtype=np.float32)
-                    if gate is None or np.max(np.abs(proposal - label)) <= gate:
-                        executed = proposal
-                    else:
-                        use_learner = False
-                if noise > 0.0:
-                    perturbed = executed + noise * rng.standard_normal(executed.shape)
-                    executed = np.clip(perturbed, -1.0, 1.0).astype(np.float32)
-                if use_learner or noise > 0.0:
-                    # a stateful expert's memory must follow the applied input
-                    hook = getattr(experts[i], "executed", None)
-                    if hook is not None:
-                        hook(executed)
-                s.learner_acted.append(bool(use_learner))
-                actions[a] = executed
-            obs, rew, term, trunc, infos = env.step(actions)
-            steps += 1
-            for a in agents:
-                s = ep_streams[a]
-                s.observations.append(np.asarray(obs.get(a, s.observations[-1]), np.float32))
-                s.rewards.append(float(rew.get(a, 0.0)))
-                s.terminations.append(bool(term.get(a, False)))
-                s.truncations.append(bool(trunc.get(a, False)))
-                if "metrics" in infos.get(a, {}):
-                    end = infos[a]["metrics"]
-            if steps % 50 == 0:
-                bar.set_postfix(ep=ep, step=steps)
+        labelled = _Labelling(seed + ep, rng, learner, beta, noise, gate)
+
+        def record(step: Step, labelled: _Labelling = labelled, ep: int = ep) -> None:
+            labelled.record(step)
+            if (step.index + 1) % 50 == 0:
+                bar.set_postfix(ep=ep, step=step.index + 1)
+
+        env = env_factory(seed + ep)
+        episode = play(env, expert, seed + ep, labelled.execute, record, labelled.start)
         env.close()
-        streams.extend(ep_streams.values())
-        metrics.append(end)
-        bar.set_postfix(ep=ep, steps=steps, success=bool(end.get("success")))
+        streams.extend(labelled.streams.values())
+        metrics.append(episode.metrics)
+        bar.set_postfix(ep=ep, steps=episode.steps, success=bool(episode.metrics.get("success")))
         bar.update()
     bar.close()
     return streams, metrics
+
+
+class _Labelling:
+    """One episode's per-robot streams: the expert labels, the executed action is drawn
+    from the expert's and the learner's (module docstring)."""
+
+    def __init__(
+        self,
+        ep_seed: int,
+        rng: np.random.Generator,
+        learner: PolicyFactory | None,
+        beta: float,
+        noise: float,
+        gate: float | None,
+    ) -> None:
+        self.ep_seed, self.rng, self.learner = ep_seed, rng, learner
+        self.beta, self.noise, self.gate = beta, noise, gate
+        self.streams: dict[str, AgentStream] = {}
+        self.stream_list: list[AgentStream] = []
+        self.learners: list[Policy] | None = None
+
+    def start(self, env: Any, obs: dict[str, np.ndarray]) -> None:
+        agents = env.possible_agents
+        specs = [AgentSpec.from_scenario(env.scenario, i) for i in range(len(agents))]
+        ring = specs[0].object_ring_radius
+        self.streams = {a: AgentStream.start(obs[a], self.ep_seed, ring) for a in agents}
+        self.stream_list = list(self.streams.values())
+        if self.learner is not None:
+            self.learners = [self.learner(s) for s in specs]
+            for p in self.learners:
+                p.reset()
+
+    def execute(self, i: int, expert: Policy, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
+        s = self.stream_list[i]
+        label = np.asarray(action, dtype=np.float32)
+        stats = getattr(expert, "stats", None) or {}
+        s.iterations.append(int(stats.get("iterations", 0) or 0))
+        s.fallbacks.append(int(stats.get("fallbacks", 0) or 0))
+        s.actions.append(label)
+        executed = label
+        use_learner = self.learners is not None and self.rng.random() >= self.beta
+        if use_learner:
+            proposal = np.asarray(self.learners[i].act(obs), dtype=np.float32)
+            if self.gate is None or np.max(np.abs(proposal - label)) <= self.gate:
+                executed = proposal
+            else:
+                use_learner = False
+        if self.noise > 0.0:
+            perturbed = executed + self.noise * self.rng.standard_normal(executed.shape)
+            executed = np.clip(perturbed, -1.0, 1.0).astype(np.float32)
+        if use_learner or self.noise > 0.0:
+            # a stateful expert's memory must follow the applied input
+            hook = getattr(expert, "executed", None)
+            if hook is not None:
+                hook(executed)
+        s.learner_acted.append(bool(use_learner))
+        return executed
+
+    def record(self, step: Step) -> None:
+        for i, (a, s) in enumerate(self.streams.items()):
+            s.solve_ms.append(float(step.decision_ms[i]))
+            s.observations.append(
+                np.asarray(step.observations.get(a, s.observations[-1]), np.float32)
+            )
+            s.rewards.append(float(step.rewards.get(a, 0.0)))
+            s.terminations.append(bool(step.terminations.get(a, False)))
+            s.truncations.append(bool(step.truncations.get(a, False)))

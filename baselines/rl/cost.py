@@ -1,8 +1,7 @@
 """The SB3 engine's side of ``baselines.lagrangian``: a VecEnv wrapper that subtracts the
 multiplier times each robot sub-environment's constraint cost from its reward.
 
-May import: numpy, stable-baselines3, ``baselines.lagrangian`` and
-``uvms_env.env.constraints``.
+May import: numpy, stable-baselines3 and ``baselines.lagrangian``.
 """
 
 from __future__ import annotations
@@ -14,14 +13,12 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from baselines.lagrangian import CostSettings, Lagrangian
-from uvms_env.env.constraints import CONSTRAINTS
 
 
 class CostPenalty(VecEnvWrapper):
     """Subtracts ``multiplier * cost`` from each robot sub-environment's reward and keeps
     each ended episode's cost; ``infos[i]["constraint_cost"]`` is the step's cost. Wraps
-    ``uvms_env.vector.sb3.VectorVecEnv`` or ``baselines.rl.vec_env.ParallelVecEnv``
-    directly (it reads their constraint values)."""
+    ``uvms_env.vector.sb3.VectorVecEnv`` directly (it reads its constraint values)."""
 
     def __init__(self, venv: VecEnv, settings: CostSettings) -> None:
         super().__init__(venv)
@@ -44,11 +41,8 @@ class CostPenalty(VecEnvWrapper):
         obs, reward, done, infos = self.venv.step_wait()
         g = None
         if self.settings.kind == "magnitude":
-            batched = getattr(self.venv, "last_infos", None)
-            if batched:  # the vector env: (K, N, 8) arrays, robots in sub-env order
-                g = batched["constraint_values"]
-            else:
-                g = [[info["constraint_values"][c] for c in CONSTRAINTS] for info in infos]
+            # the vector env's (K, N, C) values, robots in sub-env order
+            g = self.venv.last_infos["constraint_values"]
         count = [float(info["cost"]) for info in infos]
         cost = self.lagrangian.penalize(g, count, done)
         for i, c in enumerate(cost.tolist()):

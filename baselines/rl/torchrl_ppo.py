@@ -24,13 +24,12 @@ values read from each ``VectorEnv`` step (``StepCosts``). Not here: a central cr
 
 This is the engine of ``baselines.train --engine torchrl``: the run layer
 (``baselines.runs``) writes the records and evaluations; the run folder also gets
-``actor.pt``, which ``--policy torchrl:RUN`` evaluates (``TorchRLPolicy``: plain torch,
-deterministic action tanh(loc), the run's priors applied as ``SB3Policy`` does), and
+``actor.pt``, which ``--policy torchrl:RUN`` evaluates (``baselines.rl.torchrl_policy``), and
 ``trainer.pt`` (critic, optimizer, return statistics), which ``--resume RUN`` reads.
 
-May import: numpy, torch, tensordict and torchrl (inside the training functions: the
-policy loader needs torch alone), ``baselines.runs``, ``baselines.lagrangian``,
-``baselines.rl.policy`` (a run's priors) and ``uvms_env``.
+May import: numpy, torch, tensordict and torchrl (inside the training functions),
+``baselines.runs``, ``baselines.lagrangian``,
+``baselines.rl.torchrl_policy`` (the actor's network) and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -40,7 +39,6 @@ import math
 import os
 import time
 import warnings
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -51,14 +49,19 @@ import torch
 from torch import nn
 
 from baselines.lagrangian import Lagrangian
-from baselines.rl.policy import run_priors
+from baselines.rl.torchrl_policy import (
+    ACTOR_FILE,
+    CLIP_OBSERVATION,
+    ActorNet,
+    RunningNorm,
+    mlp,
+    save_actor,
+)
 from baselines.runs import TRAIN_ENV_DEFAULTS, Run, seeded_pool
-from uvms_env.policy import AgentSpec
 
 ALGOS = ("ppo",)
 BACKENDS = ("cpu", "cuda")
 DTYPES = ("float32", "float64")
-ACTOR_FILE = "actor.pt"
 HYPERPARAMETERS: dict[str, Any] = {
     "rollout_steps": 256,  # per env copy and iteration (SB3's n_steps)
     "minibatches": 32,  # per epoch, over the rollout's K x rollout_steps rows
@@ -82,7 +85,6 @@ DEFAULTS: dict[str, Any] = {"num_envs": 64, "geometry_pool": 1024}
 # core of a small machine to torch.
 DEFAULT_DTYPE = "float32"
 DEFAULT_ENV_THREADS = 1
-CLIP_OBSERVATION = 10.0  # VecNormalize's clip_obs and clip_reward
 
 
 OPTIONS_NOTE = f"--hp KEY=JSON sets one of {', '.join(HYPERPARAMETERS)}"
@@ -104,63 +106,7 @@ def add_arguments(g: Any) -> None:
     g.add_argument("--torch-threads", type=int, default=1)
 
 
-# -- networks (plain torch: the evaluator loads them without TorchRL) ------------------------
-class RunningNorm(nn.Module):
-    """Running mean and variance of the last dimension (buffers, saved with the module):
-    ``forward`` standardizes and clips at ``clip``. Updated in place, so the TorchRL loss's
-    view of the buffers stays the module's."""
-
-    def __init__(self, size: int, clip: float = CLIP_OBSERVATION, eps: float = 1e-8) -> None:
-        super().__init__()
-        self.clip, self.eps = clip, eps
-        self.register_buffer("mean", torch.zeros(size))
-        self.register_buffer("var", torch.ones(size))
-        self.register_buffer("count", torch.tensor(1e-4))  # VecNormalize's prior count
-
-    @torch.no_grad()
-    def update(self, x: torch.Tensor) -> None:
-        """Fold the rows of ``x`` (..., size) in (Chan et al.'s parallel combination)."""
-        x = x.reshape(-1, self.mean.shape[0]).to(self.mean.dtype)
-        n = torch.tensor(float(x.shape[0]), device=x.device)
-        mean, var = x.mean(0), x.var(0, unbiased=False)
-        total = self.count + n
-        delta = mean - self.mean
-        m2 = self.var * self.count + var * n + delta**2 * self.count * n / total
-        self.mean.add_(delta * n / total)
-        self.var.copy_(m2 / total)
-        self.count.copy_(total)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        z = (x - self.mean) / torch.sqrt(self.var + self.eps)
-        return z.clamp(-self.clip, self.clip)
-
-
-def mlp(size_in: int, hidden: list[int], size_out: int) -> nn.Sequential:
-    layers: list[nn.Module] = []
-    for width in hidden:
-        layers += [nn.Linear(size_in, width), nn.Tanh()]
-        size_in = width
-    layers.append(nn.Linear(size_in, size_out))
-    return nn.Sequential(*layers)
-
-
-class ActorNet(nn.Module):
-    """One robot's observation (..., D) -> the TanhNormal's loc and scale (..., 8); the
-    spread is a learned state-independent log std (SB3's Gaussian policy)."""
-
-    def __init__(
-        self, observation_size: int, hidden: list[int], log_std_init: float, normalize: bool
-    ) -> None:
-        super().__init__()
-        self.norm = RunningNorm(observation_size) if normalize else nn.Identity()
-        self.body = mlp(observation_size, hidden, 8)
-        self.log_std = nn.Parameter(torch.full((8,), float(log_std_init)))
-
-    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        loc = self.body(self.norm(obs))
-        return loc, self.log_std.exp().expand_as(loc)
-
-
+# -- networks ---------------------------------------------------------------------------------
 class CriticNet(nn.Module):
     def __init__(self, observation_size: int, hidden: list[int], normalize: bool) -> None:
         super().__init__()
@@ -169,76 +115,6 @@ class CriticNet(nn.Module):
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         return self.body(self.norm(obs))
-
-
-# -- the policy loader (``--policy torchrl:RUN``) --------------------------------------------
-def resolve_actor(path: str | None) -> Path:
-    """The ``actor.pt`` of ``torchrl:PATH`` (a run folder or the file)."""
-    if not path:
-        raise ValueError("torchrl:PATH needs a run folder of --engine torchrl")
-    file = Path(path)
-    if file.is_dir():
-        file = file / ACTOR_FILE
-    if not file.is_file():
-        raise ValueError(f"no TorchRL actor at {path} (expected {ACTOR_FILE})")
-    return file
-
-
-def save_actor(net: ActorNet, settings: dict[str, Any], path: Path) -> None:
-    """The actor's weights and what rebuilds it, on the host."""
-    state = {k: v.detach().cpu() for k, v in net.state_dict().items()}
-    torch.save({"settings": settings, "state_dict": state}, path)
-
-
-def load_actor(path: Path) -> ActorNet:
-    data = torch.load(path, map_location="cpu", weights_only=True)
-    s = data["settings"]
-    net = ActorNet(s["observation_size"], s["hidden"], 0.0, s["normalize_observation"])
-    net.load_state_dict(data["state_dict"])
-    return net.eval()
-
-
-def _load_cached(path: Path) -> ActorNet:
-    """Cached until the file changes (a later run may write the same folder)."""
-    st = path.stat()
-    return _load_stamped(str(path.resolve()), (st.st_mtime_ns, st.st_size))
-
-
-@lru_cache(maxsize=8)
-def _load_stamped(path: str, stamp: tuple[int, int]) -> ActorNet:
-    del stamp  # part of the cache key only
-    torch.set_num_threads(1)  # one episode per process; two threads collapse when shared
-    return load_actor(Path(path))
-
-
-class TorchRLPolicy:
-    """The shared actor acting for one robot: deterministic (tanh of the Gaussian's mean,
-    TanhNormal's deterministic sample), with the priors the run trained with."""
-
-    def __init__(self, spec: AgentSpec, path: str | None) -> None:
-        file = resolve_actor(path)
-        self.spec = spec
-        self.net = _load_cached(file)
-        self.priors = run_priors(file.parent)
-        self._ring = spec.object_ring_radius
-        self.stats: dict[str, Any] = {}
-
-    def reset(self) -> None:
-        pass
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        raw = np.asarray(obs, dtype=np.float32)
-        x = torch.as_tensor(np.asarray(self.priors.observe(raw, self._ring), np.float32))
-        with torch.no_grad():
-            loc, _ = self.net(x)
-        chosen = np.clip(torch.tanh(loc).numpy(), -1.0, 1.0)
-        return self.priors.command(raw, chosen, self._ring).astype(np.float32)
-
-
-def factory(path: str | None):
-    """``torchrl:PATH`` for ``baselines.policies``: fails before the episode starts."""
-    resolve_actor(path)
-    return lambda spec: TorchRLPolicy(spec, path)
 
 
 # -- training ---------------------------------------------------------------------------------
@@ -313,6 +189,38 @@ def build_modules(env: Any, hp: dict[str, Any]) -> tuple[Any, Any, ActorNet, Cri
         critic_net, in_keys=[(GROUP, "observation")], out_keys=[(GROUP, "state_value")]
     )
     return actor, critic, actor_net, critic_net
+
+
+def ppo_loss(actor: Any, critic: Any, hp: dict[str, Any]) -> Any:
+    """TorchRL's clipped PPO loss over the group's keys, with GAE as its value estimator."""
+    from torchrl.objectives import ClipPPOLoss, ValueEstimators
+
+    from uvms_env.vector.torchrl_env import GROUP
+
+    loss = ClipPPOLoss(
+        actor_network=actor,
+        critic_network=critic,
+        clip_epsilon=hp["clip_epsilon"],
+        entropy_bonus=hp["entropy_coef"] > 0,
+        entropy_coeff=hp["entropy_coef"],
+        critic_coeff=hp["critic_coef"],
+        loss_critic_type="l2",
+        normalize_advantage=True,
+    )
+    loss.set_keys(
+        reward=(GROUP, "reward"),
+        action=(GROUP, "action"),
+        value=(GROUP, "state_value"),
+        done=(GROUP, "done"),
+        terminated=(GROUP, "terminated"),
+        advantage=(GROUP, "advantage"),
+        value_target=(GROUP, "value_target"),
+    )
+    # The advantages are normalized over the minibatch's rows and robots together (one
+    # shared policy), which TorchRL's multi-agent warning asks to confirm on every call.
+    warnings.filterwarnings("ignore", "You requested advantage normalization", UserWarning)
+    loss.make_value_estimator(ValueEstimators.GAE, gamma=hp["gamma"], lmbda=hp["gae_lambda"])
+    return loss
 
 
 class EpisodeTracker:
@@ -405,9 +313,6 @@ class Engine:
         from torchrl.collectors import Collector
         from torchrl.data import LazyTensorStorage, ReplayBuffer
         from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
-        from torchrl.objectives import ClipPPOLoss, ValueEstimators
-
-        from uvms_env.vector.torchrl_env import GROUP
 
         s, a, hp = self.run.settings, self.args, self.hp
         device = parse_device(a.device, a.backend)
@@ -425,29 +330,7 @@ class Engine:
             self.costs = StepCosts(env.vector_env)
             self.lagrangian = Lagrangian(s.cost, s.num_envs * n)
         actor, critic, actor_net, critic_net = build_modules(env, hp)
-        loss = ClipPPOLoss(
-            actor_network=actor,
-            critic_network=critic,
-            clip_epsilon=hp["clip_epsilon"],
-            entropy_bonus=hp["entropy_coef"] > 0,
-            entropy_coeff=hp["entropy_coef"],
-            critic_coeff=hp["critic_coef"],
-            loss_critic_type="l2",
-            normalize_advantage=True,
-        )
-        loss.set_keys(
-            reward=(GROUP, "reward"),
-            action=(GROUP, "action"),
-            value=(GROUP, "state_value"),
-            done=(GROUP, "done"),
-            terminated=(GROUP, "terminated"),
-            advantage=(GROUP, "advantage"),
-            value_target=(GROUP, "value_target"),
-        )
-        # The advantages are normalized over the minibatch's rows and robots together (one
-        # shared policy), which TorchRL's multi-agent warning asks to confirm on every call.
-        warnings.filterwarnings("ignore", "You requested advantage normalization", UserWarning)
-        loss.make_value_estimator(ValueEstimators.GAE, gamma=hp["gamma"], lmbda=hp["gae_lambda"])
+        loss = ppo_loss(actor, critic, hp)
         optimizer = torch.optim.Adam(loss.parameters(), lr=hp["lr"])
         tracker = EpisodeTracker(s.num_envs, hp["gamma"], dev)
         if s.resume is not None:

@@ -5,10 +5,9 @@ shared by all robots.
         --num-envs 4 --seed 0 --out runs/ppo
 
 Every robot of every env copy is a sub-environment, so one policy learns from all robots'
-local observations. By default the copies are one batched ``uvms_env.vector.VectorEnv``
-(``--vec-env vector``: ``VectorVecEnv``, float32, each episode of a seeded family on one of
-``--geometry-pool`` geometries); ``--vec-env single`` steps one ``parallel_env`` per copy
-(``ParallelVecEnv``, every episode a new geometry). Observations and rewards are normalized
+local observations. The copies are one batched ``uvms_env.vector.VectorEnv``
+(``VectorVecEnv``, float32, each episode of a seeded family on one of ``--geometry-pool``
+geometries). Observations and rewards are normalized
 (``VecNormalize``, saved with the model). Besides the shared records (``baselines.runs``)
 the run folder gets ``model.zip``, ``vecnormalize.pkl`` (SAC: ``replay_buffer.pkl``),
 ``checkpoints/`` and tensorboard logs; ``--resume RUN`` continues from the last save.
@@ -37,7 +36,6 @@ from typing import TYPE_CHECKING, Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from baselines.rl.vec_env import ParallelVecEnv
 from baselines.runs import TRAIN_ENV_DEFAULTS, Run, seeded_pool
 
 if TYPE_CHECKING:
@@ -62,8 +60,8 @@ ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
         "buffer_size": 50_000,
     },
 }
-# PPO on the vector path, batch_size not given: n_steps * sub-envs / 32 (32 minibatches per
-# epoch), at least 256; the single path keeps 256. With a fixed 256 the update dominated
+# PPO, batch_size not given: n_steps * sub-envs / 32 (32 minibatches per epoch), at least
+# 256. With a fixed 256 the update dominated
 # the wall time at 64 copies (the measured figures are in the docs' training section).
 PPO_MINIBATCHES = 32
 PPO_MIN_BATCH = 256
@@ -73,7 +71,6 @@ NET = [64, 64]
 POLICY_KWARGS: dict[str, dict[str, Any]] = {"ppo": {"log_std_init": -1.0}, "sac": {}}
 # SAC has no rollouts: one progress row per this many steps of every sub-environment.
 SAC_ROW_STEPS = 256
-VEC_ENVS = ("vector", "single")
 DTYPES = ("float32", "float64")
 # float32: the batched step is faster than float64 and its deviation is far below a
 # stochastic policy's own noise (docs: figures). Evaluation stays on float64 single envs.
@@ -90,30 +87,24 @@ OPTIONS_NOTE = "--hp KEY=JSON: an argument of SB3's PPO or SAC (policy_kwargs ad
 def add_arguments(g: Any) -> None:
     """The SB3 engine's own options."""
     g.add_argument(
-        "--vec-env",
-        choices=VEC_ENVS,
-        default="vector",
-        help="vector: the env copies batched in one VectorEnv; single: one parallel_env each",
-    )
-    g.add_argument(
         "--dtype", choices=DTYPES, default=DEFAULT_DTYPE, help="the batched step's precision"
     )
     g.add_argument(
         "--env-threads",
         type=int,
         default=DEFAULT_ENV_THREADS,
-        help="threads of the batched step (vector path)",
+        help="threads of the batched step",
     )
     g.add_argument(
         "--central-critic",
         action="store_true",
-        help="MAPPO: the critic also reads the global state (PPO, vector env)",
+        help="MAPPO: the critic also reads the global state (PPO)",
     )
     g.add_argument(
         "--filter",
         action="store_true",
         help="shielded training: every robot's command passes the expert's safety filter "
-        "before the env (vector env; baselines.rl.shield)",
+        "before the env (baselines.rl.shield)",
     )
     g.add_argument(
         "--filter-penalty",
@@ -140,23 +131,16 @@ def add_arguments(g: Any) -> None:
 
 def env_settings(
     scenario: str,
-    vec_env: str = "vector",
     dtype: str = DEFAULT_DTYPE,
     geometry_pool: int | None = DEFAULT_GEOMETRY_POOL,
     env_threads: int | None = DEFAULT_ENV_THREADS,
     overrides: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The environment settings a run uses (recorded in config.json): the batched path's
-    ``dtype``, ``geometry_pool`` (seeded families only, else None) and ``env_threads``;
-    the single path has none of them (None)."""
-    if vec_env not in VEC_ENVS:
-        raise ValueError(f"unknown vec_env {vec_env!r}; expected one of {VEC_ENVS}")
-    if vec_env == "single":
-        return {"vec_env": "single", "dtype": None, "geometry_pool": None, "env_threads": None}
+    """The environment settings a run uses (recorded in config.json): the batched step's
+    ``dtype``, ``geometry_pool`` (seeded families only, else None) and ``env_threads``."""
     if dtype not in DTYPES:
         raise ValueError(f"unknown dtype {dtype!r}; expected one of {DTYPES}")
     return {
-        "vec_env": "vector",
         "dtype": dtype,
         "geometry_pool": seeded_pool(scenario, overrides or {}, geometry_pool),
         "env_threads": env_threads,
@@ -168,7 +152,6 @@ def make_vec_env(
     num_envs: int,
     seed: int,
     overrides: dict[str, Any],
-    vec_env: str = "vector",
     dtype: str = DEFAULT_DTYPE,
     geometry_pool: int | None = DEFAULT_GEOMETRY_POOL,
     env_threads: int | None = DEFAULT_ENV_THREADS,
@@ -178,53 +161,39 @@ def make_vec_env(
 ):
     """``CostPenalty`` (with ``cost``) over ``ShieldPenalty`` (with ``filter_penalty``) over
     ``VecMonitor`` over ``num_envs`` env copies as
-    ``num_envs * N`` robot sub-environments:
-    one ``VectorEnv`` (``vec_env="vector"``: in ``dtype``, on ``env_threads`` threads, None:
-    all cores; seeded families: episodes on the first ``geometry_pool`` bank geometries,
-    0 or None: each copy keeps its first) or ``num_envs`` ``parallel_env`` (``"single"``,
-    which ignores the other three). ``filter_penalty`` (vector env): shielded training,
-    ``baselines.rl.shield.ShieldPenalty`` with that weight."""
+    ``num_envs * N`` robot sub-environments of one ``VectorEnv`` (in ``dtype``, on
+    ``env_threads`` threads, None: all cores; seeded families: episodes on the first
+    ``geometry_pool`` bank geometries, 0 or None: each copy keeps its first).
+    ``filter_penalty``: shielded training, ``baselines.rl.shield.ShieldPenalty`` with that
+    weight."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     kwargs = {**TRAIN_ENV_DEFAULTS, **overrides}
-    settings = env_settings(scenario, vec_env, dtype, geometry_pool, env_threads, overrides)
-    if settings["vec_env"] == "vector":
-        from uvms_env.vector import VectorEnv
-        from uvms_env.vector.sb3 import VectorVecEnv
+    from uvms_env.vector import VectorEnv
+    from uvms_env.vector.sb3 import VectorVecEnv
 
-        if settings["geometry_pool"] is not None:
-            kwargs["geometry_pool"] = settings["geometry_pool"]
-        venv = VectorVecEnv(
-            VectorEnv(
-                scenario,
-                num_envs=num_envs,
-                dtype=settings["dtype"],
-                threads=settings["env_threads"],
-                **kwargs,
-            ),
-            seed=seed,
-        )
-    else:
-        if filter_penalty is not None:
-            raise ValueError("shielded training (--filter) needs the vector env")
-        import uvms_env
-
-        def factory(k: int):
-            return uvms_env.parallel_env(scenario=scenario, seed=seed + k, **kwargs)
-
-        venv = ParallelVecEnv(factory, num_envs, seed=seed)
+    settings = env_settings(scenario, dtype, geometry_pool, env_threads, overrides)
+    if settings["geometry_pool"] is not None:
+        kwargs["geometry_pool"] = settings["geometry_pool"]
+    inner = VectorEnv(
+        scenario,
+        num_envs=num_envs,
+        dtype=settings["dtype"],
+        threads=settings["env_threads"],
+        **kwargs,
+    )
+    venv: Any = VectorVecEnv(inner, seed=seed)
     if central_critic:
         from baselines.rl.mappo import CentralStateVecEnv
 
         venv = CentralStateVecEnv(venv)
     # VecMonitor below the filter's and the cost's penalties: episodes' returns are the
     # environment's team reward (neither normalized nor penalized), as every engine records
-    vector_env = getattr(venv, "vector_env", None)
     venv = VecMonitor(venv)
     if filter_penalty is not None:
         from baselines.rl.shield import Shield, ShieldPenalty
 
-        venv = ShieldPenalty(venv, Shield(vector_env, filter_penalty))
+        venv = ShieldPenalty(venv, Shield(inner, filter_penalty))
     if cost is not None:
         from baselines.rl.cost import CostPenalty
 
@@ -275,10 +244,8 @@ class Engine:
     def __init__(self, run: Run, algo: str, args: argparse.Namespace) -> None:
         if algo not in ALGO_DEFAULTS:
             raise ValueError(f"unknown algorithm {algo!r}; expected one of {ALGOS}")
-        if args.central_critic and (algo != "ppo" or args.vec_env != "vector"):
-            raise ValueError("a central critic (MAPPO) needs --algo ppo on the vector env")
-        if getattr(args, "filter", False) and args.vec_env != "vector":
-            raise ValueError("shielded training (--filter) needs --vec-env vector")
+        if args.central_critic and algo != "ppo":
+            raise ValueError("a central critic (MAPPO) needs --algo ppo")
         if getattr(args, "init_actor", None) and algo != "ppo":
             raise ValueError("--init-actor initializes PPO's actor (--algo ppo)")
         self.run, self.algo, self.args = run, algo, args
@@ -289,9 +256,7 @@ class Engine:
 
     def build(self) -> dict[str, Any]:
         import torch
-        from stable_baselines3 import PPO, SAC
         from stable_baselines3.common.logger import configure
-        from stable_baselines3.common.vec_env import VecNormalize
 
         from baselines.rl.cost import CostPenalty, find_layer
 
@@ -316,7 +281,6 @@ class Engine:
                 chosen_policy_kwargs.pop("log_std_init", None)
             chosen_policy_kwargs = init_actor.policy_kwargs(clone, chosen_policy_kwargs)
         env = {
-            "vec_env": a.vec_env,
             "dtype": a.dtype,
             "geometry_pool": s.geometry_pool,
             "env_threads": a.env_threads,
@@ -332,46 +296,13 @@ class Engine:
             central_critic=a.central_critic,
             filter_penalty=a.filter_penalty if getattr(a, "filter", False) else None,
         )
-        cls = {"ppo": PPO, "sac": SAC}[algo]
         if s.resume is not None:
-            model_path, norm_path, buffer_path = find_resume(Path(s.resume))
-            venv = VecNormalize.load(str(norm_path), venv)
-            venv.training = True
-            model = cls.load(model_path, env=venv, device="cpu")
-            if buffer_path is not None and hasattr(model, "load_replay_buffer"):
-                model.load_replay_buffer(buffer_path)
-            if algo == "sac":
-                hp["gradient_steps"] = model.gradient_steps
-            print(f"resuming {model_path} at {model.num_timesteps} robot-steps")
+            model, venv = self._resumed(venv, hp)
         else:
-            venv = VecNormalize(venv, clip_obs=10.0)
-            if algo == "sac":
-                hp.setdefault("gradient_steps", venv.num_envs)
-            if algo == "ppo" and a.vec_env == "vector" and "batch_size" not in hyperparameters:
+            if algo == "ppo" and "batch_size" not in hyperparameters:
                 rollout = hp["n_steps"] * venv.num_envs
                 hp["batch_size"] = max(PPO_MIN_BATCH, rollout // PPO_MINIBATCHES)
-            policy: Any = "MlpPolicy"
-            policy_kwargs = {"net_arch": NET, **chosen_policy_kwargs}
-            if a.central_critic:
-                from baselines.rl.mappo import CentralCriticPolicy, CentralStateVecEnv
-
-                policy = CentralCriticPolicy
-                policy_kwargs["local_dim"] = find_layer(venv, CentralStateVecEnv).local_dim
-            model = cls(
-                policy,
-                venv,
-                seed=s.seed,
-                device="cpu",
-                policy_kwargs=policy_kwargs,
-                verbose=0,
-                **hp,
-            )
-            if clone is not None:
-                from baselines.rl import init_actor
-                from baselines.rl.policy import priors_from_options
-
-                scale = priors_from_options(s.env_options()).residual_scale
-                init_actor.initialize(model, venv, clone, scale)
+            model, venv = self._new_model(venv, hp, chosen_policy_kwargs, clone)
         if algo == "ppo":
             hp["batch_size"] = model.batch_size  # the one used (a resumed model keeps its own)
         # SB3's own scalars go to tensorboard; the shared progress.csv is the run's
@@ -394,6 +325,54 @@ class Engine:
             "init_actor": getattr(a, "init_actor", None),
             "critic_warmup": getattr(a, "critic_warmup", 0),
         }
+
+    def _resumed(self, venv: Any, hp: dict[str, Any]) -> tuple[Any, Any]:
+        """The model and normalized env of ``--resume`` (SAC: its replay buffer and its
+        gradient steps, recorded into ``hp``)."""
+        from stable_baselines3 import PPO, SAC
+        from stable_baselines3.common.vec_env import VecNormalize
+
+        model_path, norm_path, buffer_path = find_resume(Path(self.run.settings.resume))
+        venv = VecNormalize.load(str(norm_path), venv)
+        venv.training = True
+        model = {"ppo": PPO, "sac": SAC}[self.algo].load(model_path, env=venv, device="cpu")
+        if buffer_path is not None and hasattr(model, "load_replay_buffer"):
+            model.load_replay_buffer(buffer_path)
+        if self.algo == "sac":
+            hp["gradient_steps"] = model.gradient_steps
+        print(f"resuming {model_path} at {model.num_timesteps} robot-steps")
+        return model, venv
+
+    def _new_model(
+        self, venv: Any, hp: dict[str, Any], policy_kwargs: dict[str, Any], clone: Any
+    ) -> tuple[Any, Any]:
+        """A new model on the normalized env (MAPPO's policy with ``--central-critic``, the
+        actor from ``clone`` with ``--init-actor``)."""
+        from stable_baselines3 import PPO, SAC
+        from stable_baselines3.common.vec_env import VecNormalize
+
+        from baselines.rl.cost import find_layer
+
+        s = self.run.settings
+        venv = VecNormalize(venv, clip_obs=10.0)
+        if self.algo == "sac":
+            hp.setdefault("gradient_steps", venv.num_envs)
+        policy: Any = "MlpPolicy"
+        kwargs = {"net_arch": NET, **policy_kwargs}
+        if self.args.central_critic:
+            from baselines.rl.mappo import CentralCriticPolicy, CentralStateVecEnv
+
+            policy = CentralCriticPolicy
+            kwargs["local_dim"] = find_layer(venv, CentralStateVecEnv).local_dim
+        cls = {"ppo": PPO, "sac": SAC}[self.algo]
+        model = cls(policy, venv, seed=s.seed, device="cpu", policy_kwargs=kwargs, verbose=0, **hp)
+        if clone is not None:
+            from baselines.rl import init_actor
+            from baselines.rl.policy import priors_from_options
+
+            scale = priors_from_options(s.env_options()).residual_scale
+            init_actor.initialize(model, venv, clone, scale)
+        return model, venv
 
     def learn(self) -> int:
         remaining = max(0, self.run.settings.robot_steps - self.model.num_timesteps)

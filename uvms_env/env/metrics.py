@@ -10,6 +10,7 @@ metric                     meaning
 =========================  ==============================================================
 success                    the true object reached the final waypoint within the
                            scenario's success_pos_tol and success_att_tol
+clean_success              success with no violation period
 episode_steps              control periods played
 sim_time_s                 simulated time (s)
 final_pos_error_m          |p_O - p_goal| of the true object at the end (m)
@@ -20,12 +21,15 @@ min_obstacle_clearance_m   smallest clearance of any physical body (vehicles, ar
 min_manipulability         smallest det(Jbar Jbar^T) of any robot, start included
 violations                 per constraint kind (and extra constraint): control periods
                            in which at least one robot violated it (g > 0)
+violation_periods          the violation periods of all kinds: the sum of ``violations``
+                           (a period with two violated kinds counts twice)
 internal_wrench_rms        RMS over the sampled periods of the Frobenius norm of the
                            internal (squeeze) wrenches (N, 6), in N and N m; the env
                            samples every period by default; None if never sampled
 control_effort             sum over periods and robots of |a|^2 h, a the normalized
                            inputs after clipping to [-1, 1] (s)
-policy_time_ms             None here; evaluators fill it (they time the policy)
+policy_time_ms             None here; the episode driver (``uvms_env.episode``) fills it
+                           with the median, p95 and max time of one agent's decision (ms)
 grasp_drift_max_m          largest end-effector position error to its grasp point (m)
 =========================  ==============================================================
 
@@ -42,6 +46,7 @@ from uvms_env.env.constraints import CONSTRAINTS
 
 METRICS = (
     "success",
+    "clean_success",
     "episode_steps",
     "sim_time_s",
     "final_pos_error_m",
@@ -49,6 +54,7 @@ METRICS = (
     "min_obstacle_clearance_m",
     "min_manipulability",
     "violations",
+    "violation_periods",
     "internal_wrench_rms",
     "control_effort",
     "policy_time_ms",
@@ -86,17 +92,20 @@ def episode_result(
     names of ``violations``. ``min_clearance`` is inf without obstacles; no wrench sample
     gives None."""
     pos, att = goal_errors(x_o, goal)
+    periods = {k: int(v) for k, v in zip(constraints, violations, strict=True)}
     steps, wrench_samples = int(steps), int(wrench_samples)
     clearance = float(min_clearance)
     return {
         "success": bool(success),
+        "clean_success": bool(success) and not any(periods.values()),
         "episode_steps": steps,
         "sim_time_s": steps * period,
         "final_pos_error_m": pos,
         "final_att_error_rad": att,
         "min_obstacle_clearance_m": clearance if math.isfinite(clearance) else None,
         "min_manipulability": float(min_manipulability),
-        "violations": {k: int(v) for k, v in zip(constraints, violations, strict=True)},
+        "violations": periods,
+        "violation_periods": sum(periods.values()),
         "internal_wrench_rms": (
             math.sqrt(float(wrench_sq) / wrench_samples) if wrench_samples else None
         ),

@@ -64,7 +64,7 @@ Conventions at the singular places:
 * outside the free space or on its boundary (some ``beta_j <= 0``): ``log_phi = 0``,
   ``phi = 1`` (the boundary value), ``grad_phi = 0``, and ``grad_log_phi = -u`` where
   ``u`` is the unit vector along the sum of the unit gradients of the violated
-  ``beta_j``; ``-grad_log_phi`` (and :meth:`NavigationField.desired_velocity`, at
+  ``beta_j``; ``-grad_log_phi`` (and :meth:`NavigationField.desired_velocity_batch`, at
   ``max_speed``) therefore points back into the free space.  These are conventions,
   not derivatives.
 
@@ -364,7 +364,7 @@ class NavigationField:
         self._sph_c = np.array([s.center for s in sph], dtype=float).reshape(-1, 3)
         self._sph_r = np.array([s.radius for s in sph], dtype=float) + self._team_radius
 
-        goal_clearance = self.clearance(self._goal)
+        goal_clearance = float(self.clearance_batch(self._goal[None, :])[0])
         if goal_clearance <= 0.0:
             raise ValueError(
                 f"goal {self._goal.tolist()} is outside the free space "
@@ -524,98 +524,6 @@ class NavigationField:
             ds = pts[:, None, :] - self._sph_c[None, :, :]
             c.append(np.min(np.linalg.norm(ds, axis=2) - self._sph_r, axis=1))
         return np.min(np.stack(c, axis=1), axis=1)
-
-    # ------------------------------------------------------------------ point API
-    def log_phi(self, p: ArrayLike) -> float:
-        """``log phi(p)``; ``-inf`` at the goal, 0 outside the free space.
-
-        Parameters
-        ----------
-        p : array_like, shape (3,)
-            Object position [m].
-
-        Returns
-        -------
-        float
-        """
-        return float(self.log_phi_batch(_as_vector("p", p, 3)[None, :])[0])
-
-    def phi(self, p: ArrayLike) -> float:
-        """``phi(p)`` in ``[0, 1]``; 1 outside the free space.
-
-        Parameters
-        ----------
-        p : array_like, shape (3,)
-            Object position [m].
-
-        Returns
-        -------
-        float
-        """
-        return float(math.exp(self.log_phi(p)))
-
-    def grad_log_phi(self, p: ArrayLike) -> FloatArray:
-        """Gradient of ``log phi`` (conventions at the goal/outside: see module doc).
-
-        Parameters
-        ----------
-        p : array_like, shape (3,)
-            Object position [m].
-
-        Returns
-        -------
-        numpy.ndarray, shape (3,)
-        """
-        return self.grad_log_phi_batch(_as_vector("p", p, 3)[None, :])[0]
-
-    def grad_phi(self, p: ArrayLike) -> FloatArray:
-        """Gradient of ``phi``; finite everywhere, zero at the goal and outside.
-
-        Parameters
-        ----------
-        p : array_like, shape (3,)
-            Object position [m].
-
-        Returns
-        -------
-        numpy.ndarray, shape (3,)
-        """
-        return self.grad_phi_batch(_as_vector("p", p, 3)[None, :])[0]
-
-    def desired_velocity(self, p: ArrayLike) -> FloatArray:
-        """Velocity reference ``min(v_max, K_NF |p - p_d|) * unit(-grad phi)``.
-
-        Outside the free space: ``max_speed`` along the recovery direction.
-
-        Parameters
-        ----------
-        p : array_like, shape (3,)
-            Object position [m].
-
-        Returns
-        -------
-        numpy.ndarray, shape (3,)
-            Desired object velocity [m/s].
-        """
-        return self.desired_velocity_batch(_as_vector("p", p, 3)[None, :])[0]
-
-    def clearance(self, p: ArrayLike) -> float:
-        """Signed distance between the team ball and the nearest obstacle or the boundary.
-
-        Minimum over the obstacles of (distance to the obstacle surface - R) and of
-        (distance to the workspace sphere - R); positive in the free space.
-
-        Parameters
-        ----------
-        p : array_like, shape (3,)
-            Object position [m].
-
-        Returns
-        -------
-        float
-            Clearance [m].
-        """
-        return float(self.clearance_batch(_as_vector("p", p, 3)[None, :])[0])
 
     # ------------------------------------------------------------------ CasADi
     def casadi_velocity(self, p: ca.SX) -> ca.SX:

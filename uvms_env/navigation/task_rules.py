@@ -45,8 +45,8 @@ def navigation_gain(
 def task_navigator(
     waypoints: ArrayLike, workspace: Workspace, obstacles: Sequence[Obstacle], team_radius: float
 ) -> WaypointNavigator:
-    """The waypoint navigator of a scene (``navigation_gain``, ``WAYPOINT_TOLERANCE``; other
-    parameters the navigation module's defaults). Cached per scene: read-only once built."""
+    """The waypoint navigator of a scene (``navigation_gain``; other parameters the
+    navigation module's defaults). Cached per scene: read-only once built."""
     wps = np.ascontiguousarray(waypoints, dtype=float)
     return _navigator(wps.tobytes(), len(wps), workspace, tuple(obstacles), float(team_radius))
 
@@ -57,6 +57,4 @@ def _navigator(
 ) -> WaypointNavigator:
     wps = np.frombuffer(waypoints).reshape(count, 6)
     k = navigation_gain(wps, workspace, obstacles, team_radius)
-    return WaypointNavigator(
-        wps, workspace, obstacles, team_radius, k=k, pos_tol=WAYPOINT_TOLERANCE
-    )
+    return WaypointNavigator(wps, workspace, obstacles, team_radius, k=k)

@@ -5,8 +5,8 @@
     venv = VectorVecEnv(VectorEnv("short", num_envs=64, dtype="float32"), seed=0)
 
 The K environments of N robots are K N sub-environments, ordered environment-major then
-by robot (environment 0's uvms_0, uvms_1, ..., environment 1's uvms_0, ...), as
-``baselines.rl.vec_env.ParallelVecEnv`` orders its copies: each sub-environment is one
+by robot (environment 0's uvms_0, uvms_1, ..., environment 1's uvms_0, ...): each
+sub-environment is one
 robot acting from its own observation with the team reward, and a team's sub-environments
 end their episode together. The step is the ``VectorEnv``'s, reshaped; Python builds one
 small info dict per sub-environment (SB3 wants a list) and nothing else per robot.
@@ -43,9 +43,9 @@ class VectorVecEnv(VecEnv):
     observation), ``TimeLimit.truncated``, ``episode_end``, ``metrics`` (one dict shared by
     the team's robots) and, when the step was refused, ``diverged_reason``.
 
-    The keys are ``ParallelVecEnv``'s except the per-robot ``constraint_values`` and
-    ``reward_terms`` dicts, which would cost K N dicts a step: the last step's batched
-    infos (arrays over environments) are in ``last_infos``.
+    The per-robot ``constraint_values`` and ``reward_terms`` dicts of the single env are
+    left out (they would cost K N dicts a step): the last step's batched infos (arrays over
+    environments) are in ``last_infos``.
 
     **Seeding** (the adapters' one rule, ``uvms_env.vector.seeding``): the first
     ``reset()`` is the ``VectorEnv``'s ``reset(seed=seed)`` (with ``seed=None``: its own

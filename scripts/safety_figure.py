@@ -1,12 +1,15 @@
 """The safety filter's figure: a policy's joint rates with and without the filter.
 
-    python -m baselines.safety_figure --policy dagger:pretrained --scenario random \\
+    python scripts/safety_figure.py --policy dagger:pretrained --scenario random \\
         --n-agents 2 --seed 7 --episode 3 --out docs/figures/safety_filter_joint_rates.png
 
 Plays episode ``--episode`` of the evaluator's seeding (``baselines.evaluate``) twice,
 with ``POLICY`` and with ``POLICY+filter``, and plots per period the largest joint rate
 of any robot (true state) against the limit and the filter's tightened bound, and the
 largest joint angle against its limit (both axes clipped at 3x and 2x the limit).
+
+An analysis script, not part of the installed packages.
+May import: numpy, matplotlib, ``uvms_env``, ``nmpc_expert`` and ``baselines``.
 """
 
 from __future__ import annotations
@@ -14,37 +17,36 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+import uvms_env
 from baselines.evaluate import episode_seed
 from baselines.policies import PolicySource
+from uvms_env.episode import Step, play
 
 
-def joint_trace(policy: str, scenario: str, seed: int, overrides: dict) -> dict[str, np.ndarray]:
+def joint_trace(policy: str, scenario: str, seed: int, overrides: dict) -> dict[str, Any]:
     """Per period: largest |joint rate| and |joint angle| over robots, and metrics."""
-    import uvms_env
-    from uvms_env.policy import AgentSpec
+    rates: list[float] = []
+    angles: list[float] = []
+
+    def record(step: Step) -> None:
+        state = step.env.unwrapped.sim.state
+        rates.append(float(np.abs(state.zeta[:, 6:]).max()))
+        angles.append(float(np.abs(state.q[:, 6:]).max()))
 
     env = uvms_env.parallel_env(scenario=scenario, seed=seed, **overrides)
-    obs, _ = env.reset(seed=seed)
-    factory = PolicySource.parse(policy).factory(seed)
-    pols = {a: factory(AgentSpec.from_scenario(env.scenario, i)) for i, a in enumerate(env.agents)}
-    for p in pols.values():
-        p.reset()
-    rates, angles, metrics = [], [], {}
-    while env.agents:
-        obs, _, _, _, infos = env.step({a: pols[a].act(obs[a]) for a in env.agents})
-        state = env.unwrapped.sim.state
-        rates.append(np.abs(state.zeta[:, 6:]).max())
-        angles.append(np.abs(state.q[:, 6:]).max())
-        metrics = next((i["metrics"] for i in infos.values() if "metrics" in i), metrics)
-    return {"rate": np.array(rates), "angle": np.array(angles), "metrics": metrics}
+    episode = play(env, PolicySource.parse(policy).factory(seed), seed, on_step=record)
+    return {"rate": np.array(rates), "angle": np.array(angles), "metrics": episode.metrics}
 
 
 def main(argv: list[str] | None = None) -> None:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(
+        prog="python scripts/safety_figure.py", description=__doc__.split("\n\n")[0]
+    )
     ap.add_argument("--policy", default="dagger:pretrained")
     ap.add_argument("--scenario", default="random")
     ap.add_argument("--n-agents", type=int, default=2)
@@ -68,8 +70,8 @@ def main(argv: list[str] | None = None) -> None:
         tr = joint_trace(policy, args.scenario, seed, overrides)
         m = tr["metrics"]
         t = s.period * np.arange(1, len(tr["rate"]) + 1)
-        viol = sum(m["violations"].values())
-        label = f"{policy}: {'success' if m['success'] else 'failure'}, {viol} violation periods"
+        outcome = "success" if m["success"] else "failure"
+        label = f"{policy}: {outcome}, {m['violation_periods']} violation periods"
         top.plot(t, tr["rate"], color=f"C{k}", lw=0.8, label=label)
         bottom.plot(t, tr["angle"], color=f"C{k}", lw=0.8)
         print(label)

@@ -1,6 +1,6 @@
 """How much of the expert's action the current observation explains, and how much history.
 
-    python -m baselines.imitation.history_probe --data data/r2c [--data ...] [--epochs 30]
+    python scripts/history_probe.py --data data/r2c [--data ...] [--epochs 30]
 
 Fits the same MLP (128-128 tanh, a residual on the expert's steady input a_ss, the
 ``features`` inputs, per-component inverse-variance weights) on one demonstration
@@ -19,7 +19,8 @@ decision comes from its memory (warm start, input-step bound, estimators), which
 of the current observation can reproduce. Use clean demonstrations (``collect`` without
 ``--noise``): the previous action is then the one the expert applied.
 
-May import: numpy, torch and this package.
+An analysis script, not part of the installed packages.
+May import: numpy, torch and ``baselines.imitation``.
 """
 
 from __future__ import annotations
@@ -84,7 +85,7 @@ def fit_losses(x: np.ndarray, y: np.ndarray, held: np.ndarray, epochs: int) -> t
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m baselines.imitation.history_probe")
+    ap = argparse.ArgumentParser(prog="python scripts/history_probe.py")
     ap.add_argument(
         "--data", type=Path, action="append", required=True, help="a collect dataset, data/NAME"
     )
