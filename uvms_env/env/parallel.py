@@ -93,7 +93,8 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     (1) From the robot's own measured q and its known grasp: p_O = p_ee - R_O l_i,
     R_O = R_ee R_Oi^T, as ZYX Euler angles. (2) [p_dot_O; omega_O] = J_Oi^-1 J_i zeta_i
     with J_Oi^-1 = [[I, S(R_O l_i)], [0, I]]. (3) Each robot's own waypoint sequencing
-    passes a waypoint when its own estimate is within `WAYPOINT_TOLERANCE` (0.3 m); `nav_velocity` is its
+    passes a waypoint when its own estimate is within `WAYPOINT_TOLERANCE` (0.3 m);
+    `nav_velocity` is its
     `WaypointNavigator` twist (`uvms_env.env.observation.make_navigator(scenario)`) at
     its own estimate. (4) dx dy dz = obstacle centre minus the own object estimate
     (dz = 0 for the vertical cylinders, infinite in z), nearest first by surface

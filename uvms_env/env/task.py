@@ -326,7 +326,7 @@ class Task:
         ``constraint_values`` B + (N, 8) and ``cost`` B + (N,) the kernel's, ``diverged`` B
         (bool) the refused steps, ``sampled``/``wrench_sq`` B the internal wrench samples
         (``tick``), ``state`` what the extensions see (needed when ``extended``)."""
-        xp, w = self.xp, self.weights
+        xp = self.xp
         kinds = team[KINDS].T > 0.0  # B + (8,)
         n_violated = team[VIOLATED]
         if self.constraint_fns:
@@ -355,7 +355,38 @@ class Task:
             self.wrench_sq += wrench_sq
             self.wrench_samples += sampled
 
-        # reward: potential-based progress towards the team's waypoint
+        terms = self._reward_terms(x_o, d, dist, success, failed, n_violated, action_sq, state)
+        values = iter(terms.values())
+        reward = next(values)
+        for value in values:  # in order: REWARD_TERMS, then the extra terms
+            reward = reward + value
+        return StepOutcome(
+            reward,
+            terms,
+            constraint_values,
+            cost,
+            success,
+            failed,
+            collision,
+            terminated,
+            truncated,
+        )
+
+    def _reward_terms(
+        self,
+        x_o: Any,
+        d: Any,
+        dist: Any,
+        success: Any,
+        failed: Any,
+        n_violated: Any,
+        action_sq: Any,
+        state: TaskArrays | None,
+    ) -> dict[str, Any]:
+        """The shared reward's terms (``uvms_env.env.reward``), then the extra ones; moves
+        the team's sequencer and the potential on."""
+        xp, w = self.xp, self.weights
+        # potential-based progress towards the team's waypoint
         potential = self._potential(d, dist)
         progress = w.progress * (self.potential - potential)
         passed = self._advance_team(ALL, dist[..., 0])
@@ -385,21 +416,7 @@ class Task:
                 value = xp.asarray(fn(seen, xp), dtype=float)
                 one = xp.broadcast_to(value, (self.num_envs or 1,))  # K = 1: a single env
                 terms[name] = xp.reshape(one, self.batch)
-        values = iter(terms.values())
-        reward = next(values)
-        for value in values:  # in order: REWARD_TERMS, then the extra terms
-            reward = reward + value
-        return StepOutcome(
-            reward,
-            terms,
-            constraint_values,
-            cost,
-            success,
-            failed,
-            collision,
-            terminated,
-            truncated,
-        )
+        return terms
 
     def extra_constraint_values(self, state: TaskArrays) -> Any:
         """B + (N, E): the user's extra constraints of ``state`` (the functions see K = 1
