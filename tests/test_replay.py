@@ -31,6 +31,7 @@ from uvms_env.replay import (
     main,
     page_data,
     replay_from_trajectory,
+    replay_path,
     window_max,
 )
 
@@ -149,10 +150,17 @@ def test_replay_from_trajectory_recomputes_the_constraints(episode: dict, tmp_pa
     ep = replay_from_trajectory(episode["npz"])
     np.testing.assert_allclose(ep.g[1:], episode["live"], atol=1e-9)
     np.testing.assert_array_equal(ep.q[1:], episode["arrays"]["q"])
+    by_object = replay_from_trajectory(episode["npz"], episode["ep"].scenario, seed=0)
+    np.testing.assert_array_equal(by_object.g, ep.g)
     out = main([str(episode["npz"]), "--out", str(tmp_path / "r.html")])
     text = out.read_text()
     assert "<script" in text and "http://" not in text.split("replay-data")[0]
     assert out.stat().st_size < 2e6
+
+
+def test_replay_paths_are_file_names(tmp_path: Path) -> None:
+    path = replay_path(tmp_path, "ppo:runs/a b+filter", "paper", 0)
+    assert path == tmp_path / "replay_ppo_runs_a_b_filter_paper_0.html"
 
 
 def test_page_is_self_contained(episode: dict) -> None:

@@ -32,6 +32,7 @@ import argparse
 import base64
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -157,12 +158,13 @@ class ReplayRecorder:
 
 # -- from the main job's trajectory.npz ----------------------------------------------------
 def replay_from_trajectory(
-    path: str | Path, scenario: str | None = None, seed: int | None = None
+    path: str | Path, scenario: str | Scenario | None = None, seed: int | None = None
 ) -> Episode:
     """The episode of a ``trajectory.npz`` (``nmpc_expert``: t, q, zeta, x_o, v_o, action
-    after each period). Scenario and seed default to the ``metrics.json`` beside it. The
-    constraint values are recomputed from each recorded state (``input`` from the recorded
-    action), as the environment evaluates them after a step."""
+    after each period). ``scenario``: the episode's ``Scenario`` (its geometry as run), or a
+    family name that with ``seed`` rebuilds it; both default to the ``metrics.json`` beside
+    the file. The constraint values are recomputed from each recorded state (``input``
+    from the recorded action), as the environment evaluates them after a step."""
     import uvms_env
 
     path = Path(path)
@@ -171,12 +173,14 @@ def replay_from_trajectory(
     side = path.with_name("metrics.json")
     if side.exists():
         metrics = json.loads(side.read_text())
-    name = scenario or metrics.get("scenario", "paper")
     seed = int(seed if seed is not None else metrics.get("seed", 0))
-    n = arr["q"].shape[1]
-    env = uvms_env.parallel_env(scenario=name, seed=seed)
-    if len(env.possible_agents) != n:
-        env = uvms_env.parallel_env(scenario=name, seed=seed, n_agents=n)
+    if isinstance(scenario, Scenario):
+        env, name = uvms_env.parallel_env(scenario=scenario), scenario.name
+    else:
+        name = scenario or metrics.get("scenario", "paper")
+        env = uvms_env.parallel_env(scenario=name, seed=seed)
+        if len(env.possible_agents) != arr["q"].shape[1]:
+            env = uvms_env.parallel_env(scenario=name, seed=seed, n_agents=arr["q"].shape[1])
     env.reset(seed=seed)
     recorder = ReplayRecorder(env, title=f"{name} (seed {seed})")
     sim = env.sim
@@ -189,6 +193,13 @@ def replay_from_trajectory(
         recorder.t[-1] = float(arr["t"][k])
     recorder.metrics = metrics
     return recorder.episode()
+
+
+def replay_path(folder: str | Path, *parts: Any) -> Path:
+    """``folder/replay_PART_PART.html``, each part made safe for a file name (a policy such
+    as ``ppo:runs/x+filter`` becomes ``ppo_runs_x_filter``)."""
+    name = "_".join(re.sub(r"[^\w.-]+", "_", str(p)).strip("_") for p in ("replay", *parts))
+    return Path(folder) / f"{name}.html"
 
 
 def values_as_infos(values: dict[str, dict[str, float]]) -> dict[str, dict[str, Any]]:
