@@ -21,9 +21,9 @@ The viewer (``replay_assets/viewer.html``) and a subset of three.js 0.187.0
 (``replay_assets/three-0.187.0.min.js``, how it was built in ``three-entry.js``) are package
 data. Rendering stays optional: nothing here is imported by the environment's step.
 
-May import: numpy, casadi, ``uvms_env.dynamics``, ``uvms_env.env.constraints``,
-``uvms_env.navigation``, ``uvms_env.scenarios`` and, to rebuild a recorded episode's
-geometry and constraints, ``uvms_env.env`` (lazily).
+May import: numpy, casadi, ``uvms_env.dynamics``, ``uvms_env.navigation``,
+``uvms_env.scenarios`` and, to rebuild a recorded episode's geometry and constraints, the
+environment (``uvms_env.parallel_env``, lazily).
 """
 
 from __future__ import annotations
