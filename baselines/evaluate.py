@@ -66,6 +66,7 @@ class EpisodeJob:
     overrides: tuple[tuple[str, Any], ...]
     max_cycles: int | None
     record_path: bool
+    replay: str | None = None  # where to write the episode's 3D replay page
 
 
 def run_episode(job: EpisodeJob) -> dict[str, Any]:
@@ -107,7 +108,7 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
             kwargs["max_cycles"] = job.max_cycles
         env = uvms_env.parallel_env(scenario=job.scenario, seed=job.seed, **kwargs)
         factory = checked(PolicySource.parse(job.policy), job.seed)
-        episode = play(env, factory, job.seed, on_step=record, on_reset=reached)
+        episode = play(env, factory, job.seed, on_step=record, on_reset=reached, replay=job.replay)
         env.close()
         row.update(flatten_metrics(episode.metrics))
     except Exception as exc:  # a failing policy must not stop the evaluation
@@ -341,8 +342,11 @@ def evaluate(
     progress: bool = True,
     backend: str = "process",
     address: str | None = None,
+    replay_dir: Path | None = None,
 ) -> list[dict[str, Any]]:
     """Run every (policy, scenario, episode) and return the per-episode rows, sorted.
+    ``replay_dir``: write each policy's first episode per scenario there as a 3D replay
+    page (``uvms_env.replay.replay_path``).
     ``backend``: ``process`` (a process pool of ``workers``; 1: in this process) or
     ``ray`` (Ray tasks on a local Ray of ``workers`` CPUs, or on the cluster at
     ``address``); the rows do not depend on it."""
@@ -355,12 +359,16 @@ def evaluate(
     for p in policies:
         PolicySource.parse(p)  # fail fast on a typo, before any worker starts
     items = tuple(sorted((overrides or {}).items()))
-    jobs = [
-        EpisodeJob(p, s, k, episode_seed(seed, s, k), items, max_cycles, k == 0 and s == "paper")
-        for p in policies
-        for s in scenarios
-        for k in range(episodes)
-    ]
+    from uvms_env.replay import replay_path
+
+    def make_job(p: str, s: str, k: int) -> EpisodeJob:
+        path = replay_path(replay_dir, p, s) if replay_dir is not None and k == 0 else None
+        trail = k == 0 and s == "paper"  # the object's path, for the paper's plot
+        return EpisodeJob(
+            p, s, k, episode_seed(seed, s, k), items, max_cycles, trail, path and str(path)
+        )
+
+    jobs = [make_job(p, s, k) for p in policies for s in scenarios for k in range(episodes)]
     rows: list[dict[str, Any]] = []
     bar = tqdm(total=len(jobs), desc="episodes", disable=not progress, unit="ep")
     if backend == "process" and workers <= 1:
@@ -374,7 +382,7 @@ def evaluate(
         for job in jobs:
             if (job.policy, job.scenario) not in seen:
                 seen.add((job.policy, job.scenario))
-                run_episode(dataclasses.replace(job, max_cycles=1, record_path=False))
+                run_episode(dataclasses.replace(job, max_cycles=1, record_path=False, replay=None))
         if backend == "ray":
             from baselines.distributed.ray_backend import run_jobs
 
@@ -442,6 +450,11 @@ def build_parser() -> argparse.ArgumentParser:
         )
     ap.add_argument("--out", type=Path, default=Path("runs/eval"))
     ap.add_argument(
+        "--replay",
+        action="store_true",
+        help="also write a 3D replay page of each policy's first episode per scenario to --out",
+    )
+    ap.add_argument(
         "--backend",
         choices=BACKENDS,
         default="process",
@@ -502,6 +515,7 @@ def main(argv: list[str] | None = None) -> None:
         args.max_cycles,
         backend=args.backend,
         address=args.address,
+        replay_dir=args.out if args.replay else None,
     )
     summaries = write_outputs(rows, args.seed, args.out)
     if args.marl_eval_json is not None:

@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> dict:
     )
     ap.add_argument("--max-cycles", type=int, default=None, help="episode length cap")
     ap.add_argument("--out", type=Path, default=Path("runs/paper"))
-    ap.add_argument("--no-figures", action="store_true")
+    ap.add_argument("--no-figures", action="store_true", help="no figures, animation, replay")
     args = ap.parse_args(argv)
     overrides: dict = {"current": args.current, "mismatch": args.mismatch}
     if args.n_agents is not None:
@@ -58,12 +58,14 @@ def main(argv: list[str] | None = None) -> dict:
     if controller == "observer" and args.solver == "ipopt":
         ap.error("--controller observer needs --solver rti")
     start = time.perf_counter()
+    args.out.mkdir(parents=True, exist_ok=True)
     metrics, arr, scenario = run_episode(
         args.scenario,
         args.solver,
         args.seed,
         args.max_cycles,
         settings=controller_settings(controller),
+        replay=None if args.no_figures else args.out / "replay.html",
         **overrides,
     )
     metrics["controller"] = controller

@@ -12,6 +12,7 @@ May import: numpy, tqdm, ``uvms_env`` and this package.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -50,9 +51,11 @@ def run_episode(
     max_steps: int | None = None,
     settings: NMPCSettings | None = None,
     progress: bool = True,
+    replay: Path | None = None,
     **overrides: Any,
 ) -> tuple[dict[str, Any], dict[str, np.ndarray], Any]:
-    """Run one episode; returns (metrics, trajectory arrays, the env's scenario)."""
+    """Run one episode; returns (metrics, trajectory arrays, the env's scenario);
+    ``replay``: also write the episode's 3D replay page there."""
     if max_steps is not None:
         overrides["max_cycles"] = max_steps
     env = uvms_env.parallel_env(scenario=scenario, seed=seed, **overrides)
@@ -84,7 +87,7 @@ def run_episode(
     def nmpc(spec: AgentSpec) -> NMPCPolicy:
         return NMPCPolicy(spec, solver=solver, settings=settings)
 
-    episode = play(env, nmpc, seed, on_step=record)
+    episode = play(env, nmpc, seed, on_step=record, replay=replay)
     bar.close()
     metrics = episode.metrics
     metrics["episode_end"] = episode.end

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 
@@ -83,3 +84,17 @@ def test_random_policy_scores_lower_than_the_expert():
         for p in ("nmpc", "random")
     }
     assert rate["nmpc"] > rate["random"]
+
+
+def test_replays_are_each_policys_first_episode_per_scenario(tmp_path):
+    from uvms_env.replay import replay_path
+
+    rows = evaluate(
+        ["zero", "random"], ["short"], 2, 0, workers=1, max_cycles=4, progress=False,
+        replay_dir=tmp_path,
+    )  # fmt: skip
+    assert all(r["error"] == "" for r in rows)
+    pages = sorted(tmp_path.glob("replay_*.html"))
+    assert pages == sorted(replay_path(tmp_path, p, "short") for p in ("zero", "random"))
+    for page in pages:  # the episode's start and its 4 periods
+        assert re.search(r'"episode_frames":\s*(\d+)', page.read_text()).group(1) == "5"

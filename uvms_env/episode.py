@@ -14,11 +14,12 @@ Callers attach what they need without another loop:
 * ``execute(index, policy, obs, action)`` right after agent ``index``'s decision: returns
   the action actually applied (DAgger's mixing, exploration noise) and may read the
   policy's ``stats`` of that decision;
-* ``on_step(step)`` after each ``env.step``: trajectories, frames, dataset records.
+* ``on_step(step)`` after each ``env.step``: trajectories, frames, dataset records;
+* ``replay=PATH``: the episode's 3D replay page written there (``uvms_env.replay``).
 
 Only the public env API is used (``reset(seed=)``, ``step``, ``agents``,
 ``possible_agents``, ``scenario``, ``infos[agent]["metrics"]``).
-May import: numpy and ``uvms_env.policy``.
+May import: numpy, ``uvms_env.policy`` and (when a replay is asked for) ``uvms_env.replay``.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -97,14 +99,20 @@ def play(
     execute: Execute | None = None,
     on_step: Callable[[Step], None] | None = None,
     on_reset: Callable[[Any, dict[str, np.ndarray]], None] | None = None,
+    replay: str | Path | None = None,
 ) -> Episode:
     """Reset ``env`` with ``seed``, build a policy per agent with ``factory`` (after the
     reset: a random scenario's geometry is drawn there) and play until the episode ends.
-    ``on_reset(env, obs)`` sees the first observations. Exceptions of a policy or a hook
-    propagate."""
+    ``on_reset(env, obs)`` sees the first observations; ``replay``: where to write the
+    episode's replay page. Exceptions of a policy or a hook propagate."""
     obs, _ = env.reset(seed=seed)
     if on_reset is not None:
         on_reset(env, obs)
+    recorder = None
+    if replay is not None:
+        from uvms_env.replay import ReplayRecorder
+
+        recorder = ReplayRecorder(env)
     policies = build_policies(env, factory)
     agents = list(env.agents)
     if not agents:
@@ -123,6 +131,8 @@ def play(
             actions[agent] = action if execute is None else execute(i, policy, obs[agent], action)
         times.append(ms)
         obs, rewards, terms, truncs, infos = env.step(actions)
+        if recorder is not None:
+            recorder.record(infos)
         # the reward is the team's, shared by every agent
         total_reward += float(next(iter(rewards.values()))) if rewards else 0.0
         if on_step is not None:
@@ -132,6 +142,8 @@ def play(
         for info in infos.values():
             if "metrics" in info:
                 metrics, end = dict(info["metrics"]), info.get("episode_end")
+    if recorder is not None:
+        recorder.write(replay)
     decision_ms = np.array(times).reshape(-1, len(agents))
     metrics["policy_time_ms"] = decision_time_summary(decision_ms)
     return Episode(metrics, end, total_reward, decision_ms, policies)
