@@ -156,7 +156,9 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     policy), `env.observe()` (observations of the current state, e.g. after
     `sim.set_state`), `env.constraint_values()`, `env.task` (the task's rules and this
     episode's bookkeeping: `uvms_env.env.task.Task` for one environment, the code
-    `VectorEnv` runs over K environments).
+    `VectorEnv` runs over K environments), `env.command_filter` (a function that replaces
+    each step's normalized inputs before the simulator, e.g. a safety filter:
+    `uvms_env.env.core.EnvCore`).
 
     **Extensions** (no change to the package): `extra_reward_terms={"name": fn}` adds
     `fn(s, xp)` (K,) to the reward, reported as `reward_terms["name"]`;
