@@ -6,8 +6,8 @@ Known names: ``nmpc`` (the expert, ``nmpc:ipopt`` for its reference solver,
 ``module:factory`` (a user's ``factory(spec) -> Policy`` importable as
 ``package.module:factory``), ``ppo:PATH`` / ``sac:PATH`` (an SB3 run folder;
 ``ppo:pretrained`` the committed model), ``bc:PATH`` / ``dagger:PATH`` (a folder with
-``policy.pt``; ``dagger:pretrained`` the committed clone), ``rllib:PATH`` (an RLlib run or checkpoint) and
-``torchrl:PATH`` (a run folder of ``--engine torchrl``: its ``actor.pt``). Any of them
+``policy.pt``; ``dagger:pretrained`` the committed clone), ``rllib:PATH`` (an RLlib run
+or checkpoint) and ``torchrl:PATH`` (a run folder of ``--engine torchrl``: its ``actor.pt``). Any of them
 with the suffix ``+filter`` (e.g. ``dagger:pretrained+filter``) runs inside the expert's
 safety filter (``nmpc_expert.SafetyFilter``).
 """
