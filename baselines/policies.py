@@ -7,9 +7,9 @@ Known names: ``nmpc`` (the expert, ``nmpc:ipopt`` for its reference solver,
 ``package.module:factory``), ``ppo:PATH`` / ``sac:PATH`` (an SB3 run folder;
 ``ppo:pretrained`` the committed model), ``bc:PATH`` / ``dagger:PATH`` (a folder with
 ``policy.pt``; ``dagger:pretrained`` the committed clone), ``rllib:PATH`` (an RLlib run
-or checkpoint) and ``torchrl:PATH`` (a run folder of ``--engine torchrl``: its ``actor.pt``). Any of them
-with the suffix ``+filter`` (e.g. ``dagger:pretrained+filter``) runs inside the expert's
-safety filter (``nmpc_expert.SafetyFilter``).
+or checkpoint) and ``torchrl:PATH`` (a run folder of ``--engine torchrl``: its
+``actor.pt``). Any of them with the suffix ``+filter`` (e.g. ``dagger:pretrained+filter``)
+runs inside the expert's safety filter (``nmpc_expert.SafetyFilter``).
 """
 
 from __future__ import annotations
