@@ -141,6 +141,12 @@ FloatArray = NDArray[np.float64]
 EPS = 1e-15
 
 
+# The navigation field's defaults (paper eq8, eq9): the paper's exponent k, the speed
+# gain K_NF [1/s] and the speed limit v_max [m/s] of the velocity reference.
+PAPER_K = 6.0
+NAV_GAIN = 0.5
+NAV_MAX_SPEED = 0.25
+
 def _check_finite(name: str, value: float) -> float:
     value = float(value)
     if not math.isfinite(value):
@@ -324,9 +330,9 @@ class NavigationField:
         workspace: Workspace,
         obstacles: Sequence[Obstacle],
         team_radius: float,
-        k: float = 6.0,
-        gain: float = 0.5,
-        max_speed: float = 0.25,
+        k: float = PAPER_K,
+        gain: float = NAV_GAIN,
+        max_speed: float = NAV_MAX_SPEED,
     ) -> None:
         self._goal = _as_vector("goal", goal, 3)
         if not isinstance(workspace, Workspace):

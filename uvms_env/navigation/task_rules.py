@@ -16,7 +16,7 @@ from functools import cache
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .field import Obstacle, Workspace, choose_k
+from .field import PAPER_K, Obstacle, Workspace, choose_k
 from .waypoints import WaypointNavigator
 
 # A robot (on its own object estimate) and the team (on the true object) pass a waypoint
@@ -24,7 +24,7 @@ from .waypoints import WaypointNavigator
 WAYPOINT_TOLERANCE = 0.3
 # Navigation-function exponent: the paper's value, raised per scene when the empirical
 # rule (choose_k) needs more to remove spurious minima, NAV_K_MAX when it finds none.
-NAV_K_MIN = 6.0
+NAV_K_MIN = PAPER_K
 NAV_K_MAX = 50.0
 
 

@@ -28,6 +28,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .field import (
+    NAV_GAIN,
+    NAV_MAX_SPEED,
+    PAPER_K,
     NavigationField,
     Obstacle,
     Workspace,
@@ -118,9 +121,9 @@ class WaypointNavigator:
         workspace: Workspace,
         obstacles: Sequence[Obstacle],
         team_radius: float,
-        k: float = 6.0,
-        gain: float = 0.5,
-        max_speed: float = 0.25,
+        k: float = PAPER_K,
+        gain: float = NAV_GAIN,
+        max_speed: float = NAV_MAX_SPEED,
         att_gain: float = 0.2,
         max_att_rate: float = 0.05,
     ) -> None:
