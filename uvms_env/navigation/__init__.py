@@ -41,7 +41,7 @@ from .task_rules import (
     navigation_gain,
     task_navigator,
 )
-from .waypoints import WaypointNavigator, WaypointSequencer, euler_rates_to_body_rates
+from .waypoints import WaypointNavigator, WaypointSequencer
 
 __all__ = [
     "NAV_K_MAX",
@@ -59,7 +59,6 @@ __all__ = [
     "attitude_rate",
     "choose_k",
     "descend",
-    "euler_rates_to_body_rates",
     "field_parameters",
     "navigation_gain",
     "parametric_twist_function",
