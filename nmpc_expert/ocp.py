@@ -62,7 +62,6 @@ CONSTRAINT_NAMES = (
     "manipulability",
 )
 NW = 6 + 6 + 6 + NU + 5 * NC + 1  # weight/bound vector: see ``weight_vector``
-NR = 12  # state residual rows per node (pose 6, twist 6)
 # start of each part of the weight vector (``weight_vector``)
 WEIGHT_OFFSETS = {
     "r_u": 18,

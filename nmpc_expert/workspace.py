@@ -32,7 +32,6 @@ from uvms_env.dynamics.spatial import rot_zyx
 from uvms_env.dynamics.uvms import default_model
 
 NW_ROWS = 2  # per node: own bodies, object
-WORKSPACE_ROWS = ("workspace_bodies", "workspace_object")
 
 
 def _barrier(balls: list[tuple[cs.SX, float]], q: cs.SX, q_dot: cs.SX, ws: cs.SX, rate: cs.SX):

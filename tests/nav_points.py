@@ -1,8 +1,8 @@
 """The navigation fields in NumPy for the tests: ``phi`` and its gradients and the velocity
 reference in batches (the package builds the velocity symbolically and only needs the
 descent direction and the clearance in NumPy); ``PointField`` reads one row of them, and
-``twist`` is a waypoint navigator's reference at one pose. The formulas and conventions:
-docs/model.md, "Navigation function"."""
+``twist`` (with ``attitude_rate``) is a waypoint navigator's reference at one pose. The
+formulas and conventions: docs/model.md, "Navigation function"."""
 
 from __future__ import annotations
 
@@ -12,8 +12,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from uvms_env.navigation import NavigationField, WaypointNavigator, attitude_rate
+from uvms_env.navigation import NavigationField, WaypointNavigator, wrap_angle
 from uvms_env.navigation.field import EPS, _as_points
+
+
+def attitude_rate(
+    attitude: ArrayLike, attitude_goal: ArrayLike, gain: float = 0.2, max_rate: float = 0.05
+) -> np.ndarray:
+    """The attitude law in NumPy: ZYX Euler-angle rates [rad/s]
+    ``clip(-gain * wrap(attitude - attitude_goal), -max_rate, max_rate)``, elementwise."""
+    theta = np.asarray(attitude, dtype=float)
+    theta_d = np.asarray(attitude_goal, dtype=float)
+    return np.clip(-gain * wrap_angle(theta - theta_d), -max_rate, max_rate)
 
 
 def _sigmoid(z: np.ndarray) -> np.ndarray:

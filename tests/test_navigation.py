@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from nav_points import (
     PointField,
+    attitude_rate,
     desired_velocity_batch,
     grad_log_phi_batch,
     grad_phi_batch,
@@ -27,7 +28,6 @@ from uvms_env.navigation import (
     WaypointNavigator,
     WaypointSequencer,
     Workspace,
-    attitude_rate,
     choose_k,
     descend,
     sample_free_points,
@@ -437,7 +437,12 @@ def test_euler_rate_matrix_matches_rotation_derivative() -> None:
         ),
         (lambda: WaypointSequencer([[0, 0, 0, 0, 0, math.nan]]), "finite"),
         (lambda: WaypointSequencer([[0, 0, 0]]), "shape"),
-        (lambda: attitude_rate([0, 0, 0], [0, 0, 0], gain=-1.0), "gain"),
+        (
+            lambda: WaypointNavigator(
+                PAPER_WAYPOINTS, PAPER_WORKSPACE, PAPER_OBSTACLES, PAPER_TEAM_RADIUS, att_gain=-1
+            ),
+            "att_gain",
+        ),
         (lambda: choose_k((0, 0, 0), Workspace((0, 0, 0), 5), [], 1.0, k_start=0.5), "k must"),
     ],
 )

@@ -199,15 +199,6 @@ class UVMSModel:
             bias = bias + j_l.T @ wrench
         return mass, bias
 
-    def frame_pose(self, frame: str) -> cs.Function:
-        """Inertial pose (p, R) of a URDF frame ("vehicle", "arm_base", "link_i", "ee")."""
-        q = cs.SX.sym("q", NQ)
-        base = homogeneous(q[:3], rot_zyx(q[3:6]))
-        if frame == "vehicle":
-            return cs.Function("vehicle_pose", [q], [q[:3], base[:3, :3]])
-        p, r = self._fk(frame, base, q[6:])
-        return cs.Function(f"{frame}_pose", [q], [p, r])
-
     # -- helpers -----------------------------------------------------------------------
     @staticmethod
     def qdot_map(q: cs.SX) -> cs.SX:
@@ -303,5 +294,5 @@ def scale_damping(p: np.ndarray, scale: float) -> np.ndarray:
 
 @cache
 def default_model() -> UVMSModel:
-    """The UVMS model of the parameter file, built once per process (~0.1 s)."""
+    """The UVMS model of the parameter file, built once per process."""
     return UVMSModel()

@@ -3,10 +3,9 @@
 The environment needs, per robot and per step: the object pose and twist estimated from
 the robot's own (measured) kinematics, the nearest obstacles relative to that estimate,
 the manipulability, the grasp error and the constraint values of the true state, a
-few team-wide reductions of them, and the observation rows themselves. One ordinary
-CasADi call costs ~25 us of conversions; this is one compiled function
-(``compile_function``) called through the zero-copy ``BufferCall``: ~6 us for the
-paper's two robots, everything included. Python then only adds the navigation twist.
+few team-wide reductions of them, and the observation rows themselves: one compiled
+function (``compile_function``) called through the zero-copy ``BufferCall``. Python
+then only adds the navigation twist.
 
 The compiled function depends only on the number of robots, of object segments, of
 (padded) obstacles, on the observation layout and on whether there is sensor noise;
@@ -79,7 +78,7 @@ Layout = tuple[tuple[str, int], ...]  # the observation's (name, size) blocks, i
 
 
 def _euler_zyx(r: cs.SX) -> cs.SX:
-    """ZYX Euler angles of a rotation matrix (as ``spatial.euler_from_rot``)."""
+    """ZYX Euler angles of a rotation matrix (``spatial.rot_zyx``'s inverse for |theta| < pi/2)."""
     return cs.vertcat(
         cs.atan2(r[2, 1], r[2, 2]),
         -cs.asin(cs.fmin(cs.fmax(r[2, 0], -1.0), 1.0)),
@@ -381,8 +380,7 @@ class TeamKinematics(RebuiltOnUnpickle):
     After ``__call__``, per robot (rows): ``observation`` (N, size), ``pose_estimate``
     (N, 6), ``constraints`` (N, 8) in the order of ``CONSTRAINTS``, ``manipulability``,
     ``grasp_error`` (m), ``clearance`` of the robot's own bodies (m), ``violated_count``.
-    Team: ``team()`` (see there), ``kinds_violated`` (8,) 0/1 per kind,
-    ``object_clearance`` and ``object_workspace_excess`` (m).
+    Team: ``team()`` and ``team_rows()`` (see there).
     """
 
     _rebuilt = ("_call",)
@@ -429,7 +427,6 @@ class TeamKinematics(RebuiltOnUnpickle):
         scalars, self._team = out[3], out[4].reshape(-1)
         self.manipulability, self.grasp_error = scalars[:, 0], scalars[:, 1]
         self.clearance, self.violated_count = scalars[:, 2], scalars[:, 4]
-        self.kinds_violated = self._team[6 : 6 + NK]
 
     def team(self) -> list[float]:
         """[min_clearance (every body and the object, m), min_manipulability,
@@ -442,14 +439,6 @@ class TeamKinematics(RebuiltOnUnpickle):
         """The whole team output (T,) float64 (a view): the rows ``team`` lists, then the
         kinds violated (8), ...: the task's input (``uvms_env.env.task``)."""
         return self._team
-
-    @property
-    def object_clearance(self) -> float:
-        return float(self._team[6 + NK])
-
-    @property
-    def object_workspace_excess(self) -> float:
-        return float(self._team[7 + NK])
 
     def __call__(
         self,

@@ -31,7 +31,6 @@ __all__ = [
     "Obstacle",
     "Sphere",
     "Workspace",
-    "attitude_rate",
     "choose_k",
     "descend",
     "sample_free_points",
@@ -150,40 +149,8 @@ class Workspace:
 Obstacle = Cylinder | Sphere
 
 
-def attitude_rate(
-    attitude: ArrayLike,
-    attitude_goal: ArrayLike,
-    gain: float = 0.2,
-    max_rate: float = 0.05,
-) -> FloatArray:
-    """Attractive ZYX Euler-angle rate towards a goal attitude.
-
-    ``clip(-gain * wrap(attitude - attitude_goal), -max_rate, max_rate)``, elementwise.
-
-    Parameters
-    ----------
-    attitude, attitude_goal : array_like, shape (3,)
-        ZYX Euler angles ``(phi, theta, psi)`` (roll, pitch, yaw) [rad].
-    gain : float
-        Proportional gain ``K_att`` [1/s], positive.
-    max_rate : float
-        Saturation of each Euler-angle rate [rad/s], positive.
-
-    Returns
-    -------
-    numpy.ndarray, shape (3,)
-        Desired Euler-angle rates [rad/s].
-    """
-    theta = _as_vector("attitude", attitude, 3)
-    theta_d = _as_vector("attitude_goal", attitude_goal, 3)
-    if not gain > 0.0:
-        raise ValueError(f"attitude gain must be positive, got {gain}")
-    if not max_rate > 0.0:
-        raise ValueError(f"max attitude rate must be positive, got {max_rate}")
-    return np.clip(-gain * wrap_angle(theta - theta_d), -max_rate, max_rate)
-
-
 def _attitude_rate_ca(attitude: ca.SX, goal: FloatArray, gain: float, max_rate: float) -> ca.SX:
+    """Attitude law: ZYX Euler-angle rates ``clip(-gain wrap(attitude - goal), +-max_rate)``."""
     raw = -gain * wrap_angle_sx(attitude - ca.DM(goal))
     return ca.fmin(ca.fmax(raw, -max_rate), max_rate)
 

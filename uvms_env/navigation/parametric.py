@@ -5,7 +5,7 @@ call.
 :meth:`WaypointNavigator.casadi_function` bakes the goal, the workspace, the obstacles,
 the team radius and the gains in as constants and selects with ``if_else``; this module
 builds the same formulas (:meth:`NavigationField.casadi_velocity` and the attitude law
-of :func:`~uvms_env.navigation.field.attitude_rate`) with all of them as inputs:
+``field._attitude_rate_ca``) with all of them as inputs:
 
 =============  ============  ==========================================================
 input          shape         contents

@@ -12,8 +12,8 @@ position) and, per waypoint, the symbolic desired object twist::
 * ``v_d`` (3,): the velocity reference of that waypoint's field, a linear velocity in the
   world frame [m/s];
 * ``dTheta_d/dt`` (3,): **ZYX Euler-angle rates** [rad/s] (not a body angular velocity),
-  from :func:`~uvms_env.navigation.field.attitude_rate`
-  (``uvms_env.dynamics.spatial.euler_rate_matrix`` maps a body angular velocity to them).
+  from the attitude law (docs/model.md, "Navigation function";
+  ``uvms_env.dynamics.spatial.euler_rate_matrix`` maps a body angular velocity to them).
 
 Dependencies: this package may import numpy and casadi only.
 """
