@@ -14,8 +14,8 @@ configuration dependence of the mass matrix times the acceleration and of the
 velocity-dependent forces. It keeps the kinematics, the restoring forces (roll and pitch
 are passive), the full velocity dependence (damping, Coriolis, the object's share) and
 the input matrix. The defects (F(x_k, a_k) - x_{k+1}) are exact, so the RTI converges to
-a dynamically consistent plan; the exact AD Jacobian would cost ~11x more per call and
-~200 s of compilation.
+a dynamically consistent plan; the exact AD Jacobian costs far more to call and to
+compile (docs/expert.md, "Solvers").
 
 Soft constraints (NC = 17 per node, normalized by their limits so one penalty fits all):
 body twist of the vehicle (6), joint rates (4), joint angles (4), object pitch (1),

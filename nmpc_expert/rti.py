@@ -11,9 +11,8 @@ reference (``l1 s + l2 s^2`` per constraint), expressed as DAQP's per-row soft w
 (linear weight l1, reciprocal quadratic weight 1 / (2 l2)); a constraint is violated in
 the plan only where satisfying it is impossible or its multiplier exceeds l1.
 
-Why not the sparse (stage-wise) QP with HPIPM: with 16 slacks per node it has 240
-variables, and the solve plus the conversions through CasADi's ``conic`` interface cost
-~2.5 ms per decision here; the condensed QP has 40 and solves in tens of microseconds.
+The condensed QP has 40 variables; the sparse stage-wise QP would have 240 (16 slacks
+per node) and costs far more (docs/expert.md, "Solvers").
 
 A failed QP never stalls the loop: the controller applies the shifted previous plan (or,
 with no plan yet, the nominal holding input) and counts a fallback.

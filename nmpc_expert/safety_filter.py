@@ -34,20 +34,12 @@ this robot applied last period; a hard box intersected with [-1, 1]; none in the
 period) and |u_k - u_{k-1}| <= delta along the plan's tail (hard rows), so the backup plan
 is one the robot may actually follow. u_0 is then linearized at the allowed input nearest
 the proposal, not at the proposal. Purpose: what the others' inputs do to this robot
-through the object changes slowly, and the rate-offset estimator can follow it. Measured
-(random N = 2, seed 7, 10 episodes; violation periods of random + filter, successes of
-filtered DAgger / PPO): without 18,461 (joint speed 10,670), 10/10, 8/10; delta 0.2:
-8,281 (1,471), 10/10, 8/10; 0.15: 7,577 (1,244), 10/10, 8/10; 0.1: 6,082 (624), 9/10,
-7/10 (a rate-limited robot stalls near the goal at 0.18 rad of attitude error). Joint
-limits and workspace periods stay (~5,000-6,000); below 0.1 (3 episodes: 0.05, 0.02)
-the slowly varying random inputs drive the team further into them. Off by default.
+through the object changes slowly, and the rate-offset estimator can follow it (what it
+achieves: docs/notes/2026-11-23-safety-filter-tuning.md).
 
 What it does not cover: obstacles, and whatever the local model mispredicts beyond the
-back-offs and the rate-offset estimate. The local model assumes the other robots carry
-the object consistently; when they do not (random proposals, each filtered by its own
-robot) their pull moves this robot's joints by ~0.1 rad/s per period against the
-prediction, at random, and joint-rate violations remain; pulling the object back from the
-boundary alone strains the arms (joint-limit periods) (README, "Safety filter").
+back-offs and the rate-offset estimate; the local model assumes the other robots carry
+the object consistently (docs/safety-filter.md).
 
 Built only from the robot's ``AgentSpec`` and fed only its own observation, like the
 expert. May import: numpy, ``uvms_env`` and this package. Never ``baselines``.
@@ -69,19 +61,14 @@ from uvms_env.dynamics import NU
 from uvms_env.dynamics.local_model import NX
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 
+# Why each constant below is as it is, with the measurements:
+# docs/notes/2026-11-23-safety-filter-tuning.md.
 # The filter's horizon: 3 periods (0.36 s) instead of the expert's 5. Its constraints are
-# on speeds (relative degree one in the inputs; the joints' fastest mode is ~0.05 s) and
-# on angles behind the back-off (``NMPCSettings.backoff``), so a short look-ahead
-# suffices; each period costs ~0.15 ms of linearization. On 6 tuning episodes (random
-# N = 2, seed 7, both DAgger clones) horizons 3 and 5 gave the same successes,
-# violations and interventions, at 0.89-0.99 vs 1.16-1.40 ms per decision.
+# on speeds (relative degree one in the inputs) and on angles behind the back-off
+# (``NMPCSettings.backoff``), so a short look-ahead suffices.
 FILTER_HORIZON = 3
 # |rate offset| clip of the filter's estimator, in speed limits (the expert's:
-# ``NMPCSettings.offset_limit``).
-# Filtered PPO (random N = 2, seed 7, episode 0): the other robot pulled one joint 0.15-0.16
-# rad/s against the prediction for tens of periods; the estimate was right to 0.005 rad/s,
-# but clipped at one limit (0.1 rad/s) it could not shift the bound far enough, and the
-# joint ran 0.10-0.11 rad/s for 10 periods. At 2.0 (and 3.0): none.
+# ``NMPCSettings.offset_limit``): the others' pull can exceed one limit.
 FILTER_OFFSET_LIMIT = 2.0
 # Workspace rows (``workspace``): a barrier on how fast a ball approaches the boundary,
 # d/dt h <= -WORKSPACE_RATE (h + WORKSPACE_MARGIN), normalized by WORKSPACE_SCALE [m/s],
@@ -89,8 +76,7 @@ FILTER_OFFSET_LIMIT = 2.0
 # a full input changes the team's speed by only a few cm/s per period, so position rows
 # over the 0.36 s horizon could not be kept and their backup tail saturated. The rate
 # asks for a deceleration of 0.5 v, within what the thrusters give at the vehicles' speed
-# limit. On 3 tuning episodes (random + filter, random N = 2, seed 7) the workspace
-# periods fell from 2,050 to 717; a weaker penalty (scale 0.5 m/s) let 1 of them collide.
+# limit.
 WORKSPACE_MARGIN = 0.2
 WORKSPACE_RATE = 0.5
 WORKSPACE_SCALE = 0.1
