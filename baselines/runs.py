@@ -101,8 +101,8 @@ CONFIG_KEYS = (
     "eval",
 )
 RECORD_EPISODES = 2  # the final policy's recorded per-episode evaluation ("eval")
-# Training drops the internal-wrench metric (~6% of a step): it changes no observation,
-# reward or dynamics.
+# Training drops the internal-wrench metric (docs/simulator.md, "Measured"): it changes
+# no observation, reward or dynamics.
 TRAIN_ENV_DEFAULTS: dict[str, Any] = {"internal_wrench_every": 0}
 # The task ladder, easiest first: (scenario, overrides) per rung.
 LADDER: dict[str, tuple[str, dict[str, Any]]] = {

@@ -207,10 +207,8 @@ class RTISolver:
             qp.soft_weights(rho_l=rho, rho_u=rho, w_l=w, w_u=w)
             self._qp = qp
         else:
-            # passing ``sense`` resets the active set: a cold start every time. Warm starts
-            # from the previous active set saved nothing measurable (0.83-0.97 vs 0.85-0.89
-            # ms per decision) and once returned NaN with exit flag 1 after an abrupt
-            # change of the soft rows' bounds.
+            # passing ``sense`` resets the active set: a cold start every time (warm starts:
+            # docs/expert.md, "Tuning record").
             flag = self._qp.update(h, f, c, self._upper, self._lower, self._sense)
             if flag < 0:
                 raise RuntimeError(f"DAQP update failed (exit flag {flag})")
