@@ -12,25 +12,14 @@ The compiled function depends only on the number of robots, of object segments, 
 the scenario geometry (grasps, obstacles, workspace, object segments, waypoints) enters
 as inputs, so a new random scenario with the same team size reuses it.
 
-Padding. An obstacle row with ``present == 0`` changes nothing, whatever its (finite)
-geometry and however many there are: it never enters the nearest obstacles nor the
-ranks of the real ones, and its clearance is replaced by +inf, the neutral element of
-the min (its radius by -inf, see ``_clearance_geometry``), so an obstacle-free scenario
-reads +inf with or without padding rows. A repeated object segment changes nothing
-either (a min and a max over the segments). So every scenario of a team size and
-sensing fits one function with ``BATCH_CYLINDERS`` / ``BATCH_SPHERES`` obstacle slots
-and as many segments as the largest object (``obstacle_inputs``, ``segment_inputs``):
-what a batched build over different geometries needs. The single environment pads
-less (``_padded``): same results, less work.
-
-Branch-free. The symbolic kernel (``team_function``) generates C without a select on a
-value (no ``if_else``, whose C is ``c ? a : 0``), so it also compiles with
-``casadi_real`` a bundle of SIMD lanes or as a CUDA kernel (``uvms_env.vector.kernels``):
-selections are products of 0/1 comparisons with values that are finite for a finite
-state (exact: ``1 * x == x``, ``0 * x == 0``), the substitutions that involve infinities
-are ``fmin``. Its maths: arithmetic, comparisons, ``fmin``/``fmax``/``fabs``, ``sqrt``,
-``sin``/``cos``/``tan``, ``asin``, ``atan2``. Obstacle ``present`` flags must be exactly
-0 or 1.
+Padding and branch-free code (docs/batched.md, "One kernel for every geometry"): an
+obstacle row with ``present == 0`` (exactly 0 or 1) changes nothing (its clearance is
++inf, its radius -inf, see ``_clearance_geometry``), nor does a repeated object segment,
+so every scenario of a team size and sensing fits one function with ``BATCH_CYLINDERS``
+/ ``BATCH_SPHERES`` slots (``obstacle_inputs``, ``segment_inputs``; the single
+environment pads less, ``_padded``). The symbolic kernel (``team_function``) has no
+``if_else``, so it also compiles for SIMD lanes or as a CUDA kernel
+(``uvms_env.vector.kernels``).
 
 May import: numpy, casadi, ``uvms_env.dynamics``, ``uvms_env.navigation`` (obstacle
 types), ``uvms_env.scenarios`` (types) and ``uvms_env.env.constraints``.
