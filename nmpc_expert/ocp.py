@@ -53,14 +53,6 @@ from uvms_env.dynamics.local_model import (
 from uvms_env.dynamics.uvms import default_model
 
 NC = 17  # soft constraints per node
-CONSTRAINT_NAMES = (
-    *(f"vehicle_speed_{a}" for a in ("u", "v", "w", "p", "q", "r")),
-    *(f"joint_speed_{k}" for k in range(1, 5)),
-    *(f"joint_position_{k}" for k in range(1, 5)),
-    "object_pitch",
-    "vehicle_pitch",
-    "manipulability",
-)
 NW = 6 + 6 + 6 + NU + 5 * NC + 1  # weight/bound vector: see ``weight_vector``
 # start of each part of the weight vector (``weight_vector``)
 WEIGHT_OFFSETS = {
