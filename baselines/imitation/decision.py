@@ -174,7 +174,7 @@ def mlp_decision_function(
     """Compiled (obs, mean, inv_std, clip) -> action of an MLP (``layers`` as in
     ``dense_c``; the last has 8 outputs), or None where nothing is compiled."""
     key = (features, ring_radius, dim, residual, layers_digest(layers))
-    if key in _MLP_CACHE:  # generating and hashing the source again: ~0.25 s per robot
+    if key in _MLP_CACHE:  # spares generating and hashing the source again per robot
         return _MLP_CACHE[key]
     args, z, ff, tag = inputs_sx(features, ring_radius, dim)
     name = f"cloned_mlp_{tag}_{key[-1]}"
