@@ -11,35 +11,13 @@ Each period the inner policy proposes a_prop; the filter returns the first input
     s.t. the local model's prediction x_1..x_N keeps the expert's constraints (soft, exact
          L1 + L2 penalties: always feasible), -1 <= u_k <= 1 (hard)
 
-with ubar_k the filter's previous plan shifted by one period (its backup plan: the tail
-is free to change, at a small cost, to keep the prediction safe), N = ``FILTER_HORIZON``
-periods. It is the expert's
-real-time iteration (``rti``) with the tracking cost replaced: the same compiled builder
-linearizes the same local model around (x_0, [a_prop; ubar_1..ubar_{N-1}]) and condenses
-the same constraint rows (vehicle twist, joint rates and angles, object and vehicle
-pitch, manipulability; the expert's back-offs and rate-offset estimator), and DAQP solves the QP
-with the fixed cost above (``RTISolver(cost=...)``). With u_0 linearized at a_prop, the
-input steps da are zero exactly when the proposal with the backup tail is predicted
-safe, so a safe proposal passes unchanged. A failed QP falls back like the expert: the
-shifted previous plan's first input, or the holding input with no plan yet.
-
-Beyond the expert's rows, the filter keeps the workspace (``workspace``): at the plan's
-node 1, a barrier on how fast its own bodies and the object (its own estimate, from its
-grasp) approach the workspace boundary, d/dt h <= -rate (h + margin), soft like the
-others; the expert has no such rows (its navigation function keeps the team inside).
-
-Input-step bound (``max_input_step`` = delta, off by default): a convention every robot
-knows before the task, so no communication: |u_0 - u_prev| <= delta (u_prev the input
-this robot applied last period; a hard box intersected with [-1, 1]; none in the first
-period) and |u_k - u_{k-1}| <= delta along the plan's tail (hard rows), so the backup plan
-is one the robot may actually follow. u_0 is then linearized at the allowed input nearest
-the proposal, not at the proposal. Purpose: what the others' inputs do to this robot
-through the object changes slowly, and the rate-offset estimator can follow it (what it
-achieves: docs/notes/2026-11-23-safety-filter-tuning.md).
-
-What it does not cover: obstacles, and whatever the local model mispredicts beyond the
-back-offs and the rate-offset estimate; the local model assumes the other robots carry
-the object consistently (docs/safety-filter.md).
+with ubar_k its previous plan shifted by one period (the backup plan), N =
+``FILTER_HORIZON``. It is the expert's real-time iteration (``rti``) with the tracking
+cost replaced (``RTISolver(cost=...)``) and u_0 linearized at a_prop (or, with
+``max_input_step``, at the allowed input nearest it), so a proposal predicted safe with
+the backup tail passes unchanged; a failed QP falls back like the expert. Beyond the
+expert's rows it keeps the workspace (``workspace``: a barrier at the plan's node 1).
+Design, input-step bound and what it does not cover: docs/safety-filter.md.
 
 Built only from the robot's ``AgentSpec`` and fed only its own observation, like the
 expert. May import: numpy, ``uvms_env`` and this package. Never ``baselines``.
