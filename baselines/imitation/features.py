@@ -2,12 +2,9 @@
 numpy for training batches and as one compiled CasADi function for decisions.
 
 ``features`` (84 numbers) is the environment's ``observation_mode="features"``, by the
-same name everywhere: ``uvms_env.env.priors.featurize`` (76 numbers from the 79-number
-observation: positions and headings relative to the robot's own heading frame,
-``time_fraction`` dropped, as it depends on ``max_cycles``, which the expert ignores) and
-the steady input a_ss (``uvms_env.env.priors``: the expert's own input reference, from
-the robot's own measured state, grasp, load share, the navigation twist and the object's
-nominal parameters). ``uvms-v1`` is the 76 numbers alone. Saved policies that say
+same name everywhere: ``uvms_env.env.priors.featurize`` (76 numbers in the robot's own
+heading frame, ``time_fraction`` dropped) and the steady input a_ss
+(``uvms_env.env.priors``). ``uvms-v1`` is the 76 numbers alone. Saved policies that say
 ``uvms-v2`` are read as ``features`` (``canonical_features``). Networks on ``features``
 learn the residual a - a_ss (``network.MLPPolicyNet``): the holding forces depend on the
 grasp geometry and the load share through the arm's kinematics (why: docs/imitation.md).
