@@ -70,7 +70,7 @@ def grasp_residual(uvms: UVMSModel) -> cs.Function:
 
 
 def robot_stage(uvms: UVMSModel, stabilization: float) -> cs.Function:
-    """Per-robot reduction (see module docstring), one SX function shared by every robot."""
+    """Per-robot reduction (docs/model.md, "The closed chain"), one SX function for every robot."""
     q, zeta, tau = cs.SX.sym("q", NQ), cs.SX.sym("zeta", NQ), cs.SX.sym("tau", NU)
     v_c, p, grasp = cs.SX.sym("v_c", 3), cs.SX.sym("p", NP), cs.SX.sym("grasp", NG)
     x_o, v_o = cs.SX.sym("x_O", 6), cs.SX.sym("v_O", 6)
