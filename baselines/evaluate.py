@@ -9,14 +9,10 @@ draws, the current and the sensor noise. Episodes run in worker processes; a res
 depends only on (policy, scenario, seed), never on the number of workers. A policy that
 raises ends its episode as a failure with the error recorded, not the evaluation.
 
-Writes ``episodes.csv`` (one row per episode), ``results.json`` and ``results.md``
-(success and clean success, i.e. success with no violation period, with Wilson 95%
-intervals, over the episodes whose current is within the team's reach: those beyond it,
-``current_within_reach`` false, are counted apart and left out of the rates; means with
-bootstrap 95% intervals, violations per kind, decision time median and p95, and for
-``+filter`` policies the safety filter's intervention rate), and plots (success by
-scenario, decision time on a log scale, the object's path per policy on the paper
-scenario).
+Writes ``episodes.csv`` (one row per episode), ``results.json``, ``results.md`` and plots;
+episodes whose current is beyond the team's reach (``current_within_reach`` false) are
+counted apart and left out of the success rates. Outputs and policies:
+docs/evaluation.md.
 """
 
 from __future__ import annotations

@@ -100,7 +100,6 @@ class Lagrangian:
         self.multiplier = float(settings.multiplier)
         self._episode = np.zeros(robots)
         self._finished: list[float] = []
-        self.last_episode_cost: float | None = None
 
     def reset(self) -> None:
         self._episode[:] = 0.0
@@ -145,5 +144,4 @@ class Lagrangian:
         self.multiplier = float(
             np.clip(self.multiplier + s.lr * (mean - s.cost_limit), 0.0, s.max_multiplier)
         )
-        self.last_episode_cost = mean
         return mean

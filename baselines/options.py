@@ -6,21 +6,8 @@ May import: the standard library only.
 
 from __future__ import annotations
 
-import argparse
 import json
 from typing import Any
-
-
-def add_option_arguments(ap: argparse.ArgumentParser, hp_help: str) -> None:
-    """The trainers' ``--env-option`` and ``--hp`` (repeatable ``KEY=JSON``)."""
-    ap.add_argument(
-        "--env-option",
-        action="append",
-        default=[],
-        metavar="KEY=JSON",
-        help="environment option, e.g. max_cycles=200 or reward_weights='{\"effort\": 0.01}'",
-    )
-    ap.add_argument("--hp", action="append", default=[], metavar="KEY=JSON", help=hp_help)
 
 
 def key_value_pairs(items: list[str]) -> dict[str, Any]:

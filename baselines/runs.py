@@ -13,7 +13,7 @@ one ``progress.csv`` and one ``evaluations.csv`` schema, periodic evaluation thr
 
 ``baselines.train.train`` is that sequence.
 
-The folder: ``config.json`` (``CONFIG_KEYS``, then the engine's own ``engine_settings``),
+The folder: ``config.json`` (``Run.start``'s record, then the engine's ``engine_settings``),
 ``progress.csv`` (``PROGRESS_COLUMNS``, one row per iteration, appended by a resumed run),
 ``evaluations.csv`` (``EVAL_COLUMNS``, one row per evaluation and rung),
 ``marl_eval.json`` (the same evaluations for marl-eval), ``eval_snapshot/`` and whatever
@@ -75,34 +75,9 @@ EVAL_COLUMNS = (
     "episode_steps",
     "errors",
 )
-# The keys every engine's config.json has (the engine adds ``engine_settings``).
-CONFIG_KEYS = (
-    "engine",
-    "algo",
-    "command",
-    "scenario",
-    "overrides",
-    "env_defaults",
-    "env_options",
-    "num_envs",
-    "seed",
-    "robot_steps_budget",
-    "eval_every",
-    "eval_episodes",
-    "eval_ladder",
-    "checkpoint_every",
-    "cost",
-    "resumes",
-    "hardware",
-    "engine_settings",
-    "robot_steps",
-    "wall_time_s",
-    "robot_steps_per_s",
-    "eval",
-)
 RECORD_EPISODES = 2  # the final policy's recorded per-episode evaluation ("eval")
-# Training drops the internal-wrench metric (~6% of a step): it changes no observation,
-# reward or dynamics.
+# Training drops the internal-wrench metric (docs/simulator.md, "Measured"): it changes
+# no observation, reward or dynamics.
 TRAIN_ENV_DEFAULTS: dict[str, Any] = {"internal_wrench_every": 0}
 # The task ladder, easiest first: (scenario, overrides) per rung.
 LADDER: dict[str, tuple[str, dict[str, Any]]] = {

@@ -14,8 +14,8 @@ configuration dependence of the mass matrix times the acceleration and of the
 velocity-dependent forces. It keeps the kinematics, the restoring forces (roll and pitch
 are passive), the full velocity dependence (damping, Coriolis, the object's share) and
 the input matrix. The defects (F(x_k, a_k) - x_{k+1}) are exact, so the RTI converges to
-a dynamically consistent plan; the exact AD Jacobian would cost ~11x more per call and
-~200 s of compilation.
+a dynamically consistent plan; the exact AD Jacobian costs far more to call and to
+compile (docs/expert.md, "Solvers").
 
 Soft constraints (NC = 17 per node, normalized by their limits so one penalty fits all):
 body twist of the vehicle (6), joint rates (4), joint angles (4), object pitch (1),
@@ -53,16 +53,7 @@ from uvms_env.dynamics.local_model import (
 from uvms_env.dynamics.uvms import default_model
 
 NC = 17  # soft constraints per node
-CONSTRAINT_NAMES = (
-    *(f"vehicle_speed_{a}" for a in ("u", "v", "w", "p", "q", "r")),
-    *(f"joint_speed_{k}" for k in range(1, 5)),
-    *(f"joint_position_{k}" for k in range(1, 5)),
-    "object_pitch",
-    "vehicle_pitch",
-    "manipulability",
-)
 NW = 6 + 6 + 6 + NU + 5 * NC + 1  # weight/bound vector: see ``weight_vector``
-NR = 12  # state residual rows per node (pose 6, twist 6)
 # start of each part of the weight vector (``weight_vector``)
 WEIGHT_OFFSETS = {
     "r_u": 18,

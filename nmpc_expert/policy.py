@@ -288,10 +288,6 @@ class LocalController:
         self._lower[:m] = lower[:m] + margin
         self._upper[:m] = upper[:m] - margin
 
-    def predicted_plan(self) -> tuple[np.ndarray, np.ndarray]:
-        """The current plan: states (N+1, 20) and normalized inputs (N, 8) (copies)."""
-        return self.solver.xbar.copy(), self.solver.abar.copy()
-
 
 class NMPCPolicy(LocalController):
     """Distributed NMPC of one robot (see module docstring)."""

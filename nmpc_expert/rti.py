@@ -11,9 +11,8 @@ reference (``l1 s + l2 s^2`` per constraint), expressed as DAQP's per-row soft w
 (linear weight l1, reciprocal quadratic weight 1 / (2 l2)); a constraint is violated in
 the plan only where satisfying it is impossible or its multiplier exceeds l1.
 
-Why not the sparse (stage-wise) QP with HPIPM: with 16 slacks per node it has 240
-variables, and the solve plus the conversions through CasADi's ``conic`` interface cost
-~2.5 ms per decision here; the condensed QP has 40 and solves in tens of microseconds.
+The condensed QP has 40 variables; the sparse stage-wise QP would have 240 (16 slacks
+per node) and costs far more (docs/expert.md, "Solvers").
 
 A failed QP never stalls the loop: the controller applies the shifted previous plan (or,
 with no plan yet, the nominal holding input) and counts a fallback.
@@ -208,10 +207,8 @@ class RTISolver:
             qp.soft_weights(rho_l=rho, rho_u=rho, w_l=w, w_u=w)
             self._qp = qp
         else:
-            # passing ``sense`` resets the active set: a cold start every time. Warm starts
-            # from the previous active set saved nothing measurable (0.83-0.97 vs 0.85-0.89
-            # ms per decision) and once returned NaN with exit flag 1 after an abrupt
-            # change of the soft rows' bounds.
+            # passing ``sense`` resets the active set: a cold start every time (warm starts:
+            # docs/expert.md, "Tuning record").
             flag = self._qp.update(h, f, c, self._upper, self._lower, self._sense)
             if flag < 0:
                 raise RuntimeError(f"DAQP update failed (exit flag {flag})")

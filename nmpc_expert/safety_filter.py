@@ -11,43 +11,13 @@ Each period the inner policy proposes a_prop; the filter returns the first input
     s.t. the local model's prediction x_1..x_N keeps the expert's constraints (soft, exact
          L1 + L2 penalties: always feasible), -1 <= u_k <= 1 (hard)
 
-with ubar_k the filter's previous plan shifted by one period (its backup plan: the tail
-is free to change, at a small cost, to keep the prediction safe), N = ``FILTER_HORIZON``
-periods. It is the expert's
-real-time iteration (``rti``) with the tracking cost replaced: the same compiled builder
-linearizes the same local model around (x_0, [a_prop; ubar_1..ubar_{N-1}]) and condenses
-the same constraint rows (vehicle twist, joint rates and angles, object and vehicle
-pitch, manipulability; the expert's back-offs and rate-offset estimator), and DAQP solves the QP
-with the fixed cost above (``RTISolver(cost=...)``). With u_0 linearized at a_prop, the
-input steps da are zero exactly when the proposal with the backup tail is predicted
-safe, so a safe proposal passes unchanged. A failed QP falls back like the expert: the
-shifted previous plan's first input, or the holding input with no plan yet.
-
-Beyond the expert's rows, the filter keeps the workspace (``workspace``): at the plan's
-node 1, a barrier on how fast its own bodies and the object (its own estimate, from its
-grasp) approach the workspace boundary, d/dt h <= -rate (h + margin), soft like the
-others; the expert has no such rows (its navigation function keeps the team inside).
-
-Input-step bound (``max_input_step`` = delta, off by default): a convention every robot
-knows before the task, so no communication: |u_0 - u_prev| <= delta (u_prev the input
-this robot applied last period; a hard box intersected with [-1, 1]; none in the first
-period) and |u_k - u_{k-1}| <= delta along the plan's tail (hard rows), so the backup plan
-is one the robot may actually follow. u_0 is then linearized at the allowed input nearest
-the proposal, not at the proposal. Purpose: what the others' inputs do to this robot
-through the object changes slowly, and the rate-offset estimator can follow it. Measured
-(random N = 2, seed 7, 10 episodes; violation periods of random + filter, successes of
-filtered DAgger / PPO): without 18,461 (joint speed 10,670), 10/10, 8/10; delta 0.2:
-8,281 (1,471), 10/10, 8/10; 0.15: 7,577 (1,244), 10/10, 8/10; 0.1: 6,082 (624), 9/10,
-7/10 (a rate-limited robot stalls near the goal at 0.18 rad of attitude error). Joint
-limits and workspace periods stay (~5,000-6,000); below 0.1 (3 episodes: 0.05, 0.02)
-the slowly varying random inputs drive the team further into them. Off by default.
-
-What it does not cover: obstacles, and whatever the local model mispredicts beyond the
-back-offs and the rate-offset estimate. The local model assumes the other robots carry
-the object consistently; when they do not (random proposals, each filtered by its own
-robot) their pull moves this robot's joints by ~0.1 rad/s per period against the
-prediction, at random, and joint-rate violations remain; pulling the object back from the
-boundary alone strains the arms (joint-limit periods) (README, "Safety filter").
+with ubar_k its previous plan shifted by one period (the backup plan), N =
+``FILTER_HORIZON``. It is the expert's real-time iteration (``rti``) with the tracking
+cost replaced (``RTISolver(cost=...)``) and u_0 linearized at a_prop (or, with
+``max_input_step``, at the allowed input nearest it), so a proposal predicted safe with
+the backup tail passes unchanged; a failed QP falls back like the expert. Beyond the
+expert's rows it keeps the workspace (``workspace``: a barrier at the plan's node 1).
+Design, input-step bound and what it does not cover: docs/safety-filter.md.
 
 Built only from the robot's ``AgentSpec`` and fed only its own observation, like the
 expert. May import: numpy, ``uvms_env`` and this package. Never ``baselines``.
@@ -69,19 +39,14 @@ from uvms_env.dynamics import NU
 from uvms_env.dynamics.local_model import NX
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 
+# Why each constant below is as it is, with the measurements:
+# docs/notes/2026-11-23-safety-filter-tuning.md.
 # The filter's horizon: 3 periods (0.36 s) instead of the expert's 5. Its constraints are
-# on speeds (relative degree one in the inputs; the joints' fastest mode is ~0.05 s) and
-# on angles behind the back-off (``NMPCSettings.backoff``), so a short look-ahead
-# suffices; each period costs ~0.15 ms of linearization. On 6 tuning episodes (random
-# N = 2, seed 7, both DAgger clones) horizons 3 and 5 gave the same successes,
-# violations and interventions, at 0.89-0.99 vs 1.16-1.40 ms per decision.
+# on speeds (relative degree one in the inputs) and on angles behind the back-off
+# (``NMPCSettings.backoff``), so a short look-ahead suffices.
 FILTER_HORIZON = 3
 # |rate offset| clip of the filter's estimator, in speed limits (the expert's:
-# ``NMPCSettings.offset_limit``).
-# Filtered PPO (random N = 2, seed 7, episode 0): the other robot pulled one joint 0.15-0.16
-# rad/s against the prediction for tens of periods; the estimate was right to 0.005 rad/s,
-# but clipped at one limit (0.1 rad/s) it could not shift the bound far enough, and the
-# joint ran 0.10-0.11 rad/s for 10 periods. At 2.0 (and 3.0): none.
+# ``NMPCSettings.offset_limit``): the others' pull can exceed one limit.
 FILTER_OFFSET_LIMIT = 2.0
 # Workspace rows (``workspace``): a barrier on how fast a ball approaches the boundary,
 # d/dt h <= -WORKSPACE_RATE (h + WORKSPACE_MARGIN), normalized by WORKSPACE_SCALE [m/s],
@@ -89,8 +54,7 @@ FILTER_OFFSET_LIMIT = 2.0
 # a full input changes the team's speed by only a few cm/s per period, so position rows
 # over the 0.36 s horizon could not be kept and their backup tail saturated. The rate
 # asks for a deceleration of 0.5 v, within what the thrusters give at the vehicles' speed
-# limit. On 3 tuning episodes (random + filter, random N = 2, seed 7) the workspace
-# periods fell from 2,050 to 717; a weaker penalty (scale 0.5 m/s) let 1 of them collide.
+# limit.
 WORKSPACE_MARGIN = 0.2
 WORKSPACE_RATE = 0.5
 WORKSPACE_SCALE = 0.1

@@ -54,32 +54,25 @@ class NMPCSettings:
     input_reference: str = "steady_state"
     """What R penalizes: "zero" (|a|^2_R, literally the paper) or "steady_state"
     (|a - a_ss|^2_R with a_ss the nominal input that holds the reference twist against
-    drag and weight; see docs in README). With "zero" the input cost outweighs the speed
-    error at the paper's weights and the team crawls (~0.05 m/s in steady state)."""
+    drag and weight; docs/expert.md). With "zero" the input cost outweighs the speed
+    error at the paper's weights and the team crawls."""
     attitude_from_waypoint: bool = True
     """Pose reference attitude = the active waypoint's (True) or the navigation law's
     propagated Euler angles (False); see ``reference``."""
     angular_backoff: float = 0.5
     """Tighter back-off for the joint rates and the vehicle's angular rates: the local
-    model ignores the internal wrench, whose effect on these rates reaches ~0.02 rad/s
-    within one period (measured: predicted vs true rates on the paper scenario). At 0.55
-    two of 20 random N = 2 episodes overshot the joint-rate limit by up to 8% for 1-4
-    periods (a jump of the navigation reference when the object leaves the field's free
-    space; the cold start before the rate-offset estimate settles); at 0.5, none."""
+    model ignores the internal wrench, whose effect on these rates shows within one period
+    (tuning: docs/expert.md, "Tuning record")."""
     offset_gain: float = 0.5
     """Gain L of the rate-offset estimator (0 disables it). Each period the robot compares
     its measured zeta with the one-step prediction of its previous plan and filters the
     error, e <- e + L (zeta_meas - zeta_pred - e); the speed constraints of the whole
     horizon then apply to zeta_pred + e. The error is what the local model misses, mostly
-    the internal wrench of the other robots; measured on the paper scenario it is up to
-    0.05 rad/s on the joint rates and persistent (lag-1 autocorrelation 0.99), so the
-    last error predicts the next one to ~1e-3 rad/s. Own data only."""
+    the internal wrench of the other robots, and it is persistent, so the last error
+    predicts the next one. Own data only."""
     offset_limit: float = 1.0
     """|e| clip as a fraction of each speed limit: one bad measurement cannot move a bound
-    by more than this. At 0.5, one robot of a random N = 3 team (seed 505433210) whose
-    joint-3 rate was mispredicted by up to 0.18 rad/s (1.8 limits) hit the clip, and the
-    joint was dragged past its position limit for 85 periods; at 1.0, no violation there,
-    the paper run unchanged."""
+    by more than this (why 1.0: docs/expert.md, "Tuning record")."""
     disturbance_observer: bool = True
     """Offset-free local prediction (False: the paper's controller, with the rate-offset
     estimator above on the speed bounds only). Each period the robot compares its
@@ -97,36 +90,26 @@ class NMPCSettings:
     observer_limit: float = 5.0
     """|d| clip per period, in speed limits (one bad measurement cannot run away). Where
     the teammates hold a joint the estimate settles at up to ~3 limits (the model's
-    input gain is off, not only its offset); tuning (four random N = 5, 6 episodes of
-    evaluation seed 7 with violations): clip 1.5: 63 violation periods, 3.0: 5, 5.0: 0."""
+    input gain is off, not only its offset)."""
     observer_input_gain: float = 0.5
     """g: the steady-state input reference a_ss (``input_reference``: what R pulls the
     inputs towards) moves by the input that cancels g * d on the vehicle's linear rates,
     through the last linearization's input gain (0: off). a_ss is the nominal model's:
     with d in the prediction, R pulls every input away from what counters d, so against
     a current the team moves slower than its reference and stops short of the goal until
-    the goal integral winds up (paper scenario, mild current, mismatch 0.1, evaluation
-    seeds 7, 11, 99, 123, 38 episodes: clean success 34 without, 38 with g = 0.5; then,
-    untouched, seeds 5, 13, 42: 27/30 without, 30/30 with). Only
-    the linear rates (a current acts there; on the joints d mostly holds the teammates'
-    pull against a model input gain that is off) and only part of d: g = 1 with a clip of
-    1 (all the rates' inputs, or the linear ones) made the estimate and the reference
-    feed each other (collisions and speed violations on the same seeds)."""
+    the goal integral winds up. Only the linear rates (a current acts there; on the joints
+    d mostly holds the teammates' pull against a model input gain that is off) and only
+    part of d: g = 1 made the estimate and the reference feed each other."""
     observer_input_limit: float = 0.3
     """|a_ss shift| clip per input (normalized), the same anti-runaway as ``observer_limit``."""
     observer_anti_windup: bool = False
     """Freeze the estimate of a rate whose input was saturated in the direction the
     innovation asks for (conditional integration). Off: where the teammates drag a
-    joint against its saturated input, the frozen estimate left the prediction 0.03
-    rad/s off; integrating on lets the plan see the drag and move the vehicle instead
-    (four random N = 5, 6 episodes of evaluation seed 11: 18 violation periods with it,
-    0 without)."""
+    joint against its saturated input, integrating on lets the plan see the drag and move
+    the vehicle instead."""
     margin_gain: float = 4.0
     """k: the speed bounds move inwards by k * sigma, sigma the innovation's RMS (an
-    exponential moving average of its square, weight ``margin_forgetting``). Tuning
-    (random N = 5 and 6, two episodes of evaluation seed 7 with joint-rate violations at
-    the start, where the teammates drag a joint): k = 2: 8 and 26 violation periods;
-    k = 4: 5 and 13; k = 4 with ``input_step`` 0.15: none."""
+    exponential moving average of its square, weight ``margin_forgetting``)."""
     margin_forgetting: float = 0.1
     """Weight of the newest squared innovation in sigma's moving average (0 < w <= 1)."""
     margin_limit: float = 0.3
@@ -139,19 +122,15 @@ class NMPCSettings:
     """delta: hard bound on the normalized input's change per period, |a_0 - a_prev| <=
     delta and along the plan (None: none, the paper's). The other robots' pull changes as
     fast as their inputs do; when every robot jumps at once (a step of the navigation
-    reference) the one-step prediction missed by up to 0.07 rad/s on a joint, beyond any
-    estimate from the past (random N = 2, evaluation seed 7: 1 violation period without
-    the bound, none at 0.3). A full reversal takes 2 / delta periods (1.6 s at 0.15)."""
+    reference) no estimate from the past predicts it. A full reversal takes 2 / delta
+    periods (1.6 s at 0.15)."""
     goal_integral_gain: float = 0.5
     """k_i [1/s] of the integral action at the goal (0 disables it). The controller has no
     disturbance model, so a steady current or buoyancy error leaves a position offset
-    (mild current: 0.16-0.24 m, above the 0.15 m tolerance). Near the last waypoint the
+    (above the 0.15 m tolerance under a mild current). Near the last waypoint the
     robot integrates its own object position error, I <- I + h (p_O - p_goal), and the
     position reference moves by -k_i I. Every robot integrates the same quantity (its
-    estimate of the shared object), so the robots agree without communicating. Measured
-    on the paper scenario with a mild current (seeds 0, 1, 3): without it 0.16-0.24 m
-    left after 2,000 periods; with k_i = 0.5 and a 2 m clip, success in 1,109-1,577
-    periods; the nominal run is unchanged (1,047 periods, no violation)."""
+    estimate of the shared object), so the robots agree without communicating."""
     goal_integral_radius: float = 0.5
     """The integral runs only while the object is this close to the last waypoint [m]."""
     goal_integral_limit: float = 2.0

@@ -32,7 +32,6 @@ from uvms_env.dynamics.spatial import rot_zyx
 from uvms_env.dynamics.uvms import default_model
 
 NW_ROWS = 2  # per node: own bodies, object
-WORKSPACE_ROWS = ("workspace_bodies", "workspace_object")
 
 
 def _barrier(balls: list[tuple[cs.SX, float]], q: cs.SX, q_dot: cs.SX, ws: cs.SX, rate: cs.SX):
@@ -97,8 +96,8 @@ class WorkspaceRows:
     Why node 1 only: r is a speed, one period from the inputs, and the vehicles' thrust
     changes it by a few cm/s per period; rows on later nodes asked the backup tail for
     what it cannot do, the tail saturated, and its linear prediction (the next period's
-    linearization point) drifted far from the truth (random + filter, seed 7: joint
-    rates of 0.7 rad/s at the plan's node 1 against 0.08 measured)."""
+    linearization point) drifted far from the truth
+    (docs/notes/2026-11-23-safety-filter-tuning.md)."""
 
     count = NW_ROWS
 

@@ -12,9 +12,10 @@ import pytest
 import uvms_env
 from baselines.imitation.decision import (
     TANH_LIMIT,
+    TANH_P,
+    TANH_Q,
     dense_c,
     mlp_decision_function,
-    tanh_approx,
 )
 from baselines.imitation.network import MLPPolicyNet
 from baselines.imitation.policy import ClonedPolicy
@@ -90,6 +91,18 @@ def test_compiled_mlp_clips_as_the_torch_network(rollout):
     assert (np.abs(want) == 1.0).mean() > 0.1
     assert np.all(np.abs(got) <= 1.0)
     assert np.abs(got - want).max() < TOL
+
+
+def tanh_approx(x: np.ndarray) -> np.ndarray:
+    """The generated code's tanh, in numpy float32 with the same operations."""
+    t = np.clip(np.asarray(x, dtype=np.float32), -TANH_LIMIT, TANH_LIMIT)
+    s = t * t
+    p, q = np.float32(0.0), np.float32(0.0)
+    for c in TANH_P[::-1]:
+        p = p * s + np.float32(c)
+    for c in TANH_Q[::-1]:
+        q = q * s + np.float32(c)
+    return t * p / q
 
 
 def test_tanh_approximation():

@@ -13,7 +13,7 @@ from baselines.imitation.cli import main
 pytest.importorskip("minari")
 
 STEPS = 6
-EXPERT = "baselines.imitation.scripted:expert"  # cheap and deterministic, no NMPC
+EXPERT = "experts.scripted:expert"  # cheap and deterministic, no NMPC
 
 
 def _crowd(parent):

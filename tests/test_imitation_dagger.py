@@ -8,13 +8,13 @@ import json
 
 import numpy as np
 import pytest
+from experts.scripted import ScriptedPolicy
 from script_loader import load_script
 
 import uvms_env
 from baselines.imitation.cli import main
 from baselines.imitation.dataset import read_dataset
 from baselines.imitation.rollout import rollouts
-from baselines.imitation.scripted import ScriptedPolicy
 
 pytest.importorskip("torch")
 pytest.importorskip("minari")
@@ -137,7 +137,7 @@ def test_noise_perturbs_the_executed_action_but_not_the_label():
 def test_cli_collect_bc_dagger_evaluate(tmp_path):
     from baselines.evaluate import evaluate
 
-    expert = "baselines.imitation.scripted:expert"
+    expert = "experts.scripted:expert"
     data = tmp_path / "data" / "tiny"
     main(["collect", "--scenario", "short", "--episodes", "1", "--max-cycles", str(STEPS),
           "--expert", expert, "--out", str(data)])  # fmt: skip
@@ -239,7 +239,7 @@ def test_history_probe_aligns_each_stream_with_its_own_past(tmp_path):
 
     data = tmp_path / "data" / "tiny"
     main(["collect", "--scenario", "short", "--episodes", "2", "--max-cycles", str(STEPS),
-          "--expert", "baselines.imitation.scripted:expert", "--out", str(data)])  # fmt: skip
+          "--expert", "experts.scripted:expert", "--out", str(data)])  # fmt: skip
     inputs, labels, held = history_inputs(data)
     assert set(inputs) == set(VARIANTS) and len(labels) == 4 * STEPS == len(held)
     current, with_action = inputs["current"], inputs["+ previous action"]

@@ -8,7 +8,6 @@ from gymnasium.spaces import Box
 
 from baselines.imitation import bc, dataset
 from baselines.imitation.features import (
-    FEATURE_DIM,
     FEATURE_DIMS,
     FEATURES,
     FEEDFORWARD,
@@ -19,6 +18,8 @@ from baselines.imitation.network import MLPPolicyNet
 from baselines.imitation.policy import ClonedPolicy
 from uvms_env.env.priors import featurize
 from uvms_env.policy import AgentSpec
+
+FEATURE_DIM = FEATURE_DIMS["uvms-v1"]
 
 
 def test_bc_fits_a_known_linear_expert():

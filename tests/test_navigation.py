@@ -3,12 +3,23 @@
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import casadi as ca
 import numpy as np
 import pytest
-from nav_points import PointField, twist
+from nav_points import (
+    PointField,
+    attitude_rate,
+    desired_velocity_batch,
+    grad_log_phi_batch,
+    grad_phi_batch,
+    log_phi_batch,
+    phi_batch,
+    twist,
+)
 
+from uvms_env.dynamics.spatial import euler_rate_matrix
 from uvms_env.navigation import (
     Cylinder,
     NavigationField,
@@ -17,10 +28,8 @@ from uvms_env.navigation import (
     WaypointNavigator,
     WaypointSequencer,
     Workspace,
-    attitude_rate,
     choose_k,
     descend,
-    euler_rates_to_body_rates,
     sample_free_points,
     wrap_angle,
 )
@@ -83,25 +92,25 @@ def test_log_form_matches_naive_formula(k: float) -> None:
     pts = sample_free_points(field, 100, np.random.default_rng(1))
     naive = np.array([_naive_phi(field, p) for p in pts])
     assert np.all(np.isfinite(naive))
-    np.testing.assert_allclose(field.phi_batch(pts), naive, rtol=1e-10, atol=1e-14)
-    np.testing.assert_allclose(field.log_phi_batch(pts), np.log(naive), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(phi_batch(field, pts), naive, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(log_phi_batch(field, pts), np.log(naive), rtol=1e-9, atol=1e-12)
 
 
 @pytest.mark.parametrize("k", [2.0, 6.0])
 def test_gradients_match_finite_differences(k: float) -> None:
     field = _mixed_field(k)
     pts = sample_free_points(field, 100, np.random.default_rng(2), min_clearance=0.05)
-    fd_log = _central_diff(field.log_phi_batch, pts)
-    np.testing.assert_allclose(field.grad_log_phi_batch(pts), fd_log, rtol=1e-5, atol=1e-7)
-    fd_phi = _central_diff(field.phi_batch, pts)
-    np.testing.assert_allclose(field.grad_phi_batch(pts), fd_phi, rtol=1e-5, atol=1e-8)
+    fd_log = _central_diff(partial(log_phi_batch, field), pts)
+    np.testing.assert_allclose(grad_log_phi_batch(field, pts), fd_log, rtol=1e-5, atol=1e-7)
+    fd_phi = _central_diff(partial(phi_batch, field), pts)
+    np.testing.assert_allclose(grad_phi_batch(field, pts), fd_phi, rtol=1e-5, atol=1e-8)
 
 
 def test_desired_velocity_direction_and_speed() -> None:
     field = _mixed_field(6.0)
     pts = sample_free_points(field, 200, np.random.default_rng(3))
-    v = field.desired_velocity_batch(pts)
-    g = field.grad_log_phi_batch(pts)
+    v = desired_velocity_batch(field, pts)
+    g = grad_log_phi_batch(field, pts)
     cos = -np.sum(v * g, axis=1) / (np.linalg.norm(v, axis=1) * np.linalg.norm(g, axis=1))
     np.testing.assert_allclose(cos, 1.0, atol=1e-9)
     dist = np.linalg.norm(pts - field.goal, axis=1)
@@ -123,7 +132,7 @@ def test_casadi_function_matches_numpy() -> None:
     outside = np.array([[9.0, -1.2, 0.7], [30.0, 0.0, 0.0], [1.2, 3.1, 1.0]])
     pts = np.vstack([free, field.goal, field.goal + 1e-9, outside])
     v_ca = np.array(fun(pts.T)).T
-    np.testing.assert_allclose(v_ca, field.desired_velocity_batch(pts), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(v_ca, desired_velocity_batch(field, pts), rtol=1e-12, atol=1e-14)
     # the MPC needs derivatives: finite Jacobian, -K_NF I at the goal
     p = ca.SX.sym("p", 3)
     jac = ca.Function("nav_jac", [p], [ca.jacobian(fun(p), p)])
@@ -162,18 +171,18 @@ def test_no_overflow_for_large_k_and_far_points(k: float) -> None:
     # underflow to 0 (e.g. exp(-huge) inside logaddexp) is harmless and allowed
     with np.errstate(over="raise", invalid="raise", divide="raise", under="ignore"):
         for q in (pts, special):
-            log_phi = field.log_phi_batch(q)
-            phi = field.phi_batch(q)
-            g = field.grad_log_phi_batch(q)
-            gp = field.grad_phi_batch(q)
-            v = field.desired_velocity_batch(q)
+            log_phi = log_phi_batch(field, q)
+            phi = phi_batch(field, q)
+            g = grad_log_phi_batch(field, q)
+            gp = grad_phi_batch(field, q)
+            v = desired_velocity_batch(field, q)
             assert not np.any(np.isnan(log_phi))
             assert np.all((phi >= 0.0) & (phi <= 1.0))
             assert np.all(np.isfinite(g)) and np.all(np.isfinite(gp)) and np.all(np.isfinite(v))
     # far away phi is flat at 1 but the direction is the exact RK one:
     # -grad phi  ~  -(k beta grad gamma - gamma grad beta)   (beta is moderate here)
-    assert np.all(field.phi_batch(pts) > 1.0 - 1e-12)
-    v = field.desired_velocity_batch(pts)
+    assert np.all(phi_batch(field, pts) > 1.0 - 1e-12)
+    v = desired_velocity_batch(field, pts)
     np.testing.assert_allclose(np.linalg.norm(v, axis=1), field.max_speed, rtol=1e-12)
     h = 1e-4
     for p, vp in zip(pts[:30], v[:30], strict=True):
@@ -367,7 +376,9 @@ def test_attitude_rate_saturates_and_takes_short_way() -> None:
     assert np.all(np.abs(attitude_rate([2.0, -2.0, 0.0], [0.0, 0.0, 0.0])) <= 0.05)
 
 
-def test_euler_rates_to_body_rates_matches_rotation_derivative() -> None:
+def test_euler_rate_matrix_matches_rotation_derivative() -> None:
+    """The attitude law's Euler-angle rates are T(Theta) times the body angular velocity."""
+
     def rot(e: np.ndarray) -> np.ndarray:
         cr, sr = math.cos(e[0]), math.sin(e[0])
         cp, sp = math.cos(e[1]), math.sin(e[1])
@@ -383,7 +394,7 @@ def test_euler_rates_to_body_rates_matches_rotation_derivative() -> None:
     r_dot = (rot(e + h * de) - rot(e - h * de)) / (2 * h)
     skew = rot(e).T @ r_dot
     omega = np.array([skew[2, 1], skew[0, 2], skew[1, 0]])
-    np.testing.assert_allclose(euler_rates_to_body_rates(e, de), omega, atol=1e-9)
+    np.testing.assert_allclose(np.array(euler_rate_matrix(e)) @ omega, de, atol=1e-9)
 
 
 # ---------------------------------------------------------------- 5. bad input
@@ -415,18 +426,23 @@ def test_euler_rates_to_body_rates_matches_rotation_derivative() -> None:
         ),
         (lambda: NavigationField((4.5, 0, 0), Workspace((0, 0, 0), 5), [], 1.0), "outside"),
         (
-            lambda: NavigationField((0, 0, 0), Workspace((0, 0, 0), 5), [], 1.0).phi_batch([0, 0]),
+            lambda: phi_batch(NavigationField((0, 0, 0), Workspace((0, 0, 0), 5), [], 1.0), [0, 0]),
             "shape",
         ),
         (
-            lambda: NavigationField(
-                (0, 0, 0), Workspace((0, 0, 0), 5), [], 1.0
-            ).desired_velocity_batch([[0.0, math.nan, 0.0]]),
+            lambda: desired_velocity_batch(
+                NavigationField((0, 0, 0), Workspace((0, 0, 0), 5), [], 1.0), [[0.0, math.nan, 0.0]]
+            ),
             "finite",
         ),
         (lambda: WaypointSequencer([[0, 0, 0, 0, 0, math.nan]]), "finite"),
         (lambda: WaypointSequencer([[0, 0, 0]]), "shape"),
-        (lambda: attitude_rate([0, 0, 0], [0, 0, 0], gain=-1.0), "gain"),
+        (
+            lambda: WaypointNavigator(
+                PAPER_WAYPOINTS, PAPER_WORKSPACE, PAPER_OBSTACLES, PAPER_TEAM_RADIUS, att_gain=-1
+            ),
+            "att_gain",
+        ),
         (lambda: choose_k((0, 0, 0), Workspace((0, 0, 0), 5), [], 1.0, k_start=0.5), "k must"),
     ],
 )

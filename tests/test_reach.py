@@ -11,7 +11,7 @@ import pytest
 from uvms_env.dynamics.spatial import rot_zyx
 from uvms_env.models.parameters import PARAMETER_FILE
 from uvms_env.scenarios import current_within_reach, team_top_speed
-from uvms_env.scenarios.reach import team_drag, team_thrust
+from uvms_env.scenarios.reach import _Team
 from uvms_env.sim import Simulator
 
 PRESETS = tomllib.loads(PARAMETER_FILE.read_text())["current"]  # the file itself
@@ -30,7 +30,8 @@ def test_paper_team_holds_the_mild_current_but_not_the_strong(paper):
 def test_top_speed_balances_thrust_and_drag(paper):
     d = np.array([np.cos(0.7), np.sin(0.7), 0.0])
     v = team_top_speed(paper, d[:2])
-    assert team_drag(paper, v * d) == pytest.approx(team_thrust(paper, d), rel=1e-6)
+    team = _Team(paper)  # drag [N] at velocity v d balances the vehicles' thrust along d
+    assert team.drag(v * d) == pytest.approx(team.thrust(d), rel=1e-6)
     assert team_top_speed(paper, -d[:2]) == pytest.approx(v, rel=1e-9)  # drag is odd in V
     assert team_top_speed(dataclasses.replace(paper, damping_scale=0.0)) == np.inf
     with pytest.raises(ValueError, match="direction"):

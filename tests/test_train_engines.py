@@ -19,6 +19,32 @@ from baselines.train import ENGINES, SHARED_GROUP, build_parser, main
 
 # Tiny: one or two iterations of a few dozen robot-steps, small networks, 2 env copies of
 # 2 robots, 6-step episodes; one evaluation episode (its length: the plain scenario's).
+# The keys every engine's config.json has, in order (the engine adds ``engine_settings``).
+CONFIG_KEYS = (
+    "engine",
+    "algo",
+    "command",
+    "scenario",
+    "overrides",
+    "env_defaults",
+    "env_options",
+    "num_envs",
+    "seed",
+    "robot_steps_budget",
+    "eval_every",
+    "eval_episodes",
+    "eval_ladder",
+    "checkpoint_every",
+    "cost",
+    "resumes",
+    "hardware",
+    "engine_settings",
+    "robot_steps",
+    "wall_time_s",
+    "robot_steps_per_s",
+    "eval",
+)
+
 TINY = [
     *("--scenario", "short", "--num-envs", "2", "--seed", "1", "--no-progress"),
     *("--env-option", "max_cycles=6", "--checkpoint-every", "0"),
@@ -117,7 +143,7 @@ def test_every_engine_writes_the_same_records(trained):
         assert _header(run / "progress.csv") == list(runs.PROGRESS_COLUMNS), engine
         assert _header(run / "evaluations.csv") == list(runs.EVAL_COLUMNS), engine
         config = json.loads((run / "config.json").read_text())
-        assert list(config) == list(runs.CONFIG_KEYS), engine
+        assert list(config) == list(CONFIG_KEYS), engine
         assert config["engine"] == engine and config["algo"] == "ppo"
         assert config["command"].startswith(f"python -m baselines.train --engine {engine}")
         assert config["num_envs"] == 2 and config["seed"] == 1
@@ -333,5 +359,5 @@ def test_sac_writes_the_same_records_and_a_last_row_at_the_budget(tmp_path):
     assert [int(r["robot_steps"]) for r in progress] == [300]  # 150 steps of 2 robots
     assert int(progress[0]["episodes"]) == 150 // 6
     config = json.loads((out / "config.json").read_text())
-    assert list(config) == list(runs.CONFIG_KEYS) and config["algo"] == "sac"
+    assert list(config) == list(CONFIG_KEYS) and config["algo"] == "sac"
     assert (out / "replay_buffer.pkl").exists()

@@ -7,8 +7,8 @@ train on one geometry forever. So every reset passes the episode seed of the ada
 one rule (``uvms_env.vector.seeding``): the K = W V sub-envs of W env runners (V each)
 are copies k = (w - 1) V + v (the local runner, w = 0, counts as the first when there
 are no remote ones), and episode e of copy k has seed ``seed + k + K e``, mod P with a
-geometry pool of P. The single env builds each of its geometries once (an IPOPT solve,
-~0.5 s) and keeps them in memory (it keeps 32). RLlib builds a runner's V sub-envs with
+geometry pool of P. The single env builds each of its geometries once (an IPOPT solve)
+and keeps them in memory (it keeps 32). RLlib builds a runner's V sub-envs with
 one and the same context (``vector_index`` 0), so v is the order in which this process
 built them.
 

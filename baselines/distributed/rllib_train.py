@@ -11,17 +11,10 @@ Without ``--address`` a local Ray starts; with it, the run joins that cluster. T
 layer (``baselines.runs``) writes the records and evaluations; the run folder also gets
 ``checkpoints/robot_steps_S`` and the final ``checkpoint/``, which ``--resume`` restores.
 
-Differences from the SB3 engine: no observation or reward normalization (RLlib would
-keep the statistics in its connectors, which the per-agent policy loader does not run),
-the action spread is RLlib's learned state-dependent log-std.
-
-``--cost`` (PPO-Lagrangian, ``baselines.lagrangian``): each env subtracts the multiplier
-times each robot's constraint cost from that robot's reward and keeps its ended episodes'
-costs (``baselines.distributed.rllib_env``). After each iteration the driver takes those
-costs from every env runner, takes the dual step and sets the new multiplier on every
-runner's envs, so the next iteration samples with it. The progress rows' returns are
-the environment's team returns of the episodes ended in the iteration (unpenalized), as
-every engine records them.
+Differences from the SB3 engine (no normalization, RLlib's learned log-std) and the
+``--cost`` dual step across env runners: docs/scale-out.md and ``rllib_env``. The
+progress rows' returns are the environment's team returns of the episodes ended in the
+iteration (unpenalized), as every engine records them.
 
 May import: ray (inside functions), torch, ``baselines.runs``, ``baselines.lagrangian``,
 ``baselines.distributed`` and ``uvms_env``.

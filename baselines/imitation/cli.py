@@ -5,44 +5,12 @@
     python -m baselines.imitate dagger --data data/short --data data/paper \\
         --scenario short --scenario paper --iterations 4 --out runs/dagger
 
-``collect`` writes one Minari dataset (one episode per robot; see
-``baselines.imitation.dataset``) in ``data/NAME`` (its own Minari root) with id
-``uvms/NAME-v0`` and the environment's spec (``load(...).recover_environment()``). ``bc`` and
-``dagger`` read any number of them (``--data`` repeats) and write ``policy.pt`` (load it
-with ``python -m baselines.evaluate --policy bc:runs/bc``), the loss log (CSV, one row
-per epoch) and ``train.json`` (settings, data sizes, per-iteration results).
-
-DAgger (Ross et al. 2011) with a mixing schedule: the demonstrations are iteration 0
-(beta = 1). Iteration k = 1..K rolls out ``--episodes-per-iteration`` episodes of every
-``--scenario`` in which each robot, at each step, independently executes the expert's
-action with probability beta_k = ``--beta`` ** k (default 0.5, 0.25, 0.125, ...; ``--beta
-0`` lets the learner drive alone) and the current network's otherwise. The expert labels
-every visited observation (it runs on every step, so its warm start follows the visited
-states); the labelled rollouts join the aggregate, and the network is retrained from
-scratch on all of it (normalization refitted). ``--max-cycles`` caps the rollouts (the
-cloned policy ignores the time-fraction input, so the cap does not shift its inputs).
-``train.json`` records, per iteration, ``learner_state_rmse``: the previous network's
-per-component error on the states it drove into itself, before they were added.
-
-``--noise S`` (``collect`` and ``dagger``) adds Gaussian noise of std S to the executed
-actions while the labels stay the expert's (DART; see ``baselines.imitation.rollout``).
-Training options of ``bc`` and ``dagger``: ``--features`` (default ``features``: invariant
-features and the expert's steady input, which the network learns a residual on; see
-``baselines.imitation.features``), ``--hidden W [W ...]`` (default 128 128; ``--hidden``
-alone: a linear map, on ``features`` a linear feedback around a_ss), ``--loss-scale std``
-(per-component inverse-variance weights), ``--lr-schedule cosine``, ``--batch-size``.
-``dagger --gate G`` executes the learner's action only where it is within G of the
-expert's in every component (the expert's otherwise; ``learner_share`` reports how often
-it drove).
-``--scenario NAME:EPISODES`` overrides ``--episodes-per-iteration`` for one scenario.
-
-Safe distillation (``dagger --init SOURCE --expert self+filter``): the teacher is the
-expert's safety filter around the current network itself, so each label is the smallest
-correction of the network's own action that the robot's local model predicts safe; a
-network that needs no correction is a fixed point. ``--init`` starts from an existing
-clone (``dagger:pretrained``, ``bc:PATH``, ``dagger:PATH``) instead of fitting ``--data``
-(then optional), and every iteration fine-tunes the current network on the aggregate
-(its input normalization kept) instead of retraining from scratch.
+``collect`` writes one Minari dataset per ``--out`` (one episode per robot; see
+``baselines.imitation.dataset``); ``bc`` and ``dagger`` read any number of them
+(``--data`` repeats) and write ``policy.pt``, the loss log and ``train.json``. DAgger
+(Ross et al. 2011) with a mixing schedule beta_k = ``--beta`` ** k, an optional gate
+(``--gate``) and safe distillation (``--init SOURCE --expert self+filter``). Every
+option, the schedule and the outputs: docs/imitation.md; ``--help`` lists the options.
 """
 
 from __future__ import annotations

@@ -5,21 +5,15 @@ and clipping (``features.inputs_sx``), the layers, and the output (clip(a_ss + o
 1) on ``features``, tanh(out) otherwise), called through preallocated buffers
 (``features.CompiledInputs`` with ``fn``).
 
-The layers of a network without hidden layers (680 multiply-adds) are CasADi
-expressions. Hidden layers are a C loop nest generated here from the weights
-(``dense_c``), put in the CasADi function as a node that exists only as generated code
-(``casadi.Function.jit`` with ``jit`` off: nothing is compiled when it is built, and
-``compile_function`` compiles it with the rest). Why not CasADi expressions: for the
-128-128 MLP on ``features`` (28,700 multiply-adds), alone with warm caches, the layers
-as SX took 30 us (one statement per multiply-add: ~300 kB of straight-line code), as MX
-dense products 35-55 us (CasADi's kernel accumulates every output through memory, one
-dependent multiply-add at a time) and as MX column updates 11 us, against 1.2 us for
-this loop nest. It keeps 128 partial sums in registers (a block of 32 outputs, 4
-interleaved sums each) while it streams the block's weights, in float32 (the weights as
-trained: 115 kB; the inputs come in as float64 and are rounded once), and the hidden
-tanh is a rational approximation (``tanh_approx``): glibc's tanh costs 10-14 ns a call,
-256 calls a decision. In a closed loop (``benchmarks/cloned_decision.py --numpy``) the
-whole decision took 9.6-11.3 us median, the same network with numpy layers 25-33 us.
+The layers of a network without hidden layers are CasADi expressions. Hidden layers are
+a C loop nest generated here from the weights (``dense_c``), put in the CasADi function
+as a node that exists only as generated code (``casadi.Function.jit`` with ``jit`` off:
+nothing is compiled when it is built, and ``compile_function`` compiles it with the
+rest); CasADi's own SX or MX layers are several times slower (docs/imitation.md). The
+loop nest keeps 128 partial sums in registers (a block of 32 outputs, 4 interleaved sums
+each) while it streams the block's weights, in float32 (the weights as trained; the
+inputs come in as float64 and are rounded once), and the hidden tanh is a rational
+approximation (``TANH_P`` / ``TANH_Q``).
 
 The node cannot run uncompiled: where nothing is compiled (``UVMS_ENV_NO_COMPILE``, no C
 compiler) ``decision_function`` returns None for networks with hidden layers and the
@@ -47,18 +41,6 @@ TANH_P = (0.9999999, 0.13373171, 0.0034865495, 2.0471294e-05, 1.318347e-08)
 TANH_Q = (1.0, 0.46706468, 0.025841856, 0.00032713322, 7.702357e-07)
 BLOCK = 32  # outputs per block of the generated layers (see dense_c)
 ACCUMULATORS = 128  # partial sums per block: 8 AVX-512 registers
-
-
-def tanh_approx(x: np.ndarray) -> np.ndarray:
-    """The generated code's tanh, in numpy float32 with the same operations."""
-    t = np.clip(np.asarray(x, dtype=np.float32), -TANH_LIMIT, TANH_LIMIT)
-    s = t * t
-    p, q = np.float32(0.0), np.float32(0.0)
-    for c in TANH_P[::-1]:
-        p = p * s + np.float32(c)
-    for c in TANH_Q[::-1]:
-        q = q * s + np.float32(c)
-    return t * p / q
 
 
 def _floats(values: np.ndarray) -> str:
@@ -192,7 +174,7 @@ def mlp_decision_function(
     """Compiled (obs, mean, inv_std, clip) -> action of an MLP (``layers`` as in
     ``dense_c``; the last has 8 outputs), or None where nothing is compiled."""
     key = (features, ring_radius, dim, residual, layers_digest(layers))
-    if key in _MLP_CACHE:  # generating and hashing the source again: ~0.25 s per robot
+    if key in _MLP_CACHE:  # spares generating and hashing the source again per robot
         return _MLP_CACHE[key]
     args, z, ff, tag = inputs_sx(features, ring_radius, dim)
     name = f"cloned_mlp_{tag}_{key[-1]}"

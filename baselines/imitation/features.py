@@ -2,27 +2,17 @@
 numpy for training batches and as one compiled CasADi function for decisions.
 
 ``features`` (84 numbers) is the environment's ``observation_mode="features"``, by the
-same name everywhere: ``uvms_env.env.priors.featurize`` (76 numbers from the 79-number
-observation: positions and headings relative to the robot's own heading frame,
-``time_fraction`` dropped, as it depends on ``max_cycles``, which the expert ignores) and
-the steady input a_ss (``uvms_env.env.priors``: the expert's own input reference, from
-the robot's own measured state, grasp, load share, the navigation twist and the object's
-nominal parameters). ``uvms-v1`` is the 76 numbers alone. Policies saved before the
-name was shared say ``uvms-v2`` (the committed ``bc`` and ``dagger`` models): it is read
-as ``features`` (``canonical_features``). Networks on ``features`` learn the residual a - a_ss
-(``network.MLPPolicyNet``). Why: the holding forces depend on the grasp geometry and the
-load share through the arm's kinematics; a clone that must learn them from ~100
-training geometries got them wrong on new ones (heave +0.12 where the expert holds with
--0.37), and the episode drifted from there. Measured on 16 held-out random N = 2
-episodes, behaviour cloning (128-128) on the same 367k samples: 5/16 with ``uvms-v1``,
-15/16 with ``features``. A variant holding at rest (v_d = 0: 10x fewer operations, ~2 us
-faster per decision) reached 12/16 by BC and 10/16 after DAgger (``features``: 15/16).
+same name everywhere: ``uvms_env.env.priors.featurize`` (76 numbers in the robot's own
+heading frame, ``time_fraction`` dropped) and the steady input a_ss
+(``uvms_env.env.priors``). ``uvms-v1`` is the 76 numbers alone. Saved policies that say
+``uvms-v2`` are read as ``features`` (``canonical_features``). Networks on ``features``
+learn the residual a - a_ss (``network.MLPPolicyNet``): the holding forces depend on the
+grasp geometry and the load share through the arm's kinematics (why: docs/imitation.md).
 
 ``raw`` feeds the observation unchanged (any dimension).
 
 Decisions: ``CompiledInputs`` evaluates features, normalization and clipping as one
-generated-C function through preallocated buffers (~2.5 us with a_ss, ~1 us without;
-the same feature code in Python costs 10-17 us). ``decision`` builds the same function
+generated-C function through preallocated buffers. ``decision`` builds the same function
 with the network's layers and output in it, so that a decision is one call.
 
 The numpy ``featurize`` is the independent twin of ``featurize_sx``, and the expert's
@@ -53,7 +43,6 @@ from uvms_env.env.priors import (
 FEATURES = ("raw", "uvms-v1", "features")
 FEEDFORWARD = ("features",)  # feature sets whose last 8 numbers are the steady input
 FEATURE_DIMS = {"uvms-v1": BASE_FEATURES, "features": FEATURES_SIZE}
-FEATURE_DIM = FEATURE_DIMS["uvms-v1"]
 INPUT_CLIP = 10.0  # normalized inputs are clipped to +-10 standard deviations
 # Earlier names of a feature set -> its name (saved policies keep the name they had).
 LEGACY_FEATURES = {"uvms-v2": "features"}

@@ -114,7 +114,3 @@ class MLPPolicyNet(nn.Module):
         with torch.no_grad():
             x = torch.as_tensor(prepare(obs, self.features, ring_radius))
             return torch.clamp(self(x), -1.0, 1.0).numpy()
-
-
-def load_meta(path: Path) -> dict[str, Any]:
-    return torch.load(path, map_location="cpu", weights_only=False).get("meta", {})

@@ -58,8 +58,8 @@ class ClonedPolicy:
         self.stats: dict[str, Any] = {}
 
     def _numpy_layers(self, layers: list[np.ndarray]) -> None:
-        # ~2 numpy calls per layer (~0.5 us each); the first input, [z; 1; a_ss], comes
-        # whole from the compiled input function.
+        # ~2 numpy calls per layer; the first input, [z; 1; a_ss], comes whole from the
+        # compiled input function.
         layers = [w.astype(np.float32) for w in layers]
         self._hidden, self._last = layers[:-1], layers[-1]
         n_in = len(layers[0])

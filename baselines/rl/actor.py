@@ -1,10 +1,7 @@
 """A trained SB3 PPO actor's whole deterministic decision as one compiled function.
 
-``SB3Policy`` used to decide through the model's ``predict``: the priors' features and
-a_ss in numpy (~0.13 ms), torch's forward with SB3's checks and conversions (~0.2 ms)
-and the residual command (~0.02-0.05 ms), ~0.5 ms in all for a 64-64 network. Inside the
-safety filter that put PPO's decisions above the expert's. Here the same decision is one
-generated-C call: the run's priors (features and a_ss, ``uvms_env.env.priors`` in CasADi),
+The decision is one generated-C call (instead of the model's ``predict``, torch and
+numpy): the run's priors (features and a_ss, ``uvms_env.env.priors`` in CasADi),
 the saved observation normalization, the actor's layers (the cloned networks' loop nest,
 ``baselines.imitation.decision.dense_c``) and the action's way to the input (clip to
 [-1, 1]; in residual mode clip(a_ss + h + s a, -1, 1) with the joint hold h).

@@ -20,7 +20,7 @@ at evaluation, and the reward carries a penalty on the filter's correction.
   puts the step's ``filter_penalty`` in its info.
 
 Each period, the K N robots' QP builders (the linearization of the local model and its
-condensing: about three quarters of a filter's time) run in one lane-parallel call
+condensing, most of a filter's time) run in one lane-parallel call
 (``nmpc_expert.filter_batch``, SIMD lanes as the batched environment's kernels; the same
 actions as the filters one by one, to 1e-9 in the tests); the QPs are then solved one
 after another. ``batched=False`` (or no C++ compiler) runs each filter's ``act`` instead.

@@ -3,29 +3,19 @@
     python -m baselines.train --engine torchrl --algo ppo --scenario short --num-envs 4096 \\
         --backend cuda --device 0 --robot-steps 50000000 --out runs/torchrl_ppo
 
-What it is for: training where the environment runs (``VectorEnv(backend="cuda")``), so
-that rollouts, advantages and updates never copy through the host; on the CPU backend the
-same code runs on the host (``--backend cpu``). It is TorchRL's PPO: the ``Collector``
-steps ``CoopTransportTorchRLEnv``, ``GAE`` computes the advantages, ``ClipPPOLoss`` the
-loss, a ``ReplayBuffer`` on the device deals the minibatches; the actor is a
-``ProbabilisticActor`` with a ``TanhNormal`` and the critic a ``ValueOperator``.
-
-Parameter sharing: one actor and one critic for all robots; each robot acts (and is
-valued) on its own observation, the networks applied over the robot dimension of the
-group ``uvms``. Settings follow the SB3 trainer (``baselines.rl.train``): MLP 64-64
-(tanh), 256 steps per rollout, 32 minibatches, 10 epochs, Adam 3e-4, gamma 0.99,
-lambda 0.95, clip 0.2, no entropy bonus, value coefficient 0.5, gradient norm 0.5,
-initial action std e^-1, observations normalized by running statistics (kept in the
-actor, so the saved actor normalizes itself) and rewards scaled by the running spread of
-the discounted return, as ``VecNormalize`` does; ``--hp KEY=JSON`` changes them
-(``HYPERPARAMETERS``). ``--cost`` (``baselines.lagrangian``) subtracts the multiplier
-times each robot's constraint cost from its reward before the advantages, the constraint
-values read from each ``VectorEnv`` step (``StepCosts``). Not here: a central critic.
-
-This is the engine of ``baselines.train --engine torchrl``: the run layer
-(``baselines.runs``) writes the records and evaluations; the run folder also gets
-``actor.pt``, which ``--policy torchrl:RUN`` evaluates (``baselines.rl.torchrl_policy``), and
-``trainer.pt`` (critic, optimizer, return statistics), which ``--resume RUN`` reads.
+Training where the environment runs (``VectorEnv(backend="cuda")``), so that rollouts,
+advantages and updates never copy through the host (``--backend cpu``: the same code on
+the host). TorchRL's pieces: the ``Collector`` steps ``CoopTransportTorchRLEnv``, ``GAE``,
+``ClipPPOLoss``, a ``ReplayBuffer`` on the device; one ``ProbabilisticActor``
+(``TanhNormal``) and one ``ValueOperator`` for all robots, applied over the robot
+dimension of the group ``uvms``. Settings follow the SB3 trainer (``HYPERPARAMETERS``,
+``--hp KEY=JSON``); observations are normalized by running statistics kept in the actor
+(so the saved actor normalizes itself) and rewards scaled by the running spread of the
+discounted return, as ``VecNormalize`` does. ``--cost`` (``baselines.lagrangian``)
+subtracts the multiplier times each robot's constraint cost from its reward before the
+advantages (``StepCosts``). The run folder (``baselines.runs``) also gets ``actor.pt``
+(``--policy torchrl:RUN``, ``baselines.rl.torchrl_policy``) and ``trainer.pt`` (critic,
+optimizer, return statistics; ``--resume RUN``). Guide: docs/rl.md, "The torchrl engine".
 
 May import: numpy, torch, tensordict and torchrl (inside the training functions),
 ``baselines.runs``, ``baselines.lagrangian``,

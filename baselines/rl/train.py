@@ -12,16 +12,12 @@ geometries). Observations and rewards are normalized
 the run folder gets ``model.zip``, ``vecnormalize.pkl`` (SAC: ``replay_buffer.pkl``),
 ``checkpoints/`` and tensorboard logs; ``--resume RUN`` continues from the last save.
 
-``--cost`` (``baselines.lagrangian``) is applied by the VecEnv wrapper
-``baselines.rl.cost.CostPenalty``. Priors are environment options:
-``--env-option action_mode=residual --env-option observation_mode=features``. Smooth
-exploration: SB3's gSDE, ``--hp use_sde=true --hp sde_sample_freq=8``.
-``--central-critic``: MAPPO, the critic reads the global state (``baselines.rl.mappo``);
-without it, IPPO with parameter sharing.
-``--filter``: shielded training, each robot's command through the expert's safety filter
-before the env, the reward minus ``--filter-penalty`` W times the squared correction
-(``baselines.rl.shield``; its per-iteration figures in ``shield.csv``). ``--init-actor
-dagger:pretrained``: PPO's actor starts as the DAgger clone (``baselines.rl.init_actor``).
+The flags map onto modules: ``--cost`` (``baselines.lagrangian``) through the VecEnv
+wrapper ``baselines.rl.cost.CostPenalty``, priors as environment options
+(``--env-option action_mode=residual``), ``--central-critic`` (MAPPO,
+``baselines.rl.mappo``; without it IPPO with parameter sharing), ``--filter`` (shielded
+training, ``baselines.rl.shield``, figures in ``shield.csv``), ``--init-actor`` (the
+DAgger clone as PPO's actor, ``baselines.rl.init_actor``). Guide: docs/rl.md.
 
 May import: numpy, torch and stable-baselines3 (inside the engine), ``baselines.runs``,
 ``baselines.lagrangian``, ``baselines.rl`` and ``uvms_env``.

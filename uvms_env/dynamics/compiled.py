@@ -1,9 +1,8 @@
 """Compile CasADi functions to shared libraries once, cache them on disk, load them fast.
 
-A CasADi function evaluated by its virtual machine is 5-20x slower than the same
-function generated as C and compiled; compiling costs seconds, so the library is cached
-under a key that hashes the generated source, the compiler flags and the CasADi
-version. Tests, CI and users pay the compilation once per machine.
+A CasADi function generated as C and compiled is much faster than CasADi's virtual
+machine; compiling costs seconds, so the library is cached under a key that hashes the
+generated source, the compiler flags and the CasADi version (once per machine).
 
 Cache folder: ``$UVMS_ENV_CACHE`` or the user cache dir (``platformdirs``). Set
 ``UVMS_ENV_NO_COMPILE=1`` to skip compilation and use the virtual machine instead
@@ -26,8 +25,7 @@ import casadi as cs
 import numpy as np
 import platformdirs
 
-# -O3 -march=native measured 25% faster than -O2 on the simulator step (264 vs 350 us);
-# native code is tied to the CPU, so the CPU's identity is part of the cache key.
+# Native code is tied to the CPU, so the CPU's identity is part of the cache key.
 CFLAGS = ("-O3", "-march=native", "-fPIC", "-shared")
 
 
@@ -89,7 +87,6 @@ def compile_function(fn: cs.Function) -> cs.Function:
 class BufferCall:
     """Zero-copy calls of a CasADi function on preallocated numpy arrays.
 
-    An ordinary call costs ~25 us of conversions; the buffer interface costs ~2 us.
     Inputs and outputs are float64 arrays in CasADi's column-major layout: pass
     matrices as their transposes in C order (``a.T`` of a C-contiguous array is that).
     """
@@ -120,8 +117,8 @@ class BufferCall:
 
     def again(self) -> None:
         """Evaluate on the arrays bound by the last call (their contents may have been
-        rewritten in place since); results in ``outputs``. Saves the argument loop
-        (~0.5 us) on hot paths that refill one input buffer per call."""
+        rewritten in place since); results in ``outputs``. Saves the argument loop on
+        hot paths that refill one input buffer per call."""
         self._eval()
 
 

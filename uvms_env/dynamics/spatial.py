@@ -59,13 +59,6 @@ def euler_rate_matrix(theta: Sym) -> Sym:
     )
 
 
-def euler_from_rot(r: np.ndarray) -> np.ndarray:
-    """ZYX Euler angles of a rotation matrix (numpy; used off the hot path)."""
-    r = np.asarray(r, dtype=float)
-    theta = -np.arcsin(np.clip(r[2, 0], -1.0, 1.0))
-    return np.array([np.arctan2(r[2, 1], r[2, 2]), theta, np.arctan2(r[1, 0], r[0, 0])])
-
-
 def homogeneous(p: Sym, r: Sym) -> Sym:
     """4x4 transform from a position and a rotation."""
     return cs.vertcat(cs.horzcat(r, p), cs.horzcat(0, 0, 0, 1))

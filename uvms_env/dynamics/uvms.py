@@ -85,8 +85,7 @@ class UVMSModel:
     """Symbolic model of one UVMS. Build once (a second or two); the functions are reusable.
 
     Attributes are CasADi ``Function`` objects (SX, so they inline into larger graphs):
-    ``dynamics(q, zeta, v_c, p) -> (M, h)``,
-    ``free_acceleration(q, zeta, tau, v_c, p)`` (no grasp), ``mass_matrix(q, p)``,
+    ``dynamics(q, zeta, v_c, p) -> (M, h)``, ``mass_matrix(q, p)``,
     ``bias(q, zeta, v_c, p)``, ``ee_pose(q) -> (p, R)``, ``ee_jacobian(q) -> J``,
     ``ee_jdot_zeta(q, zeta)``, ``potential(q, p)``, ``manipulability(q)``,
     ``body_points(q) -> 3xK`` (vehicle centre, arm joints, end effector).
@@ -101,7 +100,7 @@ class UVMSModel:
         self.links = self._link_hydro()
 
         q, zeta = cs.SX.sym("q", NQ), cs.SX.sym("zeta", NQ)
-        tau, v_c, p = cs.SX.sym("tau", NU), cs.SX.sym("v_c", 3), cs.SX.sym("p", NP)
+        v_c, p = cs.SX.sym("v_c", 3), cs.SX.sym("p", NP)
         pos, theta, qm = q[:3], q[3:6], q[6:]
         rot = rot_zyx(theta)
         base = homogeneous(pos, rot)
@@ -129,11 +128,6 @@ class UVMSModel:
         points = [pos] + [self._fk(n, base, qm)[0] for n in (*LINK_NAMES, "ee")]
 
         self.dynamics = cs.Function("uvms_dynamics", [q, zeta, v_c, p], [mass, bias])
-        self.free_acceleration = cs.Function(
-            "uvms_free_acceleration",
-            [q, zeta, tau, v_c, p],
-            [cs.solve(mass, cs.DM(self.B) @ tau - bias)],
-        )
         self.mass_matrix = cs.Function("uvms_mass", [q, p], [mass])
         self.bias = cs.Function("uvms_bias", [q, zeta, v_c, p], [bias])
         self.potential = cs.Function("uvms_potential", [q, p], [pot])
@@ -198,15 +192,6 @@ class UVMSModel:
             mass = mass + j_l.T @ m_al @ j_l
             bias = bias + j_l.T @ wrench
         return mass, bias
-
-    def frame_pose(self, frame: str) -> cs.Function:
-        """Inertial pose (p, R) of a URDF frame ("vehicle", "arm_base", "link_i", "ee")."""
-        q = cs.SX.sym("q", NQ)
-        base = homogeneous(q[:3], rot_zyx(q[3:6]))
-        if frame == "vehicle":
-            return cs.Function("vehicle_pose", [q], [q[:3], base[:3, :3]])
-        p, r = self._fk(frame, base, q[6:])
-        return cs.Function(f"{frame}_pose", [q], [p, r])
 
     # -- helpers -----------------------------------------------------------------------
     @staticmethod
@@ -303,5 +288,5 @@ def scale_damping(p: np.ndarray, scale: float) -> np.ndarray:
 
 @cache
 def default_model() -> UVMSModel:
-    """The UVMS model of the parameter file, built once per process (~0.1 s)."""
+    """The UVMS model of the parameter file, built once per process."""
     return UVMSModel()

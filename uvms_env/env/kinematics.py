@@ -3,35 +3,23 @@
 The environment needs, per robot and per step: the object pose and twist estimated from
 the robot's own (measured) kinematics, the nearest obstacles relative to that estimate,
 the manipulability, the grasp error and the constraint values of the true state, a
-few team-wide reductions of them, and the observation rows themselves. One ordinary
-CasADi call costs ~25 us of conversions; this is one compiled function
-(``compile_function``) called through the zero-copy ``BufferCall``: ~6 us for the
-paper's two robots, everything included. Python then only adds the navigation twist.
+few team-wide reductions of them, and the observation rows themselves: one compiled
+function (``compile_function``) called through the zero-copy ``BufferCall``. Python
+then only adds the navigation twist.
 
 The compiled function depends only on the number of robots, of object segments, of
 (padded) obstacles, on the observation layout and on whether there is sensor noise;
 the scenario geometry (grasps, obstacles, workspace, object segments, waypoints) enters
 as inputs, so a new random scenario with the same team size reuses it.
 
-Padding. An obstacle row with ``present == 0`` changes nothing, whatever its (finite)
-geometry and however many there are: it never enters the nearest obstacles nor the
-ranks of the real ones, and its clearance is replaced by +inf, the neutral element of
-the min (its radius by -inf, see ``_clearance_geometry``), so an obstacle-free scenario
-reads +inf with or without padding rows. A repeated object segment changes nothing
-either (a min and a max over the segments). So every scenario of a team size and
-sensing fits one function with ``BATCH_CYLINDERS`` / ``BATCH_SPHERES`` obstacle slots
-and as many segments as the largest object (``obstacle_inputs``, ``segment_inputs``):
-what a batched build over different geometries needs. The single environment pads
-less (``_padded``): same results, less work.
-
-Branch-free. The symbolic kernel (``team_function``) generates C without a select on a
-value (no ``if_else``, whose C is ``c ? a : 0``), so it also compiles with
-``casadi_real`` a bundle of SIMD lanes or as a CUDA kernel (``uvms_env.vector.kernels``):
-selections are products of 0/1 comparisons with values that are finite for a finite
-state (exact: ``1 * x == x``, ``0 * x == 0``), the substitutions that involve infinities
-are ``fmin``. Its maths: arithmetic, comparisons, ``fmin``/``fmax``/``fabs``, ``sqrt``,
-``sin``/``cos``/``tan``, ``asin``, ``atan2``. Obstacle ``present`` flags must be exactly
-0 or 1.
+Padding and branch-free code (docs/batched.md, "One kernel for every geometry"): an
+obstacle row with ``present == 0`` (exactly 0 or 1) changes nothing (its clearance is
++inf, its radius -inf, see ``_clearance_geometry``), nor does a repeated object segment,
+so every scenario of a team size and sensing fits one function with ``BATCH_CYLINDERS``
+/ ``BATCH_SPHERES`` slots (``obstacle_inputs``, ``segment_inputs``; the single
+environment pads less, ``_padded``). The symbolic kernel (``team_function``) has no
+``if_else``, so it also compiles for SIMD lanes or as a CUDA kernel
+(``uvms_env.vector.kernels``).
 
 May import: numpy, casadi, ``uvms_env.dynamics``, ``uvms_env.navigation`` (obstacle
 types), ``uvms_env.scenarios`` (types) and ``uvms_env.env.constraints``.
@@ -79,7 +67,7 @@ Layout = tuple[tuple[str, int], ...]  # the observation's (name, size) blocks, i
 
 
 def _euler_zyx(r: cs.SX) -> cs.SX:
-    """ZYX Euler angles of a rotation matrix (as ``spatial.euler_from_rot``)."""
+    """ZYX Euler angles of a rotation matrix (``spatial.rot_zyx``'s inverse for |theta| < pi/2)."""
     return cs.vertcat(
         cs.atan2(r[2, 1], r[2, 2]),
         -cs.asin(cs.fmin(cs.fmax(r[2, 0], -1.0), 1.0)),
@@ -381,8 +369,7 @@ class TeamKinematics(RebuiltOnUnpickle):
     After ``__call__``, per robot (rows): ``observation`` (N, size), ``pose_estimate``
     (N, 6), ``constraints`` (N, 8) in the order of ``CONSTRAINTS``, ``manipulability``,
     ``grasp_error`` (m), ``clearance`` of the robot's own bodies (m), ``violated_count``.
-    Team: ``team()`` (see there), ``kinds_violated`` (8,) 0/1 per kind,
-    ``object_clearance`` and ``object_workspace_excess`` (m).
+    Team: ``team()`` and ``team_rows()`` (see there).
     """
 
     _rebuilt = ("_call",)
@@ -429,7 +416,6 @@ class TeamKinematics(RebuiltOnUnpickle):
         scalars, self._team = out[3], out[4].reshape(-1)
         self.manipulability, self.grasp_error = scalars[:, 0], scalars[:, 1]
         self.clearance, self.violated_count = scalars[:, 2], scalars[:, 4]
-        self.kinds_violated = self._team[6 : 6 + NK]
 
     def team(self) -> list[float]:
         """[min_clearance (every body and the object, m), min_manipulability,
@@ -442,14 +428,6 @@ class TeamKinematics(RebuiltOnUnpickle):
         """The whole team output (T,) float64 (a view): the rows ``team`` lists, then the
         kinds violated (8), ...: the task's input (``uvms_env.env.task``)."""
         return self._team
-
-    @property
-    def object_clearance(self) -> float:
-        return float(self._team[6 + NK])
-
-    @property
-    def object_workspace_excess(self) -> float:
-        return float(self._team[7 + NK])
 
     def __call__(
         self,

@@ -25,20 +25,14 @@ what it knows before the task, offered to learning as an action or observation o
 * ``hold_stiffness`` kp and ``hold_damping`` kd (residual mode; default 0: h = 0): a
   joint-space hold about the scenarios' nominal arm pose (``NOMINAL_ARM``, known before
   the task) on the arm's torque inputs, h_j = -kp (q_j - q_nom,j) - kd qdot_j (normalized
-  torque per rad and per rad/s), from the robot's own measured joints. Why: a_ss holds
-  the robot moving with the object but nothing in it holds the vehicle's attitude
-  relative to its grasp; on ``random`` N = 2 a_ss alone lets the vehicles turn about
-  their grasps and winds the arm joints through revolutions (|q| up to 20 rad, the
-  joint limit violated in most periods), and so did the residual PPO trained on it. With
-  kp = 0.5, kd = 1 (normalized), a_ss + h alone keeps every joint within 2.4 rad and
-  succeeds as often (6/6 episodes, seeds 5000-5005).
+  torque per rad and per rad/s), from the robot's own measured joints: a_ss holds the
+  robot moving with the object but nothing in it holds the vehicle's attitude relative
+  to its grasp (docs/environment.md).
 
 Why priors: a policy starting at zero torque drifts under weight and buoyancy, and the
 holding forces depend on the grasp geometry and load share through the arm's kinematics,
-which a network must otherwise learn from the geometries it happens to see (a behaviour
-clone on 76 features got them wrong on new geometries; with a_ss, 15/16 episodes
-succeeded where 5/16 did). They are priors, not the task: the plain setting (torque,
-raw) stays the default and is reported beside.
+which a network must otherwise learn from the geometries it happens to see. They are
+priors, not the task: the plain setting (torque, raw) stays the default.
 
 May import: numpy, casadi, ``uvms_env.dynamics`` and ``uvms_env.scenarios`` (the nominal
 arm pose).
@@ -192,8 +186,7 @@ def steady_sx(o: cs.SX, ring_radius: float) -> cs.SX:
 
 @functools.cache
 def _steady_one(ring_radius: float) -> cs.Function:
-    """a_ss alone, compiled: mapped over 50k samples it costs 0.8 s (the features come
-    from the numpy ``featurize``)."""
+    """a_ss alone, compiled (the features come from the numpy ``featurize``)."""
     o = cs.SX.sym("obs", OBS_DIM)
     name = f"prior_steady_{ring_radius:.4f}".replace(".", "p")
     return compile_function(cs.Function(name, [o], [steady_sx(o, ring_radius)]))
@@ -211,8 +204,7 @@ def prior_functions(ring_radius: float) -> tuple[cs.Function, cs.Function]:
 
 @functools.lru_cache(maxsize=16)
 def _steady_call(ring_radius: float, count: int) -> BufferCall:
-    # The buffer interface: an ordinary call of the mapped function spent ~200 us in
-    # conversions for two robots, ten times the evaluation.
+    # The buffer interface: an ordinary call's conversions cost more than the evaluation.
     return BufferCall(_steady_one(ring_radius).map(count))
 
 

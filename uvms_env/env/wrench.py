@@ -1,6 +1,6 @@
 """The internal (squeeze) wrench on the object after a step, for the episode metrics.
 
-Thin adapter over ``Simulator.internal_wrench`` (one compiled call, ~10 us), returning
+Thin adapter over ``Simulator.internal_wrench`` (one compiled call), returning
 the squared Frobenius norm the metrics accumulate. May import: numpy, ``uvms_env.sim``.
 """
 

@@ -51,10 +51,6 @@ class ArmParameters:
     axial_drag_coefficient: float
     linear_drag_per_length: float
 
-    @property
-    def n_joints(self) -> int:
-        return len(self.dh)
-
 
 @dataclass(frozen=True)
 class ObjectParameters:

@@ -20,7 +20,6 @@ from .field import (
     Obstacle,
     Sphere,
     Workspace,
-    attitude_rate,
     choose_k,
     descend,
     sample_free_points,
@@ -41,7 +40,7 @@ from .task_rules import (
     navigation_gain,
     task_navigator,
 )
-from .waypoints import WaypointNavigator, WaypointSequencer, euler_rates_to_body_rates
+from .waypoints import WaypointNavigator, WaypointSequencer
 
 __all__ = [
     "NAV_K_MAX",
@@ -56,10 +55,8 @@ __all__ = [
     "WaypointNavigator",
     "WaypointSequencer",
     "Workspace",
-    "attitude_rate",
     "choose_k",
     "descend",
-    "euler_rates_to_body_rates",
     "field_parameters",
     "navigation_gain",
     "parametric_twist_function",

@@ -1,111 +1,14 @@
-r"""Rimon-Koditschek navigation function on the position of the carried object.
+"""Rimon-Koditschek navigation function on the position of the carried object.
 
-Purpose
--------
-Several vehicle-manipulator systems carry one object (a bar) through a workspace that
-contains obstacles.  The team is abstracted as a ball of radius ``R`` (``team_radius``)
-centred at the object position ``p``; this module gives a reference velocity for ``p``
-that leads to a goal while the ball stays clear of every obstacle.  The controller (or
-an MPC, via :meth:`NavigationField.casadi_function`) tracks that reference.
+The team is a ball of radius ``R`` (``team_radius``) centred at the object position
+``p``; :class:`NavigationField` gives a reference velocity for ``p`` towards a goal
+``p_d`` that keeps the ball clear of every obstacle (workspace ball deflated by ``R``,
+vertical :class:`Cylinder` and :class:`Sphere` obstacles inflated by ``R``).  The math
+(log-form numerics, the direction ``n(p) = -(p - p_d - gamma S / (2k))``, the speed law
+``min(v_max, K_NF |p - p_d|)``, the conventions at the goal and outside the free space,
+the choice of ``k``) is in docs/model.md, "Navigation function".
 
-Sphere world (Rimon & Koditschek 1992)
---------------------------------------
-.. math::
-
-    \varphi(p) = \frac{\gamma}{(\gamma^k + \beta)^{1/k}},\qquad
-    \gamma = \lVert p - p_d \rVert^2,\qquad
-    \beta = \prod_{j=0}^{M} \beta_j
-
-* workspace ball (centre ``c_ws``, radius ``r_ws``), *deflated* by ``R`` so that the
-  whole team stays inside it: ``beta_0 = (r_ws - R)^2 - |p - c_ws|^2``;
-* obstacle ``m`` inflated by ``R``: ``beta_m = d_m(p)^2 - (r_m + R)^2`` where ``d_m`` is
-  the horizontal (x, y) distance to the axis of a vertical :class:`Cylinder` (infinite in
-  z) or the 3-D distance to the centre of a :class:`Sphere`.
-
-The free space is ``{p : beta_j(p) > 0 for all j}``, which is exactly
-``{p : clearance(p) > 0}``.  ``phi`` is 0 at the goal and 1 on the boundary of the free
-space.  Note that the brief's ``beta_0 = r_ws^2 - |p - c_ws|^2`` was deflated by ``R``
-here so that ``beta_j > 0`` and ``clearance > 0`` describe the same set.
-
-Vertical cylinders cross the workspace ball, so a scene with cylinders is not a sphere
-world in the strict sense (the free space has holes through it); the construction is
-used unchanged and the absence of spurious minima is checked numerically (see below).
-
-Numerics
---------
-Nothing is evaluated as ``gamma**k`` or ``beta``; only logarithms are used::
-
-    log phi      = log gamma - (1/k) logaddexp(k log gamma, log beta)
-                 = -(1/k) softplus(log beta - k log gamma)       (used: <= 0 exactly)
-    w            = gamma^k / (gamma^k + beta) = sigmoid(k log gamma - log beta)
-    S            = grad(beta) / beta = sum_j grad(beta_j) / beta_j
-    grad log phi = (1 - w) (grad(gamma) / gamma - S / k)
-    grad phi     = exp(-(1/k) logaddexp(k log gamma, log beta)) (1 - w) (grad gamma - gamma S / k)
-
-``1 - w`` is evaluated as ``sigmoid(log beta - k log gamma)`` with a stable sigmoid, so
-``k`` up to ~50 and ``gamma`` up to ~1e3 (and far beyond) neither overflow nor give NaN.
-
-Since ``grad log phi = (1 - w) / (2 k gamma) * (2k (p - p_d) - gamma S)`` and the
-prefactor is positive, the direction of ``-grad log phi`` (and of ``-grad phi``) is the
-direction of
-
-.. math::  n(p) = -\left(p - p_d - \frac{\gamma}{2k} S\right),
-
-which does not contain ``w`` at all.  This is what the velocity reference uses: it is
-finite everywhere in the free space, smooth at the goal (``n ~ -(p - p_d)``, so
-``|n| ~ |p - p_d|``) and does not lose its direction when ``1 - w`` underflows far from
-the goal.
-
-Conventions at the singular places:
-
-* at the goal (``gamma == 0``): ``log_phi = -inf``, ``phi = 0``, ``grad_phi = 0``, and
-  ``grad_log_phi = 0`` (its true value diverges like ``1/|p - p_d|``; 0 is the limit of
-  ``grad phi``);
-* outside the free space or on its boundary (some ``beta_j <= 0``): ``log_phi = 0``,
-  ``phi = 1`` (the boundary value), ``grad_phi = 0``, and ``grad_log_phi = -u`` where
-  ``u`` is the unit vector along the sum of the unit gradients of the violated
-  ``beta_j``; ``-grad_log_phi`` (and :meth:`NavigationField.desired_velocity_batch`, at
-  ``max_speed``) therefore points back into the free space.  These are conventions,
-  not derivatives.
-
-Velocity reference
-------------------
-Far from the goal ``phi`` is flat (close to 1) for large ``k``, so ``-K grad phi`` would
-be almost zero there.  The reference therefore keeps only the *direction* of
-``-grad phi`` and sets the speed from the distance to the goal:
-
-.. math::
-
-    v_d = \min(v_{max}, K_{NF} \lVert p - p_d \rVert)\,
-          \frac{n}{\lVert n \rVert}
-
-(defaults ``K_NF = 0.5 1/s``, ``v_max = 0.25 m/s``): saturated far away, a linear
-``v_d ~ -K_NF (p - p_d)`` near the goal (Jacobian ``-K_NF I`` at the goal).  In code
-``|x|`` is evaluated as ``sqrt(|x|^2 + eps^2)`` with ``eps = 1e-15`` so the expression is
-finite and differentiable at the goal; the NumPy and CasADi versions use the same
-formula.
-
-Orientation
------------
-The attitude reference is a saturated proportional law on the ZYX Euler angles
-``Theta = (phi, theta, psi)`` (roll, pitch, yaw):
-``dTheta_d/dt = clip(-K_att wrap(Theta - Theta_d), -w_max, w_max)`` elementwise, with
-``wrap`` into ``(-pi, pi]`` (see :func:`attitude_rate`).
-
-Choice of ``k``
----------------
-Rimon-Koditschek guarantee no spurious local minimum only for ``k`` above a
-(conservative) scene-dependent bound.  :func:`choose_k` picks ``k`` empirically: it
-increases ``k`` geometrically until normalized gradient descent (:func:`descend`) from
-random free points reaches the goal from all of them.  Larger ``k`` removes minima but
-lets paths pass closer to the obstacles (the repulsion only acts near the boundary).
-
-Observed (tests/test_navigation.py): the paper scenario (three cylinders, R = 1.3 m)
-needs k = 2-3 per waypoint and uses k = 6 (min clearance along the path ~0.40 m; k = 4:
-0.54 m, k = 10: 0.26 m, k = 40: 0.04 m).  On random scenes (2-5 obstacles of radius
-0.3-1.0, R = 1.0, 8 m workspace, 100 scenes, 200 starts each) a fixed k left spurious
-minima in 9 scenes for k = 6, 3 for k = 9 or 10 (not monotone in k scene by scene), and
-none for k = 13.5, 20 or 30; hence the per-scene rule of :func:`choose_k`.
+Units: metres, seconds, radians; attitudes are ZYX Euler angles ``(phi, theta, psi)``.
 
 Dependencies: this package may import numpy and casadi only.
 """
@@ -128,7 +31,6 @@ __all__ = [
     "Obstacle",
     "Sphere",
     "Workspace",
-    "attitude_rate",
     "choose_k",
     "descend",
     "sample_free_points",
@@ -253,52 +155,14 @@ class Workspace:
 Obstacle = Cylinder | Sphere
 
 
-def attitude_rate(
-    attitude: ArrayLike,
-    attitude_goal: ArrayLike,
-    gain: float = 0.2,
-    max_rate: float = 0.05,
-) -> FloatArray:
-    """Attractive ZYX Euler-angle rate towards a goal attitude.
-
-    ``clip(-gain * wrap(attitude - attitude_goal), -max_rate, max_rate)``, elementwise.
-
-    Parameters
-    ----------
-    attitude, attitude_goal : array_like, shape (3,)
-        ZYX Euler angles ``(phi, theta, psi)`` (roll, pitch, yaw) [rad].
-    gain : float
-        Proportional gain ``K_att`` [1/s], positive.
-    max_rate : float
-        Saturation of each Euler-angle rate [rad/s], positive.
-
-    Returns
-    -------
-    numpy.ndarray, shape (3,)
-        Desired Euler-angle rates [rad/s].
-    """
-    theta = _as_vector("attitude", attitude, 3)
-    theta_d = _as_vector("attitude_goal", attitude_goal, 3)
-    if not gain > 0.0:
-        raise ValueError(f"attitude gain must be positive, got {gain}")
-    if not max_rate > 0.0:
-        raise ValueError(f"max attitude rate must be positive, got {max_rate}")
-    return np.clip(-gain * wrap_angle(theta - theta_d), -max_rate, max_rate)
-
-
 def _attitude_rate_ca(attitude: ca.SX, goal: FloatArray, gain: float, max_rate: float) -> ca.SX:
+    """Attitude law: ZYX Euler-angle rates ``clip(-gain wrap(attitude - goal), +-max_rate)``."""
     raw = -gain * wrap_angle_sx(attitude - ca.DM(goal))
     return ca.fmin(ca.fmax(raw, -max_rate), max_rate)
 
 
-def _sigmoid(z: FloatArray) -> FloatArray:
-    # exp of a non-positive argument only, so neither branch overflows.
-    ez = np.exp(-np.abs(z))
-    return np.where(z >= 0.0, 1.0 / (1.0 + ez), ez / (1.0 + ez))
-
-
 class NavigationField:
-    """Rimon-Koditschek navigation function for the object position (see module doc).
+    """Rimon-Koditschek navigation function for the object position (docs/model.md).
 
     Parameters
     ----------
@@ -454,54 +318,7 @@ class NavigationField:
         r = np.sum(np.where((betas <= 0.0)[:, :, None], unit, 0.0), axis=1)
         return r / np.sqrt(np.sum(r * r, axis=1) + EPS**2)[:, None]
 
-    def _log_parts(self, gamma: FloatArray, betas: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """``z = log beta - k log gamma`` and ``log(gamma^k + beta)`` (free points assumed)."""
-        with np.errstate(divide="ignore"):
-            log_gamma = np.log(gamma)
-        log_beta = np.sum(
-            np.log(np.where(np.all(betas > 0.0, axis=1)[:, None], betas, 1.0)), axis=1
-        )
-        k_log_gamma = self._k * log_gamma
-        return log_beta - k_log_gamma, np.logaddexp(k_log_gamma, log_beta)
-
     # ------------------------------------------------------------------ batch API
-    def log_phi_batch(self, points: ArrayLike) -> FloatArray:
-        """``log phi`` at each row of ``points`` (M, 3); 0 outside, -inf at the goal."""
-        pts = _as_points("points", points)
-        _, gamma, betas, _, _, free = self._terms(pts)
-        z, _ = self._log_parts(gamma, betas)
-        # -(1/k) softplus(z) equals log gamma - (1/k) logaddexp(k log gamma, log beta) but
-        # is <= 0 by construction (no phi > 1 from rounding) and -inf exactly at the goal.
-        return np.where(free, -np.logaddexp(0.0, z) / self._k, 0.0)
-
-    def phi_batch(self, points: ArrayLike) -> FloatArray:
-        """``phi`` at each row of ``points`` (M, 3), in ``[0, 1]``."""
-        return np.exp(self.log_phi_batch(points))
-
-    def grad_log_phi_batch(self, points: ArrayLike) -> FloatArray:
-        """Gradient of ``log phi`` at each row of ``points``, shape (M, 3).
-
-        Zero at the goal; outside the free space the negated unit recovery direction.
-        """
-        pts = _as_points("points", points)
-        e, gamma, betas, grads, s, free = self._terms(pts)
-        z, _ = self._log_parts(gamma, betas)
-        one_minus_w = _sigmoid(z)
-        at_goal = gamma == 0.0
-        safe_gamma = np.where(at_goal, 1.0, gamma)
-        g = one_minus_w[:, None] * (2.0 * e / safe_gamma[:, None] - s / self._k)
-        g = np.where(at_goal[:, None], 0.0, g)
-        return np.where(free[:, None], g, -self._recovery(betas, grads))
-
-    def grad_phi_batch(self, points: ArrayLike) -> FloatArray:
-        """Gradient of ``phi`` at each row of ``points``, shape (M, 3); 0 outside."""
-        pts = _as_points("points", points)
-        e, gamma, betas, _, s, free = self._terms(pts)
-        z, log_den = self._log_parts(gamma, betas)
-        scale = np.exp(-log_den / self._k) * _sigmoid(z)
-        g = scale[:, None] * (2.0 * e - gamma[:, None] * s / self._k)
-        return np.where(free[:, None], g, 0.0)
-
     def descent_direction_batch(self, points: ArrayLike) -> FloatArray:
         """Unit vector along ``-grad phi`` (zero at the goal), recovery direction outside."""
         pts = _as_points("points", points)
@@ -509,15 +326,6 @@ class NavigationField:
         n = -(e - gamma[:, None] * s / (2.0 * self._k))
         n = n / np.sqrt(np.sum(n * n, axis=1) + EPS**2)[:, None]
         return np.where(free[:, None], n, self._recovery(betas, grads))
-
-    def desired_velocity_batch(self, points: ArrayLike) -> FloatArray:
-        """Velocity reference at each row of ``points``, shape (M, 3) (see module doc)."""
-        pts = _as_points("points", points)
-        e, gamma, betas, grads, s, free = self._terms(pts)
-        n = -(e - gamma[:, None] * s / (2.0 * self._k))
-        speed = np.minimum(self._max_speed, self._gain * np.sqrt(gamma + EPS**2))
-        v = n * (speed / np.sqrt(np.sum(n * n, axis=1) + EPS**2))[:, None]
-        return np.where(free[:, None], v, self._max_speed * self._recovery(betas, grads))
 
     def clearance_batch(self, points: ArrayLike) -> FloatArray:
         """Signed clearance [m] of the team ball at each row of ``points`` (> 0 free)."""
@@ -533,7 +341,7 @@ class NavigationField:
 
     # ------------------------------------------------------------------ CasADi
     def casadi_velocity(self, p: ca.SX) -> ca.SX:
-        """Symbolic velocity reference for a 3x1 ``SX`` position (same formulas as NumPy).
+        """Symbolic velocity reference for a 3x1 ``SX`` position (``scene_velocity``).
 
         Parameters
         ----------

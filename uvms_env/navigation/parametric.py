@@ -5,7 +5,7 @@ call.
 :meth:`WaypointNavigator.casadi_function` bakes the goal, the workspace, the obstacles,
 the team radius and the gains in as constants and selects with ``if_else``; this module
 builds the same formulas (:meth:`NavigationField.casadi_velocity` and the attitude law
-of :func:`~uvms_env.navigation.field.attitude_rate`) with all of them as inputs:
+``field._attitude_rate_ca``) with all of them as inputs:
 
 =============  ============  ==========================================================
 input          shape         contents
@@ -22,20 +22,11 @@ output ``twist_d`` (6, 1) = ``[v_d; Euler-angle rates]``, as ``nav_twist``. Matr
 are column-major in CasADi's nonzeros (all x, then all y, ...): ``a.ravel(order="F")``.
 :func:`twist_parameters` packs a navigator's waypoint into these arrays.
 
-Padding. A row with ``present == 0`` is replaced, before anything else, by the neutral
-factor ``beta = 1``, ``grad beta = 0``: it keeps the free-space test true, adds exactly
-0 to ``S = sum grad beta / beta`` and to the recovery direction, so the result is the
-same (bit for bit) as without the row. ``present`` must be exactly 0 or 1 and padding
-rows finite (zeros): the neutral value is selected arithmetically.
-
-Branch-free. ``if_else`` generates ``c ? a : 0`` in C, which a bundle of SIMD lanes
-(``uvms_env/vector/lanes.hpp``) cannot evaluate. Every selection here is
-``c * a + (1 - c) * b`` with ``c`` a 0/1 comparison, which is exact (``1 * a + 0 * b ==
-a``) when both ``a`` and ``b`` are finite; as in the constant version, the values that
-could be infinite are never selected but substituted before the operation that would
-make them so (``g / select(free, beta, 1)``, never ``select(free, g / beta, 0)``). The
-generated C uses comparisons (``<``, ``<=``), ``fmin``/``fmax`` (``casadi_fmin``),
-``floor`` and ``sqrt`` only.
+Padding and branch-free code (docs/batched.md, "One kernel for every geometry"): a row
+with ``present == 0`` (exactly 0 or 1; padding rows finite, zeros) is replaced by the
+neutral factor ``beta = 1``, ``grad beta = 0``, so the result is the same bit for bit as
+without it; every selection is ``c * a + (1 - c) * b`` (``field._select``), never
+``if_else``, so the generated C runs on SIMD lanes.
 
 Dependencies: this package may import numpy and casadi only.
 """

@@ -32,7 +32,7 @@ def navigation_gain(
     waypoints: ArrayLike, workspace: Workspace, obstacles: Sequence[Obstacle], team_radius: float
 ) -> float:
     """``k = max(NAV_K_MIN, choose_k(waypoint) for every waypoint)``, ``NAV_K_MAX`` where
-    the rule finds none (choose_k costs ~0.1 s per waypoint)."""
+    the rule finds none."""
     k = NAV_K_MIN
     for wp in np.asarray(waypoints, dtype=float):
         try:

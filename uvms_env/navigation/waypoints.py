@@ -12,8 +12,8 @@ position) and, per waypoint, the symbolic desired object twist::
 * ``v_d`` (3,): the velocity reference of that waypoint's field, a linear velocity in the
   world frame [m/s];
 * ``dTheta_d/dt`` (3,): **ZYX Euler-angle rates** [rad/s] (not a body angular velocity),
-  from :func:`~uvms_env.navigation.field.attitude_rate`; use
-  :func:`euler_rates_to_body_rates` to convert.
+  from the attitude law (docs/model.md, "Navigation function";
+  ``uvms_env.dynamics.spatial.euler_rate_matrix`` maps a body angular velocity to them).
 
 Dependencies: this package may import numpy and casadi only.
 """
@@ -34,11 +34,10 @@ from .field import (
     NavigationField,
     Obstacle,
     Workspace,
-    _as_vector,
     _attitude_rate_ca,
 )
 
-__all__ = ["WaypointNavigator", "WaypointSequencer", "euler_rates_to_body_rates"]
+__all__ = ["WaypointNavigator", "WaypointSequencer"]
 
 FloatArray = NDArray[np.float64]
 
@@ -50,33 +49,6 @@ def _as_waypoints(waypoints: ArrayLike) -> FloatArray:
     if not np.all(np.isfinite(arr)):
         raise ValueError("waypoints must be finite (no NaN/inf)")
     return arr
-
-
-def euler_rates_to_body_rates(attitude: ArrayLike, rates: ArrayLike) -> FloatArray:
-    """Convert ZYX Euler-angle rates into the body-frame angular velocity.
-
-    With ``R = Rz(psi) Ry(theta) Rx(phi)``:
-    ``p = dphi - sin(theta) dpsi``,
-    ``q = cos(phi) dtheta + sin(phi) cos(theta) dpsi``,
-    ``r = -sin(phi) dtheta + cos(phi) cos(theta) dpsi``.
-
-    Parameters
-    ----------
-    attitude : array_like, shape (3,)
-        ZYX Euler angles ``(phi, theta, psi)`` [rad].
-    rates : array_like, shape (3,)
-        Their time derivatives [rad/s].
-
-    Returns
-    -------
-    numpy.ndarray, shape (3,)
-        Angular velocity in the body frame [rad/s].
-    """
-    phi, theta, _ = _as_vector("attitude", attitude, 3)
-    dphi, dtheta, dpsi = _as_vector("rates", rates, 3)
-    sp, cp = math.sin(phi), math.cos(phi)
-    st, ct = math.sin(theta), math.cos(theta)
-    return np.array([dphi - st * dpsi, cp * dtheta + sp * ct * dpsi, -sp * dtheta + cp * ct * dpsi])
 
 
 class WaypointSequencer:

@@ -1,11 +1,11 @@
 """Pre-built geometries of the seeded scenario families, kept on disk, so that resetting a
 batched environment copies a start instead of solving for one.
 
-Building a geometry of the ``random`` family costs ~0.5 s (an inverse-kinematics and a
-static-equilibrium NLP, and the navigation gain search of ``navigation.task_navigator``); ``short``
-~0.02 s. A ``VectorEnv`` that auto-resets thousands of environments cannot pay that in a
-step, so each geometry is built once per (family, team size, seed), stored here and read
-back (~1 ms):
+Building a geometry of the ``random`` family solves an inverse-kinematics and a
+static-equilibrium NLP and searches the navigation gain (``navigation.task_navigator``;
+costs: docs/simulator.md, "Measured"). A ``VectorEnv`` that auto-resets thousands of
+environments cannot pay that in a step, so each geometry is built once per (family,
+team size, seed), stored here and read back:
 
     bank = GeometryBank("random", n_agents=4)
     g = bank.get(17)              # Geometry(scenario, navigation), built on first use

@@ -77,8 +77,7 @@ def _configure(
 def _equilibrium_start(
     start: bytes, offsets: bytes, rotations: bytes, q_ik: bytes, shape: str, ring: float
 ) -> np.ndarray:
-    """Cached by value: seeded families often share a start (e.g. every ``short`` task),
-    and the equilibrium NLP costs ~0.2 s."""
+    """Cached by value: seeded families often share a start (e.g. every ``short`` task)."""
     n = len(np.frombuffer(offsets)) // 3
     q0, _ = static_equilibrium(
         np.frombuffer(start).copy(),

@@ -158,7 +158,6 @@ SCENARIO_OVERRIDES: dict[str, Option] = {
 }
 # The overrides that are Scenario fields (n_agents is the family's to interpret).
 SCENARIO_FIELDS = tuple(k for k in SCENARIO_OVERRIDES if k != "n_agents")
-SEED = SCENARIO_OVERRIDES["seed"]
 
 
 def describe_options(table: Mapping[str, Option]) -> str:

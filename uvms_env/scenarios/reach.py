@@ -19,13 +19,8 @@ other terms of h do no work in this motion (Coriolis and Kirchhoff terms are pow
 a horizontal translation changes no potential). Nominal model with the scenario's
 ``damping_scale``; ``mismatch`` is ignored.
 
-Paper scenario, nominal model: 0.202 m/s along the vehicles' surge axes (surge alone),
-0.287 m/s along the best direction (44 degrees off the surge axes, surge and sway both
-at full saturation). The mild preset (0.1 m/s) is within reach; the strong one (mean
-0.3 m/s) is not, whatever the controller. The rigid translation slightly overestimates:
-in the truth simulator, full thrust with the heading held (and the arms held by a joint
-PD) settles at 0.196 m/s along the surge axes and 0.275 m/s along the best direction,
-the passive vehicles pitched nose-up by ~0.35 rad (tests/test_reach.py).
+The rigid translation slightly overestimates the truth simulator's speed; the paper
+team's figures are in docs/model.md, "Ocean current and mismatch".
 
 May import: numpy, scipy (when called), ``uvms_env.models``, ``uvms_env.dynamics``.
 """
@@ -43,7 +38,7 @@ from uvms_env.dynamics.uvms import default_model, scale_damping
 from uvms_env.models import load_parameters
 from uvms_env.scenarios.config import Scenario
 
-__all__ = ["current_within_reach", "team_drag", "team_thrust", "team_top_speed"]
+__all__ = ["current_within_reach", "team_top_speed"]
 
 _SWEEP = 36  # directions over a half turn (top speed along d and -d is the same)
 _V_MAX = 20.0  # m/s, bracket of the root search
@@ -100,19 +95,6 @@ class _Team:
         if self.drag(_V_MAX * d) <= thrust:
             return float("inf")  # no damping (damping_scale = 0) or beyond any real speed
         return float(brentq(lambda v: self.drag(v * d) - thrust, 0.0, _V_MAX, xtol=1e-7))
-
-
-def team_thrust(scenario: Scenario, direction) -> float:
-    """Largest force [N] the vehicles' surge and sway push along the horizontal
-    ``direction`` (world, NED) in the start configuration."""
-    return _Team(scenario).thrust(_unit(direction))
-
-
-def team_drag(scenario: Scenario, velocity) -> float:
-    """Drag [N] along the motion of the team translating rigidly at ``velocity`` (world,
-    m/s) through still water in the start configuration: the power the water takes from
-    it divided by the speed."""
-    return _Team(scenario).drag(np.asarray(velocity, dtype=float))
 
 
 def team_top_speed(scenario: Scenario, direction=None) -> float:

@@ -28,16 +28,12 @@ from uvms_env.sim.current import OceanCurrent
 if TYPE_CHECKING:  # the simulator reads a scenario's fields; it does not import the layer
     from uvms_env.scenarios import Scenario
 
-# Grasp stabilization rate w [1/s] (Baumgarte). Measured on the paper scenario with 2,000
-# periods of random bang-bang inputs at 8 substeps: w = 10 gave 4e-6 m worst drift,
-# w = 20 gave 3e-4 m (it fights the RK4 error instead of damping it).
+# Grasp stabilization rate w [1/s] (Baumgarte; why 10: docs/model.md, "The closed chain").
 STABILIZATION = 10.0
-# Error control. Every period ends with a projection onto the grasp manifold inside the
-# compiled step; how far the integrated state had drifted from it before (pose and twist
-# residuals) is the accuracy check: an RK4 step that resolves the stiff joint modes keeps
-# Baumgarte's drift below ~1e-6, one that does not leaves centimetres (measured: 0.038 m on
-# `short` seed 145 under bang-bang inputs, where 64 times finer steps drift 4e-7 m). A
-# period whose drift exceeds these bounds is integrated again as two halves, recursively.
+# Error control (docs/model.md). Every period ends with a projection onto the grasp
+# manifold inside the compiled step; how far the integrated state had drifted from it
+# before (pose and twist residuals) is the accuracy check. A period whose drift exceeds
+# these bounds is integrated again as two halves, recursively.
 DRIFT_TOL_POSE = 1e-5  # m and rad
 DRIFT_TOL_TWIST = 1e-4  # m/s and rad/s
 MAX_REFINEMENTS = 4  # halvings: down to 1/16 of a period (128 substeps at the default 8)
@@ -45,9 +41,8 @@ MAX_REFINEMENTS = 4  # halvings: down to 1/16 of a period (128 substeps at the d
 # after the projection. One Newton step from an accepted drift lands at ~1e-9 or below.
 GRASP_TOL = 1e-6  # m and rad
 # The physical envelope: no input the saturations admit drives a UVMS or the object near
-# these speeds with the model's damping (measured under saturated bang-bang inputs: vehicle
-# 0.2 m/s and 1.3 rad/s, joints 2.3 rad/s). A state beyond them means the model itself
-# was driven out of its validity (e.g. damping_scale=0): the step is refused as diverged.
+# these speeds with the model's damping (docs/model.md, "Divergence"). A state beyond them
+# means the model was driven out of its validity (e.g. damping_scale=0): refused as diverged.
 SPEED_LIMITS = {"linear": 5.0, "angular": 10.0, "joint": 20.0}  # m/s, rad/s, rad/s
 # Fraction of ``mismatch`` applied to weighed quantities (masses, displaced volumes).
 WEIGHED_FRACTION = 0.1
@@ -327,7 +322,7 @@ class Simulator(RebuiltOnUnpickle):
     def internal_wrench(self, tau: np.ndarray | None = None) -> np.ndarray:
         """The squeeze (N, 6): the part of the grasp wrenches that cancels on the object
         (null space of the grasp matrix G^T = [J_O1^T ... J_ON^T]), under inputs ``tau``
-        (default: the last applied) and the current of the last period. Compiled (~10 us)."""
+        (default: the last applied) and the current of the last period. Compiled."""
         if self._internal is None:
             fn = _internal_wrench_function(
                 self.n,
@@ -337,7 +332,7 @@ class Simulator(RebuiltOnUnpickle):
                 self.scenario.substeps,
             )
             self._internal = BufferCall(fn)
-        if tau is not None:  # into a fixed buffer: re-binding a new array costs ~6 us
+        if tau is not None:  # into a fixed buffer: re-binding a new array costs
             np.clip(tau, -self.tau_max, self.tau_max, out=self._tau_wrench)
         else:
             self._tau_wrench[:] = self._tau

@@ -1,7 +1,7 @@
 """A cheap deterministic scripted controller (a proportional pull of the object estimate
 towards the active waypoint, arms idle) behind the policy interface: a stand-in expert
-for tests and smoke runs of ``python -m baselines.imitate`` without the NMPC, e.g.
-``--expert baselines.imitation.scripted:expert``. It is not meant to solve the task."""
+for the tests of ``python -m baselines.imitate`` without the NMPC
+(``--expert experts.scripted:expert``). It is not meant to solve the task."""
 
 from __future__ import annotations
 
@@ -39,5 +39,5 @@ class ScriptedPolicy:
 
 
 def expert(spec: AgentSpec) -> ScriptedPolicy:
-    """``PolicyFactory``: ``--expert baselines.imitation.scripted:expert``."""
+    """``PolicyFactory``: ``--expert experts.scripted:expert``."""
     return ScriptedPolicy(spec)
