@@ -195,3 +195,46 @@ def test_the_backend_refuses_a_block_its_kernel_has_not_the_registers_for(monkey
     assert kernels_cuda.CudaBatchedFunction(fn, block=256).registers == 255
     with pytest.raises(ValueError, match="255 registers x 512 threads exceed"):
         kernels_cuda.CudaBatchedFunction(fn, block=512)
+
+
+def test_a_cached_cubin_is_loaded_without_compiling(monkeypatch, tmp_path: Path):
+    """The nvcc cache: a cubin under the key of this source, dtype, architecture and flags
+    is loaded as it is (nvcc and NVRTC untouched); another architecture's is not."""
+    loaded: list = []
+
+    class RawModule:
+        def __init__(self, *, code: str | None = None, path: str | None = None, options=()):
+            loaded.append((code is not None, path))
+
+        def get_function(self, name: str) -> types.SimpleNamespace:
+            return types.SimpleNamespace(num_regs=32, local_size_bytes=0)
+
+    cuda = types.SimpleNamespace(Device=_Device)
+    monkeypatch.setitem(sys.modules, "cupy", types.SimpleNamespace(cuda=cuda, RawModule=RawModule))
+    monkeypatch.setattr(kernels_cuda.shutil, "which", lambda name: None)
+    monkeypatch.setenv("UVMS_ENV_CACHE", str(tmp_path))
+    x = cs.SX.sym("x", 2)
+    fn = cs.Function("uvms_twice", [x], [2 * x])
+    source, sig = cuda_source(fn, "double")
+    kernels_cuda.cubin_path(source, sig, "float64", "80").write_bytes(b"sm_80")
+    kernels_cuda.CudaBatchedFunction(fn)  # the stand-in device is sm_90: NVRTC
+    cubin = kernels_cuda.cubin_path(source, sig, "float64", "90")
+    cubin.write_bytes(b"sm_90")
+    kernels_cuda.CudaBatchedFunction(fn)
+    assert loaded == [(True, None), (False, str(cubin))]
+    assert "-ftz=true" in kernels_cuda.NVCC_FLAGS  # nvcc's cubins compute as NVRTC's
+
+
+@needs_wheels
+@pytest.mark.parametrize(
+    ("dtype", "bits"), [("float64", "0d7FF0000000000000"), ("float32", "0f7F800000")]
+)
+def test_infinity_in_a_generated_function_compiles_with_nvrtc_as_plus_infinity(dtype, bits):
+    """CasADi spells inf as <math.h>'s INFINITY, which the host has and NVRTC has not (the
+    kinematics kernel's first NVRTC compile failed on it)."""
+    x = cs.SX.sym("x", 2)
+    fn = cs.Function("uvms_inf", [x], [cs.if_else(x[0] > 0, cs.inf, x[1])])
+    source, _ = cuda_source(fn, "double" if dtype == "float64" else "float")
+    assert "casadi_inf" in source
+    ptx = compile_ptx(TOOLS[0], source, nvrtc_options("90"))
+    assert bits in ptx

@@ -29,7 +29,7 @@ import importlib.util
 import re
 import subprocess
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from functools import cache
@@ -180,7 +180,7 @@ def _nvrtc_error(lib: ctypes.CDLL, status: int) -> str:
     return lib.nvrtcGetErrorString(status).decode()
 
 
-def _nvrtc_check(lib: ctypes.CDLL):
+def _nvrtc_check(lib: ctypes.CDLL) -> Callable[[int], None]:
     def check(status: int) -> None:
         if status:
             raise CompileError(f"NVRTC: {_nvrtc_error(lib, status)}")
@@ -309,7 +309,7 @@ def check(
     n_agents: Iterable[int],
     dtypes: Iterable[str],
     jobs: int = 1,
-    echo=print,
+    echo: Callable[[str], None] = print,
 ) -> list[Report]:
     """Compile every backend kernel for each architecture, N and dtype (kernels that do
     not depend on N once, at the first N); ``echo`` each report's line as it comes.
