@@ -52,10 +52,10 @@ BLOCK = 128
 # increases the per-thread stack size for each kernel launch as needed" (CUDA Driver API,
 # cuCtxSetLimit, CU_LIMIT_STACK_SIZE), from the stack the loaded kernel declares
 # (``local_size_bytes``). That figure is exact because every kernel's stack is static
-# (no recursion: ``kernels_check`` fails otherwise). A fixed limit would be too small for
-# some kernels (N = 6 float64: ~54 KB) and reserve memory for nothing for the others:
-# the driver keeps the limit's stack for every thread the GPU can hold (32 KiB: ~8.9 GB
-# on an H100).
+# (no recursion: ``kernels_check`` fails otherwise). The fixed 32 KiB set before bounded
+# nothing (the N = 6 float64 period step needs 54,640 bytes: docs/batched.md) and made the
+# driver reserve 32 KiB for every thread the GPU can hold (~8.9 GB on an H100) where the
+# kernels in use need less.
 # -ftz=true: what CuPy passes NVRTC (below), so that a cubin built by nvcc computes as the
 # one NVRTC builds (float32 subnormals flushed to zero, as the CPU backend's float32).
 NVCC_FLAGS = ("-O3", "-std=c++17", "-ftz=true", "-diag-suppress", "177")
