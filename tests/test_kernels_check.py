@@ -19,6 +19,7 @@ from uvms_env.vector.kernels import cuda_source
 from uvms_env.vector.kernels_check import (
     CUPY_ADDED_OPTIONS,
     CompileError,
+    Report,
     assemble,
     backend_kernels,
     compile_ptx,
@@ -238,3 +239,13 @@ def test_infinity_in_a_generated_function_compiles_with_nvrtc_as_plus_infinity(d
     assert "casadi_inf" in source
     ptx = compile_ptx(TOOLS[0], source, nvrtc_options("90"))
     assert bits in ptx
+
+
+def test_a_report_names_the_gpu_it_assumes_and_none_for_other_architectures():
+    def report(arch: str) -> Report:
+        return Report("navigation", 2, "float64", arch, 162, 536, 0, 0, True, BLOCK, 0.1, 0.2)
+
+    assert report("90").local_memory == 536 * 132 * 2048
+    assert report("80").local_memory == 536 * 108 * 2048
+    assert "(H100 SXM)" in report("90").line() and "(A100)" in report("80").line()
+    assert report("89").local_memory is None and "unknown" in report("89").line()

@@ -83,9 +83,12 @@ class Report:
     ptxas_s: float
 
     @property
-    def local_memory(self) -> int:
-        """Bytes the driver reserves for the stack at full occupancy on ``GPUS[arch]``."""
-        _, sms, threads = GPUS.get(self.arch, GPUS["90"])
+    def local_memory(self) -> int | None:
+        """Bytes the driver reserves for the stack at full occupancy on ``GPUS[arch]``;
+        None for an architecture no GPU is assumed for."""
+        if self.arch not in GPUS:
+            return None
+        _, sms, threads = GPUS[self.arch]
         return self.stack * sms * threads
 
     def problems(self) -> list[str]:
@@ -100,12 +103,17 @@ class Report:
         return found
 
     def line(self) -> str:
+        local = self.local_memory
+        occupancy = (
+            f"{local / 1e9:.2f} GB ({GPUS[self.arch][0]})"
+            if local is not None
+            else f"unknown (no GPU assumed for sm_{self.arch}: GPUS)"
+        )
         return (
             f"{self.kernel} N={self.n_agents} {self.dtype} sm_{self.arch}: registers "
             f"{self.registers}, stack {self.stack}, spills {self.spill_stores}/"
             f"{self.spill_loads} (stores/loads, bytes), block {self.block}, local memory at "
-            f"full occupancy {self.local_memory / 1e9:.2f} GB ({GPUS.get(self.arch, GPUS['90'])[0]}"
-            f"); NVRTC {self.nvrtc_s:.0f} s, ptxas {self.ptxas_s:.0f} s"
+            f"full occupancy {occupancy}; NVRTC {self.nvrtc_s:.0f} s, ptxas {self.ptxas_s:.0f} s"
         )
 
 
