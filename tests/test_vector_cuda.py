@@ -273,36 +273,18 @@ def test_the_cuda_sources_mark_every_function_and_table_as_device_code():
     that NVRTC or nvcc finds no host function called from the kernel."""
     import re
 
-    from uvms_env.dynamics import ObjectModel
-    from uvms_env.env.kinematics import BATCH_CYLINDERS, BATCH_SPHERES, team_function
-    from uvms_env.env.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT
-    from uvms_env.env.priors import prior_functions
-    from uvms_env.navigation.parametric import parametric_twist_function
-    from uvms_env.sim.simulator import _chain
     from uvms_env.vector.kernels import cuda_source, generated_source
-    from uvms_env.vector.kernels_cuda import period_refinement
+    from uvms_env.vector.kernels_check import backend_kernels
 
-    s = make("paper")
-    chain, _ = _chain(2, s.object_shape, float(s.ring_radius), s.period, s.substeps)
-    segments = len(ObjectModel(s.object_shape, s.ring_radius).segments)
-    kinematics = team_function(
-        2, segments, BATCH_CYLINDERS, BATCH_SPHERES, OBSERVATION_LAYOUT, tuple(FAR_OBSTACLE), True
-    )
-    kernels = [
-        (chain.step, period_refinement(2)),
-        (chain.internal_wrench, None),
-        (parametric_twist_function(BATCH_CYLINDERS, BATCH_SPHERES), None),
-        (kinematics, None),
-        *((f, None) for f in prior_functions(s.object_ring_radius)),
-    ]
     # a definition at the top level not marked __device__/__global__, or a constant table
     host_code = re.compile(
         r"^(?!__device__|__global__|extern|#|\}|\{|/\*|\s)[^;]*\([^;]*\)\s*\{"
         r"|^(static |const )+casadi_(int|real) "
     )
-    for fn, refine in kernels:
+    for kernel in backend_kernels(2):
+        fn = kernel.fn
         unmarked = [line for line in generated_source(fn).split("\n") if host_code.match(line)]
         assert unmarked, fn.name()  # the pattern finds the generated functions ...
-        source, _ = cuda_source(fn, "double", refine)
+        source, _ = cuda_source(fn, "double", kernel.refine)
         left = [line[:80] for line in source.split("\n") if host_code.match(line)]
         assert not left, (fn.name(), left[:3])  # ... and none is left unmarked

@@ -51,6 +51,31 @@ DIVERGED_REASONS = {
 }
 
 
+def kernel_functions(
+    n: int,
+    n_seg: int,
+    noisy: bool,
+    chain: Any,
+    wrench: bool,
+    priors_ring: float | None,
+) -> dict[str, Any]:
+    """The CasADi functions ``BatchedEngine`` batches besides the period step, by role:
+    the kinematics of ``n`` robots around an object of ``n_seg`` segments (with or without
+    sensor noise), the navigation twist, with ``wrench`` the chain's internal wrench and
+    with ``priors_ring`` (the object's ring radius) the priors' a_ss and features. One
+    list for the engine and for ``kernels_check``, which compiles them for a GPU."""
+    layout = (OBSERVATION_LAYOUT, tuple(FAR_OBSTACLE), noisy)
+    fns = {
+        "kinematics": team_function(n, n_seg, BATCH_CYLINDERS, BATCH_SPHERES, *layout),
+        "navigation": parametric_twist_function(BATCH_CYLINDERS, BATCH_SPHERES),
+    }
+    if wrench:
+        fns["wrench"] = chain.internal_wrench
+    if priors_ring is not None:
+        fns["prior_steady"], fns["prior_features"] = prior_functions(priors_ring)
+    return fns
+
+
 class BatchedEngine(Engine):
     """K environments' physics on one backend (module docstring)."""
 
@@ -79,19 +104,26 @@ class BatchedEngine(Engine):
         self.tau_max = xp.asarray(self.sim.tau_max)  # the saturations, where the step runs
         segments = self.sim.object.segments
         self._n_seg = len(segments)
-        layout = (OBSERVATION_LAYOUT, tuple(FAR_OBSTACLE), self.noisy)
-        self._kinematics = self._kernel(
-            team_function(n, self._n_seg, BATCH_CYLINDERS, BATCH_SPHERES, *layout)
-        )
-        self._navigation = self._kernel(parametric_twist_function(BATCH_CYLINDERS, BATCH_SPHERES))
-        wrench = setup.internal_wrench_every > 0
-        self._wrench = self._kernel(self.sim.chain.internal_wrench) if wrench else None
         # the priors' a_ss and features: host calls on the CPU backend (the single env's),
         # kernels of the same CasADi expressions on the GPU, over the K N robots' columns
+        priors = backend == "cuda" and setup.priors.needs_steady
+        fns = kernel_functions(
+            n,
+            self._n_seg,
+            self.noisy,
+            self.sim.chain,
+            wrench=setup.internal_wrench_every > 0,
+            priors_ring=base.object_ring_radius if priors else None,
+        )
+        self._kinematics = self._kernel(fns["kinematics"])
+        self._navigation = self._kernel(fns["navigation"])
+        self._wrench = self._kernel(fns["wrench"]) if "wrench" in fns else None
         self._prior_kernels = None
-        if backend == "cuda" and setup.priors.needs_steady:
-            ring = base.object_ring_radius
-            self._prior_kernels = tuple(self._kernel(f) for f in prior_functions(ring))
+        if priors:
+            self._prior_kernels = (
+                self._kernel(fns["prior_steady"]),
+                self._kernel(fns["prior_features"]),
+            )
         self._inputs(segments)
         self._currents = [
             OceanCurrent(self.sim.uvms.params.currents[base.current]) for _ in range(k)

@@ -335,7 +335,7 @@ def cuda_source(
             skipping = not line.rstrip().endswith("}")
             continue
         if line.startswith("#include <math.h>"):
-            continue  # NVRTC has the maths built in
+            continue  # NVRTC has the maths functions built in (INFINITY: below)
         if device_function.match(line) or re.match(r"^static const casadi_(int|real) ", line):
             line = "__device__ " + line
         lines.append(line)
@@ -378,7 +378,12 @@ extern "C" __global__ void uvms_batch_kernel(const casadi_real* const* in,
   }}
 }}
 """
-    prelude = f"#define casadi_real {real}\n#define casadi_int long long int\n"
+    # NVRTC has <math.h>'s functions built in but not its INFINITY (casadi_inf): the bits of
+    # +inf, as CUDA's math_constants.h spells it (the host build keeps its own definition)
+    prelude = (
+        f"#define casadi_real {real}\n#define casadi_int long long int\n"
+        "#ifndef INFINITY\n#define INFINITY __int_as_float(0x7f800000)\n#endif\n"
+    )
     return prelude + body + kernel, sig
 
 

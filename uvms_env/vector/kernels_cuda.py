@@ -10,8 +10,13 @@ the cubins ahead of time, on any machine with nvcc (no GPU needed). The kernel r
 writes device arrays in the (nnz_i, K) layout of ``kernels``, so torch tensors on the
 same GPU pass through without a copy (CUDA array interface / DLPack).
 
+``python -m uvms_env.vector.kernels_cuda --report`` compiles every kernel the backend
+launches with NVRTC and ptxas on the CPU and prints each one's registers and stack
+(``kernels_check``; no GPU needed).
+
 May import: numpy, casadi, cupy (imported here, so that nothing else needs it),
-``uvms_env.vector.kernels`` and ``kernels_emulated``.
+``uvms_env.vector.kernels``, ``kernels_emulated`` and, for ``--report``,
+``kernels_check``.
 """
 
 from __future__ import annotations
@@ -37,12 +42,26 @@ from uvms_env.vector.kernels import (
 )
 from uvms_env.vector.kernels_emulated import EmulatedCudaFunction
 
-# Threads per block. Measured on an H100 for the N = 2 period step: see the README.
+# Registers one block may use (every architecture since compute capability 3.0).
+REGISTERS_PER_BLOCK = 65536
+
+# Threads per block. Registers x BLOCK must fit a block's 65,536 (``kernels_check``: the
+# period step takes 255 registers per thread, the most there is).
 BLOCK = 128
-# The generated functions keep hundreds of scalars live; spilled, they need a deep
-# per-thread stack (measured: the default 1 KiB overflows).
-STACK_BYTES = 32 * 1024
-NVCC_FLAGS = ("-O3", "-std=c++17", "-diag-suppress", "177")
+# The per-thread stack is left to the driver, not set here: "The driver automatically
+# increases the per-thread stack size for each kernel launch as needed" (CUDA Driver API,
+# cuCtxSetLimit, CU_LIMIT_STACK_SIZE), from the stack the loaded kernel declares
+# (``local_size_bytes``). That figure is exact because every kernel's stack is static
+# (no recursion: ``kernels_check`` fails otherwise). The fixed 32 KiB set before bounded
+# nothing (the N = 6 float64 period step needs 54,640 bytes: docs/batched.md) and made the
+# driver reserve 32 KiB for every thread the GPU can hold (~8.9 GB on an H100) where the
+# kernels in use need less.
+# -ftz=true: what CuPy passes NVRTC (below), so that a cubin built by nvcc computes as the
+# one NVRTC builds (float32 subnormals flushed to zero, as the CPU backend's float32).
+NVCC_FLAGS = ("-O3", "-std=c++17", "-ftz=true", "-diag-suppress", "177")
+# What the backend asks NVRTC for through CuPy's RawModule (CuPy adds -ftz=true and the
+# architecture: ``kernels_check.nvrtc_options``).
+NVRTC_OPTIONS = ("-std=c++17",)
 
 
 def cubin_path(source: str, sig: Signature, dtype: str, arch: str) -> Path:
@@ -120,17 +139,21 @@ class CudaBatchedFunction:
         source, self.signature = cuda_source(fn, DTYPES[dtype][0], refine)
         self.nnz_out = self.signature.nnz_out + ((1,) if refine else ())
         with self.device:
-            try:
-                cp.cuda.runtime.deviceSetLimit(0x00, STACK_BYTES)  # cudaLimitStackSize
-            except Exception:  # older CuPy: the default stays
-                pass
             major, minor = self.device.compute_capability[:-1], self.device.compute_capability[-1]
             cubin = build_cubin(fn, dtype, major + minor, refine)
             if cubin is not None:
                 module = cp.RawModule(path=str(cubin))
             else:
-                module = cp.RawModule(code=source, options=("-std=c++17",))
+                module = cp.RawModule(code=source, options=NVRTC_OPTIONS)
             self._kernel = module.get_function("uvms_batch_kernel")
+            # what the driver will reserve per thread (module docstring, BLOCK's comment)
+            self.stack_bytes = int(self._kernel.local_size_bytes)
+            self.registers = int(self._kernel.num_regs)
+        if self.registers * self.block > REGISTERS_PER_BLOCK:
+            raise ValueError(
+                f"{self.signature.name}: {self.registers} registers x {self.block} threads "
+                f"exceed a block's {REGISTERS_PER_BLOCK}; use a smaller block"
+            )
 
     def padded(self, k: int) -> int:
         return k
@@ -180,22 +203,41 @@ def period_refinement(n: int) -> Refinement:
     )
 
 
-def main() -> None:
-    """Build the period step's cubins ahead of time (nvcc, no GPU needed)."""
+def main(argv: list[str] | None = None) -> None:
+    """Build the period step's cubins ahead of time (nvcc, no GPU needed), or with
+    --report compile every kernel the backend launches with NVRTC and ptxas and print what
+    each needs per thread (``kernels_check``; the cuda-check extra, no GPU needed)."""
     from uvms_env.scenarios import make
     from uvms_env.sim.simulator import _chain
 
     ap = argparse.ArgumentParser(description=main.__doc__)
-    ap.add_argument("--arch", default="90", help="compute capability, e.g. 80, 89, 90")
+    ap.add_argument(
+        "--arch", nargs="+", default=["90"], help="compute capabilities, e.g. 80 89 90"
+    )
     ap.add_argument("--n-agents", type=int, nargs="+", default=[2])
     ap.add_argument("--dtype", nargs="+", default=["float64", "float32"])
-    args = ap.parse_args()
+    ap.add_argument("--report", action="store_true", help="the NVRTC + ptxas check")
+    ap.add_argument("--jobs", type=int, default=1, help="--report: compiles in parallel")
+    args = ap.parse_args(argv)
+    if args.report:
+        from uvms_env.vector.kernels_check import check
+
+        try:
+            check(args.arch, args.n_agents, args.dtype, args.jobs, echo=_flushed)
+        except RuntimeError as exc:
+            raise SystemExit(str(exc)) from None
+        return
     for n in args.n_agents:
         s = make("paper") if n == 2 else make("random", n_agents=n, seed=0)
         chain, _ = _chain(n, s.object_shape, float(s.ring_radius), s.period, s.substeps)
         for dtype in args.dtype:
-            path = build_cubin(chain.step, dtype, args.arch, period_refinement(n))
-            print(path if path else "nvcc not found: the kernel will be compiled by NVRTC")
+            for arch in args.arch:
+                path = build_cubin(chain.step, dtype, arch, period_refinement(n))
+                print(path if path else "nvcc not found: the kernel will be compiled by NVRTC")
+
+
+def _flushed(line: str) -> None:
+    print(line, flush=True)  # a CI log shows each kernel as it is done
 
 
 if __name__ == "__main__":
