@@ -73,10 +73,12 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
     """Play one episode; never raises (errors become failed episodes)."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import uvms_env
-    from uvms_env.episode import Step, play
+    from uvms_env.episode import Step, play, play_team
 
     row: dict[str, Any] = {
         "policy": job.policy,
+        # "full": a team policy's full-information bound, never a decentralized entry
+        "information": PolicySource.parse(job.policy).information,
         "scenario": job.scenario,
         "episode": job.index,
         "seed": job.seed,
@@ -107,8 +109,12 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
         if job.max_cycles is not None:
             kwargs["max_cycles"] = job.max_cycles
         env = uvms_env.parallel_env(scenario=job.scenario, seed=job.seed, **kwargs)
-        factory = checked(PolicySource.parse(job.policy), job.seed)
-        episode = play(env, factory, job.seed, on_step=record, on_reset=reached, replay=job.replay)
+        source = PolicySource.parse(job.policy)
+        hooks: dict[str, Any] = {"on_step": record, "on_reset": reached, "replay": job.replay}
+        if source.team:  # one decision for the whole team, from the global state
+            episode = play_team(env, source.team_factory(job.seed), job.seed, **hooks)
+        else:
+            episode = play(env, checked(source, job.seed), job.seed, **hooks)
         env.close()
         row.update(flatten_metrics(episode.metrics))
     except Exception as exc:  # a failing policy must not stop the evaluation
@@ -187,6 +193,7 @@ def aggregate(rows: list[dict[str, Any]], seed: int) -> list[dict[str, Any]]:
         clean = sum(bool(r.get("clean_success")) for r in reachable)
         summary: dict[str, Any] = {
             "policy": policy,
+            "information": group[0].get("information", "local"),
             "scenario": scenario,
             "episodes": len(group),
             "out_of_reach": len(group) - n,
@@ -236,19 +243,22 @@ def markdown_table(summaries: list[dict[str, Any]]) -> str:
         )
 
     lines = [
-        "| policy | scenario | episodes | current out of reach | success [95% CI] | "
-        "clean success | final pos. error m | min clearance m | violations (total) | "
-        "violations / episode | intervention rate | decision ms median / p95 | errors |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| policy | information | scenario | episodes | current out of reach | "
+        "success [95% CI] | clean success | final pos. error m | min clearance m | "
+        "internal wrench rms | control effort | violations (total) | violations / episode | "
+        "intervention rate | decision ms median / p95 | errors |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in summaries:
         lo, hi = s["success_ci95"]
         t = s["policy_time_ms"]
         lines.append(
-            f"| {s['policy']} | {s['scenario']} | {s['episodes']} | "
+            f"| {s['policy']} | {s.get('information', 'local')} | {s['scenario']} | "
+            f"{s['episodes']} | "
             f"{s.get('out_of_reach', 0)} | {fmt(s['success_rate'])} [{fmt(lo)}, {fmt(hi)}] | "
             f"{fmt(s.get('clean_success_rate'))} | "
             f"{fmt(s.get('final_pos_error_m'))} | {fmt(s.get('min_obstacle_clearance_m'))} | "
+            f"{fmt(s.get('internal_wrench_rms'))} | {fmt(s.get('control_effort'))} | "
             f"{sum(s['violations'].values())} | "
             f"{fmt(sum(s['violations'].values()) / s['episodes'], 1)} | "
             f"{fmt(s.get('intervention_rate'), 3)} | "
@@ -259,6 +269,14 @@ def markdown_table(summaries: list[dict[str, Any]]) -> str:
     for s in summaries:
         counts = " | ".join(str(s["violations"][k]) for k in VIOLATION_KINDS)
         lines.append(f"| {s['policy']} | {s['scenario']} | {counts} |")
+    if any(s.get("information") == "full" for s in summaries):
+        lines += [
+            "",
+            "information `full`: a team policy that sees the global state and decides for "
+            "every robot (a full-information bound, not a decentralized entry); `local`: "
+            "one policy per robot on its own observation. Decision time: per team decision "
+            "for `full`, per agent decision for `local`.",
+        ]
     return "\n".join(lines) + "\n"
 
 

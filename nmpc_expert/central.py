@@ -17,7 +17,8 @@ The OCP is the distributed expert's (``ocp``, paper eq12) over the team:
   current (``central_model``): the model equals the simulator's team dynamics;
 * cost: the object's pose and twist tracking of the navigation reference (the same
   ``HorizonReference`` from the same ``task_navigator``, the same weights Qx, Qv, Px and
-  R on the normalized inputs, R around the inputs that hold the team at rest), plus
+  R on the normalized inputs, R around each robot's steady input a_ss, as the expert's
+  ``input_reference = "steady_state"``), plus
   ``squeeze_weight`` times the squared internal wrench of every interval (N and N m);
 * constraints: the expert's soft constraints per robot and node (``constraint_bounds``:
   vehicle speeds, joint speeds and positions, vehicle pitch, manipulability, and the
@@ -34,7 +35,7 @@ see ``central_model`` for why), so G_k is block Toeplitz, a few matrix products.
 squeeze's state dependence is dropped from its linearization (its input Jacobian is
 exact): the cost sees what the inputs do to the squeeze, the defects keep the plan
 consistent. A failed solve never raises: the previous plan shifted (or, with none, the
-inputs that hold the team at rest) is applied and counted as a fallback.
+robots' steady inputs at rest) is applied and counted as a fallback.
 
 Not modelled (this is the nominal-model bound): the current, parameter mismatch and
 sensor noise of a scenario; no disturbance observer or goal integral (the distributed
@@ -52,15 +53,18 @@ from typing import Any
 import numpy as np
 
 from nmpc_expert.central_model import CentralFunctions, central_functions
-from nmpc_expert.policy import constraint_bounds
+from nmpc_expert.policy import constraint_bounds, local_parameters
 from nmpc_expert.reference import HorizonReference
 from nmpc_expert.rti import FEASIBILITY_TOL, SOFT, solve_daqp
 from nmpc_expert.settings import NMPCSettings
-from uvms_env.dynamics import NQ, NU
+from uvms_env.dynamics import NQ, NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall
+from uvms_env.dynamics.local_model import build_local_model, build_steady_input
 from uvms_env.dynamics.spatial import wrap_angle
+from uvms_env.dynamics.uvms import default_model
 from uvms_env.env.options import state_structure
 from uvms_env.navigation import task_navigator
+from uvms_env.policy import AgentSpec
 from uvms_env.scenarios import Scenario
 from uvms_env.sim.chain import state_size
 from uvms_env.sim.simulator import Simulator, grasp_parameters
@@ -115,7 +119,7 @@ class CentralNMPC:
         self.nx, self.nu = state_size(n), NU * n
         self.squeeze_weight = float(squeeze_weight)
         # the model: a simulator of the scenario held at the nominal parameters (its
-        # static balance gives the holding inputs; its compiled step is the prediction)
+        # compiled step is the prediction)
         self.model = Simulator(scenario)
         self.model.parameters = np.ascontiguousarray(self.model.nominal_parameters)
         self.model.object_parameters = np.ascontiguousarray(self.model.nominal_object_parameters)
@@ -131,6 +135,14 @@ class CentralNMPC:
         self._step = BufferCall(self.funcs.step)
         self._lin = BufferCall(self.funcs.linearization)
         self._grasp = grasp_parameters(scenario)
+        # the expert's steady input per robot (``_steady_inputs``): its local model's
+        uvms = default_model()
+        obj = ObjectModel(scenario.object_shape, scenario.object_ring_radius)
+        self._steady_fn = build_steady_input(uvms, obj, build_local_model(uvms, obj))
+        self._steady: dict[int, BufferCall] = {}
+        self._theta = np.stack(
+            [local_parameters(AgentSpec.from_scenario(scenario, i)) for i in range(n)]
+        )
         self._vc = np.zeros(3)
         self._h = np.array([scenario.period])
         self._tau = np.zeros((n, NU))
@@ -188,9 +200,8 @@ class CentralNMPC:
         x0, index = self._measure(state)
         status, info = "ok", {}
         try:
-            a_hold = self._hold(x0)
-            self._shift(x0, a_hold)
-            info = self._iterate(x0, index, a_hold)
+            self._shift(x0)
+            info = self._iterate(x0, index)
             action = self.abar[0].copy()
         except Exception as err:  # a failed solve must never stop the team
             self.fallbacks += 1
@@ -232,20 +243,31 @@ class CentralNMPC:
             )
         return k
 
-    def _hold(self, x0: np.ndarray) -> np.ndarray:
-        """The normalized inputs (N, 8) that hold the team at rest where it is, at the
-        nominal parameters (the model simulator's static balance)."""
-        n = self.n
-        self.model.set_state(x0[: NQ * n], np.zeros(NQ * n), x0[self._pose], np.zeros(6))
-        return np.clip(self.model.holding_inputs() / self.tau_max, -1.0, 1.0)
+    def _steady_inputs(self, xs: np.ndarray, vd: np.ndarray) -> np.ndarray:
+        """a_ss (K, N, 8) at the team states ``xs`` (K, nx) and object twists ``vd``
+        (K, 6): each robot's steady input of the distributed expert (the input that keeps
+        it moving rigidly with the object at the twist, carrying its load share of the
+        object, at zero acceleration; ``uvms_env.dynamics.local_model``), so that R pulls
+        towards the same inputs as in the expert's cost. Their sum balances the object
+        (the local models add up to the team's); the squeeze they leave is the cost's."""
+        n, k = self.n, len(xs)
+        q = xs[:, : NQ * n].reshape(k, n, NQ)
+        zeta = xs[:, NQ * n : 2 * NQ * n].reshape(k, n, NQ)
+        x_loc = np.ascontiguousarray(np.concatenate([q, zeta], axis=2).reshape(k * n, 2 * NQ))
+        twist = np.ascontiguousarray(np.repeat(vd, n, axis=0))
+        theta = np.ascontiguousarray(np.tile(self._theta, (k, 1)))
+        call = self._steady.get(k)
+        if call is None:
+            call = self._steady[k] = BufferCall(self._steady_fn.map(k * n))
+        return call(x_loc, theta, twist)[0].reshape(k, n, NU).copy()
 
-    def _shift(self, x0: np.ndarray, a_hold: np.ndarray) -> None:
+    def _shift(self, x0: np.ndarray) -> None:
         if self.has_plan:
             self.xbar[:-1] = self.xbar[1:].copy()
             self.abar[:-1] = self.abar[1:].copy()
-        else:
+        else:  # no plan: the inputs that hold the team at rest where it is
             self.xbar[:] = x0
-            self.abar[:] = a_hold
+            self.abar[:] = self._steady_inputs(x0[None], np.zeros((1, 6)))[0]
         self.xbar[0] = x0
 
     def _predict(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -278,7 +300,7 @@ class CentralNMPC:
         sel.append(2 * NQ * n + 4)  # object pitch
         return np.array(sel), [np.arange(NQ * i, NQ * (i + 1)) for i in range(n)]
 
-    def _iterate(self, x0: np.ndarray, index: int, a_hold: np.ndarray) -> dict[str, Any]:
+    def _iterate(self, x0: np.ndarray, index: int) -> dict[str, Any]:
         """Build the condensed QP around (xbar, abar), solve it, take the full step."""
         n, hz, nx, nu = self.n, self.horizon, self.nx, self.nu
         x_o = x0[self._pose]
@@ -308,7 +330,9 @@ class CentralNMPC:
             powers.append(phi @ powers[-1])
         nz = hz * nu
         h_mat = np.diag(np.tile(2.0 * self._r_u, hz))
-        a_ref = np.broadcast_to(a_hold, (hz, n, NU)).reshape(-1)
+        a_ref = np.zeros(hz * nu)  # input_reference "zero": the paper's |a|^2_R
+        if self.settings.input_reference == "steady_state":
+            a_ref = self._steady_inputs(self.xbar[:hz], vd[:hz]).reshape(-1)
         f_vec = 2.0 * np.tile(self._r_u, hz) * (self.abar.reshape(-1) - a_ref)
         # the squeeze of every interval: W_k + Wu da_k (state dependence dropped)
         wu = wu_t.T  # (6n, nu)
@@ -453,13 +477,13 @@ class CentralNMPC:
         return phi, gam
 
     def _fallback(self, x0: np.ndarray) -> np.ndarray:
-        """The shifted previous plan's first input, or the holding inputs with no plan
+        """The shifted previous plan's first input, or the steady inputs at rest with no plan
         (zeros if even those cannot be computed)."""
         if self.has_plan:
             return self.abar[0].copy()
         try:
-            return self._hold(x0)
-        except Exception:  # a configuration with no static balance: no input at all
+            return self._steady_inputs(x0[None], np.zeros((1, 6)))[0]
+        except Exception:  # no input at all rather than a raise in the loop
             return np.zeros((self.n, NU))
 
 

@@ -409,18 +409,8 @@ class Simulator(RebuiltOnUnpickle):
         # equivalent internal squeezes: KKT of min x'Wx s.t. A x = rhs
         nx = a.shape[1]
         w = np.concatenate([np.ones(NU * n), 1e-6 * np.ones(6 * n)])
-        # x = W^-1 A' y with (A W^-1 A') y = rhs: a (10N+6)-square solve instead of a
-        # least-squares solve of the whole KKT system (measured 10x faster at N = 6, which
-        # the centralized controller pays every decision); the KKT least squares remains
-        # for a rank-deficient A
-        a_w = a / w
-        try:
-            sol = a_w.T @ np.linalg.solve(a_w @ a.T, rhs)
-        except np.linalg.LinAlgError:
-            sol = np.full(nx, np.nan)
-        if not np.linalg.norm(a @ sol - rhs) <= 1e-8:
-            kkt = np.block([[np.diag(w), a.T], [a, np.zeros((rows, rows))]])
-            sol = np.linalg.lstsq(kkt, np.concatenate([np.zeros(nx), rhs]), rcond=None)[0][:nx]
+        kkt = np.block([[np.diag(w), a.T], [a, np.zeros((rows, rows))]])
+        sol = np.linalg.lstsq(kkt, np.concatenate([np.zeros(nx), rhs]), rcond=None)[0][:nx]
         residual = np.linalg.norm(a @ sol - rhs)
         if residual > 1e-8:
             raise ValueError(
