@@ -88,11 +88,11 @@ _OBJECT_PITCH = 14
 
 def central_settings(**changes: Any) -> NMPCSettings:
     """The centralized controller's settings: the paper's controller
-    (``NMPCSettings.paper``: no disturbance observer, no input step bound) with the
-    angular back-off equal to the other speeds' (the tighter one is the distributed
-    expert's margin for the internal wrench its local model misses), then ``changes``."""
-    base = NMPCSettings.paper()
-    return NMPCSettings.paper(**{"angular_backoff": base.backoff, **changes})
+    (``NMPCSettings.paper``: the expert's weights, horizon, constraint limits and
+    back-offs; no disturbance observer, no input step bound, which answer the local
+    model's error), then ``changes``. The tighter angular back-off is kept although the
+    team model has no internal-wrench error to cover: the same constraints for both."""
+    return NMPCSettings.paper(**changes)  # type: ignore[arg-type]
 
 
 class CentralNMPC:
