@@ -16,7 +16,10 @@ intervals, over the episodes whose current is within the team's reach: those bey
 bootstrap 95% intervals, violations per kind, decision time median and p95, and for
 ``+filter`` policies the safety filter's intervention rate), and plots (success by
 scenario, decision time on a log scale, the object's path per policy on the paper
-scenario).
+scenario). A team policy (``nmpc:central``: one controller for every robot from the global
+state, ``uvms_env.episode.play_team``) plays the same episodes; its rows carry
+``information: full`` (a full-information bound) against the per-robot policies' ``local``,
+and its decision time is per team decision.
 """
 
 from __future__ import annotations
@@ -448,7 +451,9 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
         help="nmpc, random, zero, ppo:PATH, sac:PATH, rllib:PATH, bc:PATH, dagger:PATH, "
         "pkg.mod:factory; "
-        "suffix +filter: inside the expert's safety filter",
+        "suffix +filter: inside the expert's safety filter; nmpc:central: the centralized "
+        "NMPC, a team policy with full information (its rows say information full: a bound, "
+        "not a decentralized entry)",
     )
     ap.add_argument("--scenario", action="append", default=None, help="paper, random (repeatable)")
     ap.add_argument("--episodes", type=int, default=20)

@@ -88,8 +88,7 @@ def main() -> None:
     for n in args.sizes:
         t = measure(n, args.steps)
         print(
-            f"{n:>3} {len(t):>9} {np.median(t):>10.2f} {np.percentile(t, 95):>8.2f} "
-            f"{t.max():>8.2f}"
+            f"{n:>3} {len(t):>9} {np.median(t):>10.2f} {np.percentile(t, 95):>8.2f} {t.max():>8.2f}"
         )
     if args.parts:
         for n in args.sizes:
