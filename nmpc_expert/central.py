@@ -143,6 +143,7 @@ class CentralNMPC:
         self._theta = np.stack(
             [local_parameters(AgentSpec.from_scenario(scenario, i)) for i in range(n)]
         )
+        self._steady_inputs(np.zeros((hz, self.nx)), np.zeros((hz, 6)))  # compile it now
         self._vc = np.zeros(3)
         self._h = np.array([scenario.period])
         self._tau = np.zeros((n, NU))
