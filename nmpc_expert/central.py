@@ -30,12 +30,14 @@ the condensed Gauss-Newton QP around it, solve it with DAQP (``rti.solve_daqp``)
 the full step. The condensing is ``ocp.build_qp_builder``'s (dx_k = G_k da + e_k from
 the sensitivities and the exact defects) written in numpy: the builder's compiled graph
 is the local model's; the team's sensitivities are frozen over the horizon (one
-linearization at the measured state, discretized exactly with a matrix exponential:
+linearization at the measured state, discretized by the simulator's own RK4 substeps:
 see ``central_model`` for why), so G_k is block Toeplitz, a few matrix products. The
 squeeze's state dependence is dropped from its linearization (its input Jacobian is
 exact): the cost sees what the inputs do to the squeeze, the defects keep the plan
-consistent. A failed solve never raises: the previous plan shifted (or, with none, the
-robots' steady inputs at rest) is applied and counted as a fallback.
+consistent. Soft rows far from their bounds are left out of the QP and added back
+when the solution violates them (``_solve_screened``: the answer is the full QP's).
+A failed solve never raises: the previous plan shifted (or, with none, the robots'
+steady inputs at rest) is applied and counted as a fallback.
 
 Not modelled (this is the nominal-model bound): the current, parameter mismatch and
 sensor noise of a scenario; no disturbance observer or goal integral (the distributed
