@@ -264,7 +264,7 @@ class CentralNMPC:
             # the horizon's map compiled (the virtual machine took 2.9 ms of a 25 ms
             # decision at N = 6); a single node (the first decision, a fallback) runs on
             # the virtual machine, no compilation for it
-            fn = self._steady_fn.map(f"central_steady_n{n}_k{k}", "serial", k * n, [1], [])
+            fn = self._steady_fn.map(f"central_steady_n{n}_k{k}", "serial", k * n, [], [])
             call = self._steady[k] = BufferCall(compile_function(fn) if k == self.horizon else fn)
         return call(x_loc, theta, twist)[0].reshape(k, n, NU).copy()
 

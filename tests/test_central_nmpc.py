@@ -82,6 +82,21 @@ def test_the_prediction_model_is_the_simulators_team_dynamics(short_scenario, co
     assert np.abs(sim.state.zeta).max() > 1e-3  # the states moved: not only rest
 
 
+def test_the_input_reference_is_each_robots_steady_input_of_the_expert(controller):
+    """R pulls every robot towards its own a_ss (its grasp, its load share), the same
+    input reference as the distributed expert's cost."""
+    sim = Simulator(controller.scenario)
+    x = sim.flat_state.copy()
+    n, hz = controller.n, controller.horizon
+    twists = np.tile([0.1, -0.05, 0.0, 0.0, 0.0, 0.02], (hz, 1))
+    a_ss = controller._steady_inputs(np.tile(x, (hz, 1)), twists)
+    for i in range(n):
+        x_i = np.r_[x[10 * i : 10 * i + 10], x[10 * n + 10 * i : 10 * n + 10 * i + 10]]
+        own = np.array(controller._steady_fn(x_i, controller._theta[i], twists[0])).ravel()
+        assert np.allclose(a_ss[:, i], own, atol=1e-12)
+    assert not np.allclose(a_ss[0, 0], a_ss[0, 1])  # the robots' grasps differ
+
+
 def test_the_model_has_nominal_parameters_whatever_the_truth_draws():
     scenario = make("short", seed=202, mismatch=0.2)
     team = CentralNMPC(scenario)
