@@ -432,7 +432,7 @@ class CentralNMPC:
         slacks are zero), and the full QP's optimum cannot be lower. DAQP's cost grows
         with the rows times the variables squared, and most rows (pitch, joint angles,
         manipulability, speeds away from their limits) are far from their bounds: at
-        N = 6 it kept 130-250 of the 485 rows while moving."""
+        N = 6, at one state while moving, it kept 153 of the 485 rows."""
         nz = len(f_vec)
         keep = (lo_rows > -SCREEN_MARGIN) | (up_rows < SCREEN_MARGIN)
         for solves in range(1, 5):
