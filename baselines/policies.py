@@ -73,7 +73,8 @@ def _nmpc(arg: str | None, seed: int) -> PolicyFactory:
             controller = option
         elif option:
             raise ValueError(
-                f"unknown nmpc option {option!r}: use rti, ipopt or one of {CONTROLLERS}"
+                f"unknown nmpc option {option!r}: use rti, ipopt or one of {CONTROLLERS} "
+                "(or nmpc:central alone: the centralized team policy)"
             )
     return make_policy(solver, controller)
 
