@@ -11,8 +11,10 @@ raises ends its episode as a failure with the error recorded, not the evaluation
 
 Writes ``episodes.csv`` (one row per episode), ``results.json``, ``results.md`` and plots;
 episodes whose current is beyond the team's reach (``current_within_reach`` false) are
-counted apart and left out of the success rates. Outputs and policies:
-docs/evaluation.md.
+counted apart and left out of the success rates. A team policy (``nmpc:central``,
+``uvms_env.episode.play_team``) plays the same episodes; its rows carry ``information:
+full`` (a full-information bound) against the per-robot policies' ``local``. Outputs and
+policies: docs/evaluation.md.
 """
 
 from __future__ import annotations
@@ -69,10 +71,12 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
     """Play one episode; never raises (errors become failed episodes)."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import uvms_env
-    from uvms_env.episode import Step, play
+    from uvms_env.episode import Step, play, play_team
 
     row: dict[str, Any] = {
         "policy": job.policy,
+        # "full": a team policy's full-information bound, never a decentralized entry
+        "information": PolicySource.parse(job.policy).information,
         "scenario": job.scenario,
         "episode": job.index,
         "seed": job.seed,
@@ -103,8 +107,12 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
         if job.max_cycles is not None:
             kwargs["max_cycles"] = job.max_cycles
         env = uvms_env.parallel_env(scenario=job.scenario, seed=job.seed, **kwargs)
-        factory = checked(PolicySource.parse(job.policy), job.seed)
-        episode = play(env, factory, job.seed, on_step=record, on_reset=reached, replay=job.replay)
+        source = PolicySource.parse(job.policy)
+        hooks: dict[str, Any] = {"on_step": record, "on_reset": reached, "replay": job.replay}
+        if source.team:  # one decision for the whole team, from the global state
+            episode = play_team(env, source.team_factory(job.seed), job.seed, **hooks)
+        else:
+            episode = play(env, checked(source, job.seed), job.seed, **hooks)
         env.close()
         row.update(flatten_metrics(episode.metrics))
     except Exception as exc:  # a failing policy must not stop the evaluation
@@ -183,6 +191,7 @@ def aggregate(rows: list[dict[str, Any]], seed: int) -> list[dict[str, Any]]:
         clean = sum(bool(r.get("clean_success")) for r in reachable)
         summary: dict[str, Any] = {
             "policy": policy,
+            "information": group[0].get("information", "local"),
             "scenario": scenario,
             "episodes": len(group),
             "out_of_reach": len(group) - n,
@@ -232,19 +241,22 @@ def markdown_table(summaries: list[dict[str, Any]]) -> str:
         )
 
     lines = [
-        "| policy | scenario | episodes | current out of reach | success [95% CI] | "
-        "clean success | final pos. error m | min clearance m | violations (total) | "
-        "violations / episode | intervention rate | decision ms median / p95 | errors |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| policy | information | scenario | episodes | current out of reach | "
+        "success [95% CI] | clean success | final pos. error m | min clearance m | "
+        "internal wrench rms | control effort | violations (total) | violations / episode | "
+        "intervention rate | decision ms median / p95 | errors |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in summaries:
         lo, hi = s["success_ci95"]
         t = s["policy_time_ms"]
         lines.append(
-            f"| {s['policy']} | {s['scenario']} | {s['episodes']} | "
+            f"| {s['policy']} | {s.get('information', 'local')} | {s['scenario']} | "
+            f"{s['episodes']} | "
             f"{s.get('out_of_reach', 0)} | {fmt(s['success_rate'])} [{fmt(lo)}, {fmt(hi)}] | "
             f"{fmt(s.get('clean_success_rate'))} | "
             f"{fmt(s.get('final_pos_error_m'))} | {fmt(s.get('min_obstacle_clearance_m'))} | "
+            f"{fmt(s.get('internal_wrench_rms'))} | {fmt(s.get('control_effort'))} | "
             f"{sum(s['violations'].values())} | "
             f"{fmt(sum(s['violations'].values()) / s['episodes'], 1)} | "
             f"{fmt(s.get('intervention_rate'), 3)} | "
@@ -255,6 +267,14 @@ def markdown_table(summaries: list[dict[str, Any]]) -> str:
     for s in summaries:
         counts = " | ".join(str(s["violations"][k]) for k in VIOLATION_KINDS)
         lines.append(f"| {s['policy']} | {s['scenario']} | {counts} |")
+    if any(s.get("information") == "full" for s in summaries):
+        lines += [
+            "",
+            "information `full`: a team policy that sees the global state and decides for "
+            "every robot (a full-information bound, not a decentralized entry); `local`: "
+            "one policy per robot on its own observation. Decision time: per team decision "
+            "for `full`, per agent decision for `local`.",
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -426,7 +446,9 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
         help="nmpc, random, zero, ppo:PATH, sac:PATH, rllib:PATH, bc:PATH, dagger:PATH, "
         "pkg.mod:factory; "
-        "suffix +filter: inside the expert's safety filter",
+        "suffix +filter: inside the expert's safety filter; nmpc:central: the centralized "
+        "NMPC, a team policy with full information (its rows say information full: a bound, "
+        "not a decentralized entry)",
     )
     ap.add_argument("--scenario", action="append", default=None, help="paper, random (repeatable)")
     ap.add_argument("--episodes", type=int, default=20)

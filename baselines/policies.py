@@ -1,7 +1,9 @@
 """Policy sources for the evaluator: ``--policy NAME[:ARG]`` to a per-agent factory.
 
 Known names: ``nmpc`` (the expert, ``nmpc:ipopt`` for its reference solver,
-``nmpc:paper`` for the paper's controller without the disturbance observer), ``random``
+``nmpc:paper`` for the paper's controller without the disturbance observer;
+``nmpc:central``: the centralized NMPC, a *team* policy with full information, the bound
+of the ladder, never a decentralized entry: ``PolicySource.team``), ``random``
 (uniform actions, seeded per episode and agent), ``zero`` (all inputs zero), and
 ``module:factory`` (a user's ``factory(spec) -> Policy`` importable as
 ``package.module:factory``), ``ppo:PATH`` / ``sac:PATH`` (an SB3 run folder;
@@ -23,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
+from uvms_env.team_policy import FULL_INFORMATION, LOCAL_INFORMATION, TeamPolicyFactory
 
 PRETRAINED = Path(__file__).resolve().parent / "pretrained"
 FILTER_SUFFIX = "+filter"
@@ -70,7 +73,8 @@ def _nmpc(arg: str | None, seed: int) -> PolicyFactory:
             controller = option
         elif option:
             raise ValueError(
-                f"unknown nmpc option {option!r}: use rti, ipopt or one of {CONTROLLERS}"
+                f"unknown nmpc option {option!r}: use rti, ipopt or one of {CONTROLLERS} "
+                "(or nmpc:central alone: the centralized team policy)"
             )
     return make_policy(solver, controller)
 
@@ -135,6 +139,17 @@ def _torchrl(arg: str | None, seed: int) -> PolicyFactory:
     return factory(arg)
 
 
+# team policies (``uvms_env.team_policy``): name -> the option of ``nmpc`` that selects one
+TEAM_OPTIONS = {"nmpc": "central"}
+
+
+def _central(arg: str | None, seed: int) -> TeamPolicyFactory:
+    """``nmpc:central``: the centralized NMPC (a team policy; no further options)."""
+    from nmpc_expert import make_central_policy  # the expert is optional at import time
+
+    return make_central_policy()
+
+
 BUILTIN: dict[str, Callable[[str | None, int], PolicyFactory]] = {
     "nmpc": _nmpc,
     "random": _random,
@@ -158,13 +173,30 @@ class PolicySource:
     arg: str | None
     filtered: bool = False
 
+    @property
+    def team(self) -> bool:
+        """A team policy (full information: one controller for every robot from the
+        global state), played with ``uvms_env.episode.play_team``."""
+        return self.arg is not None and TEAM_OPTIONS.get(self.name) == self.arg
+
+    @property
+    def information(self) -> str:
+        """``"full"`` for a team policy (a full-information bound), else ``"local"``."""
+        return FULL_INFORMATION if self.team else LOCAL_INFORMATION
+
     @staticmethod
     def parse(text: str) -> PolicySource:
         base = text.removesuffix(FILTER_SUFFIX)
         filtered = base != text
         name, _, arg = base.partition(":")
         if name in BUILTIN:
-            return PolicySource(text, name, arg or None, filtered)
+            source = PolicySource(text, name, arg or None, filtered)
+            if source.team and filtered:
+                raise ValueError(
+                    f"{text!r}: the safety filter wraps per-robot policies; {base} is a team "
+                    "policy (full information)"
+                )
+            return source
         if arg and "." in name:  # package.module:factory
             return PolicySource(text, "module", base, filtered)
         known = ", ".join(sorted(BUILTIN))
@@ -175,6 +207,11 @@ class PolicySource:
 
     def factory(self, episode_seed: int) -> PolicyFactory:
         """The per-agent factory for one episode (random policies are seeded by it)."""
+        if self.team:
+            raise TypeError(
+                f"{self.label} is a team policy (full information); build it with "
+                "team_factory() and play it with uvms_env.episode.play_team"
+            )
         if self.name == "module":
             module, _, attr = self.arg.partition(":")  # type: ignore[union-attr]
             inner = _user(module, attr)(None, episode_seed)
@@ -185,6 +222,12 @@ class PolicySource:
         from nmpc_expert import make_filter  # the expert is optional at import time
 
         return make_filter(inner)
+
+    def team_factory(self, episode_seed: int) -> TeamPolicyFactory:
+        """The team policy's factory (``team`` sources only)."""
+        if not self.team:
+            raise TypeError(f"{self.label} is a per-robot policy; use factory()")
+        return _central(self.arg, episode_seed)
 
 
 def check_policy(policy: Policy) -> None:

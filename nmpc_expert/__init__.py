@@ -12,13 +12,16 @@ OCP's compiled pieces and the RTI's QP), ``rti`` (fast default solver), ``ipopt_
 policy), ``filter_batch`` (many robots' filters with their QP builders in one
 lane-parallel call), ``workspace`` (the filter's workspace rows), ``reference``
 (navigation-function reference over the horizon), ``observation`` (reading the own
-observation), ``settings``, ``policy``, ``rollout`` (closed loop + metrics),
+observation), ``settings``, ``policy``, ``central`` and ``central_model`` (the
+centralized NMPC of the whole team: a full-information team policy, the ladder's bound,
+``uvms_env.team_policy``), ``rollout`` (closed loop + metrics),
 ``figures``, ``__main__`` (the main job). The prediction model (MODEL section 5) and the
 steady input are ``uvms_env.dynamics.local_model``.
 
 May import: numpy, scipy, casadi, matplotlib, tqdm and ``uvms_env``. Never ``baselines``.
 """
 
+from nmpc_expert.central import CentralNMPC, make_central_policy
 from nmpc_expert.policy import NMPCPolicy, make_policy
 from nmpc_expert.safety_filter import SafetyFilter, make_filter
 from nmpc_expert.settings import CONTROLLERS, NMPCSettings, controller_settings
@@ -30,10 +33,12 @@ from uvms_env.env.constraints import MANIPULABILITY_EPS
 __all__ = [
     "CONTROLLERS",
     "MANIPULABILITY_EPS",
+    "CentralNMPC",
     "NMPCPolicy",
     "NMPCSettings",
     "SafetyFilter",
     "controller_settings",
+    "make_central_policy",
     "make_filter",
     "make_policy",
 ]

@@ -40,6 +40,40 @@ _SOLVED = {1: "optimal", 2: "soft_optimal"}
 _G_T, _E, _A_REF = 7, 8, 9  # ``qp_builder`` outputs g_t and e (see ``ocp.build_qp_builder``)
 
 
+def solve_daqp(
+    qp: daqp.Model | None,
+    h: np.ndarray,
+    f: np.ndarray,
+    c: np.ndarray,
+    upper: np.ndarray,
+    lower: np.ndarray,
+    sense: np.ndarray,
+    soft: tuple[np.ndarray, np.ndarray],
+) -> tuple[daqp.Model, np.ndarray, int, dict[str, Any]]:
+    """Load the dense QP min 0.5 x'Hx + f'x s.t. lower <= [x; C x] <= upper (DAQP's
+    layout: the first len(x) entries are bounds on x) into ``qp`` (a new model when None)
+    and solve it: (model, x, exit flag, info). ``soft``: (1 / (2 l2), l1) per entry, the
+    rows flagged SOFT in ``sense`` carry them. Raises RuntimeError on a setup failure or
+    an unsolved QP; the caller checks the solution's feasibility itself."""
+    if qp is None:
+        qp = daqp.Model()
+        flag, _ = qp.setup(h, f, c, upper, lower, sense)
+        if flag < 0:
+            raise RuntimeError(f"DAQP setup failed (exit flag {flag})")
+        rho, w = soft
+        qp.soft_weights(rho_l=rho, rho_u=rho, w_l=w, w_u=w)
+    else:
+        # passing ``sense`` resets the active set: a cold start every time (warm starts:
+        # docs/expert.md, "Tuning record").
+        flag = qp.update(h, f, c, upper, lower, sense)
+        if flag < 0:
+            raise RuntimeError(f"DAQP update failed (exit flag {flag})")
+    x, _, flag, info = qp.solve()
+    if flag not in _SOLVED:
+        raise RuntimeError(f"DAQP failed (exit flag {flag})")
+    return qp, x, flag, info
+
+
 class ExtraRows(Protocol):
     """Soft rows added to the QP beyond the builder's (the safety filter's workspace rows):
     ``count`` rows with per-row penalties ``l1``, ``l2``; ``rows(xbar, g, e)`` gives (C,
@@ -198,23 +232,9 @@ class RTISolver:
             diff = (self.abar[1:] - self.abar[:-1]).reshape(-1)
             self._lower[ns:], self._upper[ns:] = -d - diff, d - diff
             c = np.vstack([c, self._step_c])
-        if self._qp is None:
-            qp = daqp.Model()
-            flag, _ = qp.setup(h, f, c, self._upper, self._lower, self._sense)
-            if flag < 0:
-                raise RuntimeError(f"DAQP setup failed (exit flag {flag})")
-            rho, w = self._soft
-            qp.soft_weights(rho_l=rho, rho_u=rho, w_l=w, w_u=w)
-            self._qp = qp
-        else:
-            # passing ``sense`` resets the active set: a cold start every time (warm starts:
-            # docs/expert.md, "Tuning record").
-            flag = self._qp.update(h, f, c, self._upper, self._lower, self._sense)
-            if flag < 0:
-                raise RuntimeError(f"DAQP update failed (exit flag {flag})")
-        da, _, flag, info = self._qp.solve()
-        if flag not in _SOLVED:
-            raise RuntimeError(f"DAQP failed (exit flag {flag})")
+        self._qp, da, flag, info = solve_daqp(
+            self._qp, h, f, c, self._upper, self._lower, self._sense, self._soft
+        )
         if not np.all(np.isfinite(da)):
             raise RuntimeError("QP solution is not finite")
         # own check of the hard bounds (a solver may stop early and still return numbers)

@@ -17,9 +17,14 @@ Callers attach what they need without another loop:
 * ``on_step(step)`` after each ``env.step``: trajectories, frames, dataset records;
 * ``replay=PATH``: the episode's 3D replay page written there (``uvms_env.replay``).
 
+``play_team`` plays a team policy (``uvms_env.team_policy``: one full-information
+controller for every robot, from ``env.state()``) through the same loop; its decision
+time is per team decision. Each driver refuses the other's kind of factory.
+
 Only the public env API is used (``reset(seed=)``, ``step``, ``agents``,
 ``possible_agents``, ``scenario``, ``infos[agent]["metrics"]``).
-May import: numpy, ``uvms_env.policy`` and (when a replay is asked for) ``uvms_env.replay``.
+May import: numpy, ``uvms_env.policy``, ``uvms_env.team_policy`` and (when a replay is asked
+for) ``uvms_env.replay``.
 """
 
 from __future__ import annotations
@@ -33,8 +38,15 @@ from typing import Any
 import numpy as np
 
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
+from uvms_env.team_policy import (
+    TeamPolicy,
+    TeamPolicyFactory,
+    check_team_actions,
+    is_team_policy,
+)
 
 Execute = Callable[[int, Policy, np.ndarray, np.ndarray], np.ndarray]
+TEAM = "team"  # the key of a team policy in ``Episode.policies`` and ``Step.policies``
 
 
 @dataclass(frozen=True)
@@ -43,9 +55,9 @@ class Step:
 
     index: int
     env: Any
-    policies: Mapping[str, Policy]
+    policies: Mapping[str, Policy | TeamPolicy]  # a team policy under ``TEAM``
     actions: dict[str, np.ndarray]  # applied (after ``execute``)
-    decision_ms: np.ndarray  # (N,) each agent's ``act`` time
+    decision_ms: np.ndarray  # (N,) each agent's ``act`` time; (1,) a team decision's
     observations: dict[str, np.ndarray]  # after the step
     rewards: dict[str, float]
     terminations: dict[str, bool]
@@ -62,7 +74,7 @@ class Episode:
     end: str | None
     total_reward: float
     decision_ms: np.ndarray
-    policies: dict[str, Policy]
+    policies: dict[str, Policy | TeamPolicy]
 
     @property
     def steps(self) -> int:
@@ -71,10 +83,16 @@ class Episode:
 
 def build_policies(env: Any, factory: PolicyFactory) -> dict[str, Policy]:
     """One policy per agent of ``env``'s current scenario, each built from its own
-    ``AgentSpec`` and reset."""
+    ``AgentSpec`` and reset; a team policy in their place is a TypeError."""
     policies = {}
     for i, agent in enumerate(env.possible_agents):
         policy = factory(AgentSpec.from_scenario(env.scenario, i))
+        if is_team_policy(policy):
+            raise TypeError(
+                f"the per-robot factory built a team policy ({type(policy).__name__}), "
+                "which acts for the whole team from the global state: wrap its builder in "
+                "uvms_env.team_policy.TeamPolicyFactory and play it with play_team"
+            )
         policy.reset()
         policies[agent] = policy
     return policies
@@ -104,7 +122,82 @@ def play(
     """Reset ``env`` with ``seed``, build a policy per agent with ``factory`` (after the
     reset: a random scenario's geometry is drawn there) and play until the episode ends.
     ``on_reset(env, obs)`` sees the first observations; ``replay``: where to write the
-    episode's replay page. Exceptions of a policy or a hook propagate."""
+    episode's replay page. Exceptions of a policy or a hook propagate. A team policy
+    factory (``uvms_env.team_policy``) is refused: it plays with ``play_team``."""
+    if isinstance(factory, TeamPolicyFactory):
+        raise TypeError(
+            f"{factory.name} is a team policy factory (one controller for the whole team, "
+            "from the global state); play it with uvms_env.episode.play_team"
+        )
+
+    def start(env: Any) -> tuple[dict[str, Any], Callable[..., Any]]:
+        policies = build_policies(env, factory)
+        agents = list(env.agents)
+
+        def decide(obs: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray]:
+            actions, ms = {}, np.zeros(len(agents))
+            for i, agent in enumerate(agents):
+                begin = time.perf_counter()
+                policy = policies[agent]
+                action = policy.act(obs[agent])
+                ms[i] = (time.perf_counter() - begin) * 1e3
+                actions[agent] = (
+                    action if execute is None else execute(i, policy, obs[agent], action)
+                )
+            return actions, ms
+
+        return policies, decide
+
+    return _episode(env, seed, start, on_step, on_reset, replay)
+
+
+def play_team(
+    env: Any,
+    factory: TeamPolicyFactory,
+    seed: int | None = None,
+    on_step: Callable[[Step], None] | None = None,
+    on_reset: Callable[[Any, dict[str, np.ndarray]], None] | None = None,
+    replay: str | Path | None = None,
+) -> Episode:
+    """``play`` for a team policy (``uvms_env.team_policy``): built once per episode from
+    the env's scenario after the reset, it decides for every agent from ``env.state()``.
+    Decision times are per team decision: ``decision_ms`` is (steps, 1) and
+    ``policy_time_ms`` summarizes them; ``policies`` (in the episode and each ``Step``)
+    holds the team policy under the key ``TEAM``."""
+    if not isinstance(factory, TeamPolicyFactory):
+        raise TypeError(
+            f"play_team needs a uvms_env.team_policy.TeamPolicyFactory, got "
+            f"{type(factory).__name__}: a per-robot factory (AgentSpec -> Policy) plays "
+            "with uvms_env.episode.play"
+        )
+
+    def start(env: Any) -> tuple[dict[str, Any], Callable[..., Any]]:
+        team = factory(env.scenario)
+        team.reset()
+        agents = list(env.agents)
+
+        def decide(obs: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray]:
+            begin = time.perf_counter()
+            actions = team.act(env.state())
+            ms = np.array([(time.perf_counter() - begin) * 1e3])
+            a = check_team_actions(actions, len(agents))
+            return {agent: a[i] for i, agent in enumerate(agents)}, ms
+
+        return {TEAM: team}, decide
+
+    return _episode(env, seed, start, on_step, on_reset, replay)
+
+
+def _episode(
+    env: Any,
+    seed: int | None,
+    start: Callable[[Any], tuple[dict[str, Any], Callable[..., Any]]],
+    on_step: Callable[[Step], None] | None,
+    on_reset: Callable[[Any, dict[str, np.ndarray]], None] | None,
+    replay: str | Path | None,
+) -> Episode:
+    """The loop both drivers share: reset, ``start(env)`` -> (policies, decide), then
+    ``decide(obs) -> (actions, decision times)`` and ``env.step`` until the episode ends."""
     obs, _ = env.reset(seed=seed)
     if on_reset is not None:
         on_reset(env, obs)
@@ -113,22 +206,15 @@ def play(
         from uvms_env.replay import ReplayRecorder
 
         recorder = ReplayRecorder(env)
-    policies = build_policies(env, factory)
-    agents = list(env.agents)
-    if not agents:
+    policies, decide = start(env)
+    if not env.agents:
         raise RuntimeError("the environment has no agent after reset")
     times: list[np.ndarray] = []
     total_reward = 0.0
     metrics: dict[str, Any] = {}
     end = None
     while env.agents:
-        actions, ms = {}, np.zeros(len(agents))
-        for i, agent in enumerate(agents):
-            start = time.perf_counter()
-            policy = policies[agent]
-            action = policy.act(obs[agent])
-            ms[i] = (time.perf_counter() - start) * 1e3
-            actions[agent] = action if execute is None else execute(i, policy, obs[agent], action)
+        actions, ms = decide(obs)
         times.append(ms)
         obs, rewards, terms, truncs, infos = env.step(actions)
         if recorder is not None:
@@ -144,6 +230,7 @@ def play(
                 metrics, end = dict(info["metrics"]), info.get("episode_end")
     if recorder is not None:
         recorder.write(replay)
-    decision_ms = np.array(times).reshape(-1, len(agents))
+    width = len(times[0]) if times else 1
+    decision_ms = np.array(times).reshape(-1, width)
     metrics["policy_time_ms"] = decision_time_summary(decision_ms)
     return Episode(metrics, end, total_reward, decision_ms, policies)

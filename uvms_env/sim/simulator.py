@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from functools import cache
 from typing import TYPE_CHECKING
 
+import casadi as cs
 import numpy as np
 
 from uvms_env.dynamics import NP, NQ, NU, ObjectModel
@@ -56,6 +57,23 @@ def _chain(
     obj = ObjectModel(shape, ring_radius)
     chain = build_chain(n, uvms, obj, period, substeps, STABILIZATION)
     return chain, compile_function(chain.step)
+
+
+def compiled_chain(
+    n: int, shape: str, ring_radius: float, period: float, substeps: int
+) -> tuple[ChainFunctions, cs.Function]:
+    """The closed chain of ``n`` robots and its compiled period step, the very ones the
+    simulator integrates with (one build per process, the library cached on disk): for a
+    controller whose prediction model is the simulator's (``nmpc_expert.central``)."""
+    return _chain(n, shape, float(ring_radius), period, substeps)  # type: ignore[return-value]
+
+
+def grasp_parameters(scenario: Scenario) -> np.ndarray:
+    """The grasps (N, NG) as the chain's functions read them: offset l_i, then R_Oi
+    column-major (C order of this array = CasADi's NG x N)."""
+    s = scenario
+    rot = s.grasp_rotations.transpose(0, 2, 1).reshape(s.n_agents, 9)
+    return np.ascontiguousarray(np.hstack([s.grasp_offsets, rot]))
 
 
 @cache
@@ -161,9 +179,7 @@ class Simulator(RebuiltOnUnpickle):
         self._tau_wrench = np.zeros((self.n, NU))
         self._tau = np.zeros((self.n, NU))
         self._vc = np.zeros(3)
-        self._grasp = np.ascontiguousarray(
-            np.hstack([s.grasp_offsets, s.grasp_rotations.transpose(0, 2, 1).reshape(self.n, 9)])
-        )
+        self._grasp = grasp_parameters(s)
         self.nominal_parameters = np.tile(self.uvms.nominal_parameters(), (self.n, 1))
         self.nominal_object_parameters = self.object.nominal_parameters()
         self.parameters = np.zeros((self.n, NP))

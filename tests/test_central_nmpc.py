@@ -1,0 +1,202 @@
+"""The centralized NMPC (``nmpc_expert.central``) and the team-policy interface
+(``uvms_env.team_policy``, ``uvms_env.episode.play_team``): its prediction model is the
+simulator's team dynamics, team and per-robot policies cannot be mixed up, the evaluator
+marks its rows as full-information bounds, and it carries the object to the goal."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+import uvms_env
+from baselines.evaluate import aggregate, evaluate, markdown_table
+from baselines.policies import PolicySource
+from nmpc_expert import central as central_module
+from nmpc_expert.central import CentralNMPC, make_central_policy
+from uvms_env.episode import TEAM, build_policies, play, play_team
+from uvms_env.policy import AgentSpec
+from uvms_env.scenarios import make
+from uvms_env.sim.simulator import Simulator
+from uvms_env.team_policy import FULL_INFORMATION, TeamPolicyFactory
+
+
+class _StillTeam:
+    """A team policy that applies no input (no compilation: the interface tests)."""
+
+    information = FULL_INFORMATION
+
+    def __init__(self, scenario) -> None:
+        self.n = scenario.n_agents
+        self.stats: dict[str, Any] = {}
+        self.states: list[np.ndarray] = []
+
+    def reset(self) -> None:
+        self.states.clear()
+
+    def act(self, state: np.ndarray) -> np.ndarray:
+        self.states.append(np.array(state))
+        return np.zeros((self.n, 8))
+
+
+class _Zero:
+    def __init__(self, spec) -> None:
+        self.stats: dict[str, Any] = {}
+
+    def reset(self) -> None:
+        pass
+
+    def act(self, obs):
+        return np.zeros(8, np.float32)
+
+
+@pytest.fixture(scope="module")
+def short_scenario():
+    return make("short", seed=202)
+
+
+@pytest.fixture(scope="module")
+def controller(short_scenario):
+    return CentralNMPC(short_scenario)
+
+
+def test_the_prediction_model_is_the_simulators_team_dynamics(short_scenario, controller):
+    """Same state, same inputs, nominal parameters, one period: the controller's
+    prediction and the truth simulator agree to 1e-9, on states along random motion."""
+    sim = Simulator(short_scenario)
+    sim.parameters = sim.nominal_parameters.copy()
+    sim.object_parameters = sim.nominal_object_parameters.copy()
+    rng = np.random.default_rng(7)
+    compared = 0
+    for _ in range(12):
+        a = rng.uniform(-1, 1, (sim.n, 8))
+        x = sim.flat_state.copy()
+        predicted = controller.predict(x, a)
+        before = sim.refinements
+        sim.step(a * controller.tau_max)
+        if sim.refinements == before:  # a refined period is integrated in parts
+            assert np.abs(predicted - sim.flat_state).max() <= 1e-9
+            compared += 1
+    assert compared >= 10
+    assert np.abs(sim.state.zeta).max() > 1e-3  # the states moved: not only rest
+
+
+def test_the_input_reference_is_each_robots_steady_input_of_the_expert(controller):
+    """R pulls every robot towards its own a_ss (its grasp, its load share), the same
+    input reference as the distributed expert's cost."""
+    sim = Simulator(controller.scenario)
+    x = sim.flat_state.copy()
+    n, hz = controller.n, controller.horizon
+    twists = np.tile([0.1, -0.05, 0.0, 0.0, 0.0, 0.02], (hz, 1))
+    a_ss = controller._steady_inputs(np.tile(x, (hz, 1)), twists)
+    for i in range(n):
+        x_i = np.r_[x[10 * i : 10 * i + 10], x[10 * n + 10 * i : 10 * n + 10 * i + 10]]
+        own = np.array(controller._steady_fn(x_i, controller._theta[i], twists[0])).ravel()
+        assert np.allclose(a_ss[:, i], own, atol=1e-12)
+    assert not np.allclose(a_ss[0, 0], a_ss[0, 1])  # the robots' grasps differ
+
+
+def test_the_model_has_nominal_parameters_whatever_the_truth_draws():
+    scenario = make("short", seed=202, mismatch=0.2)
+    team = CentralNMPC(scenario)
+    sim = Simulator(scenario)
+    assert np.array_equal(team.model.parameters, sim.nominal_parameters)
+    assert np.array_equal(team.model.object_parameters, sim.nominal_object_parameters)
+    assert not np.array_equal(sim.parameters, sim.nominal_parameters)  # the truth differs
+
+
+def test_team_and_per_robot_policies_cannot_be_mixed_up():
+    env = uvms_env.parallel_env("short", max_cycles=3)
+    team = TeamPolicyFactory(_StillTeam, "still")
+    with pytest.raises(TypeError, match="play_team"):
+        play(env, team, seed=0)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="per-robot factory"):
+        play_team(env, _Zero, seed=0)  # type: ignore[arg-type]
+    env.reset(seed=0)
+    with pytest.raises(TypeError, match="team policy"):
+        build_policies(env, _StillTeam)  # a bare callable building a team policy
+    with pytest.raises(TypeError, match="takes the Scenario"):
+        team(AgentSpec.from_scenario(env.scenario, 0))  # type: ignore[arg-type]
+    source = PolicySource.parse("nmpc:central")
+    assert source.team and source.information == "full"
+    assert not PolicySource.parse("nmpc").team
+    with pytest.raises(TypeError, match="team policy"):
+        source.factory(0)
+    with pytest.raises(TypeError, match="per-robot"):
+        PolicySource.parse("nmpc").team_factory(0)
+    with pytest.raises(ValueError, match="safety filter"):
+        PolicySource.parse("nmpc:central+filter")
+
+
+def test_play_team_sees_the_global_state_and_times_team_decisions():
+    env = uvms_env.parallel_env("short", max_cycles=4)
+    episode = play_team(env, TeamPolicyFactory(_StillTeam), seed=0)
+    team = episode.policies[TEAM]
+    assert episode.steps == 4 and episode.decision_ms.shape == (4, 1)
+    assert len(team.states) == 4 and team.states[0].shape == env.state().shape
+    assert episode.metrics["policy_time_ms"]["max"] == pytest.approx(episode.decision_ms.max())
+    # the same loop as per-robot play: zero inputs give the same episode either way
+    alone = play(uvms_env.parallel_env("short", max_cycles=4), _Zero, seed=0)
+    assert episode.metrics["control_effort"] == alone.metrics["control_effort"]
+    assert episode.total_reward == alone.total_reward
+
+
+def test_bad_state_is_a_clear_error_and_a_failed_solve_falls_back(monkeypatch):
+    env = uvms_env.parallel_env("short", seed=202)
+    env.reset(seed=202)
+    state = env.state()
+    controller = CentralNMPC(env.scenario)
+    controller.reset()
+    with pytest.raises(ValueError, match="shape"):
+        controller.act(state[:-1])
+    bad = state.copy()
+    bad[0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        controller.act(bad)
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("solver down")
+
+    monkeypatch.setattr(central_module, "solve_daqp", broken)
+    first = controller.act(state)  # no plan yet: the steady inputs at rest
+    assert first.shape == (2, 8) and np.all(np.abs(first) <= 1)
+    assert controller.stats["status"].startswith("fallback") and controller.fallbacks == 1
+    monkeypatch.undo()
+    controller.act(state)
+    plan = controller.abar[1].copy()
+    monkeypatch.setattr(central_module, "solve_daqp", broken)
+    shifted = controller.act(state)  # the previous plan, shifted
+    assert np.allclose(shifted, plan) and controller.fallbacks == 2
+
+
+def test_the_evaluator_marks_team_rows_as_full_information():
+    rows = evaluate(
+        ["nmpc:central", "nmpc"], ["short"], 1, 202, workers=1, max_cycles=30, progress=False
+    )
+    by_policy = {r["policy"]: r for r in rows}
+    assert not any(r["error"] for r in rows), [r["error"] for r in rows]
+    assert by_policy["nmpc:central"]["information"] == "full"
+    assert by_policy["nmpc"]["information"] == "local"
+    assert by_policy["nmpc:central"]["episode_steps"] == 30
+    # one time per team decision, one per agent decision for the per-robot expert
+    assert len(by_policy["nmpc:central"]["_decision_ms"]) == 30
+    assert len(by_policy["nmpc"]["_decision_ms"]) == 60
+    # the squeeze is in the team's cost and out of every robot's reach
+    squeeze = {p: r["internal_wrench_rms"] for p, r in by_policy.items()}
+    assert squeeze["nmpc:central"] < squeeze["nmpc"]
+    table = markdown_table(aggregate(rows, 202))
+    assert "| nmpc:central | full | short |" in table
+    assert "| nmpc | local | short |" in table
+    assert "full-information bound" in table
+
+
+def test_the_central_controller_carries_the_object_to_the_goal(short_scenario):
+    """A whole ``short`` episode: the object reaches the goal within the task's tolerance,
+    no decision fell back."""
+    env = uvms_env.parallel_env("short", seed=202)
+    episode = play_team(env, make_central_policy(), seed=202)
+    team = episode.policies[TEAM]
+    assert episode.metrics["success"]
+    assert episode.metrics["final_pos_error_m"] <= short_scenario.success_pos_tol
+    assert team.fallbacks == 0
