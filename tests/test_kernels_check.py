@@ -14,8 +14,8 @@ from pathlib import Path
 import casadi as cs
 import pytest
 
-from uvms_env.vector import kernels_cuda
-from uvms_env.vector.kernels import cuda_source
+from uvms_env.vector import kernel_list, kernels_cuda
+from uvms_env.vector.kernels import BLOCK, NVRTC_OPTIONS, REGISTERS_PER_BLOCK, cuda_source
 from uvms_env.vector.kernels_check import (
     CUPY_ADDED_OPTIONS,
     CompileError,
@@ -28,7 +28,6 @@ from uvms_env.vector.kernels_check import (
     nvrtc_options,
     parse_ptxas,
 )
-from uvms_env.vector.kernels_cuda import BLOCK, NVRTC_OPTIONS, REGISTERS_PER_BLOCK
 
 TOOLS = nvidia_tools()
 needs_wheels = pytest.mark.skipif(
@@ -54,7 +53,7 @@ def test_the_check_lists_every_kernel_the_backend_compiles():
         "kinematics (noiseless)",
     ]
     step = backend_kernels(2)[0]
-    assert step.refine == kernels_cuda.period_refinement(2)
+    assert step.refine == kernel_list.period_refinement(2)
     assert backend_kernels(2)[1].fn.name().endswith("_noisy")
     assert not backend_kernels(2)[-1].fn.name().endswith("_noisy")
 

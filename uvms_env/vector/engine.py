@@ -30,15 +30,14 @@ from uvms_env.env.kinematics import (
     NK,
     obstacle_inputs,
     segment_inputs,
-    team_function,
 )
-from uvms_env.env.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT, OBSERVATION_SIZE
+from uvms_env.env.observation import OBSERVATION_SIZE
 from uvms_env.env.options import EnvSetup
-from uvms_env.env.priors import BASE_FEATURES, Priors, prior_functions
-from uvms_env.navigation.parametric import parametric_twist_function
+from uvms_env.env.priors import BASE_FEATURES, Priors
 from uvms_env.scenarios import Scenario, max_waypoints
 from uvms_env.scenarios.bank import NAV_PARAMETERS, navigation_table
 from uvms_env.sim.current import OceanCurrent
+from uvms_env.vector.kernel_list import kernel_functions
 from uvms_env.vector.kernels import BatchedFunction
 from uvms_env.vector.simulator import ENVELOPE, INACCURATE, OK, BatchedSimulator
 
@@ -49,31 +48,6 @@ DIVERGED_REASONS = {
     ),
     ENVELOPE: "a speed went beyond the model's physical envelope (SPEED_LIMITS)",
 }
-
-
-def kernel_functions(
-    n: int,
-    n_seg: int,
-    noisy: bool,
-    chain: Any,
-    wrench: bool,
-    priors_ring: float | None,
-) -> dict[str, Any]:
-    """The CasADi functions ``BatchedEngine`` batches besides the period step, by role:
-    the kinematics of ``n`` robots around an object of ``n_seg`` segments (with or without
-    sensor noise), the navigation twist, with ``wrench`` the chain's internal wrench and
-    with ``priors_ring`` (the object's ring radius) the priors' a_ss and features. One
-    list for the engine and for ``kernels_check``, which compiles them for a GPU."""
-    layout = (OBSERVATION_LAYOUT, tuple(FAR_OBSTACLE), noisy)
-    fns = {
-        "kinematics": team_function(n, n_seg, BATCH_CYLINDERS, BATCH_SPHERES, *layout),
-        "navigation": parametric_twist_function(BATCH_CYLINDERS, BATCH_SPHERES),
-    }
-    if wrench:
-        fns["wrench"] = chain.internal_wrench
-    if priors_ring is not None:
-        fns["prior_steady"], fns["prior_features"] = prior_functions(priors_ring)
-    return fns
 
 
 class BatchedEngine(Engine):

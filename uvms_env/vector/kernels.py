@@ -47,6 +47,16 @@ DTYPES = {"float64": ("double", np.float64), "float32": ("float", np.float32)}
 # glibc's vector maths (libmvec) entry points: (x86 ISA letter, width, suffix).
 _MVEC_ISA = {"avx512f": "e", "avx2": "d", "sse2": "b"}
 
+# Registers one block may use (every architecture since compute capability 3.0).
+REGISTERS_PER_BLOCK = 65536
+
+# Threads per block. Registers x BLOCK must fit a block's 65,536 (``kernels_check``: the
+# period step takes 255 registers per thread, the most there is).
+BLOCK = 128
+# What the backend asks NVRTC for through CuPy's RawModule (CuPy adds -ftz=true and the
+# architecture: ``kernels_check.nvrtc_options``).
+NVRTC_OPTIONS = ("-std=c++17",)
+
 
 @dataclass(frozen=True)
 class Signature:

@@ -37,8 +37,14 @@ from pathlib import Path
 
 import casadi as cs
 
-from uvms_env.vector.kernels import DTYPES, Refinement, cuda_source
-from uvms_env.vector.kernels_cuda import BLOCK, NVRTC_OPTIONS, REGISTERS_PER_BLOCK
+from uvms_env.vector.kernels import (
+    BLOCK,
+    DTYPES,
+    NVRTC_OPTIONS,
+    REGISTERS_PER_BLOCK,
+    Refinement,
+    cuda_source,
+)
 
 # The GPUs assumed per architecture for the local memory at full occupancy: the driver
 # reserves the kernel's stack for every thread the GPU can hold at once (SMs x resident
@@ -136,7 +142,12 @@ def _nvrtc(path: str) -> ctypes.CDLL:
     lib = ctypes.CDLL(path)
     p = ctypes.c_void_p
     lib.nvrtcCreateProgram.argtypes = [
-        ctypes.POINTER(p), ctypes.c_char_p, ctypes.c_char_p, ctypes.c_int, p, p
+        ctypes.POINTER(p),
+        ctypes.c_char_p,
+        ctypes.c_char_p,
+        ctypes.c_int,
+        p,
+        p,
     ]
     lib.nvrtcCompileProgram.argtypes = [p, ctypes.c_int, ctypes.POINTER(ctypes.c_char_p)]
     for name in ("nvrtcGetProgramLogSize", "nvrtcGetPTXSize"):
@@ -259,15 +270,14 @@ def parse_ptxas(text: str, entry: str = ENTRY) -> tuple[int, int, int, int, bool
 def backend_kernels(n_agents: int) -> tuple[Kernel, ...]:
     """Every kernel ``VectorEnv(backend="cuda")`` may compile for ``n_agents`` robots, as
     ``BatchedSimulator`` and ``BatchedEngine`` make them: the period step with the error
-    control of ``period_refinement``, then ``engine.kernel_functions`` with every option
+    control of ``period_refinement``, then ``kernel_list.kernel_functions`` with every option
     that adds one on (sensor noise, the internal wrench, the priors) and the noiseless
     kinematics. The scenario is the one ``kernels_cuda``'s cubin builder uses ("paper"
     for N = 2, else "random")."""
     from uvms_env.dynamics import ObjectModel
     from uvms_env.scenarios import make
     from uvms_env.sim.simulator import _chain
-    from uvms_env.vector.engine import kernel_functions
-    from uvms_env.vector.kernels_cuda import period_refinement
+    from uvms_env.vector.kernel_list import kernel_functions, period_refinement
 
     s = make("paper") if n_agents == 2 else make("random", n_agents=n_agents, seed=0)
     chain, _ = _chain(n_agents, s.object_shape, float(s.ring_radius), s.period, s.substeps)
@@ -298,8 +308,18 @@ def compile_report(
     t2 = time.perf_counter()
     registers, stack, stores, loads, static = parse_ptxas(text)
     return Report(
-        kernel.role, n_agents, dtype, arch, registers, stack, stores, loads, static, BLOCK,
-        t1 - t0, t2 - t1,
+        kernel.role,
+        n_agents,
+        dtype,
+        arch,
+        registers,
+        stack,
+        stores,
+        loads,
+        static,
+        BLOCK,
+        t1 - t0,
+        t2 - t1,
     )
 
 

@@ -33,7 +33,10 @@ import numpy as np
 
 from uvms_env.dynamics.compiled import cache_dir
 from uvms_env.vector.kernels import (
+    BLOCK,
     DTYPES,
+    NVRTC_OPTIONS,
+    REGISTERS_PER_BLOCK,
     Refinement,
     Signature,
     check_inputs,
@@ -42,12 +45,6 @@ from uvms_env.vector.kernels import (
 )
 from uvms_env.vector.kernels_emulated import EmulatedCudaFunction
 
-# Registers one block may use (every architecture since compute capability 3.0).
-REGISTERS_PER_BLOCK = 65536
-
-# Threads per block. Registers x BLOCK must fit a block's 65,536 (``kernels_check``: the
-# period step takes 255 registers per thread, the most there is).
-BLOCK = 128
 # The per-thread stack is left to the driver, not set here: "The driver automatically
 # increases the per-thread stack size for each kernel launch as needed" (CUDA Driver API,
 # cuCtxSetLimit, CU_LIMIT_STACK_SIZE), from the stack the loaded kernel declares
@@ -59,9 +56,6 @@ BLOCK = 128
 # -ftz=true: what CuPy passes NVRTC (below), so that a cubin built by nvcc computes as the
 # one NVRTC builds (float32 subnormals flushed to zero, as the CPU backend's float32).
 NVCC_FLAGS = ("-O3", "-std=c++17", "-ftz=true", "-diag-suppress", "177")
-# What the backend asks NVRTC for through CuPy's RawModule (CuPy adds -ftz=true and the
-# architecture: ``kernels_check.nvrtc_options``).
-NVRTC_OPTIONS = ("-std=c++17",)
 
 
 def cubin_path(source: str, sig: Signature, dtype: str, arch: str) -> Path:
@@ -194,15 +188,6 @@ def cuda_function(
     return CudaBatchedFunction(fn, dtype, int(device), refine=refine)
 
 
-def period_refinement(n: int) -> Refinement:
-    """The single simulator's error control, for the period step of ``n`` robots."""
-    from uvms_env.sim import simulator as sim
-
-    return Refinement(
-        n, sim.DRIFT_TOL_POSE, sim.DRIFT_TOL_TWIST, sim.GRASP_TOL, sim.MAX_REFINEMENTS
-    )
-
-
 def main(argv: list[str] | None = None) -> None:
     """Build the period step's cubins ahead of time (nvcc, no GPU needed), or with
     --report compile every kernel the backend launches with NVRTC and ptxas and print what
@@ -211,9 +196,7 @@ def main(argv: list[str] | None = None) -> None:
     from uvms_env.sim.simulator import _chain
 
     ap = argparse.ArgumentParser(description=main.__doc__)
-    ap.add_argument(
-        "--arch", nargs="+", default=["90"], help="compute capabilities, e.g. 80 89 90"
-    )
+    ap.add_argument("--arch", nargs="+", default=["90"], help="compute capabilities, e.g. 80 89 90")
     ap.add_argument("--n-agents", type=int, nargs="+", default=[2])
     ap.add_argument("--dtype", nargs="+", default=["float64", "float32"])
     ap.add_argument("--report", action="store_true", help="the NVRTC + ptxas check")
@@ -227,6 +210,8 @@ def main(argv: list[str] | None = None) -> None:
         except RuntimeError as exc:
             raise SystemExit(str(exc)) from None
         return
+    from uvms_env.vector.kernel_list import period_refinement
+
     for n in args.n_agents:
         s = make("paper") if n == 2 else make("random", n_agents=n, seed=0)
         chain, _ = _chain(n, s.object_shape, float(s.ring_radius), s.period, s.substeps)

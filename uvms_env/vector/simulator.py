@@ -84,7 +84,8 @@ class BatchedSimulator:
             self._fn: Any = BatchedFunction(self.chain.step, dtype, lanes)
             self.xp: Any = np
         else:
-            from uvms_env.vector.kernels_cuda import cuda_function, period_refinement
+            from uvms_env.vector.kernel_list import period_refinement
+            from uvms_env.vector.kernels_cuda import cuda_function
 
             # the error control runs inside the kernel, in the thread of each environment
             # that needs it: refining a few environments costs no extra launches

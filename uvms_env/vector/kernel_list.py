@@ -1,0 +1,50 @@
+"""The CasADi functions the batched engine compiles: one list for ``BatchedEngine`` and for
+the CUDA compile check (``kernels_check``), so that the check compiles exactly what a GPU
+would run.
+
+May import: casadi, ``uvms_env`` below ``vector`` (the ``env`` kernels, the navigation
+function, the simulator's error-control constants) and ``uvms_env.vector.kernels``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from uvms_env.env.kinematics import BATCH_CYLINDERS, BATCH_SPHERES, team_function
+from uvms_env.env.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT
+from uvms_env.env.priors import prior_functions
+from uvms_env.navigation.parametric import parametric_twist_function
+from uvms_env.sim import simulator as sim
+from uvms_env.vector.kernels import Refinement
+
+
+def kernel_functions(
+    n: int,
+    n_seg: int,
+    noisy: bool,
+    chain: Any,
+    wrench: bool,
+    priors_ring: float | None,
+) -> dict[str, Any]:
+    """The CasADi functions ``BatchedEngine`` batches besides the period step, by role:
+    the kinematics of ``n`` robots around an object of ``n_seg`` segments (with or without
+    sensor noise), the navigation twist, with ``wrench`` the chain's internal wrench and
+    with ``priors_ring`` (the object's ring radius) the priors' a_ss and features. One
+    list for the engine and for ``kernels_check``, which compiles them for a GPU."""
+    layout = (OBSERVATION_LAYOUT, tuple(FAR_OBSTACLE), noisy)
+    fns = {
+        "kinematics": team_function(n, n_seg, BATCH_CYLINDERS, BATCH_SPHERES, *layout),
+        "navigation": parametric_twist_function(BATCH_CYLINDERS, BATCH_SPHERES),
+    }
+    if wrench:
+        fns["wrench"] = chain.internal_wrench
+    if priors_ring is not None:
+        fns["prior_steady"], fns["prior_features"] = prior_functions(priors_ring)
+    return fns
+
+
+def period_refinement(n: int) -> Refinement:
+    """The single simulator's error control, for the period step of ``n`` robots."""
+    return Refinement(
+        n, sim.DRIFT_TOL_POSE, sim.DRIFT_TOL_TWIST, sim.GRASP_TOL, sim.MAX_REFINEMENTS
+    )
