@@ -149,6 +149,17 @@ def _fit_options(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+def _fit_arguments(args: argparse.Namespace) -> dict[str, Any]:
+    """What every fit of the command line shares (``bc.fit``'s keywords)."""
+    return {
+        "epochs": args.epochs,
+        "lr": args.lr,
+        "hidden": tuple(args.hidden),
+        "val_fraction": 0.05,
+        **_fit_options(args),
+    }
+
+
 def _rmse(net, obs: np.ndarray, act: np.ndarray, ring: np.ndarray) -> list[float]:
     """Per-component RMSE of ``net`` against the (clipped) expert labels."""
     err = net.predict(obs, ring) - np.clip(act, -1, 1)
@@ -164,15 +175,11 @@ def train_bc(args: argparse.Namespace) -> None:
         obs,
         act,
         ring_radius=ring,
-        epochs=args.epochs,
-        lr=args.lr,
-        hidden=tuple(args.hidden),
         features=args.features,
         seed=args.seed,
-        val_fraction=0.05,
         log_path=log,
         stage="bc",
-        **_fit_options(args),
+        **_fit_arguments(args),
     )
     info = {
         "method": "bc",
@@ -280,16 +287,12 @@ def _dagger_fit(
         obs,
         act,
         ring_radius=ring,
-        epochs=args.epochs,
-        lr=args.lr,
-        hidden=tuple(args.hidden),
         net=start_net,
         features=args.features if start_net is None else start_net.features,
         seed=args.seed + k,
-        val_fraction=0.05,
         log_path=log,
         stage=f"dagger_{k}",
-        **_fit_options(args),
+        **_fit_arguments(args),
     )
 
 

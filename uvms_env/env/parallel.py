@@ -334,14 +334,12 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
         """Observations of the simulator's current state, e.g. after ``sim.set_state`` in a
         replay or a test. Measures like a step (draws sensor noise, may advance the
         robots' waypoint sequencers) but does not advance time or touch the reward."""
-        self._engine.bind(self._engine.world)
         self._core.evaluate(..., [0], None)
         return self._observations()
 
     def constraint_values(self) -> dict[str, dict[str, float]]:
         """Constraint values of the current true state (zero actions), per agent: for
         checks and tests; it does not advance the episode."""
-        self._engine.bind(self._engine.world)
         rows = self._core.constraint_values().tolist()
         names = self._core.task.constraints
         return {
