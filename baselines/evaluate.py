@@ -56,6 +56,21 @@ def episode_seed(seed: int, scenario: str, index: int) -> int:
 
 
 @dataclass(frozen=True)
+class Case:
+    """A scenario with its own environment keywords, under a label: the rows' ``scenario``
+    (e.g. ``Case("random N=4", "random", (("n_agents", 4),))``). Episode seeds come from
+    the scenario's name, so a case plays the episodes of ``--scenario random --n-agents 4``."""
+
+    label: str
+    scenario: str
+    overrides: tuple[tuple[str, Any], ...] = ()
+
+    @classmethod
+    def of(cls, case: Case | str) -> Case:
+        return case if isinstance(case, Case) else cls(case, case)
+
+
+@dataclass(frozen=True)
 class EpisodeJob:
     policy: str
     scenario: str
@@ -65,6 +80,7 @@ class EpisodeJob:
     max_cycles: int | None
     record_path: bool
     replay: str | None = None  # where to write the episode's 3D replay page
+    label: str | None = None  # the rows' scenario (a ``Case``'s label); None: the scenario
 
 
 def run_episode(job: EpisodeJob) -> dict[str, Any]:
@@ -77,7 +93,7 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
         "policy": job.policy,
         # "full": a team policy's full-information bound, never a decentralized entry
         "information": PolicySource.parse(job.policy).information,
-        "scenario": job.scenario,
+        "scenario": job.label or job.scenario,
         "episode": job.index,
         "seed": job.seed,
         "error": "",
@@ -349,7 +365,7 @@ def write_plots(rows: list[dict[str, Any]], summaries: list[dict[str, Any]], out
 
 def evaluate(
     policies: list[str],
-    scenarios: list[str],
+    scenarios: list[str] | list[Case],
     episodes: int,
     seed: int,
     workers: int,
@@ -361,6 +377,7 @@ def evaluate(
     replay_dir: Path | None = None,
 ) -> list[dict[str, Any]]:
     """Run every (policy, scenario, episode) and return the per-episode rows, sorted.
+    ``scenarios``: names, or ``Case``s whose keywords go over ``overrides``.
     ``replay_dir``: write each policy's first episode per scenario there as a 3D replay
     page (``uvms_env.replay.replay_path``).
     ``backend``: ``process`` (a process pool of ``workers``; 1: in this process) or
@@ -374,17 +391,21 @@ def evaluate(
         require_ray()  # before the warm-up episodes
     for p in policies:
         PolicySource.parse(p)  # fail fast on a typo, before any worker starts
-    items = tuple(sorted((overrides or {}).items()))
+    cases = [Case.of(c) for c in scenarios]
+    labels = [c.label for c in cases]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"two scenarios share a label: {labels}")
     from uvms_env.replay import replay_path
 
-    def make_job(p: str, s: str, k: int) -> EpisodeJob:
-        path = replay_path(replay_dir, p, s) if replay_dir is not None and k == 0 else None
-        trail = k == 0 and s == "paper"  # the object's path, for the paper's plot
-        return EpisodeJob(
-            p, s, k, episode_seed(seed, s, k), items, max_cycles, trail, path and str(path)
-        )
+    def make_job(p: str, c: Case, k: int) -> EpisodeJob:
+        path = replay_path(replay_dir, p, c.label) if replay_dir is not None and k == 0 else None
+        trail = k == 0 and c.label == "paper"  # the object's path, for the paper's plot
+        items = tuple(sorted({**(overrides or {}), **dict(c.overrides)}.items()))
+        seed_k = episode_seed(seed, c.scenario, k)
+        path_s = path and str(path)
+        return EpisodeJob(p, c.scenario, k, seed_k, items, max_cycles, trail, path_s, c.label)
 
-    jobs = [make_job(p, s, k) for p in policies for s in scenarios for k in range(episodes)]
+    jobs = [make_job(p, c, k) for p in policies for c in cases for k in range(episodes)]
     rows: list[dict[str, Any]] = []
     bar = tqdm(total=len(jobs), desc="episodes", disable=not progress, unit="ep")
     if backend == "process" and workers <= 1:
@@ -396,8 +417,8 @@ def evaluate(
         # simulators land in the disk cache before the workers would race to build them.
         seen = set()
         for job in jobs:
-            if (job.policy, job.scenario) not in seen:
-                seen.add((job.policy, job.scenario))
+            if (job.policy, job.scenario, job.overrides) not in seen:
+                seen.add((job.policy, job.scenario, job.overrides))
                 run_episode(dataclasses.replace(job, max_cycles=1, record_path=False, replay=None))
         if backend == "ray":
             from baselines.distributed.ray_backend import run_jobs
@@ -412,7 +433,7 @@ def evaluate(
                     bar.update()
     bar.close()
     rows.sort(
-        key=lambda r: (policies.index(r["policy"]), scenarios.index(r["scenario"]), r["episode"])
+        key=lambda r: (policies.index(r["policy"]), labels.index(r["scenario"]), r["episode"])
     )
     return rows
 

@@ -39,9 +39,14 @@ when the solution violates them (``_solve_screened``: the answer is the full QP'
 A failed solve never raises: the previous plan shifted (or, with none, the robots'
 steady inputs at rest) is applied and counted as a fallback.
 
-Not modelled (this is the nominal-model bound): the current, parameter mismatch and
-sensor noise of a scenario; no disturbance observer or goal integral (the distributed
-expert's answers to its local model's error, which this model does not have).
+Not modelled: the current, parameter mismatch and sensor noise of a scenario. The
+expert's goal integral (``reference.GoalIntegral``) removes what is left of their
+steady offset at the goal (R pulls towards the nominal steady inputs). What they
+do is estimated instead, as offset-free MPC does: the measured state minus the model's
+one-period prediction from the previous state and inputs, low-pass filtered
+(``DISTURBANCE_GAIN``), is added to every predicted period (an additive state
+disturbance, constant over the horizon). It needs only the global state sequence, which
+a team policy has; with no current and no mismatch it stays at zero up to round-off.
 
 May import: numpy, casadi, ``uvms_env`` and this package (``central_model``,
 ``policy``, ``reference``, ``rti``, ``settings``, ``ocp``).
@@ -56,7 +61,7 @@ import numpy as np
 
 from nmpc_expert.central_model import CentralFunctions, central_functions
 from nmpc_expert.policy import constraint_bounds, local_parameters
-from nmpc_expert.reference import HorizonReference
+from nmpc_expert.reference import GoalIntegral, HorizonReference
 from nmpc_expert.rti import FEASIBILITY_TOL, SOFT, solve_daqp
 from nmpc_expert.settings import NMPCSettings
 from uvms_env.dynamics import NQ, NU, ObjectModel
@@ -80,6 +85,13 @@ SQUEEZE_WEIGHT = 0.01
 # A soft row enters the QP only while its value at the current plan is within this much
 # (normalized: a fraction of its limit) of a bound; see ``CentralNMPC._solve_screened``.
 SCREEN_MARGIN = 0.3
+# Low-pass gain per period of the additive state disturbance (the one-period prediction
+# error): 0.3 settles in ~10 periods (1.2 s), far faster than the current changes, while
+# averaging the error's period-to-period jitter (contact of the closed chain, integrator).
+DISTURBANCE_GAIN = 0.3
+# Ridge of the disturbance-cancelling input (``_cancelling_input``), relative to the
+# mean squared input sensitivity.
+RIDGE = 1e-3
 # Relative forward-difference step of the state Jacobian (``central_model``).
 FD_STEP = 1e-6
 # The expert's per-robot soft constraints (``ocp.CONSTRAINT_NAMES``) without the object
@@ -151,11 +163,18 @@ class CentralNMPC:
         self._tau = np.zeros((n, NU))
         self._x_in = np.zeros(self.nx)
         self._a0 = np.zeros((n, NU))
+        self.disturbance = np.zeros(self.nx)  # additive per period (see module docstring)
+        self._previous: tuple[np.ndarray, np.ndarray] | None = None
+        o = 2 * NQ * n
+        self._velocity_rows = np.r_[NQ * n : 2 * NQ * n, o + 6 : o + 12]
+        # Euler angles: each vehicle's q[3:6], the object pose's [3:6]
+        self._angles = np.r_[[NQ * i + j for i in range(n) for j in (3, 4, 5)], o + 3, o + 4, o + 5]
         self._eps = np.array([FD_STEP])
         self.navigator = task_navigator(
             scenario.waypoints, scenario.workspace, scenario.obstacles, scenario.team_radius
         )
         self.reference = HorizonReference(self.navigator, hz, s.period, s.attitude_from_waypoint)
+        self.goal = GoalIntegral(s, scenario.waypoints)
         self._wp = np.ascontiguousarray(scenario.waypoints, dtype=float)
         self._structure = state_structure(n)
         # soft constraints, normalized: per node, robot-major 16 rows, then the object pitch
@@ -193,6 +212,9 @@ class CentralNMPC:
         self.has_plan = False
         self.xbar[:] = 0.0
         self.abar[:] = 0.0
+        self.disturbance[:] = 0.0
+        self._previous = None
+        self.goal.reset()
         self.stats = {}
         self.fallbacks = 0
         self.decisions = 0
@@ -201,6 +223,7 @@ class CentralNMPC:
         """One team decision from the global state (``state_structure``): (N, 8)."""
         start = time.perf_counter()
         x0, index = self._measure(state)
+        self._estimate(x0)
         status, info = "ok", {}
         try:
             self._shift(x0)
@@ -211,6 +234,7 @@ class CentralNMPC:
             status = f"fallback: {type(err).__name__}: {err}"
             action = self._fallback(x0)
         action = np.clip(action, -1.0, 1.0)
+        self._previous = (x0, action)
         self.decisions += 1
         elapsed = (time.perf_counter() - start) * 1e3
         self.stats = {
@@ -219,6 +243,7 @@ class CentralNMPC:
             "fallbacks": self.fallbacks,
             "waypoint_index": index,
             "slow": elapsed > self.settings.fallback_after_ms,
+            "disturbance_max": float(np.abs(self.disturbance).max()),
             **{k: v for k, v in info.items() if k != "status"},
         }
         return action
@@ -277,6 +302,15 @@ class CentralNMPC:
             self.abar[:] = self._steady_inputs(x0[None], np.zeros((1, 6)))[0]
         self.xbar[0] = x0
 
+    def _estimate(self, x0: np.ndarray) -> None:
+        """Filter the one-period prediction error into the additive disturbance."""
+        if self._previous is None:
+            return
+        error = x0 - self._predict(*self._previous)
+        error[self._angles] = wrap_angle(error[self._angles])  # yaw may cross +-pi
+        if np.all(np.isfinite(error)):  # a diverged prediction must not poison the plan
+            self.disturbance += DISTURBANCE_GAIN * (error - self.disturbance)
+
     def _predict(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
         """The simulator's period step from ``x`` under normalized inputs ``a`` (N, 8)."""
         self._x_in[:] = x
@@ -293,6 +327,19 @@ class CentralNMPC:
         if x.shape != (self.nx,) or a.shape != (self.n, NU):
             raise ValueError(f"expected x ({self.nx},) and a ({self.n}, {NU})")
         return self._predict(x, a)
+
+    def _cancelling_input(self, gam: np.ndarray) -> np.ndarray:
+        """The input change (N*8,) whose one-period effect on the velocities (every
+        robot's zeta and the object's twist) best cancels the estimated disturbance's,
+        in least squares with a small ridge (directions the inputs barely reach stay
+        unused)."""
+        if not self.disturbance.any():
+            return np.zeros(self.nu)
+        rows = self._velocity_rows
+        g = gam[rows]
+        ridge = RIDGE * np.trace(g.T @ g) / self.nu
+        rhs = -g.T @ self.disturbance[rows]
+        return np.linalg.solve(g.T @ g + ridge * np.eye(self.nu), rhs)
 
     def _constraint_selectors(self) -> tuple[np.ndarray, list[np.ndarray]]:
         """State index of every soft row that reads one state entry (-1 for the
@@ -312,10 +359,12 @@ class CentralNMPC:
         n, hz, nx, nu = self.n, self.horizon, self.nx, self.nu
         x_o = x0[self._pose]
         xd, vd = self.reference(x_o, index)
+        xd = xd + self.goal.shift(x_o, index)
         # defects of the exact step along the plan
         defects = np.empty((hz, nx))
         for k in range(hz):
-            defects[k] = self._predict(self.xbar[k], self.abar[k]) - self.xbar[k + 1]
+            step = self._predict(self.xbar[k], self.abar[k]) + self.disturbance
+            defects[k] = step - self.xbar[k + 1]
         # one compiled call: rhs Jacobians at x0, squeeze along the plan, manipulability
         self._a0[:] = self.abar[0]
         self._a_nodes[:hz] = self.abar
@@ -340,6 +389,9 @@ class CentralNMPC:
         a_ref = np.zeros(hz * nu)  # input_reference "zero": the paper's |a|^2_R
         if self.settings.input_reference == "steady_state":
             a_ref = self._steady_inputs(self.xbar[:hz], vd[:hz]).reshape(-1)
+            # offset-free: the steady inputs also cancel the estimated disturbance, or R
+            # would pull towards inputs that leave it uncompensated (a steady offset)
+            a_ref += np.tile(self._cancelling_input(gam), hz)
         f_vec = 2.0 * np.tile(self._r_u, hz) * (self.abar.reshape(-1) - a_ref)
         # the squeeze of every interval: W_k + Wu da_k (state dependence dropped)
         wu = wu_t.T  # (6n, nu)

@@ -27,13 +27,12 @@ import numpy as np
 
 from nmpc_expert.observation import OBSERVATION_STRUCTURE, check_observation
 from nmpc_expert.ocp import NC, WEIGHT_OFFSETS, ocp_functions, weight_vector
-from nmpc_expert.reference import HorizonReference
+from nmpc_expert.reference import GoalIntegral, HorizonReference
 from nmpc_expert.rti import ExtraRows, RTISolver
 from nmpc_expert.settings import NMPCSettings, controller_settings
 from uvms_env.dynamics import NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall
 from uvms_env.dynamics.local_model import NX, ModelParams
-from uvms_env.dynamics.spatial import wrap_angle
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.navigation import WaypointNavigator, task_navigator
 from uvms_env.policy import AgentSpec
@@ -305,16 +304,13 @@ class NMPCPolicy(LocalController):
             self.navigator, s.horizon, s.period, s.attitude_from_waypoint
         )
         self._object_state = BufferCall(self.funcs.object_state)
-        self.goal_integral = np.zeros(6)  # I, integral of the object's pose error at the goal
-        self._goal_integral_clip = np.repeat(  # |I| bound per axis from the |k_i I| limits
-            [s.goal_integral_limit, s.goal_integral_angle_limit], 3
-        ) / max(s.goal_integral_gain, 1e-12)
+        self.goal = GoalIntegral(s, spec.waypoints)
         self._wp = np.ascontiguousarray(spec.waypoints, dtype=float)
 
     # -- Policy protocol -----------------------------------------------------------------
     def reset(self) -> None:
         super().reset()
-        self.goal_integral[:] = 0.0
+        self.goal.reset()
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         start = time.perf_counter()
@@ -322,8 +318,7 @@ class NMPCPolicy(LocalController):
         index = self._waypoint_index(o[OBSERVATION_STRUCTURE["waypoint"]])
         x_o, _ = self._object_state(self._x0, self.theta)
         xd, vd = self.reference(x_o, index)
-        self.solver.xd[:] = xd
-        self._goal_integral_action(x_o, index)
+        self.solver.xd[:] = xd + self.goal.shift(x_o, index)
         self.solver.vd[:] = vd
         status, info = "ok", {}
         try:
@@ -362,20 +357,6 @@ class NMPCPolicy(LocalController):
             self.solver.a_prev = np.clip(np.asarray(action, dtype=np.float64).reshape(-1), -1, 1)
 
     # -- helpers ----------------------------------------------------------------------------
-    def _goal_integral_action(self, x_o: np.ndarray, index: int) -> None:
-        """Integral action near the last waypoint (``goal_integral_gain``): the pose
-        reference of the horizon (position and Euler angles) moves by -k_i I."""
-        s = self.settings
-        if s.goal_integral_gain == 0 or index != len(self._wp) - 1:
-            return
-        pose = x_o.reshape(-1)
-        att = wrap_angle(pose[3:] - self._wp[index, 3:])
-        err = np.concatenate([pose[:3] - self._wp[index, :3], att])
-        if np.linalg.norm(err[:3]) < s.goal_integral_radius:
-            lim = self._goal_integral_clip
-            self.goal_integral[:] = np.clip(self.goal_integral + s.period * err, -lim, lim)
-        self.solver.xd[:] -= s.goal_integral_gain * self.goal_integral
-
     def _waypoint_index(self, waypoint: np.ndarray) -> int:
         """Which of the mission's waypoints the observation's active waypoint is (float32
         observations: match to 1e-3)."""

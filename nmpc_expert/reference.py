@@ -18,7 +18,11 @@ The propagation is one small CasADi function per waypoint, evaluated by the virt
 machine through the zero-copy buffer interface (a few microseconds; no compilation, so a
 new scenario costs nothing).
 
-May import: numpy, casadi, ``uvms_env.navigation`` and ``uvms_env.dynamics``.
+``GoalIntegral``: the integral action near the last waypoint that both the distributed
+expert and the centralized NMPC apply to this reference.
+
+May import: numpy, casadi, ``nmpc_expert.settings``, ``uvms_env.navigation`` and
+``uvms_env.dynamics``.
 """
 
 from __future__ import annotations
@@ -26,8 +30,9 @@ from __future__ import annotations
 import casadi as cs
 import numpy as np
 
+from nmpc_expert.settings import NMPCSettings
 from uvms_env.dynamics.compiled import BufferCall
-from uvms_env.dynamics.spatial import rot_zyx
+from uvms_env.dynamics.spatial import rot_zyx, wrap_angle
 from uvms_env.navigation import WaypointNavigator
 
 
@@ -78,3 +83,36 @@ class HorizonReference:
         self._x0[:] = x_o
         xd, vd = self._calls[index](self._x0)
         return xd, vd
+
+
+class GoalIntegral:
+    """Integral action near the last waypoint (``goal_integral_gain``): within
+    ``goal_integral_radius`` of it the object's pose error (position and wrapped Euler
+    angles) is integrated, clipped so that ``|k_i I|`` stays within
+    ``goal_integral_limit`` / ``goal_integral_angle_limit``, and the horizon's pose
+    reference moves by ``-k_i I``: a steady force the model lacks (a current, a
+    mismatched buoyancy) cannot leave a steady offset at the goal."""
+
+    def __init__(self, settings: NMPCSettings, waypoints: np.ndarray) -> None:
+        self.gain = settings.goal_integral_gain
+        self.radius = settings.goal_integral_radius
+        self.period = settings.period
+        self.integral = np.zeros(6)
+        limits = [settings.goal_integral_limit, settings.goal_integral_angle_limit]
+        self._clip = np.repeat(limits, 3) / max(self.gain, 1e-12)
+        self._wp = np.ascontiguousarray(waypoints, dtype=float)
+
+    def reset(self) -> None:
+        self.integral[:] = 0.0
+
+    def shift(self, x_o: np.ndarray, index: int) -> np.ndarray:
+        """Update the integral with the pose ``x_o`` while heading to waypoint ``index``
+        and return the reference's shift (6,): ``-k_i I`` (zero before the last one)."""
+        if self.gain == 0 or index != len(self._wp) - 1:
+            return np.zeros(6)
+        pose = np.asarray(x_o, dtype=float).reshape(-1)
+        att = wrap_angle(pose[3:] - self._wp[index, 3:])
+        err = np.concatenate([pose[:3] - self._wp[index, :3], att])
+        if np.linalg.norm(err[:3]) < self.radius:
+            self.integral[:] = np.clip(self.integral + self.period * err, -self._clip, self._clip)
+        return -self.gain * self.integral

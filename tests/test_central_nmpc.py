@@ -200,3 +200,37 @@ def test_the_central_controller_carries_the_object_to_the_goal(short_scenario):
     assert episode.metrics["success"]
     assert episode.metrics["final_pos_error_m"] <= short_scenario.success_pos_tol
     assert team.fallbacks == 0
+
+
+class _Recording(CentralNMPC):
+    """The centralized NMPC, keeping the states it saw and the actions it took."""
+
+    def __init__(self, scenario) -> None:
+        super().__init__(scenario)
+        self.seen: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def act(self, state: np.ndarray) -> np.ndarray:
+        action = super().act(state)
+        self.seen.append((np.array(state[: self.nx]), action))
+        return action
+
+
+def test_the_disturbance_estimate_is_the_prediction_error_it_filters():
+    """With the truth at the nominal parameters and no current the one-period prediction
+    error is round-off (the env's float32 actions, refined periods), so the estimate stays
+    near zero; under mismatch it is the filtered error of the model, recomputed here from
+    the states the controller saw, and orders of magnitude larger."""
+    largest = {}
+    for mismatch in (0.0, 0.2):
+        env = uvms_env.parallel_env("short", seed=202, mismatch=mismatch, max_cycles=6)
+        episode = play_team(env, TeamPolicyFactory(_Recording), seed=202)
+        team = episode.policies[TEAM]
+        expected = np.zeros(team.nx)
+        for (x0, a0), (x1, _) in zip(team.seen, team.seen[1:], strict=False):
+            error = x1 - team.predict(x0, a0)
+            error[team._angles] = (error[team._angles] + np.pi) % (2 * np.pi) - np.pi
+            expected += central_module.DISTURBANCE_GAIN * (error - expected)
+        assert np.allclose(team.disturbance, expected, atol=1e-12)
+        largest[mismatch] = np.abs(team.disturbance).max()
+    assert largest[0.0] < 1e-6
+    assert largest[0.2] > 100 * largest[0.0]

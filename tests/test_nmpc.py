@@ -291,19 +291,16 @@ def test_goal_integral_moves_the_reference_against_a_steady_offset(env):
     err = np.array([0.2, -0.1, 0.0, 0.05, 0.0, -0.02])  # position and Euler-angle error
     x_o = spec.waypoints[last] + err
     for k in range(1, 4):
-        pol.solver.xd[:] = 0.0
-        pol._goal_integral_action(x_o, last)
         expected = -s.goal_integral_gain * k * s.period * err
-        np.testing.assert_allclose(pol.solver.xd, np.tile(expected, (6, 1)), atol=1e-12)
+        np.testing.assert_allclose(pol.goal.shift(x_o, last), expected, atol=1e-12)
     for _ in range(10_000):  # windup is clipped
-        pol._goal_integral_action(x_o, last)
-    shift = np.abs(s.goal_integral_gain * pol.goal_integral)
+        pol.goal.shift(x_o, last)
+    shift = np.abs(s.goal_integral_gain * pol.goal.integral)
     assert np.all(shift[:3] <= s.goal_integral_limit + 1e-12)
     assert np.all(shift[3:] <= s.goal_integral_angle_limit + 1e-12)
     pol.reset()
-    pol.solver.xd[:] = 0.0
-    pol._goal_integral_action(x_o, 0)  # not the last waypoint: nothing happens
+    assert not pol.goal.shift(x_o, 0).any()  # not the last waypoint: nothing happens
     far = x_o.copy()
     far[:3] += 1.0
-    pol._goal_integral_action(far, last)  # beyond the radius: no integration
-    assert not pol.solver.xd.any() and not pol.goal_integral.any()
+    assert not pol.goal.shift(far, last).any()  # beyond the radius: no integration
+    assert not pol.goal.integral.any()

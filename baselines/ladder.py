@@ -1,0 +1,349 @@
+"""The ladder: every rung from full information to learned policies, on the same episodes.
+
+    python -m baselines.ladder --episodes 10 --seed 202 --workers 2 --out runs/ladder
+
+One evaluation (``baselines.evaluate``) of the rungs ``LADDER`` on the cases random
+N = 2..6 and ``paper``, all with a ``mild`` current and ``mismatch=0.1`` by default;
+then two comparisons per team size on the paired episodes (same seed, same geometry):
+
+* the **price of decentralization**: each distributed expert against the centralized
+  bound (``nmpc:central``, a team policy with full information);
+* the **price of learning**: each learned rung against the distributed expert (``nmpc``).
+
+Each price is given for completion time (periods to success), internal wrench RMS and
+control effort, as the mean difference over the episodes both rungs succeeded in (a
+bootstrap 95% interval) and the ratio of their means; success rates come with Wilson
+intervals. Writes the evaluator's outputs (``episodes.csv``, ``results.*``, plots) and
+``ladder.md``, ``ladder.json`` and ``price_vs_n.png`` to ``--out``.
+
+May import: the standard library, numpy, matplotlib and ``baselines.evaluate`` /
+``baselines.stats``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from baselines.evaluate import Case, evaluate, write_outputs
+from baselines.stats import bootstrap_mean_interval, wilson_interval
+
+CENTRAL = "nmpc:central"
+EXPERT = "nmpc"
+# rungs, top (most information) to bottom; the learned ones with and without the filter
+LADDER = (
+    CENTRAL,
+    EXPERT,  # the distributed expert with its disturbance observer (default)
+    "nmpc:paper",  # the paper's controller
+    "dagger:pretrained",
+    "dagger:pretrained+filter",
+    "ppo:pretrained",  # PPO-Lagrangian fine-tuned from the DAgger clone
+    "ppo:pretrained+filter",
+)
+TEAM_SIZES = (2, 3, 4, 5, 6)
+CONDITIONS = {"current": "mild", "mismatch": 0.1}
+# what a price compares: per-episode metric -> the row's key
+PRICED = {
+    "completion periods": "completion_periods",
+    "internal wrench rms": "internal_wrench_rms",
+    "control effort": "control_effort",
+}
+
+
+def cases(team_sizes: tuple[int, ...] = TEAM_SIZES, paper: bool = True) -> list[Case]:
+    out = [Case(f"random N={n}", "random", (("n_agents", n),)) for n in team_sizes]
+    return [*out, Case("paper", "paper")] if paper else out
+
+
+def _completion(row: dict[str, Any]) -> float:
+    """Periods to success; NaN for an episode that did not succeed."""
+    return float(row.get("episode_steps", np.nan)) if row.get("success") else float("nan")
+
+
+def _values(rows: list[dict[str, Any]], key: str) -> np.ndarray:
+    if key == "completion_periods":
+        return np.array([_completion(r) for r in rows])
+    return np.array([float(r.get(key, np.nan) or np.nan) for r in rows])
+
+
+def rung_summary(rows: list[dict[str, Any]], seed: int) -> dict[str, Any]:
+    """One rung on one case: rates with Wilson, metrics' means with bootstrap intervals
+    (completion time over the successes, the others over every episode that ran)."""
+    reach = [r for r in rows if r.get("current_within_reach", True)]
+    n = len(reach)
+    out: dict[str, Any] = {
+        "policy": rows[0]["policy"],
+        "information": rows[0].get("information", "local"),
+        "scenario": rows[0]["scenario"],
+        "episodes": len(rows),
+        "out_of_reach": len(rows) - n,
+        "errors": sum(bool(r.get("error")) for r in rows),
+    }
+    for name in ("success", "clean_success"):
+        k = sum(bool(r.get(name)) for r in reach)
+        out[name] = k
+        out[f"{name}_rate"] = k / n if n else float("nan")
+        out[f"{name}_ci95"] = list(wilson_interval(k, n))
+    for key in (*PRICED.values(), "violation_periods"):
+        vals = _values(reach, key)
+        finite = vals[np.isfinite(vals)]
+        out[key] = float(finite.mean()) if len(finite) else None
+        out[f"{key}_ci95"] = list(bootstrap_mean_interval(vals, seed=seed)) if len(finite) else None
+    ms = np.concatenate([np.asarray(r.get("_decision_ms", []), float) for r in rows] or [[]])
+    out["decision_ms_median"] = float(np.median(ms)) if len(ms) else None
+    out["decision_ms_p95"] = float(np.quantile(ms, 0.95)) if len(ms) else None
+    return out
+
+
+def price(
+    rows: list[dict[str, Any]], rung: str, reference: str, case: str, seed: int
+) -> dict[str, Any]:
+    """``rung`` against ``reference`` on ``case``'s paired episodes: per priced metric the
+    mean difference (rung minus reference) over the episodes both succeeded in, its
+    bootstrap interval, and the ratio of the two means; and the success-rate difference."""
+    mine = {r["episode"]: r for r in rows if r["policy"] == rung and r["scenario"] == case}
+    ref = {r["episode"]: r for r in rows if r["policy"] == reference and r["scenario"] == case}
+    both = sorted(
+        k
+        for k in mine.keys() & ref.keys()
+        if mine[k].get("success")
+        and ref[k].get("success")
+        and mine[k].get("current_within_reach", True)
+    )
+    reach = [k for k in mine.keys() & ref.keys() if mine[k].get("current_within_reach", True)]
+    out: dict[str, Any] = {
+        "rung": rung,
+        "reference": reference,
+        "scenario": case,
+        "paired_successes": len(both),
+        "success_difference": (
+            (
+                sum(bool(mine[k].get("success")) for k in reach)
+                - sum(bool(ref[k].get("success")) for k in reach)
+            )
+            / len(reach)
+            if reach
+            else None
+        ),
+    }
+    for name, key in PRICED.items():
+        a = _values([mine[k] for k in both], key)
+        b = _values([ref[k] for k in both], key)
+        ok = np.isfinite(a) & np.isfinite(b)
+        if not ok.any():
+            out[name] = None
+            continue
+        diff = a[ok] - b[ok]
+        out[name] = {
+            "difference": float(diff.mean()),
+            "difference_ci95": list(bootstrap_mean_interval(diff, seed=seed)),
+            "ratio": float(a[ok].mean() / b[ok].mean()) if b[ok].mean() != 0 else None,
+        }
+    return out
+
+
+def ladder(
+    rows: list[dict[str, Any]], policies: list[str], labels: list[str], seed: int
+) -> dict[str, Any]:
+    """The ladder's summaries and prices from the evaluator's rows."""
+    rungs = [
+        rung_summary(group, seed)
+        for p in policies
+        for c in labels
+        if (group := [r for r in rows if r["policy"] == p and r["scenario"] == c])
+    ]
+    distributed = [p for p in policies if p.startswith("nmpc") and p != CENTRAL]
+    learned = [p for p in policies if not p.startswith("nmpc")]
+    prices = {
+        "decentralization": [
+            price(rows, p, CENTRAL, c, seed)
+            for c in labels
+            for p in distributed
+            if CENTRAL in policies
+        ],
+        "learning": [
+            price(rows, p, EXPERT, c, seed) for c in labels for p in learned if EXPERT in policies
+        ],
+    }
+    return {"rungs": rungs, "prices": prices}
+
+
+def _f(x: Any, digits: int = 2) -> str:
+    if x is None or (isinstance(x, float) and not np.isfinite(x)):
+        return "n/a"
+    return f"{x:,.{digits}f}" if isinstance(x, float) else str(x)
+
+
+def _mean_ci(s: dict[str, Any], key: str, digits: int) -> str:
+    ci = s.get(f"{key}_ci95")
+    if s.get(key) is None:
+        return "n/a"
+    return f"{_f(s[key], digits)} [{_f(ci[0], digits)}, {_f(ci[1], digits)}]"
+
+
+def markdown(result: dict[str, Any]) -> str:
+    lines = [
+        "| scenario | policy | information | success | clean success | completion periods "
+        "| internal wrench rms N | control effort | violation periods / ep. "
+        "| decision ms median / p95 |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    # grouped by case (random N = 2..6, then paper), rungs in ladder order within each
+    for s in sorted(result["rungs"], key=lambda s: (s["scenario"] == "paper", s["scenario"])):
+        n = s["episodes"] - s["out_of_reach"]
+        rate = (
+            f"{s['success']}/{n} [{_f(s['success_ci95'][0])}, {_f(s['success_ci95'][1])}]"
+            if n
+            else "n/a"
+        )
+        clean = f"{s['clean_success']}/{n}" if n else "n/a"
+        lines.append(
+            f"| {s['scenario']} | `{s['policy']}` | {s['information']} | {rate} | {clean} | "
+            f"{_mean_ci(s, 'completion_periods', 0)} | {_mean_ci(s, 'internal_wrench_rms', 2)} | "
+            f"{_mean_ci(s, 'control_effort', 0)} | {_f(s.get('violation_periods'), 1)} | "
+            f"{_f(s['decision_ms_median'], 3)} / {_f(s['decision_ms_p95'], 3)} |"
+        )
+    for kind, rows in result["prices"].items():
+        if not rows:
+            continue
+        lines += [
+            "",
+            f"Price of {kind} (rung minus reference on the episodes both succeeded in: mean "
+            "difference [95% CI], ratio of means):",
+            "",
+            "| scenario | rung | reference | paired | success difference | "
+            + " | ".join(PRICED)
+            + " |",
+            "|---|---|---|---|---|" + "---|" * len(PRICED),
+        ]
+        for p in rows:
+            cells = []
+            for name in PRICED:
+                v = p[name]
+                cells.append(
+                    "n/a"
+                    if v is None
+                    else f"{_f(v['difference'])} [{_f(v['difference_ci95'][0])}, "
+                    f"{_f(v['difference_ci95'][1])}], x{_f(v['ratio'])}"
+                )
+            lines.append(
+                f"| {p['scenario']} | `{p['rung']}` | `{p['reference']}` | "
+                f"{p['paired_successes']} | {_f(p['success_difference'])} | "
+                + " | ".join(cells)
+                + " |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def plot_prices(result: dict[str, Any], out: Path) -> None:
+    """Ratio of means (rung / reference) against the team size, one panel per metric."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(PRICED), figsize=(4.2 * len(PRICED), 3.4), sharex=True)
+    for ax, name in zip(np.atleast_1d(axes), PRICED, strict=True):
+        for kind, style in (("decentralization", "-o"), ("learning", "--s")):
+            by_rung: dict[str, list[tuple[int, float]]] = {}
+            for p in result["prices"][kind]:
+                if not p["scenario"].startswith("random N=") or p[name] is None:
+                    continue
+                if p[name]["ratio"] is None:
+                    continue
+                n = int(p["scenario"].split("=")[1])
+                by_rung.setdefault(f"{p['rung']} / {p['reference']}", []).append(
+                    (n, p[name]["ratio"])
+                )
+            for label, pts in by_rung.items():
+                pts.sort()
+                ax.plot(*zip(*pts, strict=True), style, label=label)
+        ax.axhline(1.0, color="k", lw=0.8)
+        ax.set_title(name)
+        ax.set_xlabel("robots N (random family)")
+        ax.set_ylabel("ratio of means")
+    first = np.atleast_1d(axes)[0]
+    if first.get_legend_handles_labels()[0]:  # nothing priced (e.g. no success): no legend
+        first.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "price_vs_n.png", dpi=120)
+    plt.close(fig)
+
+
+def run(
+    policies: list[str],
+    team_sizes: tuple[int, ...],
+    paper: bool,
+    episodes: int,
+    seed: int,
+    workers: int,
+    out: Path,
+    conditions: dict[str, Any] | None = None,
+    max_cycles: int | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Evaluate the rungs on the cases, write every output, return the ladder."""
+    chosen = cases(team_sizes, paper)
+    rows = evaluate(
+        policies,
+        chosen,
+        episodes,
+        seed,
+        workers,
+        dict(CONDITIONS if conditions is None else conditions),
+        max_cycles,
+        progress=progress,
+    )
+    write_outputs(rows, seed, out)
+    result = ladder(rows, policies, [c.label for c in chosen], seed)
+    result["command"] = {
+        "episodes": episodes,
+        "seed": seed,
+        "conditions": CONDITIONS if conditions is None else conditions,
+        "max_cycles": max_cycles,
+    }
+    (out / "ladder.json").write_text(json.dumps(result, indent=2))
+    (out / "ladder.md").write_text(markdown(result))
+    plot_prices(result, out)
+    return result
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(
+        prog="python -m baselines.ladder",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("--policy", action="append", default=None, help=f"rungs (default {LADDER})")
+    ap.add_argument("--n-agents", type=int, nargs="+", default=list(TEAM_SIZES))
+    ap.add_argument("--no-paper", action="store_true", help="leave the paper scenario out")
+    ap.add_argument("--episodes", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=202, help="held out: used by no training")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--current", default=CONDITIONS["current"], choices=["none", "mild", "strong"])
+    ap.add_argument("--mismatch", type=float, default=CONDITIONS["mismatch"])
+    ap.add_argument("--max-cycles", type=int, default=None)
+    ap.add_argument("--out", type=Path, default=Path("runs/ladder"))
+    args = ap.parse_args(argv)
+    policies = args.policy or list(LADDER)
+    result = run(
+        policies,
+        tuple(args.n_agents),
+        not args.no_paper,
+        args.episodes,
+        args.seed,
+        args.workers,
+        args.out,
+        {"current": args.current, "mismatch": args.mismatch},
+        args.max_cycles,
+    )
+    print(markdown(result))
+    print(f"wrote {args.out}/ladder.md, ladder.json, price_vs_n.png and the evaluator's outputs")
+
+
+if __name__ == "__main__":
+    main()

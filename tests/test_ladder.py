@@ -1,0 +1,93 @@
+"""The ladder command (``baselines.ladder``): its prices are the paired differences of
+the evaluator's rows, and it runs end to end on a short case."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from baselines.evaluate import Case, episode_seed, evaluate
+from baselines.ladder import PRICED, cases, ladder, main, price
+
+
+def _row(policy: str, episode: int, success: bool, steps: int, wrench: float, effort: float):
+    return {
+        "policy": policy,
+        "information": "full" if policy == "nmpc:central" else "local",
+        "scenario": "random N=3",
+        "episode": episode,
+        "success": success,
+        "clean_success": success,
+        "episode_steps": steps,
+        "internal_wrench_rms": wrench,
+        "control_effort": effort,
+        "violation_periods": 0,
+        "current_within_reach": True,
+        "error": "",
+        "_decision_ms": [1.0, 2.0],
+    }
+
+
+def test_prices_are_paired_differences_over_the_episodes_both_succeeded_in():
+    central = [(True, 500, 2.0, 100.0), (True, 600, 3.0, 120.0), (True, 700, 1.0, 90.0)]
+    expert = [(True, 550, 4.0, 110.0), (False, 3000, 9.0, 500.0), (True, 800, 2.0, 99.0)]
+    rows = [_row("nmpc:central", k, *v) for k, v in enumerate(central)]
+    rows += [_row("nmpc", k, *v) for k, v in enumerate(expert)]
+    p = price(rows, "nmpc", "nmpc:central", "random N=3", seed=0)
+    assert p["paired_successes"] == 2  # episode 1: the expert failed, not compared
+    assert p["success_difference"] == pytest.approx(-1 / 3)
+    time = p["completion periods"]
+    assert time["difference"] == pytest.approx(((550 - 500) + (800 - 700)) / 2)
+    assert time["ratio"] == pytest.approx((550 + 800) / (500 + 700))
+    lo, hi = time["difference_ci95"]
+    assert 50 <= lo <= hi <= 100  # a bootstrap of the two paired differences
+    assert p["internal wrench rms"]["ratio"] == pytest.approx((4 + 2) / (2 + 1))
+    result = ladder(rows, ["nmpc:central", "nmpc"], ["random N=3"], seed=0)
+    expert_rung = next(s for s in result["rungs"] if s["policy"] == "nmpc")
+    assert expert_rung["success"] == 2 and expert_rung["completion_periods"] == 675.0
+    assert [q["rung"] for q in result["prices"]["decentralization"]] == ["nmpc"]
+    assert result["prices"]["learning"] == []  # no learned rung here
+
+
+def test_a_case_plays_the_episodes_of_the_plain_evaluator_command():
+    """``Case("random N=3", "random", n_agents=3)`` gives the rows of
+    ``--scenario random --n-agents 3``: the same seeds and the same episode."""
+    (case,) = cases((3,), paper=False)
+    assert case == Case("random N=3", "random", (("n_agents", 3),))
+    kw = dict(workers=1, max_cycles=3, progress=False)
+    labelled = evaluate(["zero"], [case], 1, 5, overrides={"current": "mild"}, **kw)
+    plain = evaluate(["zero"], ["random"], 1, 5, overrides={"current": "mild", "n_agents": 3}, **kw)
+    assert labelled[0]["scenario"] == "random N=3" and plain[0]["scenario"] == "random"
+    assert labelled[0]["seed"] == plain[0]["seed"] == episode_seed(5, "random", 0)
+    for key in ("control_effort", "internal_wrench_rms", "final_pos_error_m"):
+        assert labelled[0][key] == plain[0][key]
+    with pytest.raises(ValueError, match="label"):
+        evaluate(["zero"], [case, case], 1, 5, **kw)
+
+
+def test_the_ladder_command_runs_end_to_end(tmp_path):
+    main(
+        [
+            "--policy", "nmpc:central", "--policy", "nmpc", "--policy", "zero",
+            "--n-agents", "2", "--episodes", "1", "--seed", "3", "--workers", "1",
+            "--max-cycles", "8", "--out", str(tmp_path),
+        ]
+    )  # fmt: skip
+    result = json.loads((tmp_path / "ladder.json").read_text())
+    labels = {(s["policy"], s["scenario"]) for s in result["rungs"]}
+    assert labels == {
+        (p, c) for p in ("nmpc:central", "nmpc", "zero") for c in ("random N=2", "paper")
+    }
+    assert all(s["errors"] == 0 for s in result["rungs"])
+    central = next(s for s in result["rungs"] if s["policy"] == "nmpc:central")
+    assert central["information"] == "full"
+    assert {q["rung"] for q in result["prices"]["decentralization"]} == {"nmpc"}
+    assert {q["rung"] for q in result["prices"]["learning"]} == {"zero"}
+    assert all(set(PRICED) <= set(q) for q in result["prices"]["learning"])
+    assert result["command"]["conditions"] == {"current": "mild", "mismatch": 0.1}
+    for name in ("ladder.md", "price_vs_n.png", "episodes.csv", "results.md"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert "Price of decentralization" in (tmp_path / "ladder.md").read_text()
+    assert np.isfinite(central["decision_ms_median"])
