@@ -239,6 +239,35 @@ def markdown(result: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def overview(result: dict[str, Any]) -> str:
+    """One row per rung, one column per case: clean successes / successes, then the
+    median decision time over every case (the README's table)."""
+    labels = list(dict.fromkeys(s["scenario"] for s in result["rungs"]))
+    policies = list(dict.fromkeys(s["policy"] for s in result["rungs"]))
+    by = {(s["policy"], s["scenario"]): s for s in result["rungs"]}
+    head = " | ".join(f"`{c}`" if c == "paper" else c for c in labels)
+    lines = [
+        f"| rung | information | {head} | decision ms, median (slowest case) |",
+        "|---|---|" + "---|" * len(labels) + "---|",
+    ]
+    for p in policies:
+        cells, times = [], []
+        for c in labels:
+            s = by.get((p, c))
+            if s is None:
+                cells.append("")
+                continue
+            n = s["episodes"] - s["out_of_reach"]
+            cells.append(f"{s['clean_success']} / {s['success']} / {n}")
+            if s["decision_ms_median"] is not None:
+                times.append(s["decision_ms_median"])
+        info = by[(p, labels[0])]["information"] if (p, labels[0]) in by else ""
+        lines.append(
+            f"| `{p}` | {info} | " + " | ".join(cells) + f" | {_f(max(times, default=None), 2)} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 def plot_prices(result: dict[str, Any], out: Path) -> None:
     """Ratio of means (rung / reference) against the team size, one panel per metric."""
     import matplotlib
@@ -307,7 +336,7 @@ def run(
         "max_cycles": max_cycles,
     }
     (out / "ladder.json").write_text(json.dumps(result, indent=2))
-    (out / "ladder.md").write_text(markdown(result))
+    (out / "ladder.md").write_text(markdown(result) + "\n" + overview(result))
     plot_prices(result, out)
     return result
 

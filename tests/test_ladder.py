@@ -89,5 +89,7 @@ def test_the_ladder_command_runs_end_to_end(tmp_path):
     assert result["command"]["conditions"] == {"current": "mild", "mismatch": 0.1}
     for name in ("ladder.md", "price_vs_n.png", "episodes.csv", "results.md"):
         assert (tmp_path / name).stat().st_size > 0
-    assert "Price of decentralization" in (tmp_path / "ladder.md").read_text()
+    text = (tmp_path / "ladder.md").read_text()
+    assert "Price of decentralization" in text
+    assert "| `nmpc:central` | full | 0 / 0 / 1 | 0 / 0 / 1 |" in text  # 8 periods: no success
     assert np.isfinite(central["decision_ms_median"])
