@@ -270,24 +270,30 @@ class Channel:
         d, m, r = s.message_dim, s.inbox_size, self.ring
         self.rngs = [self._generator(seed) for seed in first_seeds]
         self.key = xp.zeros(k, np.uint64)
-        self.out_msg = xp.zeros((k, n, d))
-        self.out_time = xp.zeros((k, n), np.int64)
+        # messages carry the step that wrote them in column 0 (exact in float64), where
+        # the action has its send flag: a written message is the quantized part, time first
+        self.out_msg = xp.zeros((k, n, d + 1))
         self.out_full = xp.zeros((k, n), bool)
-        self.fly_msg = xp.zeros((k, r, n, n, d))  # in flight: [env, due % ring, to, from]
-        self.fly_time = xp.zeros((k, r, n, n), np.int64)
-        self.fly_ok = xp.zeros((k, r, n, n), bool)
-        self.in_msg = xp.zeros((k, n, m, d))
-        self.in_age = xp.zeros((k, n, m), np.int64)
+        cells = k * r * n * n  # in flight: one row per (env, due % ring, to, from)
+        self.fly_msg = xp.zeros((cells, d + 1))
+        self.fly_ok = xp.zeros(cells, bool)
+        self.in_msg = xp.zeros((k, n, m, d + 1))  # the inboxes
         self.in_ok = xp.zeros((k, n, m), bool)
-        # constant index arrays of the scatter into the ring and of the pair counter
-        self._kk = xp.asarray(np.broadcast_to(np.arange(k)[:, None, None], (k, n, n)).copy())
-        self._ii = xp.asarray(np.broadcast_to(np.arange(n)[None, :, None], (k, n, n)).copy())
-        self._jj = xp.asarray(np.broadcast_to(np.arange(n)[None, None, :], (k, n, n)).copy())
+        self.now = xp.zeros(k)  # the last step's index
+        # constants: the TDMA table over one cycle, index arrays of the ring and the inbox
+        cycle = self.slot_periods * n
+        turn = (np.arange(cycle) // self.slot_periods) * self.per_period
+        mine = (np.arange(n)[None, :] - turn[:, None]) % n < self.per_period
+        self._speak = xp.asarray(mine & (np.arange(cycle) % self.slot_periods == 0)[:, None])
         self._other = xp.asarray(~np.eye(n, dtype=bool))
+        cell = ((np.arange(k)[:, None, None] * r) * n + np.arange(n)[:, None]) * n + np.arange(n)
+        self._cell = xp.asarray(cell)  # flat (env, due = 0, to, from) rows
+        self._env_slot = xp.asarray(np.arange(k) * r)
         self._pair = xp.asarray(
             (np.arange(n)[:, None] * n + np.arange(n)[None, :]).astype(np.uint64)
         )
-        self._robot = xp.asarray(np.arange(n))
+        envs, robots = np.arange(k)[:, None, None], np.arange(n)[:, None]
+        self._inbox_at = (xp.asarray(envs), xp.asarray(robots))
         self._order = xp.asarray(np.arange(n + m))  # merge order: new deliveries first
 
     def __getstate__(self) -> dict:
@@ -310,36 +316,35 @@ class Channel:
         ids = slice(None) if ids is Ellipsis else ids
         keys = np.array([self.rngs[i].integers(2**63) for i in rows], np.uint64)
         self.key[ids] = self.xp.asarray(keys)
-        for a in (self.out_full, self.fly_ok, self.in_ok):
-            a[ids] = False
+        self.out_full[ids] = False
+        self.in_ok[ids] = False
+        self.fly_ok.reshape(self.k, -1)[ids] = False
 
     def speaks(self, t: Any) -> Any:
         """(k, n) bool: robot j owns a slot at step t (k,)."""
-        s, p, n = self.per_period, self.slot_periods, self.n
-        turn = (t // p) * s
-        mine = (self._robot[None, :] - turn[:, None]) % n < s
-        return mine & (t % p == 0)[:, None]
+        return self._speak[t % len(self._speak)]
 
     def step(self, t: Any, part: Any, positions: Any) -> None:
         """One period: ``part`` (k, n, 1 + D) the send flags and messages written with the
         actions of step ``t`` (k,), ``positions`` (k, n, 3) the vehicles' at sending."""
-        xp, s = self.xp, self.settings
+        xp, s, d = self.xp, self.settings, self.settings.message_dim
+        self.now = t.astype(np.float64)  # the inbox's ages count from here
         write = part[..., 0] > 0
-        self.out_msg = xp.where(write[..., None], s.quantize(part[..., 1:], xp), self.out_msg)
-        self.out_time = xp.where(write, t[:, None], self.out_time)
-        self.out_full |= write
-        tx = self.speaks(t) & self.out_full
-        self.out_full &= ~tx
+        if bool(write.any()):
+            msg = s.quantize(part, xp)
+            msg[..., 0] = self.now[:, None]
+            self.out_msg = xp.where(write[..., None], msg, self.out_msg)
+            self.out_full |= write
+        tx = self.out_full if self.per_period >= self.n else self.speaks(t) & self.out_full
         if bool(tx.any()):
+            self.out_full = self.out_full & ~tx
             self._send(t, tx, positions)
-        # what is due now
-        now = t % self.ring
-        env = self._kk[:, 0, 0]
-        got_ok = self.fly_ok[env, now]
-        got_msg = self.fly_msg[env, now]
-        got_age = t[:, None, None] - self.fly_time[env, now]
-        self.fly_ok[env, now] = False
-        self._merge(got_ok, got_msg, got_age)
+        if bool(self.fly_ok.any()):  # what is due now reaches the inboxes
+            rows, n = self._env_slot + t % self.ring, self.n  # (env, due) of (k ring, to, from)
+            flag = self.fly_ok.reshape(-1, n, n)
+            got_ok = flag[rows]
+            flag[rows] = False
+            self._merge(got_ok, self.fly_msg.reshape(-1, n, n, d + 1)[rows])
 
     def _send(self, t: Any, tx: Any, positions: Any) -> None:
         xp, s = self.xp, self.settings
@@ -349,9 +354,8 @@ class Channel:
         if s.loss_probability > 0 or not math.isinf(s.loss_range_m):
             ok &= self._uniform(t) >= s.loss(rng, xp)
         due = (t[:, None, None] + s.delay_periods(rng, self.period, xp)) % self.ring
-        at = (self._kk, due, self._ii, self._jj)
+        at = self._cell + due * (self.n * self.n)  # one flat index: cheaper than four
         self.fly_msg[at] = xp.where(ok[..., None], self.out_msg[:, None, :, :], self.fly_msg[at])
-        self.fly_time[at] = xp.where(ok, self.out_time[:, None, :], self.fly_time[at])
         self.fly_ok[at] |= ok
 
     def _uniform(self, t: Any) -> Any:
@@ -361,29 +365,29 @@ class Channel:
         x = self.key[:, None, None] + count * np.uint64(0x9E3779B97F4A7C15)
         return (_mix(x) >> np.uint64(11)).astype(np.float64) * _U53
 
-    def _merge(self, got_ok: Any, got_msg: Any, got_age: Any) -> None:
+    def _merge(self, got_ok: Any, got_msg: Any) -> None:
         """The inbox keeps the M newest: this period's deliveries (sender order), then the
-        older ones a period older; expired ones leave."""
-        xp, s, m = self.xp, self.settings, self.settings.inbox_size
+        older ones; expired ones leave."""
+        xp, m = self.xp, self.settings.inbox_size
         ok = xp.concatenate([got_ok, self.in_ok], axis=-1)
-        age = xp.concatenate([got_age, self.in_age + 1], axis=-1)
-        ok &= age <= s.max_age_periods
+        msg = xp.concatenate([got_msg, self.in_msg], axis=-2)
+        ok &= self.now[:, None, None] - msg[..., 0] <= self.settings.max_age_periods
         # valid entries first, each group in its order: a stable partition
         order = xp.argsort(xp.where(ok, 0, self.n + m) + self._order, axis=-1)[..., :m]
-        msg = xp.concatenate([got_msg, self.in_msg], axis=-2)
-        self.in_ok = xp.take_along_axis(ok, order, axis=-1)
-        self.in_age = xp.take_along_axis(age, order, axis=-1)
-        self.in_msg = xp.take_along_axis(msg, order[..., None], axis=-2)
+        at = (*self._inbox_at, order)
+        self.in_ok, self.in_msg = ok[at], msg[at]
 
     def block(self, ids: Any) -> Any:
         """(k', n, M (D + 2)) float32 inbox observations of ``ids`` (module docstring)."""
         xp, s = self.xp, self.settings
         ids = slice(None) if ids is Ellipsis else ids
-        ok = self.in_ok[ids]
-        f = ok.astype(np.float32)
-        age = xp.minimum(self.in_age[ids], s.max_age_periods) * (1.0 / s.max_age_periods)
-        parts = [self.in_msg[ids] * f[..., None], (age * f)[..., None], f[..., None]]
-        out = xp.concatenate(parts, axis=-1).astype(np.float32)
+        vals = self.in_msg[ids]
+        age = self.now[ids][:, None, None] - vals[..., 0]
+        f = (self.in_ok[ids] & (age <= s.max_age_periods)).astype(np.float64)
+        vals = vals * f[..., None]
+        vals[..., 0] = age * (f * (1.0 / s.max_age_periods))
+        out = xp.concatenate([vals[..., 1:], vals[..., :1], f[..., None]], axis=-1)
+        out = out.astype(np.float32)
         return out.reshape(*out.shape[:-2], s.block_size)
 
 
