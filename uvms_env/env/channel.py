@@ -274,9 +274,10 @@ class Channel:
         # the action has its send flag: a written message is the quantized part, time first
         self.out_msg = xp.zeros((k, n, d + 1))
         self.out_full = xp.zeros((k, n), bool)
-        cells = k * r * n * n  # in flight: one row per (env, due % ring, to, from)
-        self.fly_msg = xp.zeros((cells, d + 1))
-        self.fly_ok = xp.zeros(cells, bool)
+        # in flight: one row per (env, due % ring, to, from), and a spare one (never due)
+        self._spare = cells = k * r * n * n
+        self.fly_msg = xp.zeros((cells + 1, d + 1))
+        self.fly_ok = xp.zeros(cells + 1, bool)
         self.in_msg = xp.zeros((k, n, m, d + 1))  # the inboxes
         self.in_ok = xp.zeros((k, n, m), bool)
         self.now = xp.zeros(k)  # the last step's index
@@ -292,9 +293,9 @@ class Channel:
         self._pair = xp.asarray(
             (np.arange(n)[:, None] * n + np.arange(n)[None, :]).astype(np.uint64)
         )
-        envs, robots = np.arange(k)[:, None, None], np.arange(n)[:, None]
-        self._inbox_at = (xp.asarray(envs), xp.asarray(robots))
-        self._order = xp.asarray(np.arange(n + m))  # merge order: new deliveries first
+        # the first of each (env, robot)'s n + M merge candidates, as a flat row
+        self._candidate = xp.asarray((np.arange(k * n) * (n + m)).reshape(k, n, 1))
+        self._slots = xp.asarray(np.arange(1, m + 1)[:, None])  # inbox slot q holds valid no. q + 1
 
     def __getstate__(self) -> dict:
         """Pickles name the array namespace (a module is no state)."""
@@ -318,7 +319,7 @@ class Channel:
         self.key[ids] = self.xp.asarray(keys)
         self.out_full[ids] = False
         self.in_ok[ids] = False
-        self.fly_ok.reshape(self.k, -1)[ids] = False
+        self.fly_ok[: self._spare].reshape(self.k, -1)[ids] = False
 
     def speaks(self, t: Any) -> Any:
         """(k, n) bool: robot j owns a slot at step t (k,)."""
@@ -341,22 +342,24 @@ class Channel:
             self._send(t, tx, positions)
         if bool(self.fly_ok.any()):  # what is due now reaches the inboxes
             rows, n = self._env_slot + t % self.ring, self.n  # (env, due) of (k ring, to, from)
-            flag = self.fly_ok.reshape(-1, n, n)
+            flag = self.fly_ok[: self._spare].reshape(-1, n, n)
             got_ok = flag[rows]
             flag[rows] = False
-            self._merge(got_ok, self.fly_msg.reshape(-1, n, n, d + 1)[rows])
+            self._merge(got_ok, self.fly_msg[: self._spare].reshape(-1, n, n, d + 1)[rows])
 
     def _send(self, t: Any, tx: Any, positions: Any) -> None:
         xp, s = self.xp, self.settings
-        diff = positions[:, :, None, :] - positions[:, None, :, :]
-        rng = xp.sqrt((diff * diff).sum(-1))  # (k, to, from)
+        d2 = positions[:, :, None, :] - positions[:, None, :, :]
+        d2 = d2 * d2
+        rng = xp.sqrt(d2[..., 0] + d2[..., 1] + d2[..., 2])  # (k, to, from); no 3-sum
         ok = tx[:, None, :] & self._other & (rng <= s.max_range_m)
         if s.loss_probability > 0 or not math.isinf(s.loss_range_m):
             ok &= self._uniform(t) >= s.loss(rng, xp)
         due = (t[:, None, None] + s.delay_periods(rng, self.period, xp)) % self.ring
-        at = self._cell + due * (self.n * self.n)  # one flat index: cheaper than four
-        self.fly_msg[at] = xp.where(ok[..., None], self.out_msg[:, None, :, :], self.fly_msg[at])
-        self.fly_ok[at] |= ok
+        # one flat index (cheaper than four); what is not sent goes to the spare last row
+        at = xp.where(ok, self._cell + due * (self.n * self.n), self._spare)
+        self.fly_msg[at] = self.out_msg[:, None, :, :]
+        self.fly_ok[at] = ok
 
     def _uniform(self, t: Any) -> Any:
         """(k, to, from) uniforms in [0, 1): a hash of (episode key, step, pair)."""
@@ -368,14 +371,16 @@ class Channel:
     def _merge(self, got_ok: Any, got_msg: Any) -> None:
         """The inbox keeps the M newest: this period's deliveries (sender order), then the
         older ones; expired ones leave."""
-        xp, m = self.xp, self.settings.inbox_size
+        xp = self.xp
         ok = xp.concatenate([got_ok, self.in_ok], axis=-1)
         msg = xp.concatenate([got_msg, self.in_msg], axis=-2)
         ok &= self.now[:, None, None] - msg[..., 0] <= self.settings.max_age_periods
-        # valid entries first, each group in its order: a stable partition
-        order = xp.argsort(xp.where(ok, 0, self.n + m) + self._order, axis=-1)[..., :m]
-        at = (*self._inbox_at, order)
-        self.in_ok, self.in_msg = ok[at], msg[at]
+        # the q-th valid candidate goes to slot q (a stable partition, no sort)
+        rank = xp.cumsum(ok, axis=-1)  # (k, n, n + M): valid candidates up to each
+        pick = ok[..., None, :] & (rank[..., None, :] == self._slots)  # (k, n, M, n + M)
+        flat = msg.reshape(-1, msg.shape[-1])  # one flat index: cheaper than three
+        self.in_msg = flat[self._candidate + xp.argmax(pick, axis=-1)]
+        self.in_ok = rank[..., -1:] >= self._slots[:, 0]
 
     def block(self, ids: Any) -> Any:
         """(k', n, M (D + 2)) float32 inbox observations of ``ids`` (module docstring)."""
