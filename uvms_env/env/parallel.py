@@ -169,6 +169,17 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     waypoints, steps over K environments, here K = 1) and `xp` numpy or CuPy: the same
     function serves `VectorEnv` on both backends.
 
+    **Communication** (`comm=`; default None: the silent team, nothing changes). With an
+    acoustic channel (`uvms_env.env.channel`: a preset `ideal`, `micromodem_fsk`, `atm900`,
+    `s2c_48_78`, a `ChannelSettings` or `{"preset": name, field: value}`) each action is
+    `Box(-1, 1, (8 + 1 + D,))`: the inputs, a send flag (> 0: send; <= 0: silent) and a
+    message of D = `message_dim` numbers; each observation gains `messages`
+    (`env.observation_structure`): the last M messages received, each its D values, its
+    age and a valid flag, M (D + 2) numbers whatever N. The channel quantizes, shares one
+    medium by TDMA, delays by the modem's latency and the range over 1500 m/s and loses
+    deliveries, seeded by `reset(seed=...)` apart from the physics' draws; an 8-number
+    action raises ValueError (`uvms_env.env.channel.silent` pads one with silence).
+
     **Arguments**
 
     | name | type | default | meaning |
@@ -190,6 +201,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     | internal_wrench_every | int >= 0 | 1 | internal wrench metric every k periods (0: never) |
     | extra_reward_terms | dict str -> fn | None | extra reward terms (Extensions) |
     | extra_constraints | dict str -> fn | None | extra constraints (Extensions) |
+    | comm | None, str, ChannelSettings, dict | None | acoustic channel (Communication) |
 
     Every keyword is checked against one typed table (`SCENARIO_OVERRIDES` in
     `uvms_env.scenarios.overrides`, `ENV_OPTIONS` here): a wrong type raises TypeError

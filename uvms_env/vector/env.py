@@ -117,6 +117,10 @@ class VectorEnv(CoreViews):
     | metrics | (K,) object | the ended episodes' metrics (`uvms_env.env.metrics`) or None |
     | diverged_reason | (K,) object | why a step was refused ("" elsewhere) |
 
+    **Communication** (`comm=`): as in `parallel_env`, the same channel code over K: actions
+    (K, N, 8 + 1 + D), observations with the inbox after them; an environment's automatic
+    reset empties its channel and takes its next episode's loss key.
+
     **Extensions**: `extra_reward_terms` and `extra_constraints` as in `parallel_env`; the
     functions receive the K environments' arrays (CuPy ones on a GPU) and `xp`.
 
