@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+from typing import ClassVar
 
 import numpy as np
 
@@ -103,7 +104,7 @@ def test_replays_are_each_policys_first_episode_per_scenario(tmp_path):
 class _Recording:
     """An 8-number policy that notes the observations it is shown."""
 
-    seen: list[int] = []
+    seen: ClassVar[list[int]] = []
 
     def __init__(self, spec) -> None:
         self.stats: dict = {}
