@@ -222,7 +222,9 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     changes and never depends on a seed: two environments built with the same
     arguments and reset with the same seed are identical.
 
-    **Version history.** v0 (2026-11): first version.
+    **Version history.** v0 (2026-11): first version; the `comm` option added later in
+    2026-11 (default off: observations, actions and episodes unchanged, a test replays
+    episodes recorded before it).
     """
 
     metadata: ClassVar[dict[str, Any]] = {
