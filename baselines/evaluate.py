@@ -479,6 +479,13 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--n-agents", type=int, default=None, help="random family only")
     ap.add_argument("--current", default=None, choices=["none", "mild", "strong"])
     ap.add_argument("--mismatch", type=float, default=None)
+    ap.add_argument(
+        "--comm",
+        default=None,
+        metavar="PRESET",
+        help="acoustic channel preset (uvms_env.env.channel.PRESETS; default off): policies "
+        "that do not read messages play silent",
+    )
     for flag, what in (("reward-term", "reward term"), ("constraint", "constraint")):
         ap.add_argument(
             f"--extra-{flag}",
@@ -526,6 +533,7 @@ def env_overrides(ap: argparse.ArgumentParser, args: argparse.Namespace) -> dict
             "n_agents": args.n_agents,
             "current": args.current,
             "mismatch": args.mismatch,
+            "comm": args.comm,
         }.items()
         if v is not None
     }

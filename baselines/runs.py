@@ -150,10 +150,11 @@ class RunSettings:
 
     def rungs(self) -> dict[str, tuple[str, dict[str, Any]]]:
         """The evaluation's rungs: the ladder, or the training scenario with its team size
-        (the evaluation plays the plain environment; a policy applies its own priors)."""
+        and its acoustic channel (the evaluation plays the plain environment otherwise; a
+        policy applies its own priors)."""
         if self.eval_ladder:
             return LADDER
-        keep = {k: v for k, v in self.overrides.items() if k == "n_agents"}
+        keep = {k: v for k, v in self.overrides.items() if k in ("n_agents", "comm")}
         return {self.scenario: (self.scenario, keep)}
 
 

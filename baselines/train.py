@@ -63,6 +63,13 @@ def add_shared_arguments(ap: argparse.ArgumentParser, engine: str, algos: tuple[
         "reward_weights='{\"effort\": 0.01}'",
     )
     g.add_argument(
+        "--comm",
+        default=None,
+        metavar="PRESET",
+        help="acoustic channel preset (uvms_env.env.channel.PRESETS; default off): the "
+        "shared policy's action gains the send flag and the message",
+    )
+    g.add_argument(
         "--hp",
         action="append",
         default=[],
@@ -138,9 +145,16 @@ def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> Any:
     if args.cost != "none":
         cost = CostSettings(args.cost, args.cost_weight, args.cost_limit, args.multiplier_lr)
     pool = args.geometry_pool if args.geometry_pool is not None else defaults["geometry_pool"]
+    overrides = key_value_pairs(args.env_option)
+    if args.comm is not None:
+        if "comm" in overrides and overrides["comm"] != args.comm:
+            raise ValueError(
+                f"--comm {args.comm} contradicts --env-option comm={overrides['comm']!r}"
+            )
+        overrides["comm"] = args.comm
     return RunSettings(
         scenario=args.scenario,
-        overrides=key_value_pairs(args.env_option),
+        overrides=overrides,
         robot_steps=args.robot_steps,
         num_envs=args.num_envs if args.num_envs is not None else defaults["num_envs"],
         seed=args.seed,

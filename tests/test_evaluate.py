@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+from typing import ClassVar
 
 import numpy as np
 
@@ -98,3 +99,36 @@ def test_replays_are_each_policys_first_episode_per_scenario(tmp_path):
     assert pages == sorted(replay_path(tmp_path, p, "short") for p in ("zero", "random"))
     for page in pages:  # the episode's start and its 4 periods
         assert re.search(r'"episode_frames":\s*(\d+)', page.read_text()).group(1) == "5"
+
+
+class _Recording:
+    """An 8-number policy that notes the observations it is shown."""
+
+    seen: ClassVar[list[int]] = []
+
+    def __init__(self, spec) -> None:
+        self.stats: dict = {}
+
+    def reset(self) -> None:
+        pass
+
+    def act(self, obs):
+        _Recording.seen.append(len(obs))
+        return np.zeros(8, np.float32)
+
+
+def test_existing_policies_play_silent_under_a_channel():
+    """``--comm``: every policy that does not read messages plays unchanged, silent: it sees
+    its observation without the inbox and its 8 numbers go out with send flag -1."""
+    import uvms_env
+    from uvms_env.episode import play
+
+    rows = evaluate(["zero", "random", "nmpc:central"], ["paper"], 1, 0, 1, {"comm": "atm900"},
+                    max_cycles=3, progress=False)  # fmt: skip
+    assert [r["error"] for r in rows] == ["", "", ""]
+    env = uvms_env.parallel_env("paper", comm="ideal", max_cycles=4)
+    sent = []
+    _Recording.seen = []
+    play(env, _Recording, seed=0, on_step=lambda step: sent.append(step))
+    assert set(_Recording.seen) == {79} and len(sent) == 4
+    assert not env.observe()["uvms_0"][env.observation_structure["messages"]].any()

@@ -361,3 +361,40 @@ def test_sac_writes_the_same_records_and_a_last_row_at_the_budget(tmp_path):
     config = json.loads((out / "config.json").read_text())
     assert list(config) == list(CONFIG_KEYS) and config["algo"] == "sac"
     assert (out / "replay_buffer.pkl").exists()
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_every_engine_learns_with_the_channel_and_its_policy_sends(engine, tmp_path, request):
+    """``--comm``: the shared policy's action is the inputs, the send flag and the
+    message; the run's evaluation plays under the same channel, and the saved policy
+    reads the inbox and returns the full action."""
+    if engine == "rllib":
+        request.getfixturevalue("local_ray")
+    if engine == "torchrl":
+        pytest.importorskip("torchrl", minversion="0.14")
+    out = tmp_path / engine
+    args = ["--engine", engine, "--robot-steps", "64", "--out", str(out), "--comm", "atm900"]
+    main([*args, *COMMON, *ENGINE_ARGS[engine]])
+    config = json.loads((out / "config.json").read_text())
+    assert config["overrides"]["comm"] == "atm900"
+    evaluations = _rows(out / "evaluations.csv")
+    assert evaluations and all(int(r["errors"]) == 0 for r in evaluations)
+
+    import uvms_env
+    from baselines.policies import PolicySource
+    from uvms_env.episode import build_policies
+
+    env = uvms_env.parallel_env("short", comm="atm900")
+    obs, _ = env.reset(seed=0)
+    name = {"sb3": "ppo", "torchrl": "torchrl", "rllib": "rllib"}[engine]
+    policies = build_policies(env, PolicySource.parse(f"{name}:{out}").factory(0))
+    policy = policies["uvms_0"]
+    assert policy.reads_messages
+    action = policy.act(obs["uvms_0"])
+    assert action.shape == (13,) and np.all(np.abs(action) <= 1.0 + 1e-6)
+    env.step({a: policies[a].act(obs[a]) for a in env.possible_agents})
+
+
+def test_comm_flag_contradicting_an_env_option_is_an_error(tmp_path):
+    with pytest.raises(ValueError, match="contradicts"):
+        main(["--comm", "atm900", "--env-option", 'comm="ideal"', "--out", str(tmp_path), *TINY])

@@ -94,7 +94,7 @@ def _compare(
             a, b = before[t](cpu), before[t](cuda)
             if a is not None:
                 _agree(f"before step {t}", a, b)
-        act = rng.uniform(-1.0, 1.0, (k, cpu.n, 8))
+        act = rng.uniform(-1.0, 1.0, (k, cpu.n, cpu.single_action_space.shape[0]))
         ref = cpu.step(act)
         out = cuda.step(torch.from_numpy(act))
         for name, a, b in zip(
@@ -154,6 +154,16 @@ def test_emulated_cuda_backend_equals_cpu_with_priors_pool_noise_and_current(emu
     }
     ends, _ = _compare("random", 4, 60, seed=3, before=before, **overrides)
     assert sum(ends.values()) >= 8
+
+
+def test_emulated_cuda_backend_equals_cpu_with_the_acoustic_channel(emulated_xp):
+    """The channel's array code as CuPy runs it: the same deliveries, losses and inboxes
+    on the device as on the host, through automatic resets."""
+    comm = {"preset": "micromodem_fsk", "loss_probability": 0.3, "bit_rate_bps": 400.0,
+            "modem_latency_periods": 2}  # fmt: skip
+    ends, ref = _compare("random", 3, 40, seed=2, comm=comm, n_agents=3, max_cycles=15)
+    assert ends == {"max_cycles": 6}
+    assert ref[0][..., -1].any()  # messages arrived
 
 
 def test_emulated_cuda_backend_ends_episodes_by_constraint_as_the_cpu_backend(emulated_xp):

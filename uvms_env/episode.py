@@ -21,10 +21,16 @@ Callers attach what they need without another loop:
 controller for every robot, from ``env.state()``) through the same loop; its decision
 time is per team decision. Each driver refuses the other's kind of factory.
 
+Under an acoustic channel (the env's ``comm``, ``uvms_env.env.channel``) every policy that
+does not declare ``reads_messages = True`` plays as before, silent: ``SilentPolicy`` hands
+it its observation without the inbox and pads its 8 numbers with a silent message part;
+a team policy's actions are padded the same way.
+
 Only the public env API is used (``reset(seed=)``, ``step``, ``agents``,
-``possible_agents``, ``scenario``, ``infos[agent]["metrics"]``).
-May import: numpy, ``uvms_env.policy``, ``uvms_env.team_policy`` and (when a replay is asked
-for) ``uvms_env.replay``.
+``possible_agents``, ``scenario``, ``infos[agent]["metrics"]``, and ``comm`` and
+``observation_structure`` under a channel).
+May import: numpy, ``uvms_env.policy``, ``uvms_env.team_policy``, ``uvms_env.env.channel``
+and (when a replay is asked for) ``uvms_env.replay``.
 """
 
 from __future__ import annotations
@@ -37,6 +43,8 @@ from typing import Any
 
 import numpy as np
 
+from uvms_env.dynamics import NU
+from uvms_env.env.channel import ChannelSettings, silent
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 from uvms_env.team_policy import (
     TeamPolicy,
@@ -81,9 +89,35 @@ class Episode:
         return len(self.decision_ms)
 
 
+class SilentPolicy:
+    """A policy of the silent team under an acoustic channel: it sees its observation
+    without the inbox (the first ``size`` numbers) and its 8-number actions go out with a
+    silent message part (send flag -1). Actions of the channel's full size pass as they are."""
+
+    def __init__(self, policy: Policy, comm: ChannelSettings, size: int) -> None:
+        self.policy, self.comm, self.size = policy, comm, size
+
+    @property
+    def stats(self) -> dict[str, Any]:
+        return self.policy.stats
+
+    def reset(self) -> None:
+        self.policy.reset()
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        a = np.asarray(self.policy.act(obs[: self.size]), dtype=np.float32)
+        return silent(a, self.comm) if a.shape == (NU,) else a
+
+    def executed(self, action: np.ndarray) -> None:
+        if hasattr(self.policy, "executed"):
+            self.policy.executed(np.asarray(action)[:NU])
+
+
 def build_policies(env: Any, factory: PolicyFactory) -> dict[str, Policy]:
     """One policy per agent of ``env``'s current scenario, each built from its own
-    ``AgentSpec`` and reset; a team policy in their place is a TypeError."""
+    ``AgentSpec`` and reset; a team policy in their place is a TypeError. Under a channel a
+    policy that does not read messages plays silent (``SilentPolicy``)."""
+    comm = getattr(env, "comm", None)
     policies = {}
     for i, agent in enumerate(env.possible_agents):
         policy = factory(AgentSpec.from_scenario(env.scenario, i))
@@ -93,6 +127,8 @@ def build_policies(env: Any, factory: PolicyFactory) -> dict[str, Policy]:
                 "which acts for the whole team from the global state: wrap its builder in "
                 "uvms_env.team_policy.TeamPolicyFactory and play it with play_team"
             )
+        if comm is not None and not getattr(policy, "reads_messages", False):
+            policy = SilentPolicy(policy, comm, env.observation_structure["messages"].start)
         policy.reset()
         policies[agent] = policy
     return policies
@@ -173,6 +209,7 @@ def play_team(
 
     def start(env: Any) -> tuple[dict[str, Any], Callable[..., Any]]:
         team = factory(env.scenario)
+        comm = getattr(env, "comm", None)
         team.reset()
         agents = list(env.agents)
 
@@ -181,6 +218,8 @@ def play_team(
             actions = team.act(env.state())
             ms = np.array([(time.perf_counter() - begin) * 1e3])
             a = check_team_actions(actions, len(agents))
+            if comm is not None:  # full information already: it sends nothing
+                a = silent(a, comm)
             return {agent: a[i] for i, agent in enumerate(agents)}, ms
 
         return {TEAM: team}, decide

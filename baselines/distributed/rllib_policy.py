@@ -25,7 +25,12 @@ from typing import Any
 
 import numpy as np
 
-from baselines.rl.policy import priors_from_options
+from baselines.rl.policy import (
+    comm_from_options,
+    policy_action,
+    policy_input,
+    priors_from_options,
+)
 from uvms_env.policy import AgentSpec
 
 POLICY_ID = "shared"
@@ -96,6 +101,8 @@ class RLlibPolicy:
         self.module = _load(module_dir(checkpoint))
         self.env_options: dict[str, Any] = run_config(checkpoint).get("env_options", {})
         self.priors = priors_from_options(self.env_options)
+        self.comm = comm_from_options(self.env_options)
+        self.reads_messages = self.comm is not None  # it sees the inbox, it may send
         self._ring = spec.object_ring_radius
         self._dist = self.module.get_inference_action_dist_cls()
         self.stats: dict[str, Any] = {}
@@ -106,13 +113,13 @@ class RLlibPolicy:
     def act(self, obs: np.ndarray) -> np.ndarray:
         import torch
 
-        raw = np.asarray(obs, dtype=np.float32)
-        x = torch.as_tensor(np.asarray(self.priors.observe(raw, self._ring), np.float32)[None])
+        raw, x = policy_input(self.priors, obs, self._ring, self.comm)
+        x = torch.as_tensor(np.asarray(x, np.float32)[None])
         with torch.no_grad():
             out = self.module.forward_inference({"obs": x})
             action = self._dist.from_logits(out["action_dist_inputs"]).to_deterministic().sample()
         chosen = np.clip(action[0].numpy(), -1.0, 1.0)
-        return self.priors.command(raw, chosen, self._ring).astype(np.float32)
+        return policy_action(self.priors, raw, chosen, self._ring, self.comm)
 
 
 def factory(path: str | None):

@@ -18,6 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from uvms_env.dynamics import NU
+from uvms_env.env.channel import ChannelSettings, channel_settings
+from uvms_env.env.observation import OBSERVATION_SIZE
 from uvms_env.env.options import ENV_OPTIONS, priors_of
 from uvms_env.env.priors import Priors
 from uvms_env.policy import AgentSpec
@@ -78,6 +81,43 @@ def run_priors(folder: Path) -> Priors:
     return priors_from_options(json.loads(config.read_text()).get("overrides", {}))
 
 
+def comm_from_options(options: dict[str, Any]) -> ChannelSettings | None:
+    """The acoustic channel among a run's recorded environment options (None: off)."""
+    return channel_settings(options.get("comm"))
+
+
+def run_comm(folder: Path) -> ChannelSettings | None:
+    """The acoustic channel a run trained with (None: the silent team)."""
+    config = Path(folder) / "config.json"
+    if not config.exists():
+        return None
+    return comm_from_options(json.loads(config.read_text()).get("overrides", {}))
+
+
+def policy_input(
+    priors: Priors, obs: np.ndarray, ring: float, comm: ChannelSettings | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(raw observation, network input) of one robot's env observation: the priors'
+    observation of the raw part, then, under a channel, the inbox as the env appends it."""
+    obs = np.asarray(obs, dtype=np.float32)
+    if comm is None:
+        return obs, priors.observe(obs, ring)
+    raw = obs[:OBSERVATION_SIZE]
+    x = np.asarray(priors.observe(raw, ring), np.float32)
+    return raw, np.concatenate([x, obs[OBSERVATION_SIZE:]])
+
+
+def policy_action(
+    priors: Priors, raw: np.ndarray, chosen: np.ndarray, ring: float, comm: ChannelSettings | None
+) -> np.ndarray:
+    """The env action of a network's ``chosen`` numbers: the priors' command of the first 8,
+    then, under a channel, the send flag and the message as they are."""
+    if comm is None:
+        return priors.command(raw, chosen, ring).astype(np.float32)
+    control = priors.command(raw, chosen[:NU], ring)
+    return np.concatenate([control, chosen[NU:]]).astype(np.float32)
+
+
 def priors_from_options(options: dict[str, Any]) -> Priors:
     """The priors among a run's recorded environment options (checked again)."""
     mine = ("action_mode", "observation_mode", "residual_scale", "hold_stiffness", "hold_damping")
@@ -96,6 +136,8 @@ class SB3Policy:
         self.spec = spec
         self.model, self._norm = _load(algo, str(folder))
         self.priors = run_priors(folder)
+        self.comm = run_comm(folder)
+        self.reads_messages = self.comm is not None  # it sees the inbox, it may send
         self._ring = spec.object_ring_radius
         # MAPPO: the actor reads only the first local_dim numbers; the critic's global
         # state, which a robot does not have, is padded with zeros.
@@ -103,7 +145,7 @@ class SB3Policy:
         full = self.model.observation_space.shape[0]
         self._pad = np.zeros(full - local, np.float32) if local is not None else None
         self._decide = None
-        if compiled and algo == "ppo":
+        if compiled and algo == "ppo" and self.comm is None:
             from baselines.rl.actor import compiled_actor
 
             self._decide = compiled_actor(self.model, self.priors, self._ring, self._norm, local)
@@ -116,12 +158,11 @@ class SB3Policy:
     def act(self, obs: np.ndarray) -> np.ndarray:
         if self._decide is not None:
             return self._decide(np.asarray(obs)).astype(np.float32)
-        raw = np.asarray(obs, dtype=np.float32)
-        x = self.priors.observe(raw, self._ring)
+        raw, x = policy_input(self.priors, obs, self._ring, self.comm)
         if self._pad is not None:
             x = np.concatenate([x, self._pad])
         if self._norm is not None:
             mean, std, clip = self._norm
             x = np.clip((x - mean) / std, -clip, clip).astype(np.float32)
         action, _ = self.model.predict(x, deterministic=True)
-        return self.priors.command(raw, np.clip(action, -1.0, 1.0), self._ring)
+        return policy_action(self.priors, raw, np.clip(action, -1.0, 1.0), self._ring, self.comm)

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from baselines.rl.policy import run_priors
+from baselines.rl.policy import policy_action, policy_input, run_comm, run_priors
 from uvms_env.policy import AgentSpec
 
 ACTOR_FILE = "actor.pt"
@@ -69,12 +69,17 @@ class ActorNet(nn.Module):
     spread is a learned state-independent log std (SB3's Gaussian policy)."""
 
     def __init__(
-        self, observation_size: int, hidden: list[int], log_std_init: float, normalize: bool
+        self,
+        observation_size: int,
+        hidden: list[int],
+        log_std_init: float,
+        normalize: bool,
+        action_size: int = 8,  # more with an acoustic channel: the send flag, the message
     ) -> None:
         super().__init__()
         self.norm = RunningNorm(observation_size) if normalize else nn.Identity()
-        self.body = mlp(observation_size, hidden, 8)
-        self.log_std = nn.Parameter(torch.full((8,), float(log_std_init)))
+        self.body = mlp(observation_size, hidden, action_size)
+        self.log_std = nn.Parameter(torch.full((action_size,), float(log_std_init)))
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         loc = self.body(self.norm(obs))
@@ -102,7 +107,13 @@ def save_actor(net: ActorNet, settings: dict[str, Any], path: Path) -> None:
 def load_actor(path: Path) -> ActorNet:
     data = torch.load(path, map_location="cpu", weights_only=True)
     s = data["settings"]
-    net = ActorNet(s["observation_size"], s["hidden"], 0.0, s["normalize_observation"])
+    net = ActorNet(
+        s["observation_size"],
+        s["hidden"],
+        0.0,
+        s["normalize_observation"],
+        s.get("action_size", 8),  # actors saved before the channel: 8
+    )
     net.load_state_dict(data["state_dict"])
     return net.eval()
 
@@ -129,6 +140,8 @@ class TorchRLPolicy:
         self.spec = spec
         self.net = _load_cached(file)
         self.priors = run_priors(file.parent)
+        self.comm = run_comm(file.parent)
+        self.reads_messages = self.comm is not None  # it sees the inbox, it may send
         self._ring = spec.object_ring_radius
         self.stats: dict[str, Any] = {}
 
@@ -136,12 +149,11 @@ class TorchRLPolicy:
         pass
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        raw = np.asarray(obs, dtype=np.float32)
-        x = torch.as_tensor(np.asarray(self.priors.observe(raw, self._ring), np.float32))
+        raw, x = policy_input(self.priors, obs, self._ring, self.comm)
         with torch.no_grad():
-            loc, _ = self.net(x)
+            loc, _ = self.net(torch.as_tensor(np.asarray(x, np.float32)))
         chosen = np.clip(torch.tanh(loc).numpy(), -1.0, 1.0)
-        return self.priors.command(raw, chosen, self._ring).astype(np.float32)
+        return policy_action(self.priors, raw, chosen, self._ring, self.comm)
 
 
 def factory(path: str | None):

@@ -160,7 +160,10 @@ def build_modules(env: Any, hp: dict[str, Any]) -> tuple[Any, Any, ActorNet, Cri
     from uvms_env.vector.torchrl_env import GROUP
 
     size = env.observation_spec[GROUP, "observation"].shape[-1]
-    actor_net = ActorNet(size, hp["hidden"], hp["log_std_init"], hp["normalize_observation"])
+    act_size = env.full_action_spec[GROUP, "action"].shape[-1]  # 8, more with a channel
+    actor_net = ActorNet(
+        size, hp["hidden"], hp["log_std_init"], hp["normalize_observation"], act_size
+    )
     critic_net = CriticNet(size, hp["hidden"], hp["normalize_observation"])
     actor_net, critic_net = actor_net.to(env.device), critic_net.to(env.device)
     params = TensorDictModule(
@@ -475,6 +478,7 @@ class Engine:
     def _actor_settings(self) -> dict[str, Any]:
         return {
             "observation_size": self.actor_net.body[0].in_features,
+            "action_size": self.actor_net.body[-1].out_features,
             "hidden": list(self.hp["hidden"]),
             "normalize_observation": bool(self.hp["normalize_observation"]),
         }

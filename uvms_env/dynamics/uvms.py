@@ -138,9 +138,7 @@ class UVMSModel:
         self.body_points = cs.Function("body_points", [q], [cs.horzcat(*points)])
         self.qdot_matrix = cs.Function("qdot_matrix", [q], [self.qdot_map(q)])
 
-    def _vehicle_hydro(
-        self, nu: cs.SX, rot: cs.SX, v_c: cs.SX, p: cs.SX
-    ) -> tuple[cs.SX, cs.SX]:
+    def _vehicle_hydro(self, nu: cs.SX, rot: cs.SX, v_c: cs.SX, p: cs.SX) -> tuple[cs.SX, cs.SX]:
         """The vehicle's hydrodynamic mass and bias and its mass mismatch (an extra rigid
         mass at r_g = origin, which Kirchhoff's form describes exactly)."""
         prm = self.params

@@ -17,8 +17,12 @@ Indices: ``ids`` index the engine's and the task's arrays (``...`` for one envir
 slice or an index array of ``xp`` for K), ``rows`` are the same environments as host
 ints, for what Python does per environment (each one's random generators).
 
-May import: numpy and the ``env`` modules of the task's rules, its options and the
-observation's layout.
+The acoustic channel (``uvms_env.env.channel``, ``comm=``) runs here too, once for both:
+with one, an action is B + (N, 8 + 1 + D) (inputs, send flag, message), the channel takes
+the message part of each step and ``view`` appends each robot's inbox.
+
+May import: numpy and the ``env`` modules of the task's rules, its options, the
+observation's layout and the channel.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from uvms_env.dynamics import NQ, NU
+from uvms_env.env.channel import Channel
 from uvms_env.env.observation import (
     NOISE_STD_Q,
     NOISE_STD_ZETA,
@@ -143,6 +148,13 @@ class EnvCore:
         self.set_geometry(list(range(k)), [s] * k)
         self.g: Any = None  # the last step's constraint values and costs (the kernel's)
         self.cost: Any = None
+        # the acoustic channel (None: the silent team); its own generators, not the env's
+        self.comm = setup.comm
+        self.channel: Channel | None = None
+        self.action_size = NU
+        if self.comm is not None:
+            self.channel = Channel(self.comm, xp, k, n, s.period, first_seeds)
+            self.action_size = self.comm.action_size
 
     def __getstate__(self) -> dict:
         """Pickles name the array namespace (a module is no state)."""
@@ -199,6 +211,8 @@ class EnvCore:
         also takes geometry ``seed`` (``EnvSetup.geometry``)."""
         for i, s in zip(rows, seeds, strict=True):
             self.seeders[i] = np.random.default_rng(s)
+        if self.channel is not None:
+            self.channel.seed(rows, seeds)
         if self.setup.seeded:
             self.set_geometry(rows, [self.setup.geometry(int(s)) for s in seeds])
 
@@ -218,16 +232,21 @@ class EnvCore:
         self.engine.set_waypoints(ids, self.task.robot_waypoint[ids])
         self.evaluate(ids, rows, None)
         self.task.start(ids, self.engine.object_pose(ids))
+        if self.channel is not None:
+            self.channel.reset(ids, rows)
 
     # -- one step -------------------------------------------------------------------------
     def check_actions(self, actions: Any, where: str = "") -> Any:
-        """B + (N, 8) float64 actions of the step's namespace; ValueError naming the
-        environment and agent otherwise (``where``: how the caller names the array)."""
-        xp, shape = self.xp, ((self.k,) if self.batched else ()) + (self.n, NU)
+        """B + (N, A) float64 actions of the step's namespace (A = 8, or the channel's
+        ``action_size``); ValueError naming the environment and agent otherwise (``where``:
+        how the caller names the array)."""
+        xp, shape = self.xp, ((self.k,) if self.batched else ()) + (self.n, self.action_size)
         if actions.shape != shape:
             hint = ""
             if self.batched and actions.ndim == 3 and actions.shape[0] != self.k:
                 hint = f" (num_envs is {self.k})"
+            if self.comm is not None and actions.shape[-1:] != shape[-1:]:
+                hint += self.comm_hint()
             raise ValueError(
                 f"{where or 'actions'} must have shape {shape}, got {actions.shape}{hint}"
             )
@@ -241,13 +260,27 @@ class EnvCore:
             bad = self.host(xp.argwhere(~xp.isfinite(a))[0]).tolist()
             agent = f"uvms_{bad[-2]}"
             env = f"environment {bad[0]}, " if self.batched else ""
-            raise ValueError(f"action of {env}agent {agent!r} contains NaN or inf")
+            part = "message" if bad[-1] >= NU else "action"
+            raise ValueError(f"{part} of {env}agent {agent!r} contains NaN or inf")
         return a
+
+    def comm_hint(self) -> str:
+        """What an action is with the channel on (for the errors of both adapters)."""
+        c = self.comm
+        assert c is not None
+        return (
+            f" (the acoustic channel is on: {NU} inputs, a send flag (> 0: send) and "
+            f"message_dim = {c.message_dim} message numbers, {c.action_size} in all; "
+            "uvms_env.env.channel.silent pads 8-number actions with silence)"
+        )
 
     def step(self, a: Any) -> tuple[Any, Any]:
         """One period of every environment on checked actions ``a`` B + (N, 8): returns
         the task's ``StepOutcome`` and the refused steps (B bool)."""
         task, engine = self.task, self.engine
+        if self.channel is not None:  # the message part goes on the air, the inputs on
+            self._transmit(a)
+            a = self.xp.ascontiguousarray(a[..., :NU])  # the kernels read it as one block
         command = self.priors.command(self.obs, a, self.ring, self.steady)
         if self.command_filter is not None:
             command = self.command_filter(self.obs, command, task.steps == 0)
@@ -263,6 +296,15 @@ class EnvCore:
         state = self.task_arrays(x_o, a) if task.extended else None
         out = task.step(x_o, team, self.g, self.cost, diverged, sampled, wrench_sq, state)
         return out, diverged
+
+    def _transmit(self, a: Any) -> None:
+        """The channel's period: the messages of actions ``a``, sent from where the
+        vehicles are at the start of the step."""
+        assert self.channel is not None
+        t, pos, part = self.task.steps, self.engine.robots()[0][..., :3], a[..., NU:]
+        if not self.batched:  # the channel's arrays have the environment index first
+            t, pos, part = t.reshape(1), pos[None], part[None]
+        self.channel.step(t, part, pos)
 
     def evaluate(self, ids: Any, rows: list[int], action: Any) -> Any:
         """Measure, run the kinematics kernel, note the state metrics, sequence each
@@ -306,8 +348,13 @@ class EnvCore:
         """A copy of the observations of ``ids`` in the observation mode."""
         raw = self.obs[ids]
         if self.priors.observation_mode == "raw":
-            return raw.copy()
-        return self.engine.features(raw, self.steady[ids], self.priors, self.ring)
+            out = raw.copy()
+        else:
+            out = self.engine.features(raw, self.steady[ids], self.priors, self.ring)
+        if self.channel is None:
+            return out
+        inbox = self.channel.block(ids)
+        return self.xp.concatenate([out, inbox if self.batched else inbox[0]], axis=-1)
 
     def state(self) -> Any:
         """B + (20 N + 19,) float32: the true state, the team's waypoint, the time fraction."""

@@ -16,7 +16,6 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from uvms_env.dynamics import NU
 from uvms_env.env.parallel import CoopTransportEnv
 from uvms_env.scenarios import Scenario
 
@@ -25,7 +24,8 @@ class CoopTransportGymEnv(gym.Env[np.ndarray, np.ndarray]):
     """Gymnasium ``uvms_env/CoopTransport-v0``: ``CoopTransportEnv`` seen as one agent.
 
     Observation ``Box(79 N,)`` float32, action ``Box(-1, 1, (8 N,), float32)``; agent i's
-    part is ``[79 i, 79 (i + 1))`` and ``[8 i, 8 (i + 1))``. ``info`` carries the shared
+    part is ``[79 i, 79 (i + 1))`` and ``[8 i, 8 (i + 1))`` (with a channel, ``comm=``,
+    each agent's part is its larger observation and action). ``info`` carries the shared
     ``reward_terms``, the summed ``cost``, ``metrics`` and ``episode_end`` at the end, and
     every agent's own info under ``"agents"``. Arguments: as ``CoopTransportEnv``.
     """
@@ -47,7 +47,8 @@ class CoopTransportGymEnv(gym.Env[np.ndarray, np.ndarray]):
             np.concatenate([o.high for o in obs]),
             dtype=np.float32,
         )
-        self.action_space = spaces.Box(-1.0, 1.0, (NU * len(agents),), np.float32)
+        self.act_size = self.parallel.action_space(agents[0]).shape[0]  # 8 (+ the channel's)
+        self.action_space = spaces.Box(-1.0, 1.0, (self.act_size * len(agents),), np.float32)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -62,9 +63,9 @@ class CoopTransportGymEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(
                 f"action must have shape {self.action_space.shape}, got {action.shape}"
             )
-        agents = self.parallel.possible_agents
+        agents, m = self.parallel.possible_agents, self.act_size
         obs, rewards, terms, truncs, infos = self.parallel.step(
-            {a: action[NU * i : NU * (i + 1)] for i, a in enumerate(agents)}
+            {a: action[m * i : m * (i + 1)] for i, a in enumerate(agents)}
         )
         first = infos[agents[0]]
         info: dict[str, Any] = {

@@ -21,8 +21,9 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from uvms_env.dynamics import NQ
-from uvms_env.env.observation import OBSERVATION_SIZE, observation_bounds
+from uvms_env.dynamics import NQ, NU
+from uvms_env.env.channel import ChannelSettings, block_bounds, channel_settings
+from uvms_env.env.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE, observation_bounds
 from uvms_env.env.priors import ACTION_MODES, DEFAULT_RESIDUAL_SCALE, OBSERVATION_MODES, Priors
 from uvms_env.env.reward import RewardWeights
 from uvms_env.scenarios import FAMILIES, SEEDED_FAMILIES, Scenario, make, replace
@@ -67,6 +68,11 @@ ENV_OPTIONS: dict[str, Option] = {
     "hold_damping": Option(
         "float", "residual mode: joint hold damping, per rad/s", low=0.0, high=10.0
     ),
+    "comm": Option(
+        "comm",
+        "acoustic channel: None/'off' (silent team) or a preset (uvms_env.env.channel)",
+        optional=True,
+    ),
 }
 RESET_SEED = Option("int", "reset's seed", low=0, optional=True)
 # Seeded-family scenarios kept per geometry seed (each costs an IPOPT solve to build).
@@ -86,10 +92,12 @@ class EnvSetup:
     scenario: Scenario = field(init=False)  # the geometry the environment starts on
     reward_weights: RewardWeights = field(init=False)
     priors: Priors = field(init=False)
+    comm: ChannelSettings | None = field(init=False)  # the acoustic channel (None: off)
 
     def __post_init__(self) -> None:
         self.reward_weights = RewardWeights.from_mapping(self.options.get("reward_weights"))
         self.priors = priors_of(self.options)
+        self.comm = channel_settings(self.options.get("comm"))
         self._bank = GeometryBank(self.family, self.n_agents) if self.seeded else None  # type: ignore[arg-type]
         self._by_seed: dict[int, Scenario] = {}
 
@@ -196,12 +204,35 @@ def priors_of(options: Mapping[str, Any]) -> Priors:
     )
 
 
-def observation_space(priors: Priors) -> spaces.Box:
-    """One robot's observation space: the raw layout's bounds, or unbounded features."""
+def observation_space(priors: Priors, comm: ChannelSettings | None = None) -> spaces.Box:
+    """One robot's observation space: the raw layout's bounds, or unbounded features;
+    with a channel, the inbox block's bounds after them."""
     if priors.observation_mode == "raw":
         low, high = observation_bounds()
-        return spaces.Box(low, high, (OBSERVATION_SIZE,), np.float32)
-    return spaces.Box(-np.inf, np.inf, (priors.observation_size,), np.float32)
+    else:
+        size = priors.observation_size
+        low, high = np.full(size, -np.inf, np.float32), np.full(size, np.inf, np.float32)
+    if comm is not None:
+        b_low, b_high = block_bounds(comm)
+        low, high = np.concatenate([low, b_low]), np.concatenate([high, b_high])
+    return spaces.Box(low.astype(np.float32), high.astype(np.float32), low.shape, np.float32)
+
+
+def action_space(comm: ChannelSettings | None = None) -> spaces.Box:
+    """One robot's action space: 8 normalized inputs; with a channel, the send flag and
+    the message after them (``uvms_env.env.channel``)."""
+    size = NU if comm is None else comm.action_size
+    return spaces.Box(-1.0, 1.0, (size,), np.float32)
+
+
+def observation_structure(priors: Priors, comm: ChannelSettings | None = None) -> dict[str, slice]:
+    """Names and slices of the raw observation's fields; with a channel, ``messages``: the
+    inbox block after the observation (raw or features)."""
+    out = dict(OBSERVATION_STRUCTURE)
+    if comm is not None:
+        start = OBSERVATION_SIZE if priors.observation_mode == "raw" else priors.observation_size
+        out["messages"] = slice(start, start + comm.block_size)
+    return out
 
 
 def state_structure(n: int) -> dict[str, slice]:

@@ -20,13 +20,13 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from uvms_env.dynamics import NU
 from uvms_env.env.core import ACTION_KINDS, CoreViews, EnvCore
 from uvms_env.env.engine import ScalarEngine
-from uvms_env.env.observation import OBSERVATION_STRUCTURE
 from uvms_env.env.options import (
     RESET_SEED,
+    action_space,
     observation_space,
+    observation_structure,
     resolve,
     state_structure,
 )
@@ -169,6 +169,17 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     waypoints, steps over K environments, here K = 1) and `xp` numpy or CuPy: the same
     function serves `VectorEnv` on both backends.
 
+    **Communication** (`comm=`; default None: the silent team, nothing changes). With an
+    acoustic channel (`uvms_env.env.channel`: a preset `ideal`, `micromodem_fsk`, `atm900`,
+    `s2c_48_78`, a `ChannelSettings` or `{"preset": name, field: value}`) each action is
+    `Box(-1, 1, (8 + 1 + D,))`: the inputs, a send flag (> 0: send; <= 0: silent) and a
+    message of D = `message_dim` numbers; each observation gains `messages`
+    (`env.observation_structure`): the last M messages received, each its D values, its
+    age and a valid flag, M (D + 2) numbers whatever N. The channel quantizes, shares one
+    medium by TDMA, delays by the modem's latency and the range over 1500 m/s and loses
+    deliveries, seeded by `reset(seed=...)` apart from the physics' draws; an 8-number
+    action raises ValueError (`uvms_env.env.channel.silent` pads one with silence).
+
     **Arguments**
 
     | name | type | default | meaning |
@@ -190,6 +201,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     | internal_wrench_every | int >= 0 | 1 | internal wrench metric every k periods (0: never) |
     | extra_reward_terms | dict str -> fn | None | extra reward terms (Extensions) |
     | extra_constraints | dict str -> fn | None | extra constraints (Extensions) |
+    | comm | None, str, ChannelSettings, dict | None | acoustic channel (Communication) |
 
     Every keyword is checked against one typed table (`SCENARIO_OVERRIDES` in
     `uvms_env.scenarios.overrides`, `ENV_OPTIONS` here): a wrong type raises TypeError
@@ -210,7 +222,9 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     changes and never depends on a seed: two environments built with the same
     arguments and reset with the same seed are identical.
 
-    **Version history.** v0 (2026-11): first version.
+    **Version history.** v0 (2026-11): first version; the `comm` option added later in
+    2026-11 (default off: observations, actions and episodes unchanged, a test replays
+    episodes recorded before it).
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -236,11 +250,12 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
         self.possible_agents = [f"uvms_{i}" for i in range(n)]
         self.agents: list[str] = []
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
-        self.observation_spaces = {a: observation_space(setup.priors) for a in self.possible_agents}
-        self.action_spaces = {
-            a: spaces.Box(-1.0, 1.0, (NU,), np.float32) for a in self.possible_agents
+        self.comm = setup.comm  # the acoustic channel's settings (None: off)
+        self.observation_spaces = {
+            a: observation_space(setup.priors, setup.comm) for a in self.possible_agents
         }
-        self.observation_structure = dict(OBSERVATION_STRUCTURE)
+        self.action_spaces = {a: action_space(setup.comm) for a in self.possible_agents}
+        self.observation_structure = observation_structure(setup.priors, setup.comm)
         self.state_structure = state_structure(n)
         size = self.state_structure["time_fraction"].stop
         self.state_space = spaces.Box(-np.inf, np.inf, (size,), np.float32)
@@ -390,17 +405,19 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
         return agent
 
     def _parse_actions(self, actions: Mapping[str, Any]) -> np.ndarray:
-        """(N, 8) float64 checked actions; ValueError naming the agent otherwise."""
+        """(N, A) float64 checked actions (A = 8, or the channel's ``action_size``);
+        ValueError naming the agent otherwise."""
+        size = self._core.action_size
         if type(actions) is not dict and not isinstance(actions, Mapping):  # dict: fast
             raise ValueError(
-                f"actions must be a dict agent -> array of shape ({NU},), got {type(actions)}"
+                f"actions must be a dict agent -> array of shape ({size},), got {type(actions)}"
             )
-        try:  # fast path: real (float or int) rows of shape (8,), one conversion for all
+        try:  # fast path: real (float or int) rows of shape (A,), one conversion for all
             rows = [np.asarray(actions[agent]) for agent in self.possible_agents]
         except (KeyError, ValueError, TypeError):
             rows = None
         if rows is None or not all(
-            [r.dtype.kind in ACTION_KINDS and r.shape == (NU,) for r in rows]
+            [r.dtype.kind in ACTION_KINDS and r.shape == (size,) for r in rows]
         ):
             self._explain_bad_actions(actions)
         if len(actions) != self.n:
@@ -424,9 +441,11 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
                     f"action of agent {agent!r} is not numeric: dtype {arr.dtype} (allowed: "
                     f"float or int; not bool, complex, str or object), got {act!r}"
                 )
-            if arr.shape != (NU,):
+            size = self._core.action_size
+            if arr.shape != (size,):
+                hint = self._core.comm_hint() if self.comm is not None else ""
                 raise ValueError(
-                    f"action of agent {agent!r} must have shape ({NU},), got {arr.shape}"
+                    f"action of agent {agent!r} must have shape ({size},), got {arr.shape}{hint}"
                 )
         raise ValueError("actions could not be read")  # not reached: some agent is wrong
 

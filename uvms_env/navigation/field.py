@@ -49,6 +49,7 @@ PAPER_K = 6.0
 NAV_GAIN = 0.5
 NAV_MAX_SPEED = 0.25
 
+
 def _check_finite(name: str, value: float) -> float:
     value = float(value)
     if not math.isfinite(value):

@@ -29,8 +29,9 @@ CURRENT_PRESETS = ("none", "mild", "strong")
 class Option:
     """One keyword option. ``kind``: "int", "float" (finite), "bool", "choice" (one of
     ``choices``), "weights" (a mapping name -> finite float; the names are checked by
-    their consumer) or "functions" (a mapping name -> callable or "module:function"
-    string; imported and checked by their consumer). ``low``/``high`` bound numbers
+    their consumer), "functions" (a mapping name -> callable or "module:function"
+    string; imported and checked by their consumer) or "comm" (the acoustic channel's
+    settings, checked by ``uvms_env.env.channel``). ``low``/``high`` bound numbers
     (inclusive unless ``*_open``); ``optional``: None is allowed too."""
 
     kind: str
@@ -52,6 +53,8 @@ class Option:
             text = "dict name -> finite float"
         elif self.kind == "functions":
             text = "dict name -> callable or 'module:function'"
+        elif self.kind == "comm":
+            text = "'off', a preset name, a ChannelSettings or a dict"
         else:
             text = f"{'finite float' if self.kind == 'float' else 'int'}{self._range()}"
         return f"None or {text}" if self.optional else text
@@ -86,6 +89,8 @@ class Option:
             return self._check_weights(name, value)
         if self.kind == "functions":
             return self._check_functions(name, value)
+        if self.kind == "comm":  # checked by its consumer (uvms_env.env.channel)
+            return value
         if isinstance(value, bool | np.bool_):
             raise self._error(name, value, TypeError)
         if self.kind == "int":

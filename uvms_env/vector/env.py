@@ -46,10 +46,14 @@ from typing import Any, ClassVar
 import numpy as np
 from gymnasium import spaces
 
-from uvms_env.dynamics import NU
 from uvms_env.env.core import CoreViews, EnvCore
-from uvms_env.env.observation import OBSERVATION_STRUCTURE
-from uvms_env.env.options import RESET_SEED, observation_space, resolve
+from uvms_env.env.options import (
+    RESET_SEED,
+    action_space,
+    observation_space,
+    observation_structure,
+    resolve,
+)
 from uvms_env.scenarios import Scenario
 from uvms_env.scenarios.overrides import Option
 from uvms_env.vector.engine import DIVERGED_REASONS, BatchedEngine
@@ -113,6 +117,10 @@ class VectorEnv(CoreViews):
     | metrics | (K,) object | the ended episodes' metrics (`uvms_env.env.metrics`) or None |
     | diverged_reason | (K,) object | why a step was refused ("" elsewhere) |
 
+    **Communication** (`comm=`): as in `parallel_env`, the same channel code over K: actions
+    (K, N, 8 + 1 + D), observations with the inbox after them; an environment's automatic
+    reset empties its channel and takes its next episode's loss key.
+
     **Extensions**: `extra_reward_terms` and `extra_constraints` as in `parallel_env`; the
     functions receive the K environments' arrays (CuPy ones on a GPU) and `xp`.
 
@@ -164,9 +172,10 @@ class VectorEnv(CoreViews):
         self.n = n = setup.n_agents
         self.possible_agents = [f"uvms_{i}" for i in range(n)]
         self.agents = list(self.possible_agents)
-        self.single_observation_space = observation_space(setup.priors)
-        self.single_action_space = spaces.Box(-1.0, 1.0, (NU,), np.float32)
-        self.observation_structure = dict(OBSERVATION_STRUCTURE)
+        self.comm = setup.comm  # the acoustic channel's settings (None: off)
+        self.single_observation_space = observation_space(setup.priors, setup.comm)
+        self.single_action_space = action_space(setup.comm)
+        self.observation_structure = observation_structure(setup.priors, setup.comm)
         # episode bookkeeping of the resets (host: read in Python per ended environment)
         self._episode = np.zeros(k, np.int64)
         self._episode_base = np.zeros(k, np.int64)
@@ -213,7 +222,8 @@ class VectorEnv(CoreViews):
 
     @property
     def action_space(self) -> spaces.Box:
-        return spaces.Box(-1.0, 1.0, (self.num_envs, self.n, NU), np.float32)
+        size = self.single_action_space.shape[0]
+        return spaces.Box(-1.0, 1.0, (self.num_envs, self.n, size), np.float32)
 
     def state(self) -> Any:
         """(K, 20 N + 19) float32: the true state, the team's waypoint and the time
@@ -344,7 +354,8 @@ class VectorEnv(CoreViews):
             return xp.asarray(actions.detach().cpu().numpy() if is_torch else actions)
         except (TypeError, ValueError) as exc:
             raise ValueError(
-                f"actions must be an array of shape ({self.num_envs}, {self.n}, {NU})"
+                f"actions must be an array of shape ({self.num_envs}, {self.n}, "
+                f"{self._core.action_size})"
             ) from exc
 
     def close(self) -> None:

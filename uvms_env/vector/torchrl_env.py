@@ -70,6 +70,7 @@ class CoopTransportTorchRLEnv(EnvBase):
         low = torch.as_tensor(np.broadcast_to(obs_space.low, (k, n, size)).copy())
         high = torch.as_tensor(np.broadcast_to(obs_space.high, (k, n, size)).copy())
         state_size = vector_env.state().shape[1]
+        act_size = vector_env.single_action_space.shape[0]  # 8, or more with a channel
         self.observation_spec = Composite(
             {
                 GROUP: Composite(
@@ -83,7 +84,7 @@ class CoopTransportTorchRLEnv(EnvBase):
         self.action_spec = Composite(
             {
                 GROUP: Composite(
-                    {"action": Bounded(-1.0, 1.0, (k, n, 8), self.device, torch.float32)},
+                    {"action": Bounded(-1.0, 1.0, (k, n, act_size), self.device, torch.float32)},
                     shape=(k, n),
                 )
             },
