@@ -99,7 +99,8 @@ def main() -> None:
                     if key not in ("period", "robot", "kind", "excess")
                 )
                 print(
-                    f"  t={r['period']:5d} robot {r['robot']} {r['kind']:<14} +{r['excess']:.4f} {extra}"
+                    f"  t={r['period']:5d} robot {r['robot']} {r['kind']:<14} "
+                    f"+{r['excess']:.4f} {extra}"
                 )
 
 
