@@ -54,6 +54,10 @@ PRICED = {
 }
 
 
+# a price's point in the figure needs this many paired successes (fewer: noise)
+MIN_PAIRED = 3
+
+
 def cases(team_sizes: tuple[int, ...] = TEAM_SIZES, paper: bool = True) -> list[Case]:
     out = [Case(f"random N={n}", "random", (("n_agents", n),)) for n in team_sizes]
     return [*out, Case("paper", "paper")] if paper else out
@@ -67,7 +71,7 @@ def _completion(row: dict[str, Any]) -> float:
 def _values(rows: list[dict[str, Any]], key: str) -> np.ndarray:
     if key == "completion_periods":
         return np.array([_completion(r) for r in rows])
-    return np.array([float(r.get(key, np.nan) or np.nan) for r in rows])
+    return np.array([np.nan if r.get(key) in (None, "") else float(r[key]) for r in rows])
 
 
 def rung_summary(rows: list[dict[str, Any]], seed: int) -> dict[str, Any]:
@@ -269,7 +273,8 @@ def overview(result: dict[str, Any]) -> str:
 
 
 def plot_prices(result: dict[str, Any], out: Path) -> None:
-    """Ratio of means (rung / reference) against the team size, one panel per metric."""
+    """Ratio of means (rung / reference) against the team size, one panel per metric;
+    points with fewer than ``MIN_PAIRED`` paired successes are left out."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -282,7 +287,7 @@ def plot_prices(result: dict[str, Any], out: Path) -> None:
             for p in result["prices"][kind]:
                 if not p["scenario"].startswith("random N=") or p[name] is None:
                     continue
-                if p[name]["ratio"] is None:
+                if p[name]["ratio"] is None or p["paired_successes"] < MIN_PAIRED:
                     continue
                 n = int(p["scenario"].split("=")[1])
                 by_rung.setdefault(f"{p['rung']} / {p['reference']}", []).append(

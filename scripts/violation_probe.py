@@ -7,7 +7,8 @@ Plays the evaluator's episodes (``baselines.evaluate.episode_seed``: the same se
 ``python -m baselines.evaluate`` with the same arguments) and prints one line per robot
 and period with a violated constraint: the period, the waypoint the team heads to, the
 kind, by how much, for ``joint_speed`` which joint and its rate, and the robot's decision
-(the expert's status, its margin ``margin_max`` and predicted rate offset). A summary per
+(the expert's status, its margin ``margin_max`` and predicted rate offset) and in how
+many of the last ``WINDOW`` periods the robot had a saturated input. A summary per
 policy and episode follows. Why: the rare violation periods of the distributed expert
 at large N need their place in the episode and their cause, with the centralized bound
 beside them on the same episodes.
@@ -28,22 +29,38 @@ from baselines.evaluate import episode_seed
 from baselines.policies import PolicySource
 from uvms_env.episode import Step, play, play_team
 
+SATURATED = 0.98  # |a| at which a normalized input counts as saturated
+WINDOW = 10  # periods before a violation in which saturated inputs are counted
+
 
 def probe(policy: str, scenario: str, seed: int, overrides: dict[str, Any]) -> list[dict]:
     """The violation periods of one episode, one dict per robot and period."""
     env = uvms_env.parallel_env(scenario=scenario, seed=seed, **overrides)
     source = PolicySource.parse(policy)
     found: list[dict] = []
+    switches: list[int] = []  # periods at which the team's waypoint changed
+    heading = [None]
+    recent: dict[str, list[bool]] = {}  # per robot: had a saturated input, last periods
 
     def on_step(step: Step) -> None:
         sim = step.env.unwrapped.sim
+        waypoint = tuple(np.round(step.env.unwrapped.state()[-7:-1], 6))
+        if heading[0] is not None and waypoint != heading[0]:
+            switches.append(step.index)
+        heading[0] = waypoint
         for i, (agent, info) in enumerate(step.infos.items()):
+            action = np.asarray(step.actions[agent][:8]) if agent in step.actions else None
+            window = recent.setdefault(agent, [])
+            if action is not None:
+                window.append(bool(np.abs(action).max() >= SATURATED))
+                del window[:-WINDOW]
             for kind, value in info["constraint_values"].items():
                 if value <= 0:
                     continue
                 row = {"period": step.index, "robot": i, "kind": kind, "excess": value}
                 stats = step.policies.get(agent, step.policies.get("team")).stats
                 row["waypoint"] = stats.get("waypoint_index")
+                row["saturated_periods"] = sum(window)  # of the last WINDOW
                 row["status"] = stats.get("status")
                 if kind == "joint_speed":
                     rates = np.asarray(sim.state.zeta[i][6:10])
@@ -59,7 +76,8 @@ def probe(policy: str, scenario: str, seed: int, overrides: dict[str, Any]) -> l
     else:
         episode = play(env, source.factory(seed), seed, on_step=on_step)
     env.close()
-    found.append({"summary": True, **{k: episode.metrics[k] for k in ("success", "episode_steps")}})
+    end = {k: episode.metrics[k] for k in ("success", "episode_steps")}
+    found.append({"summary": True, "switches": switches, **end})
     return found
 
 
@@ -90,7 +108,8 @@ def main() -> None:
             end = rows.pop()
             print(
                 f"== {policy} episode {k} (seed {seed}): success {end['success']}, "
-                f"{end['episode_steps']} periods, {len(rows)} robot-periods violated"
+                f"{end['episode_steps']} periods, {len(rows)} robot-periods violated; "
+                f"waypoint switches at {end['switches']}"
             )
             for r in rows:
                 extra = " ".join(

@@ -47,6 +47,7 @@ def test_prices_are_paired_differences_over_the_episodes_both_succeeded_in():
     result = ladder(rows, ["nmpc:central", "nmpc"], ["random N=3"], seed=0)
     expert_rung = next(s for s in result["rungs"] if s["policy"] == "nmpc")
     assert expert_rung["success"] == 2 and expert_rung["completion_periods"] == 675.0
+    assert expert_rung["violation_periods"] == 0.0  # a zero is a value, not a gap
     assert [q["rung"] for q in result["prices"]["decentralization"]] == ["nmpc"]
     assert result["prices"]["learning"] == []  # no learned rung here
 
