@@ -174,8 +174,10 @@ class TalkingNMPCPolicy(NMPCPolicy):
             seen: set[int | None] = {self.spec.index % SENDER_LEVELS}
             order = np.argsort(age, kind="stable")
             for k in order:
+                if w[k] <= 0:  # an empty slot or a stale message names no one
+                    continue
                 sender = decode_sender(slots[k, : c.message_dim])
-                if w[k] > 0 and sender in seen:
+                if sender in seen:
                     w[k] = 0.0
                 seen.add(sender)
         used = w > 0
