@@ -161,7 +161,9 @@ class TalkingNMPCPolicy(NMPCPolicy):
         self.message = encode_message(d_world, self.scale, c.message_dim, self.spec.index)
         self.stats["messages_used"] = len(self._weights)
         self.stats["message_weight"] = float(self._weights.sum())
-        return np.concatenate([action, [SEND], self.message])
+        # float32 as the silent team's actions go out (``uvms_env.episode.SilentPolicy``):
+        # with no message the same inputs, bit for bit
+        return np.concatenate([action, [SEND], self.message]).astype(np.float32)
 
     def _read_inbox(self, inbox: np.ndarray) -> None:
         """The valid messages of the inbox young enough to use, and their weights."""
