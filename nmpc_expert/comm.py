@@ -55,8 +55,11 @@ from uvms_env.policy import AgentSpec
 MESSAGE_NUMBERS = 3  # the world-frame disturbance on the vehicle's linear rates
 MESSAGE_SCALE_LIMITS = 0.2  # message unit, in vehicle linear speed limits per period
 SENDER_LEVELS = 16  # sender indices the 4th number tells apart (needs >= 4 bits)
-FRESH_PERIODS = 2  # a message this old (or younger) counts fully
-STALE_PERIODS = 10  # a message this old (or older) is ignored
+# the age weights: what a message mostly carries, the current, changes over seconds, so a
+# message of a slow modem (80 bit/s: ~9 periods of delay, each robot heard every 5 N
+# periods) still counts; a teammate's pull changes faster, hence the fade
+FRESH_PERIODS = 4  # a message this old (or younger) counts fully (0.5 s)
+STALE_PERIODS = 25  # a message this old (or older) is ignored (3 s)
 SEND = 1.0  # the send flag: every period (the channel's TDMA decides when it goes out)
 _VEHICLE_ATTITUDE = slice(3, 6)  # q's ZYX Euler angles of the vehicle (local model)
 
