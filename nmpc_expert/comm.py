@@ -48,6 +48,7 @@ import numpy as np
 from nmpc_expert.observation import OBSERVATION_SIZE
 from nmpc_expert.policy import NMPCPolicy
 from nmpc_expert.settings import NMPCSettings, controller_settings
+from uvms_env.dynamics import NU
 from uvms_env.dynamics.local_model import NX
 from uvms_env.dynamics.spatial import rot_zyx
 from uvms_env.policy import AgentSpec
@@ -167,6 +168,11 @@ class TalkingNMPCPolicy(NMPCPolicy):
         # float32 as the silent team's actions go out (``uvms_env.episode.SilentPolicy``):
         # with no message the same inputs, bit for bit
         return np.concatenate([action, [SEND], self.message]).astype(np.float32)
+
+    def executed(self, action: np.ndarray) -> None:
+        """The input applied (``LocalController.executed``): the first 8 numbers of a
+        full channel action, or the 8 inputs alone."""
+        super().executed(np.asarray(action).reshape(-1)[:NU])
 
     def _read_inbox(self, inbox: np.ndarray) -> None:
         """The valid messages of the inbox young enough to use, and their weights."""

@@ -146,6 +146,17 @@ def test_fusion_is_the_weighted_mean() -> None:
     np.testing.assert_array_equal(fused[3:], p.disturbance[3:])
 
 
+def test_executed_takes_the_inputs_of_a_channel_action() -> None:
+    """A driver that applies another action (DAgger) hands the full channel action back."""
+    comm = channel_settings("ideal")
+    assert comm is not None
+    p = TalkingNMPCPolicy(_spec(comm))
+    p.reset()
+    action = np.linspace(-0.5, 0.5, comm.action_size)
+    p.executed(action)
+    np.testing.assert_array_equal(p._applied, action[:8])
+
+
 def test_refuses_without_a_channel() -> None:
     with pytest.raises(ValueError, match="has none"):
         TalkingNMPCPolicy(_spec(None))
