@@ -114,7 +114,11 @@ class TalkingNMPCPolicy(NMPCPolicy):
     reads_messages = True
 
     def __init__(
-        self, spec: AgentSpec, solver: str = "rti", settings: NMPCSettings | None = None
+        self,
+        spec: AgentSpec,
+        solver: str = "rti",
+        settings: NMPCSettings | None = None,
+        own_share: float = 0.0,
     ) -> None:
         comm = spec.comm
         if comm is None:
@@ -135,6 +139,7 @@ class TalkingNMPCPolicy(NMPCPolicy):
                 "shift: it needs disturbance_observer and observer_input_gain > 0"
             )
         self.comm = comm
+        self.own_share = own_share
         self.scale = message_scale(self.settings)
         self._rotation: np.ndarray | None = None  # this period's attitude, once computed
         self._received = np.zeros((0, 3))  # fresh world-frame estimates of the teammates
@@ -207,7 +212,7 @@ class TalkingNMPCPolicy(NMPCPolicy):
         own = rot @ self.disturbance[:3]
         mean = (own + self._weights @ self._received) / (1.0 + self._weights.sum())
         fused = self.disturbance.copy()
-        fused[:3] = rot.T @ mean
+        fused[:3] = rot.T @ (mean + self.own_share * (own - mean))
         self.fused = fused
         return fused
 
