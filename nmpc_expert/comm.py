@@ -27,7 +27,9 @@ estimate). ``decode_message`` and ``decode_sender`` invert the encoding.
 ``w(a) = 1`` up to ``FRESH_PERIODS``, falling linearly to 0 at ``STALE_PERIODS``; older
 ones are ignored, and of one sender only the newest counts (without a sender number, at
 ``message_dim`` 3, a sender may count twice). The fused world-frame estimate is (d_own +
-sum_k w_k m_k) / (1 + sum_k w_k), rotated back into the robot's body frame.
+sum_k w_k m_k) / (1 + sum_k w_k), rotated back into the robot's body frame; ``own_share``
+(default 0) keeps that part of the robot's own deviation from it (1: its own estimate,
+as silent; 0.5 measured between the two, docs/channel.md).
 **No usable message: exactly the silent expert** (its own estimate, bit for bit; tested).
 
 Needs a channel: built from a spec without one (``AgentSpec.comm`` None) it raises, as it

@@ -144,6 +144,8 @@ def test_fusion_is_the_weighted_mean() -> None:
     mean = (own + msgs[0][0] + msgs[1][0]) / 3
     np.testing.assert_allclose(fused[:3], rot.T @ mean, atol=1e-12)
     np.testing.assert_array_equal(fused[3:], p.disturbance[3:])
+    p.own_share = 1.0  # all of its own deviation from the mean: its own estimate
+    np.testing.assert_allclose(p._input_disturbance(), p.disturbance, atol=1e-15)
 
 
 def test_executed_takes_the_inputs_of_a_channel_action() -> None:
