@@ -69,10 +69,9 @@ _VEHICLE_ATTITUDE = slice(3, 6)  # q's ZYX Euler angles of the vehicle (local mo
 
 def message_scale(settings: NMPCSettings) -> float:
     """The message's unit: ``MESSAGE_SCALE_LIMITS`` vehicle linear speed limits, m/s (a
-    velocity change per period). The estimates under a mild current stay well inside it;
-    the observer's own clip (``observer_limit``, 5 limits) is far wider, but a wider unit
-    would spend the 8-bit presets' levels on values that do not occur (under a mild
-    current the estimates stay below 0.1 limits)."""
+    velocity change per period). Under a mild current the estimates stay below 0.1
+    limits; the observer's own clip (``observer_limit``, 5 limits) is far wider, but a
+    unit that wide would spend the 8-bit presets' levels on values that do not occur."""
     return MESSAGE_SCALE_LIMITS * settings.vehicle_speed[0]
 
 
@@ -134,6 +133,8 @@ class TalkingNMPCPolicy(NMPCPolicy):
                 f"nmpc:comm sends {MESSAGE_NUMBERS} numbers per message; the channel's "
                 f"message_dim is {comm.message_dim}"
             )
+        if not 0.0 <= own_share <= 1.0:
+            raise ValueError(f"own_share must lie in [0, 1], got {own_share}")
         super().__init__(spec, solver, settings)
         if not self.settings.disturbance_observer or self.settings.observer_input_gain <= 0:
             raise ValueError(
