@@ -22,8 +22,9 @@ to ``--out``.
 
 The default (2 bit rates x 2 losses x 1 latency = 4 channels, plus ``ideal``; random
 N = 2, 4, 6 and ``paper``) at ``--episodes 10`` is 7 runs x 40 episodes, about 25 minutes
-on 2 cores (an episode takes ~10 s on one, docs/channel.md); ``--n-agents 2 3 4 5 6`` plays the ladder's
-five team sizes, the grid's flags take more points (each point is one more run).
+on 2 cores (an episode takes ~10 s on one, docs/channel.md); ``--n-agents 2 3 4 5 6``
+plays the ladder's five team sizes, the grid's flags take more points (each point is one
+more run).
 
 May import: the standard library, numpy, matplotlib, ``uvms_env.env.channel`` and
 ``baselines.evaluate`` / ``baselines.ladder``.
