@@ -176,7 +176,8 @@ def ladder(
     return {"rungs": rungs, "prices": prices}
 
 
-def _f(x: Any, digits: int = 2) -> str:
+def fmt(x: Any, digits: int = 2) -> str:
+    """A table cell: n/a for None or a non-finite number."""
     if x is None or (isinstance(x, float) and not np.isfinite(x)):
         return "n/a"
     return f"{x:,.{digits}f}" if isinstance(x, float) else str(x)
@@ -186,7 +187,7 @@ def _mean_ci(s: dict[str, Any], key: str, digits: int) -> str:
     ci = s.get(f"{key}_ci95")
     if s.get(key) is None:
         return "n/a"
-    return f"{_f(s[key], digits)} [{_f(ci[0], digits)}, {_f(ci[1], digits)}]"
+    return f"{fmt(s[key], digits)} [{fmt(ci[0], digits)}, {fmt(ci[1], digits)}]"
 
 
 def markdown(result: dict[str, Any]) -> str:
@@ -200,7 +201,7 @@ def markdown(result: dict[str, Any]) -> str:
     for s in sorted(result["rungs"], key=lambda s: (s["scenario"] == "paper", s["scenario"])):
         n = s["episodes"] - s["out_of_reach"]
         rate = (
-            f"{s['success']}/{n} [{_f(s['success_ci95'][0])}, {_f(s['success_ci95'][1])}]"
+            f"{s['success']}/{n} [{fmt(s['success_ci95'][0])}, {fmt(s['success_ci95'][1])}]"
             if n
             else "n/a"
         )
@@ -208,8 +209,8 @@ def markdown(result: dict[str, Any]) -> str:
         lines.append(
             f"| {s['scenario']} | `{s['policy']}` | {s['information']} | {rate} | {clean} | "
             f"{_mean_ci(s, 'completion_periods', 0)} | {_mean_ci(s, 'internal_wrench_rms', 2)} | "
-            f"{_mean_ci(s, 'control_effort', 0)} | {_f(s.get('violation_periods'), 1)} | "
-            f"{_f(s['decision_ms_median'], 3)} / {_f(s['decision_ms_p95'], 3)} |"
+            f"{_mean_ci(s, 'control_effort', 0)} | {fmt(s.get('violation_periods'), 1)} | "
+            f"{fmt(s['decision_ms_median'], 3)} / {fmt(s['decision_ms_p95'], 3)} |"
         )
     for kind, rows in result["prices"].items():
         if not rows:
@@ -231,12 +232,12 @@ def markdown(result: dict[str, Any]) -> str:
                 cells.append(
                     "n/a"
                     if v is None
-                    else f"{_f(v['difference'])} [{_f(v['difference_ci95'][0])}, "
-                    f"{_f(v['difference_ci95'][1])}], x{_f(v['ratio'])}"
+                    else f"{fmt(v['difference'])} [{fmt(v['difference_ci95'][0])}, "
+                    f"{fmt(v['difference_ci95'][1])}], x{fmt(v['ratio'])}"
                 )
             lines.append(
                 f"| {p['scenario']} | `{p['rung']}` | `{p['reference']}` | "
-                f"{p['paired_successes']} | {_f(p['success_difference'])} | "
+                f"{p['paired_successes']} | {fmt(p['success_difference'])} | "
                 + " | ".join(cells)
                 + " |"
             )
@@ -267,7 +268,7 @@ def overview(result: dict[str, Any]) -> str:
                 times.append(s["decision_ms_median"])
         info = by[(p, labels[0])]["information"] if (p, labels[0]) in by else ""
         lines.append(
-            f"| `{p}` | {info} | " + " | ".join(cells) + f" | {_f(max(times, default=None), 2)} |"
+            f"| `{p}` | {info} | " + " | ".join(cells) + f" | {fmt(max(times, default=None), 2)} |"
         )
     return "\n".join(lines) + "\n"
 

@@ -1,7 +1,9 @@
 """Policy sources for the evaluator: ``--policy NAME[:ARG]`` to a per-agent factory.
 
 Known names: ``nmpc`` (the expert, ``nmpc:ipopt`` for its reference solver,
-``nmpc:paper`` for the paper's controller without the disturbance observer;
+``nmpc:paper`` for the paper's controller without the disturbance observer,
+``nmpc:comm`` for the expert that talks over the acoustic channel, ``--comm PRESET``:
+``nmpc_expert.comm``;
 ``nmpc:central``: the centralized NMPC, a *team* policy with full information, the bound
 of the ladder, never a decentralized entry: ``PolicySource.team``), ``random``
 (uniform actions, seeded per episode and agent), ``zero`` (all inputs zero), and
@@ -28,6 +30,7 @@ from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 from uvms_env.team_policy import FULL_INFORMATION, LOCAL_INFORMATION, TeamPolicyFactory
 
 PRETRAINED = Path(__file__).resolve().parent / "pretrained"
+TALK_OPTION = "comm"  # nmpc:comm, the expert that talks over the channel
 FILTER_SUFFIX = "+filter"
 
 
@@ -63,19 +66,32 @@ class ZeroPolicy:
 def _nmpc(arg: str | None, seed: int) -> PolicyFactory:
     """``nmpc[:OPTIONS]``, OPTIONS comma-separated: a solver (rti, ipopt) and/or a
     controller (observer, paper), e.g. ``nmpc:paper``, ``nmpc:ipopt``."""
-    from nmpc_expert import CONTROLLERS, make_policy  # the expert is optional at import time
+    from nmpc_expert import (  # the expert is optional at import time
+        CONTROLLERS,
+        make_policy,
+        make_talking_policy,
+    )
 
-    solver, controller = "rti", None
+    solver, controller, talk = "rti", None, False
     for option in (arg or "").split(","):
         if option in ("rti", "ipopt"):
             solver = option
         elif option in CONTROLLERS:
             controller = option
+        elif option == TALK_OPTION:
+            talk = True
         elif option:
             raise ValueError(
-                f"unknown nmpc option {option!r}: use rti, ipopt or one of {CONTROLLERS} "
-                "(or nmpc:central alone: the centralized team policy)"
+                f"unknown nmpc option {option!r}: use rti, ipopt, {TALK_OPTION} or one of "
+                f"{CONTROLLERS} (or nmpc:central alone: the centralized team policy)"
             )
+    if talk:
+        if solver != "rti" or controller not in (None, "observer"):
+            raise ValueError(
+                f"nmpc:{TALK_OPTION} shares the disturbance observer's estimate: it runs the "
+                "observer controller with rti only"
+            )
+        return make_talking_policy(solver)
     return make_policy(solver, controller)
 
 

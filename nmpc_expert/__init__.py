@@ -14,7 +14,8 @@ lane-parallel call), ``workspace`` (the filter's workspace rows), ``reference``
 (navigation-function reference over the horizon), ``observation`` (reading the own
 observation), ``settings``, ``policy``, ``central`` and ``central_model`` (the
 centralized NMPC of the whole team: a full-information team policy, the ladder's bound,
-``uvms_env.team_policy``), ``rollout`` (closed loop + metrics),
+``uvms_env.team_policy``), ``comm`` (the talking expert, ``nmpc:comm``: the distributed
+expert with messages over the acoustic channel), ``rollout`` (closed loop + metrics),
 ``figures``, ``__main__`` (the main job). The prediction model (MODEL section 5) and the
 steady input are ``uvms_env.dynamics.local_model``.
 
@@ -22,6 +23,7 @@ May import: numpy, scipy, casadi, matplotlib, tqdm and ``uvms_env``. Never ``bas
 """
 
 from nmpc_expert.central import CentralNMPC, make_central_policy
+from nmpc_expert.comm import TalkingNMPCPolicy, make_talking_policy
 from nmpc_expert.policy import NMPCPolicy, make_policy
 from nmpc_expert.safety_filter import SafetyFilter, make_filter
 from nmpc_expert.settings import CONTROLLERS, NMPCSettings, controller_settings
@@ -37,8 +39,10 @@ __all__ = [
     "NMPCPolicy",
     "NMPCSettings",
     "SafetyFilter",
+    "TalkingNMPCPolicy",
     "controller_settings",
     "make_central_policy",
     "make_filter",
     "make_policy",
+    "make_talking_policy",
 ]

@@ -270,11 +270,17 @@ class LocalController:
         s = self.settings
         m = NX // 2
         offset = self.solver.input_offset
+        d = self._input_disturbance()
         for j in range(3):  # surge, sway, heave
             k = self._input_of_rate[j]
             if gain[m + j, k] > 1e-9:
-                shift = -s.observer_input_gain * self.disturbance[j] / gain[m + j, k]
+                shift = -s.observer_input_gain * d[j] / gain[m + j, k]
                 offset[k] = np.clip(shift, -s.observer_input_limit, s.observer_input_limit)
+
+    def _input_disturbance(self) -> np.ndarray:
+        """The estimate the steady-input shift counters: the robot's own (a talking
+        expert, ``nmpc_expert.comm``, fuses its teammates' into it)."""
+        return self.disturbance
 
     def _apply_margin(self) -> None:
         """Speed bounds tightened by min(k sigma, margin_limit) (observer controller)."""

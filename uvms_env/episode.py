@@ -115,12 +115,13 @@ class SilentPolicy:
 
 def build_policies(env: Any, factory: PolicyFactory) -> dict[str, Policy]:
     """One policy per agent of ``env``'s current scenario, each built from its own
-    ``AgentSpec`` and reset; a team policy in their place is a TypeError. Under a channel a
-    policy that does not read messages plays silent (``SilentPolicy``)."""
+    ``AgentSpec`` (with the channel's settings under ``comm``) and reset; a team policy in
+    their place is a TypeError. Under a channel a policy that does not read messages plays
+    silent (``SilentPolicy``)."""
     comm = getattr(env, "comm", None)
     policies = {}
     for i, agent in enumerate(env.possible_agents):
-        policy = factory(AgentSpec.from_scenario(env.scenario, i))
+        policy = factory(AgentSpec.from_scenario(env.scenario, i, comm))
         if is_team_policy(policy):
             raise TypeError(
                 f"the per-robot factory built a team policy ({type(policy).__name__}), "

@@ -9,19 +9,26 @@ One controller per agent, built only from what that agent knows before the task 
     policy.stats                      # dict of the last decision's statistics (may be empty)
 
 A policy never sees another agent's observation, the global state or contact forces.
-May import: numpy and ``uvms_env.scenarios``.
+Under an acoustic channel (``uvms_env.env.channel``) the spec's ``comm`` holds the
+channel's settings (message size, inbox size, ...), which the robot knows before the task
+like its modem; a policy that reads messages sizes its inbox and its messages from it.
+May import: numpy, ``uvms_env.scenarios`` and ``uvms_env.navigation`` (the map's types);
+``uvms_env.env.channel`` for type checking only (the env package imports this module).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from uvms_env.navigation import Cylinder, Sphere, Workspace
 from uvms_env.scenarios import Scenario
+
+if TYPE_CHECKING:
+    from uvms_env.env.channel import ChannelSettings
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,6 +50,7 @@ class AgentSpec:
     period: float
     success_pos_tol: float
     success_att_tol: float
+    comm: ChannelSettings | None = None  # the acoustic channel; None: the silent team
 
     @property
     def object_ring_radius(self) -> float:
@@ -51,7 +59,9 @@ class AgentSpec:
         return float(self.ring_radius) if self.object_shape == "ring" else 0.0
 
     @staticmethod
-    def from_scenario(scenario: Scenario, index: int) -> AgentSpec:
+    def from_scenario(
+        scenario: Scenario, index: int, comm: ChannelSettings | None = None
+    ) -> AgentSpec:
         if not 0 <= index < scenario.n_agents:
             raise ValueError(f"agent index {index} out of range for {scenario.n_agents} agents")
         return AgentSpec(
@@ -69,6 +79,7 @@ class AgentSpec:
             period=scenario.period,
             success_pos_tol=scenario.success_pos_tol,
             success_att_tol=scenario.success_att_tol,
+            comm=comm,
         )
 
 

@@ -1,0 +1,394 @@
+"""The communication sweep: the talking expert over a grid of acoustic channels.
+
+    python -m baselines.comm_sweep --episodes 10 --seed 202 --workers 2 --out runs/comm_sweep
+
+The talking expert (``nmpc:comm``, ``nmpc_expert.comm``) plays the ladder's cases (random
+N = 2..6 and ``paper``, a ``mild`` current, ``mismatch=0.1``: ``baselines.ladder``) under
+every point of a grid of channels, bit rate x loss probability x modem latency, each a
+``ChannelSettings`` variation of ``--preset`` (default ``atm900``), and under the
+``ideal`` channel (the full-information end of the curve). The silent expert (``nmpc``)
+and the centralized bound (``nmpc:central``) play the same episodes once, without a
+channel: the channel changes no physics draw and neither of them talks, so their episodes
+are the same under any channel (``docs/channel.md``).
+
+Per (case, channel): clean success, completion time (periods to success) and internal
+wrench RMS, and the talking expert against the silent one on the paired episodes (ratio of
+means over the episodes both succeeded in: ``baselines.ladder.price``). Writes the
+evaluator's outputs (``episodes.csv``, ``results.*``; a channel point's rows carry the
+case and the channel in ``scenario``), ``sweep.csv``, ``sweep.json``, ``sweep.md`` and
+``comm_curve.png`` (the ratios against the bit rate, one line per loss and latency, the
+silent expert, the ``ideal`` channel and the centralized bound as horizontal references)
+to ``--out``.
+
+The default (2 bit rates x 2 losses x 1 latency = 4 channels, plus ``ideal``; random
+N = 2, 4, 6 and ``paper``) at ``--episodes 10`` is 7 runs x 40 episodes, about 25 minutes
+on 2 cores (an episode takes ~10 s on one, docs/channel.md); ``--n-agents 2 3 4 5 6``
+plays the ladder's five team sizes, the grid's flags take more points (each point is one
+more run).
+
+May import: the standard library, numpy, matplotlib, ``uvms_env.env.channel`` and
+``baselines.evaluate`` / ``baselines.ladder``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from baselines.evaluate import Case, evaluate, write_outputs
+from baselines.ladder import CENTRAL, CONDITIONS, EXPERT, PRICED, TEAM_SIZES, cases, fmt, price
+from baselines.ladder import rung_summary as summary_of
+from uvms_env.env.channel import ChannelSettings, channel_settings
+
+TALKER = "nmpc:comm"
+IDEAL = "ideal"
+PRESET = "atm900"
+# the default grid: a micro-modem's rate and the atm900's; no loss and the loss of a bad
+# acoustic day; the atm900's modem latency. Small enough for 2 cores (module docstring)
+BIT_RATES = (80.0, 2400.0)
+LOSSES = (0.0, 0.5)
+LATENCIES = (4,)
+SWEEP_TEAM_SIZES = (2, 4, 6)  # the ladder's TEAM_SIZES thinned: each case is one more run
+SEPARATOR = " | "  # between the case and the channel in a channel point's case label
+CURVE = {"completion periods": "completion_periods", "internal wrench rms": "internal_wrench_rms"}
+
+
+@dataclass(frozen=True)
+class ChannelPoint:
+    """One channel of the sweep: a label and its settings."""
+
+    label: str
+    settings: ChannelSettings
+    bit_rate: float
+    loss: float
+    latency: int
+
+
+def grid(
+    preset: str = PRESET,
+    bit_rates: tuple[float, ...] = BIT_RATES,
+    losses: tuple[float, ...] = LOSSES,
+    latencies: tuple[int, ...] = LATENCIES,
+) -> list[ChannelPoint]:
+    """The ``ideal`` channel, then every (bit rate, loss, latency) as a variation of
+    ``preset``'s settings (ValueError, naming the field, on an impossible one)."""
+    base = channel_settings(preset)
+    ideal = channel_settings(IDEAL)
+    if base is None or ideal is None:
+        raise ValueError(f"the sweep needs a channel preset, got {preset!r}")
+    points = [ChannelPoint(IDEAL, ideal, ideal.bit_rate_bps, 0.0, 0)]
+    for rate in bit_rates:
+        for loss in losses:
+            for latency in latencies:
+                s = dataclasses.replace(
+                    base,
+                    bit_rate_bps=float(rate),
+                    loss_probability=float(loss),
+                    modem_latency_periods=int(latency),
+                )
+                label = f"{rate:g} bit/s, loss {loss:g}, latency {latency}"
+                points.append(ChannelPoint(label, s, float(rate), float(loss), int(latency)))
+    return points
+
+
+def sweep_cases(base: list[Case], points: list[ChannelPoint]) -> list[Case]:
+    """Each case under each channel: the case's keywords with ``comm``, labelled
+    "case | channel" (episode seeds come from the scenario: the same episodes)."""
+    return [
+        Case(f"{c.label}{SEPARATOR}{p.label}", c.scenario, (*c.overrides, ("comm", p.settings)))
+        for c in base
+        for p in points
+    ]
+
+
+def _split(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The rows with the case in ``scenario`` and the channel in the policy's name
+    (``nmpc:comm [channel]``), so that a talking run pairs with the references."""
+    out = []
+    for r in rows:
+        case, _, channel = r["scenario"].partition(SEPARATOR)
+        policy = f"{r['policy']} [{channel}]" if channel else r["policy"]
+        out.append({**r, "scenario": case, "policy": policy, "channel": channel or "none"})
+    return out
+
+
+def summarize(
+    rows: list[dict[str, Any]], labels: list[str], points: list[ChannelPoint], seed: int
+) -> dict[str, Any]:
+    """Per (case, policy or channel): the rates and means (``baselines.ladder``'s rung
+    summary) and, for the talking expert and the bound, the ratios of means against the
+    silent expert on the paired episodes; pooled over the cases, the clean success and
+    the mean of the per-case ratios (each case counts once, whatever its scale)."""
+    split = _split(rows)
+    runs = [EXPERT, CENTRAL, *(f"{TALKER} [{p.label}]" for p in points)]
+    table, pooled = [], []
+    for run in runs:
+        per_case = []
+        for case in labels:
+            group = [r for r in split if r["policy"] == run and r["scenario"] == case]
+            if not group:
+                continue
+            s = summary_of(group, seed)
+            if run != EXPERT:
+                p = price(split, run, EXPERT, case, seed)
+                for name, key in PRICED.items():
+                    s[f"{key}_ratio"] = p[name]["ratio"] if p[name] else None
+                s["paired_successes"] = p["paired_successes"]
+            s["run"], s["channel"] = run, group[0]["channel"]
+            per_case.append(s)
+        if not per_case:
+            continue
+        table += per_case
+        n = sum(s["episodes"] - s["out_of_reach"] for s in per_case)
+        entry: dict[str, Any] = {
+            "run": run,
+            "channel": per_case[0]["channel"],
+            "cases": len(per_case),
+            "clean_success_rate": sum(s["clean_success"] for s in per_case) / n if n else None,
+        }
+        for key in PRICED.values():
+            ratios = [s.get(f"{key}_ratio") for s in per_case]
+            ok = [x for x in ratios if x is not None]
+            entry[f"{key}_ratio"] = 1.0 if run == EXPERT else (float(np.mean(ok)) if ok else None)
+        point = next((p for p in points if f"{TALKER} [{p.label}]" == run), None)
+        if point is not None:
+            entry.update(bit_rate=point.bit_rate, loss=point.loss, latency=point.latency)
+        pooled.append(entry)
+    return {"per_case": table, "pooled": pooled}
+
+
+def markdown(result: dict[str, Any]) -> str:
+    lines = [
+        "Pooled over the cases (ratios: the mean over the cases of each case's ratio of means "
+        "against the silent expert on the episodes both succeeded in; < 1: better):",
+        "",
+        "| run | clean success | completion time ratio | internal wrench ratio | "
+        "control effort ratio |",
+        "|---|---|---|---|---|",
+    ]
+    for e in result["pooled"]:
+        lines.append(
+            f"| `{e['run']}` | {fmt(e['clean_success_rate'])} | "
+            f"{fmt(e['completion_periods_ratio'], 3)} | {fmt(e['internal_wrench_rms_ratio'], 3)} | "
+            f"{fmt(e['control_effort_ratio'], 3)} |"
+        )
+    lines += [
+        "",
+        "| case | run | clean success | completion periods | internal wrench rms N | "
+        "ratios vs silent: completion / wrench (paired) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for s in sorted(result["per_case"], key=lambda s: (s["scenario"] == "paper", s["scenario"])):
+        n = s["episodes"] - s["out_of_reach"]
+        ratios = (
+            f"{fmt(s.get('completion_periods_ratio'), 3)} / "
+            f"{fmt(s.get('internal_wrench_rms_ratio'), 3)} ({s['paired_successes']})"
+            if "paired_successes" in s
+            else "1 / 1"
+        )
+        lines.append(
+            f"| {s['scenario']} | `{s['run']}` | {s['clean_success']}/{n} | "
+            f"{fmt(s.get('completion_periods'), 0)} | {fmt(s.get('internal_wrench_rms'), 2)} | "
+            f"{ratios} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def write_csv(result: dict[str, Any], path: Path) -> None:
+    keys = [
+        "scenario",
+        "run",
+        "channel",
+        "episodes",
+        "clean_success",
+        "success",
+        "completion_periods",
+        "internal_wrench_rms",
+        "control_effort",
+        "completion_periods_ratio",
+        "internal_wrench_rms_ratio",
+        "control_effort_ratio",
+        "paired_successes",
+    ]
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
+        writer.writeheader()
+        for s in result["per_case"]:
+            writer.writerow({k: s.get(k, "") for k in keys})
+
+
+def plot_curve(result: dict[str, Any], out: Path) -> None:
+    """``comm_curve.png``: per panel (clean success, the completion time and internal
+    wrench ratios against the silent expert) the talking expert against the bit rate,
+    one line per (loss, latency); the silent expert, the ``ideal`` channel and the
+    centralized bound as horizontal lines. An unlimited rate sits right of the others."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pooled = result["pooled"]
+    ref = {e["run"]: e for e in pooled}
+    talk = [e for e in pooled if "bit_rate" in e and e["channel"] != IDEAL]
+    finite = [e["bit_rate"] for e in talk if math.isfinite(e["bit_rate"])] or [1.0]
+    far = max(finite) * 10.0  # where an unlimited rate is drawn
+
+    def x(rate: float) -> float:
+        return rate if math.isfinite(rate) else far
+
+    panels = [("clean success", "clean_success_rate")] + [
+        (f"{name} / silent expert", f"{key}_ratio") for name, key in CURVE.items()
+    ]
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.4 * len(panels), 3.6))
+    for ax, (title, key) in zip(axes, panels, strict=True):
+        lines: dict[tuple[float, int], list[tuple[float, float]]] = {}
+        for e in talk:
+            if e.get(key) is not None:
+                lines.setdefault((e["loss"], e["latency"]), []).append((x(e["bit_rate"]), e[key]))
+        for (loss, latency), pts in sorted(lines.items()):
+            pts.sort()
+            ax.plot(*zip(*pts, strict=True), "-o", label=f"loss {loss:g}, latency {latency}")
+        for run, label, style in (
+            (EXPERT, "silent expert", "k-"),
+            (f"{TALKER} [{IDEAL}]", "talking, ideal channel", "g--"),
+            (CENTRAL, "centralized bound", "r:"),
+        ):
+            if run in ref and ref[run].get(key) is not None:
+                ax.axhline(ref[run][key], color=style[0], ls=style[1:], lw=1.2, label=label)
+        ax.set_xscale("log")
+        ax.set_xlabel("bit rate, bit/s")
+        ax.set_title(title)
+        if any(not math.isfinite(e["bit_rate"]) for e in talk):
+            ax.set_xticks(
+                [*sorted(set(finite)), far], [*(f"{r:g}" for r in sorted(set(finite))), "inf"]
+            )
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "comm_curve.png", dpi=120)
+    plt.close(fig)
+
+
+def run(
+    points: list[ChannelPoint],
+    team_sizes: tuple[int, ...],
+    paper: bool,
+    episodes: int,
+    seed: int,
+    workers: int,
+    out: Path,
+    conditions: dict[str, Any] | None = None,
+    max_cycles: int | None = None,
+    references: bool = True,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Evaluate the talking expert on every (case, channel), the references once per case,
+    write every output, return the sweep's summaries."""
+    base = cases(team_sizes, paper)
+    env = dict(CONDITIONS if conditions is None else conditions)
+    # one evaluation per kind of run (the references without a channel), rows pooled
+    rows = evaluate(
+        [TALKER],
+        sweep_cases(base, points),
+        episodes,
+        seed,
+        workers,
+        env,
+        max_cycles,
+        progress=progress,
+    )
+    if references:
+        rows += evaluate(
+            [EXPERT, CENTRAL], base, episodes, seed, workers, env, max_cycles, progress=progress
+        )
+    out.mkdir(parents=True, exist_ok=True)
+    write_outputs(rows, seed, out)
+    result = summarize(rows, [c.label for c in base], points, seed)
+    result["command"] = {
+        "episodes": episodes,
+        "seed": seed,
+        "conditions": env,
+        "max_cycles": max_cycles,
+        "channels": {p.label: dataclasses.asdict(p.settings) for p in points},
+    }
+    (out / "sweep.json").write_text(json.dumps(result, indent=2, default=str))
+    (out / "sweep.md").write_text(markdown(result))
+    write_csv(result, out / "sweep.csv")
+    plot_curve(result, out)
+    return result
+
+
+def _numbers(text: str, kind: type) -> tuple[Any, ...]:
+    return tuple(kind(float(v)) if kind is int else kind(v) for v in text.split(","))
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(
+        prog="python -m baselines.comm_sweep",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("--preset", default=PRESET, help="the channel the grid varies")
+    ap.add_argument(
+        "--bit-rates",
+        default=",".join(f"{r:g}" for r in BIT_RATES),
+        help="comma-separated, bit/s (inf: unlimited)",
+    )
+    ap.add_argument("--losses", default=",".join(f"{p:g}" for p in LOSSES), help="loss floors p0")
+    ap.add_argument(
+        "--latencies", default=",".join(str(n) for n in LATENCIES), help="modem latency, periods"
+    )
+    ap.add_argument(
+        "--n-agents",
+        type=int,
+        nargs="+",
+        default=list(SWEEP_TEAM_SIZES),
+        help=f"random team sizes (the ladder's: {' '.join(map(str, TEAM_SIZES))})",
+    )
+    ap.add_argument("--no-paper", action="store_true", help="leave the paper scenario out")
+    ap.add_argument("--no-references", action="store_true", help="no silent / central runs")
+    ap.add_argument("--episodes", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=202)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--current", default=CONDITIONS["current"], choices=["none", "mild", "strong"])
+    ap.add_argument("--mismatch", type=float, default=CONDITIONS["mismatch"])
+    ap.add_argument("--max-cycles", type=int, default=None)
+    ap.add_argument("--out", type=Path, default=Path("runs/comm_sweep"))
+    args = ap.parse_args(argv)
+    try:
+        points = grid(
+            args.preset,
+            _numbers(args.bit_rates, float),
+            _numbers(args.losses, float),
+            _numbers(args.latencies, int),
+        )
+    except ValueError as exc:
+        ap.error(str(exc))
+    result = run(
+        points,
+        tuple(args.n_agents),
+        not args.no_paper,
+        args.episodes,
+        args.seed,
+        args.workers,
+        args.out,
+        {"current": args.current, "mismatch": args.mismatch},
+        args.max_cycles,
+        references=not args.no_references,
+    )
+    print(markdown(result))
+    print(
+        f"wrote {args.out}/sweep.md, sweep.csv, sweep.json, comm_curve.png and the "
+        "evaluator's outputs"
+    )
+
+
+if __name__ == "__main__":
+    main()
