@@ -44,7 +44,17 @@ from typing import Any
 import numpy as np
 
 from baselines.evaluate import Case, evaluate, write_outputs
-from baselines.ladder import CENTRAL, CONDITIONS, EXPERT, PRICED, TEAM_SIZES, cases, fmt, price
+from baselines.ladder import (
+    CENTRAL,
+    CONDITIONS,
+    EXPERT,
+    PRICED,
+    add_case_arguments,
+    cases,
+    conditions_of,
+    fmt,
+    price,
+)
 from baselines.ladder import rung_summary as summary_of
 from uvms_env.env.channel import ChannelSettings, channel_settings
 
@@ -345,22 +355,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--latencies", default=",".join(str(n) for n in LATENCIES), help="modem latency, periods"
     )
-    ap.add_argument(
-        "--n-agents",
-        type=int,
-        nargs="+",
-        default=list(SWEEP_TEAM_SIZES),
-        help=f"random team sizes (the ladder's: {' '.join(map(str, TEAM_SIZES))})",
-    )
-    ap.add_argument("--no-paper", action="store_true", help="leave the paper scenario out")
     ap.add_argument("--no-references", action="store_true", help="no silent / central runs")
-    ap.add_argument("--episodes", type=int, default=10)
-    ap.add_argument("--seed", type=int, default=202)
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--current", default=CONDITIONS["current"], choices=["none", "mild", "strong"])
-    ap.add_argument("--mismatch", type=float, default=CONDITIONS["mismatch"])
-    ap.add_argument("--max-cycles", type=int, default=None)
-    ap.add_argument("--out", type=Path, default=Path("runs/comm_sweep"))
+    add_case_arguments(ap, SWEEP_TEAM_SIZES, "runs/comm_sweep")
     args = ap.parse_args(argv)
     try:
         points = grid(
@@ -379,7 +375,7 @@ def main(argv: list[str] | None = None) -> None:
         args.seed,
         args.workers,
         args.out,
-        {"current": args.current, "mismatch": args.mismatch},
+        conditions_of(args),
         args.max_cycles,
         references=not args.no_references,
     )

@@ -347,14 +347,15 @@ def run(
     return result
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(
-        prog="python -m baselines.ladder",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+def add_case_arguments(ap: argparse.ArgumentParser, team_sizes: tuple[int, ...], out: str) -> None:
+    """The cases, conditions and run options the ladder and the channel sweep share."""
+    ap.add_argument(
+        "--n-agents",
+        type=int,
+        nargs="+",
+        default=list(team_sizes),
+        help=f"random team sizes (the ladder's: {' '.join(map(str, TEAM_SIZES))})",
     )
-    ap.add_argument("--policy", action="append", default=None, help=f"rungs (default {LADDER})")
-    ap.add_argument("--n-agents", type=int, nargs="+", default=list(TEAM_SIZES))
     ap.add_argument("--no-paper", action="store_true", help="leave the paper scenario out")
     ap.add_argument("--episodes", type=int, default=10)
     ap.add_argument("--seed", type=int, default=202, help="held out: used by no training")
@@ -362,7 +363,21 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--current", default=CONDITIONS["current"], choices=["none", "mild", "strong"])
     ap.add_argument("--mismatch", type=float, default=CONDITIONS["mismatch"])
     ap.add_argument("--max-cycles", type=int, default=None)
-    ap.add_argument("--out", type=Path, default=Path("runs/ladder"))
+    ap.add_argument("--out", type=Path, default=Path(out))
+
+
+def conditions_of(args: argparse.Namespace) -> dict[str, Any]:
+    return {"current": args.current, "mismatch": args.mismatch}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(
+        prog="python -m baselines.ladder",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("--policy", action="append", default=None, help=f"rungs (default {LADDER})")
+    add_case_arguments(ap, TEAM_SIZES, "runs/ladder")
     args = ap.parse_args(argv)
     policies = args.policy or list(LADDER)
     result = run(
@@ -373,7 +388,7 @@ def main(argv: list[str] | None = None) -> None:
         args.seed,
         args.workers,
         args.out,
-        {"current": args.current, "mismatch": args.mismatch},
+        conditions_of(args),
         args.max_cycles,
     )
     print(markdown(result))
