@@ -1,13 +1,23 @@
-"""Command-line pieces shared by the trainers and tools: ``KEY=JSON`` options
-(``--env-option``, ``--hp``).
+"""Command-line pieces shared by the trainers, the imitation CLI and the evaluator:
+``KEY=JSON`` options (``--env-option``, ``--hp``) and the conditions of the episodes
+(``--n-agents``, ``--current``, ``--mismatch``), the same flag names in every command.
 
-May import: the standard library only.
+Where training draws from a distribution, the condition flags take several values: team
+sizes (each episode, or each group of environment copies, one of them), current presets
+(each episode draws one) and a mismatch range (``--mismatch LOW HIGH``: each episode draws
+one uniformly). They reach the environment as overrides and its ``randomize`` option
+(``uvms_env.env.conditions``).
+
+May import: the standard library and ``uvms_env.scenarios`` (the current presets).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 from typing import Any
+
+from uvms_env.scenarios.overrides import CURRENT_PRESETS
 
 
 def key_value_pairs(items: list[str]) -> dict[str, Any]:
@@ -22,4 +32,69 @@ def key_value_pairs(items: list[str]) -> dict[str, Any]:
             out[key] = json.loads(value)
         except json.JSONDecodeError:
             out[key] = value
+    return out
+
+
+def add_condition_arguments(g: Any, draws: bool = True) -> None:
+    """``--n-agents``, ``--current`` and ``--mismatch``; ``draws``: each takes several
+    values (a set of team sizes, of presets, a range), else one."""
+    many = "+" if draws else None
+    g.add_argument(
+        "--n-agents",
+        type=int,
+        nargs=many,
+        default=None,
+        metavar="N",
+        help="team size (random family)" + ("; several: a set to draw from" if draws else ""),
+    )
+    g.add_argument(
+        "--current",
+        nargs=many,
+        default=None,
+        choices=CURRENT_PRESETS,
+        help="ocean current preset" + ("; several: each episode draws one" if draws else ""),
+    )
+    g.add_argument(
+        "--mismatch",
+        type=float,
+        nargs=many,
+        default=None,
+        metavar="M",
+        help="model mismatch" + ("; LOW HIGH: each episode draws one uniformly" if draws else ""),
+    )
+
+
+def team_sizes(args: argparse.Namespace) -> tuple[int, ...]:
+    """The team sizes of ``--n-agents`` (empty: the scenario's own)."""
+    value = getattr(args, "n_agents", None)
+    if value is None:
+        return ()
+    sizes = (value,) if isinstance(value, int) else tuple(value)
+    return tuple(dict.fromkeys(int(n) for n in sizes))
+
+
+def condition_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """Environment keywords of ``--current`` and ``--mismatch``: one value an override,
+    several a ``randomize`` draw (``uvms_env.env.conditions``). SystemExit on a malformed
+    range."""
+    out: dict[str, Any] = {}
+    draws: dict[str, Any] = {}
+    current = getattr(args, "current", None)
+    if current is not None:
+        presets = [current] if isinstance(current, str) else list(dict.fromkeys(current))
+        if len(presets) == 1:
+            out["current"] = presets[0]
+        else:
+            draws["current"] = presets
+    mismatch = getattr(args, "mismatch", None)
+    if mismatch is not None:
+        values = [mismatch] if isinstance(mismatch, float | int) else list(mismatch)
+        if len(values) == 1:
+            out["mismatch"] = float(values[0])
+        elif len(values) == 2 and values[0] <= values[1]:
+            draws["mismatch"] = [float(v) for v in values]
+        else:
+            raise SystemExit(f"--mismatch takes one value or LOW HIGH, got {values}")
+    if draws:
+        out["randomize"] = draws
     return out

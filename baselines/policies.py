@@ -1,19 +1,18 @@
 """Policy sources for the evaluator: ``--policy NAME[:ARG]`` to a per-agent factory.
 
-Known names: ``nmpc`` (the expert, ``nmpc:ipopt`` for its reference solver,
-``nmpc:paper`` for the paper's controller without the disturbance observer,
-``nmpc:comm`` for the expert that talks over the acoustic channel, ``--comm PRESET``:
-``nmpc_expert.comm``;
-``nmpc:central``: the centralized NMPC, a *team* policy with full information, the bound
-of the ladder, never a decentralized entry: ``PolicySource.team``), ``random``
-(uniform actions, seeded per episode and agent), ``zero`` (all inputs zero), and
-``module:factory`` (a user's ``factory(spec) -> Policy`` importable as
-``package.module:factory``), ``ppo:PATH`` / ``sac:PATH`` (an SB3 run folder;
+Known names: ``nmpc`` (the expert, ``nmpc:ipopt`` for its reference solver, ``nmpc:paper``
+for the paper's controller without the disturbance observer, ``nmpc:comm`` for the expert
+that talks over the acoustic channel, ``--comm PRESET``: ``nmpc_expert.comm``;
+``nmpc:central``: the centralized NMPC, a *team* policy with full information, the bound of
+the ladder, never a decentralized entry: ``PolicySource.team``), ``random`` (uniform
+actions, seeded per episode and agent), ``zero`` (all inputs zero), and ``module:factory``
+(a user's ``factory(spec) -> Policy`` importable as ``package.module:factory``),
+``ppo:PATH`` / ``sac:PATH`` / ``recurrent_ppo:PATH`` (an SB3 or sb3-contrib run folder;
 ``ppo:pretrained`` the committed model), ``bc:PATH`` / ``dagger:PATH`` (a folder with
-``policy.pt``; ``dagger:pretrained`` the committed clone), ``rllib:PATH`` (an RLlib run
-or checkpoint) and ``torchrl:PATH`` (a run folder of ``--engine torchrl``: its
-``actor.pt``). Any of them with the suffix ``+filter`` (e.g. ``dagger:pretrained+filter``)
-runs inside the expert's safety filter (``nmpc_expert.SafetyFilter``).
+``policy.pt``; ``dagger:pretrained`` the committed clone), ``rllib:PATH`` (an RLlib run or
+checkpoint) and ``torchrl:PATH`` (a run folder of ``--engine torchrl``: its ``actor.pt``).
+Any of them with the suffix ``+filter`` (e.g. ``dagger:pretrained+filter``) runs inside the
+expert's safety filter (``nmpc_expert.SafetyFilter``).
 """
 
 from __future__ import annotations
@@ -172,6 +171,7 @@ BUILTIN: dict[str, Callable[[str | None, int], PolicyFactory]] = {
     "zero": _zero,
     "ppo": _sb3("ppo"),
     "sac": _sb3("sac"),
+    "recurrent_ppo": _sb3("recurrent_ppo"),
     "bc": _cloned("bc"),
     "dagger": _cloned("dagger"),
     "rllib": _rllib,

@@ -22,7 +22,7 @@ the engine saves (its policy and checkpoints).
 Every budget and cadence counts robot-steps (one step of one robot; an env step of N
 robots is N robot-steps), whatever the engine counts internally.
 
-May import: the standard library, numpy, ``baselines.evaluate``,
+May import: the standard library, numpy, ``baselines.evaluate``, ``baselines.ladder``,
 ``baselines.distributed.marl_eval``, ``baselines.lagrangian`` and ``uvms_env``.
 """
 
@@ -70,6 +70,7 @@ EVAL_COLUMNS = (
     "success_rate",
     "clean_success_rate",
     "violation_periods",
+    "violation_periods_median",
     "mean_return",
     "final_pos_error_m",
     "episode_steps",
@@ -79,13 +80,10 @@ RECORD_EPISODES = 2  # the final policy's recorded per-episode evaluation ("eval
 # Training drops the internal-wrench metric (docs/simulator.md, "Measured"): it changes
 # no observation, reward or dynamics.
 TRAIN_ENV_DEFAULTS: dict[str, Any] = {"internal_wrench_every": 0}
-# The task ladder, easiest first: (scenario, overrides) per rung.
-LADDER: dict[str, tuple[str, dict[str, Any]]] = {
-    "short": ("short", {}),
-    "random_n2": ("random", {"n_agents": 2}),
-    "paper": ("paper", {}),
-    "random_n3": ("random", {"n_agents": 3}),
-}
+# The options a periodic evaluation keeps from training's: the team, the channel and the
+# conditions (the evaluation plays the plain environment otherwise: a policy applies its
+# own priors).
+EVAL_KEEP = ("n_agents", "comm", "current", "mismatch", "randomize")
 
 
 class Engine(Protocol):
@@ -143,19 +141,39 @@ class RunSettings:
     hyperparameters: dict[str, Any] = field(default_factory=dict)
     progress: bool = True
     record_eval: bool = True  # the final policy's per-episode result, in config.json
+    team_sizes: tuple[int, ...] = ()  # several: one group of env copies each (empty: one)
+    eval_seed: int | None = None  # the periodic evaluations' seed (None: ``seed``)
 
     def env_options(self) -> dict[str, Any]:
         """The environment options training uses: the defaults, then the overrides."""
         return {**TRAIN_ENV_DEFAULTS, **self.overrides}
 
     def rungs(self) -> dict[str, tuple[str, dict[str, Any]]]:
-        """The evaluation's rungs: the ladder, or the training scenario with its team size
-        and its acoustic channel (the evaluation plays the plain environment otherwise; a
-        policy applies its own priors)."""
+        """The evaluation's rungs: the benchmark's ladder (``baselines.ladder``: random N =
+        2..6 and paper under its conditions), or the training scenario with its team size
+        (each of ``team_sizes``), its channel and its conditions (``EVAL_KEEP``)."""
+        from baselines.ladder import CONDITIONS, TEAM_SIZES
+
         if self.eval_ladder:
-            return LADDER
-        keep = {k: v for k, v in self.overrides.items() if k in ("n_agents", "comm")}
-        return {self.scenario: (self.scenario, keep)}
+            comm = {"comm": self.overrides["comm"]} if "comm" in self.overrides else {}
+            ladder = {
+                f"random_n{n}": ("random", {"n_agents": n, **CONDITIONS, **comm})
+                for n in TEAM_SIZES
+            }
+            return {**ladder, "paper": ("paper", {**CONDITIONS, **comm})}
+        keep = {k: v for k, v in self.overrides.items() if k in EVAL_KEEP}
+        if len(self.team_sizes) <= 1:
+            if self.team_sizes:
+                keep["n_agents"] = self.team_sizes[0]
+            return {self.scenario: (self.scenario, keep)}
+        return {
+            f"{self.scenario}_n{n}": (self.scenario, {**keep, "n_agents": n})
+            for n in self.team_sizes
+        }
+
+    @property
+    def evaluation_seed(self) -> int:
+        return self.seed if self.eval_seed is None else self.eval_seed
 
 
 def seeded_pool(scenario: str, overrides: dict[str, Any], pool: int | None) -> int | None:
@@ -219,6 +237,8 @@ class Run:
             "eval_every": settings.eval_every,
             "eval_episodes": settings.eval_episodes,
             "eval_ladder": settings.eval_ladder,
+            "eval_seed": settings.evaluation_seed,
+            "team_sizes": list(settings.team_sizes),
             "checkpoint_every": settings.checkpoint_every,
             "cost": settings.cost.as_dict() if settings.cost is not None else None,
             "resumes": self.previous.get("resumes", -1) + 1 if self.resumed else 0,
@@ -350,54 +370,21 @@ class Run:
 
     def evaluate(self, robot_steps: int, policy: str) -> list[dict[str, Any]]:
         """The saved ``policy`` (an evaluator ``--policy`` spec, the snapshot's) on every
-        rung, fixed seeds: rows appended to evaluations.csv and marl_eval.json. The
-        snapshot gets config.json (the policy rebuilds the run's priors from it)."""
-        from baselines.distributed import marl_eval
-        from baselines.evaluate import aggregate, evaluate
-
+        rung (``evaluate_rungs``). The snapshot gets config.json (the policy rebuilds the
+        run's priors from it)."""
         if self.snapshot.is_dir():
             write_json(self.snapshot / CONFIG_FILE, self.config)
         s = self.settings
-        path = self.folder / EVAL_FILE
-        if not path.exists():
-            self._write_header(path, EVAL_COLUMNS)
-        out = []
-        for rung, (scenario, overrides) in s.rungs().items():
-            rows = evaluate(
-                [policy], [scenario], s.eval_episodes, s.seed, 1, overrides, progress=False
-            )
-            summary = aggregate(rows, s.seed)[0]
-            failed = [r["error"] for r in rows if r["error"]]
-            if failed:
-                warnings.warn(
-                    f"evaluation on {rung}: {len(failed)} episodes failed: {failed[0]}",
-                    stacklevel=2,
-                )
-            row = {
-                "robot_steps": int(robot_steps),
-                "rung": rung,
-                "success_rate": summary["success_rate"],
-                "clean_success_rate": summary["clean_success_rate"],
-                "violation_periods": float(np.mean([r["violation_periods"] for r in rows])),
-                "mean_return": summary.get("return", math.nan),
-                "final_pos_error_m": summary.get("final_pos_error_m", math.nan),
-                "episode_steps": summary.get("episode_steps", math.nan),
-                "errors": summary["errors"],
-            }
-            with open(path, "a", newline="") as fh:
-                csv.DictWriter(fh, fieldnames=EVAL_COLUMNS).writerow(row)
-            for r in rows:  # one algorithm name per run in marl-eval, not the snapshot's
-                r["policy"] = f"{self.config['engine']}_{self.config['algo']}:{self.folder.name}"
-            marl_eval.write(
-                self.folder / "marl_eval.json",
-                rows,
-                s.seed,
-                step_count=int(robot_steps),
-                elapsed_time=time.perf_counter() - self._start,
-                overrides=overrides,
-            )
-            out.append(row)
-        return out
+        return evaluate_rungs(
+            self.folder,
+            s.rungs(),
+            policy,
+            s.eval_episodes,
+            s.evaluation_seed,
+            robot_steps,
+            name=f"{self.config['engine']}_{self.config['algo']}:{self.folder.name}",
+            elapsed=time.perf_counter() - self._start,
+        )
 
     def record(self, policy: str) -> dict[str, Any]:
         """The saved policy's per-episode result on fixed seeds (the training scenario,
@@ -466,6 +453,64 @@ class Run:
     def _write_header(path: Path, columns: tuple[str, ...]) -> None:
         with open(path, "w", newline="") as fh:
             csv.DictWriter(fh, fieldnames=columns).writeheader()
+
+
+def evaluate_rungs(
+    folder: Path,
+    rungs: dict[str, tuple[str, dict[str, Any]]],
+    policy: str,
+    episodes: int,
+    seed: int,
+    robot_steps: int,
+    name: str,
+    elapsed: float = 0.0,
+) -> list[dict[str, Any]]:
+    """``policy`` (an evaluator ``--policy`` spec) on every rung, ``episodes`` each from
+    ``seed``: one row per rung appended to ``folder``'s evaluations.csv (``EVAL_COLUMNS``)
+    and the episodes to its marl_eval.json (algorithm ``name``); returns the rows. Every
+    training loop that evaluates as it learns (the RL engines, DAgger) writes here."""
+    from baselines.distributed import marl_eval
+    from baselines.evaluate import aggregate, evaluate
+
+    path = Path(folder) / EVAL_FILE
+    if not path.exists():
+        Run._write_header(path, EVAL_COLUMNS)
+    out = []
+    for rung, (scenario, overrides) in rungs.items():
+        rows = evaluate([policy], [scenario], episodes, seed, 1, overrides, progress=False)
+        summary = aggregate(rows, seed)[0]
+        failed = [r["error"] for r in rows if r["error"]]
+        if failed:
+            warnings.warn(
+                f"evaluation on {rung}: {len(failed)} episodes failed: {failed[0]}",
+                stacklevel=2,
+            )
+        row = {
+            "robot_steps": int(robot_steps),
+            "rung": rung,
+            "success_rate": summary["success_rate"],
+            "clean_success_rate": summary["clean_success_rate"],
+            "violation_periods": float(np.mean([r["violation_periods"] for r in rows])),
+            "violation_periods_median": float(np.median([r["violation_periods"] for r in rows])),
+            "mean_return": summary.get("return", math.nan),
+            "final_pos_error_m": summary.get("final_pos_error_m", math.nan),
+            "episode_steps": summary.get("episode_steps", math.nan),
+            "errors": summary["errors"],
+        }
+        with open(path, "a", newline="") as fh:
+            csv.DictWriter(fh, fieldnames=EVAL_COLUMNS).writerow(row)
+        for r in rows:  # one algorithm name per run in marl-eval, not the snapshot's
+            r["policy"] = name
+        marl_eval.write(
+            Path(folder) / "marl_eval.json",
+            rows,
+            seed,
+            step_count=int(robot_steps),
+            elapsed_time=elapsed,
+            overrides=overrides,
+        )
+        out.append(row)
+    return out
 
 
 def _header(path: Path) -> tuple[str, ...]:

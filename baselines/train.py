@@ -12,9 +12,12 @@ records, evaluations and resuming are ``baselines.runs``'s):
 * ``rllib``: Ray RLlib's PPO, local or on a cluster (``baselines.distributed.rllib_train``).
 
 The shared options (``--help`` lists them for every engine) count the budget and every
-cadence in robot-steps; environment options go through ``--env-option KEY=JSON``
-(``max_cycles=200``, ``n_agents=3``, ``action_mode=residual``, ...). ``--cost`` adds the
-constraint cost (``baselines.lagrangian``; PPO-Lagrangian with ``--multiplier-lr`` > 0).
+cadence in robot-steps; the conditions are ``--n-agents`` (several: one group of env
+copies per team size), ``--current`` (several: each episode draws one) and ``--mismatch``
+(LOW HIGH: each episode draws one), the evaluator's flags; other environment options go
+through ``--env-option KEY=JSON`` (``max_cycles=200``, ``action_mode=residual``, ...).
+``--cost`` adds the constraint cost (``baselines.lagrangian``; PPO-Lagrangian with
+``--multiplier-lr`` > 0).
 
 May import: ``baselines.runs``, ``baselines.options``, ``baselines.lagrangian`` and the
 engine modules (imported on demand: an engine's library loads only when it is chosen).
@@ -29,7 +32,12 @@ from pathlib import Path
 from typing import Any
 
 from baselines.lagrangian import COSTS, CostSettings
-from baselines.options import key_value_pairs
+from baselines.options import (
+    add_condition_arguments,
+    condition_overrides,
+    key_value_pairs,
+    team_sizes,
+)
 
 ENGINES = ("sb3", "torchrl", "rllib")
 ENGINE_MODULES = {
@@ -62,6 +70,7 @@ def add_shared_arguments(ap: argparse.ArgumentParser, engine: str, algos: tuple[
         help="environment option, e.g. max_cycles=200, n_agents=3 or "
         "reward_weights='{\"effort\": 0.01}'",
     )
+    add_condition_arguments(g)
     g.add_argument(
         "--comm",
         default=None,
@@ -92,6 +101,12 @@ def add_shared_arguments(ap: argparse.ArgumentParser, engine: str, algos: tuple[
         help="robot-steps between evaluations through baselines.evaluate (0: none)",
     )
     g.add_argument("--eval-episodes", type=int, default=5)
+    g.add_argument(
+        "--eval-seed",
+        type=int,
+        default=None,
+        help="seed of the periodic evaluations' episodes (default: --seed)",
+    )
     g.add_argument(
         "--eval-ladder",
         action="store_true",
@@ -146,6 +161,19 @@ def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> Any:
         cost = CostSettings(args.cost, args.cost_weight, args.cost_limit, args.multiplier_lr)
     pool = args.geometry_pool if args.geometry_pool is not None else defaults["geometry_pool"]
     overrides = key_value_pairs(args.env_option)
+    for key, value in condition_overrides(args).items():
+        if key in overrides and overrides[key] != value:
+            raise ValueError(f"--{key} contradicts --env-option {key}={overrides[key]!r}")
+        overrides[key] = value
+    sizes = team_sizes(args)
+    if sizes and "n_agents" in overrides:
+        raise ValueError("give the team size once: --n-agents or --env-option n_agents")
+    if len(sizes) == 1:
+        overrides["n_agents"], sizes = sizes[0], ()
+    if sizes and args.scenario != "random":
+        raise ValueError(
+            f"--n-agents with several sizes needs --scenario random, not {args.scenario}"
+        )
     if args.comm is not None:
         if "comm" in overrides and overrides["comm"] != args.comm:
             raise ValueError(
@@ -168,6 +196,8 @@ def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> Any:
         geometry_pool=pool,
         hyperparameters=key_value_pairs(args.hp),
         progress=not args.no_progress,
+        team_sizes=sizes,
+        eval_seed=args.eval_seed,
     )
 
 

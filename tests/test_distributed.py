@@ -3,8 +3,8 @@ training evaluated through ``--policy rllib:PATH``.
 
 The Ray tests need Ray (in the test extra; they skip where it is missing); the fast
 RLlib run trains one iteration on the local runner and evaluates the checkpoint through
-``rllib:PATH``; the 2-iteration, 2-runner run is ``slow``. The BenchMARL task's test
-(examples/benchmarl) skips without BenchMARL (its own venv: it needs torchrl < 0.12)."""
+``rllib:PATH``; the 2-iteration, 2-runner run is ``slow``. BenchMARL's tasks are tested in
+tests/test_benchmarl.py (in their own venv: BenchMARL needs torchrl < 0.12)."""
 
 from __future__ import annotations
 
@@ -167,26 +167,3 @@ def test_rllib_ppo_two_iterations_two_env_runners_then_rllib_policy(local_ray, t
         f" --max-cycles 6 --workers 2 --backend ray --out {out}".split()
     )
     assert len(_csv_rows(out / "episodes.csv")) == 2
-
-
-def test_benchmarl_task_gives_one_envs_specs_and_steps():
-    """BenchMARL lives in its own venv (it needs torchrl < 0.12), so its adapter is an
-    example outside the package (examples/benchmarl/README.md), loaded here by path."""
-    pytest.importorskip("benchmarl.experiment")
-    import importlib.util
-
-    path = Path(__file__).resolve().parents[1] / "examples" / "benchmarl" / "benchmarl_task.py"
-    spec = importlib.util.spec_from_file_location("benchmarl_task", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-
-    uvms = module.task("uvms/random_n2", {"max_cycles": 5})
-    env = uvms.get_env_fun(num_envs=3, continuous_actions=True, seed=0, device="cpu")()
-    assert uvms.group_map(env) == {"uvms": ["uvms_0", "uvms_1"]}
-    assert uvms.observation_spec(env)["uvms", "observation"].shape == (2, 79)
-    assert uvms.action_spec(env)["uvms", "action"].shape == (2, 8)
-    assert uvms.state_spec(env)["state"].shape[:-1] == ()
-    assert uvms.max_steps(env) == 5
-    td = env.rollout(5)
-    assert td["next", "uvms", "reward"].shape == (3, 5, 2, 1)

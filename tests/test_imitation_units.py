@@ -16,6 +16,7 @@ from baselines.imitation.features import (
 )
 from baselines.imitation.network import MLPPolicyNet
 from baselines.imitation.policy import ClonedPolicy
+from uvms_env.env.memory import RobotMemory
 from uvms_env.env.priors import featurize
 from uvms_env.policy import AgentSpec
 
@@ -52,22 +53,29 @@ def paper_spec(paper):
 
 
 def test_saved_network_reproduces_its_decisions(tmp_path, paper_spec):
+    """Compiled and numpy decisions against torch's; on ``memory`` features the policy
+    builds the memory block from its stream (a ``RobotMemory`` beside it here)."""
     rng = np.random.default_rng(1)
     obs = _observations(rng, 500, 1.0).astype(np.float32)
+    blocks = rng.normal(0.0, 0.3, (len(obs), 16)).astype(np.float32)
     ring = paper_spec.object_ring_radius
     cases = [(f, (32, 32)) for f in FEATURES] + [("features", ())]  # (): linear feedback
     for features, hidden in cases:
-        net, _ = bc.fit(obs, np.tanh(obs[:, :8]), epochs=2, features=features, hidden=hidden,
+        data = np.concatenate([obs, blocks], 1) if features == "memory" else obs
+        net, _ = bc.fit(data, np.tanh(obs[:, :8]), epochs=2, features=features, hidden=hidden,
                         progress=False, ring_radius=ring)  # fmt: skip
         net.save(tmp_path / "policy.pt")
         again = MLPPolicyNet.load(tmp_path / "policy.pt")
         assert again.features == features and again.residual == (features in FEEDFORWARD)
         for compiled in (True, False):  # the whole decision compiled, or numpy layers
             policy = ClonedPolicy(paper_spec, tmp_path / "policy.pt", compiled=compiled)
+            memory = RobotMemory(paper_spec.period, ring)
             for o in obs[:20]:
+                x = np.concatenate([o, memory.observe(o)]) if features == "memory" else o
                 a = policy.act(o)
+                memory.issued(a)
                 assert a.shape == (8,) and np.all(np.abs(a) <= 1)
-                assert np.allclose(a, again.predict(o[None], ring)[0], atol=1e-5)  # torch
+                assert np.allclose(a, again.predict(x[None], ring)[0], atol=1e-5)  # torch
 
 
 def test_compiled_features_agree_with_numpy_and_are_yaw_invariant():

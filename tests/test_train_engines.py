@@ -34,6 +34,8 @@ CONFIG_KEYS = (
     "eval_every",
     "eval_episodes",
     "eval_ladder",
+    "eval_seed",
+    "team_sizes",
     "checkpoint_every",
     "cost",
     "resumes",

@@ -25,12 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.rl.policy import (
-    comm_from_options,
-    policy_action,
-    policy_input,
-    priors_from_options,
-)
+from baselines.rl.policy import RobotInputs, comm_from_options, priors_from_options
 from uvms_env.policy import AgentSpec
 
 POLICY_ID = "shared"
@@ -103,23 +98,25 @@ class RLlibPolicy:
         self.priors = priors_from_options(self.env_options)
         self.comm = comm_from_options(self.env_options)
         self.reads_messages = self.comm is not None  # it sees the inbox, it may send
-        self._ring = spec.object_ring_radius
+        self._io = RobotInputs(self.priors, spec, self.comm)
         self._dist = self.module.get_inference_action_dist_cls()
         self.stats: dict[str, Any] = {}
 
     def reset(self) -> None:
-        pass
+        self._io.reset()
+
+    def executed(self, action: np.ndarray) -> None:
+        self._io.executed(action)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         import torch
 
-        raw, x = policy_input(self.priors, obs, self._ring, self.comm)
+        raw, x = self._io.inputs(obs)
         x = torch.as_tensor(np.asarray(x, np.float32)[None])
         with torch.no_grad():
             out = self.module.forward_inference({"obs": x})
             action = self._dist.from_logits(out["action_dist_inputs"]).to_deterministic().sample()
-        chosen = np.clip(action[0].numpy(), -1.0, 1.0)
-        return policy_action(self.priors, raw, chosen, self._ring, self.comm)
+        return self._io.action(raw, np.clip(action[0].numpy(), -1.0, 1.0))
 
 
 def factory(path: str | None):

@@ -16,6 +16,7 @@ option, the schedule and the outputs: docs/imitation.md; ``--help`` lists the op
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -31,50 +32,55 @@ from baselines.imitation import bc, dataset
 from baselines.imitation.dataset import AgentStream
 from baselines.imitation.features import FEATURES
 from baselines.imitation.network import MLPPolicyNet
-from baselines.imitation.policy import ClonedPolicy
-from baselines.imitation.rollout import rollouts
+from baselines.imitation.rollout import RolloutJob, parallel_rollouts
+from baselines.options import add_condition_arguments, condition_overrides, team_sizes
 from baselines.policies import PolicySource, cloned_path
-from baselines.runs import TRAIN_ENV_DEFAULTS, hardware, write_json
+from baselines.runs import EVAL_KEEP, TRAIN_ENV_DEFAULTS, evaluate_rungs, hardware, write_json
 
 
 def env_overrides(scenario: str, args: argparse.Namespace) -> dict[str, Any]:
-    """Environment options from the command line (``n_agents`` only for ``random``;
-    ``--max-cycles`` is applied by ``_env_factory`` as a cap)."""
-    out: dict[str, Any] = {}
-    if getattr(args, "n_agents", None) and scenario == "random":
-        out["n_agents"] = args.n_agents
+    """Environment options from the command line: the conditions (``--current``,
+    ``--mismatch``: one value an override, several a per-episode draw) and
+    ``--constraint-mode``; the team sizes are the job's (``rollout_job``); ``--max-cycles``
+    is applied as a cap."""
+    out: dict[str, Any] = condition_overrides(args)
     if getattr(args, "constraint_mode", None):
         out["constraint_mode"] = args.constraint_mode
     return {**TRAIN_ENV_DEFAULTS, **out}
 
 
-def _env_factory(scenario: str, overrides: dict, cap: int | None = None):
-    """Seed -> environment; ``cap`` shortens episodes to at most ``cap`` periods (never
-    lengthens them beyond the scenario's own ``max_cycles``)."""
-    import uvms_env
+def rollout_job(scenario: str, args: argparse.Namespace, **labelling: Any) -> RolloutJob:
+    """The rollouts of ``scenario`` the command line asks for (``--n-agents`` for the
+    random family only: the fixed scenarios have their own teams)."""
+    sizes = team_sizes(args) if scenario == "random" else ()
+    return RolloutJob(
+        scenario,
+        env_overrides(scenario, args),
+        sizes,
+        args.max_cycles,
+        args.expert,
+        **labelling,
+    )
 
-    def make(seed: int):
-        env = uvms_env.parallel_env(scenario=scenario, seed=seed, **overrides)
-        if cap:
-            env.max_cycles = min(env.max_cycles, cap)
-        return env
 
-    return make
-
-
-def _spaces(scenario: str, overrides: dict):
-    env = _env_factory(scenario, overrides)(0)
+def _spaces(job: RolloutJob):
+    env = job.env(0, 0)
     agent = env.possible_agents[0]
     return env.observation_space(agent), env.action_space(agent)
 
 
-def _env_spec(scenario: str, overrides: dict, cap: int | None = None):
+def _env_spec(job: RolloutJob):
     """The Gymnasium ``EnvSpec`` the data came from (for Minari's ``recover_environment``):
-    the scenario, its overrides and the episode length actually used."""
-    kwargs = dict(overrides)
-    if cap:
-        kwargs["max_cycles"] = _env_factory(scenario, overrides, cap)(0).max_cycles
-    return dataset.env_spec(scenario, **kwargs)
+    the scenario, its overrides and the episode length actually used; None where the
+    episodes had several team sizes (no one environment made them)."""
+    if len(job.n_agents) > 1:
+        return None
+    kwargs = dict(job.overrides)
+    if job.n_agents:
+        kwargs["n_agents"] = job.n_agents[0]
+    if job.cap:
+        kwargs["max_cycles"] = job.env(0, 0).max_cycles
+    return dataset.env_spec(job.scenario, **kwargs)
 
 
 def _summary(metrics: list[dict]) -> dict[str, Any]:
@@ -89,22 +95,15 @@ def _summary(metrics: list[dict]) -> dict[str, Any]:
 
 def collect(args: argparse.Namespace) -> None:
     start = time.time()
-    overrides = env_overrides(args.scenario, args)
-    expert = PolicySource.parse(args.expert).factory(args.seed)
-    streams, metrics = rollouts(
-        _env_factory(args.scenario, overrides, args.max_cycles),
-        expert,
-        args.episodes,
-        args.seed,
-        desc="collect",
-        noise=args.noise,
+    job = rollout_job(args.scenario, args, noise=args.noise)
+    streams, metrics = parallel_rollouts(
+        job, args.episodes, args.seed, workers=args.workers, desc="collect"
     )
     root, name = dataset.split_path(args.out)
-    obs_space, act_space = _spaces(args.scenario, overrides)
+    obs_space, act_space = _spaces(job)
     algorithm = f"expert {args.expert}" + (f", DART noise {args.noise}" if args.noise else "")
-    spec = _env_spec(args.scenario, overrides, args.max_cycles)
     dataset_id = dataset.write_dataset(
-        streams, root, name, obs_space, act_space, algorithm, spec=spec
+        streams, root, name, obs_space, act_space, algorithm, spec=_env_spec(job)
     )
     summary = _summary(metrics)
     steps = sum(len(s.actions) for s in streams)
@@ -168,7 +167,7 @@ def _rmse(net, obs: np.ndarray, act: np.ndarray, ring: np.ndarray) -> list[float
 
 def train_bc(args: argparse.Namespace) -> None:
     start = time.time()
-    obs, act, ring, n_streams = dataset.read_many(args.data)
+    obs, act, ring, n_streams = dataset.read_many(args.data, memory=args.features == "memory")
     log = args.out / "bc_loss.csv"
     log.unlink(missing_ok=True)
     net, losses = bc.fit(
@@ -212,8 +211,9 @@ def train_dagger(args: argparse.Namespace) -> None:
         raise SystemExit("dagger needs --data (demonstrations) or --init (a clone to start from)")
     obs = act = ring = None
     n_streams = 0
+    memory = (args.features if args.init is None else _init_network(args.init).features) == "memory"
     if args.data:
-        obs, act, ring, n_streams = dataset.read_many(args.data)
+        obs, act, ring, n_streams = dataset.read_many(args.data, memory=memory)
     scenarios = args.scenario or ["short"]
     log = args.out / "dagger_loss.csv"
     log.unlink(missing_ok=True)
@@ -223,21 +223,21 @@ def train_dagger(args: argparse.Namespace) -> None:
         history: list[dict[str, Any]] = [
             {"iteration": 0, "beta": 1.0, "samples": len(obs), "loss": losses[-1]}
         ]
+        _evaluate_iteration(args, net, 0, len(obs), start)
     else:
         net = _init_network(args.init)
         history = [{"iteration": 0, "init": args.init, "samples": 0 if obs is None else len(obs)}]
     distill = args.expert == SELF_FILTER
-    expert = None if distill else PolicySource.parse(args.expert).factory(args.seed)
+    if not distill:
+        PolicySource.parse(args.expert)  # a wrong name fails before any rollout
     for k in range(1, args.iterations + 1):
-        path = args.out / f"iter_{k - 1}" / "policy.pt"
+        path = (args.out / f"iter_{k - 1}" / "policy.pt").resolve()
         net.save(path, {"method": "dagger", "iteration": k - 1})
-        if distill:
-            from nmpc_expert import make_filter  # the expert is optional at import time
-
-            expert = make_filter(lambda spec, p=path: ClonedPolicy(spec, p))
+        # safe distillation: the teacher is the safety filter around the network itself
+        expert = f"dagger:{path}+filter" if distill else args.expert
         row: dict[str, Any] = {"iteration": k, "beta": args.beta**k}
         new_streams = _dagger_rollouts(args, k, expert, path, scenarios, row)
-        new_obs, new_act, new_ring, acted = _stacked(new_streams)
+        new_obs, new_act, new_ring, acted = _stacked(new_streams, memory)
         learner_share = np.mean(acted)
         # the quantity DAgger drives down: the current network's error on the states it
         # visits itself (before they join the training data)
@@ -256,6 +256,7 @@ def train_dagger(args: argparse.Namespace) -> None:
             loss=losses[-1],
             wall_s=round(time.time() - start, 1),
         )
+        _evaluate_iteration(args, net, k, len(obs), start)
         history.append(row)
         print(json.dumps(row))
     info = {
@@ -270,6 +271,51 @@ def train_dagger(args: argparse.Namespace) -> None:
     net.save(args.out / "policy.pt", info)
     _write_json(args.out / "train.json", info)
     print(f"saved {args.out / 'policy.pt'} ({len(obs)} samples, {info['train_wall_s']} s)")
+
+
+def dagger_rungs(args: argparse.Namespace, scenarios: list[str]) -> dict[str, tuple[str, dict]]:
+    """The periodic evaluations' rungs of a DAgger run: each scenario it rolls out on,
+    under its conditions, the random family once per team size."""
+    rungs: dict[str, tuple[str, dict]] = {}
+    for entry in scenarios:
+        scenario, _ = _scenario_episodes(entry, 1)
+        job = rollout_job(scenario, args)
+        keep = {k: v for k, v in job.overrides.items() if k in EVAL_KEEP}
+        if len(job.n_agents) > 1 or (job.n_agents and scenario == "random"):
+            for n in job.n_agents:
+                rungs[f"{scenario}_n{n}"] = (scenario, {**keep, "n_agents": n})
+        else:
+            rungs[scenario] = (scenario, keep)
+    return rungs
+
+
+def _evaluate_iteration(
+    args: argparse.Namespace, net: MLPPolicyNet, k: int, samples: int, start: float
+) -> None:
+    """With ``--eval-episodes``: iteration ``k``'s network on every rung (``dagger_rungs``),
+    rows in the run's evaluations.csv at its labelled robot-steps so far (``samples``)."""
+    if not args.eval_episodes:
+        return
+    path = (args.out / f"iter_{k}" / "policy.pt").resolve()
+    net.save(path, {"method": "dagger", "iteration": k})
+    seed = args.eval_seed if args.eval_seed is not None else args.seed
+    rows = evaluate_rungs(
+        args.out,
+        dagger_rungs(args, args.scenario or ["short"]),
+        f"dagger:{path}",
+        args.eval_episodes,
+        seed,
+        samples,
+        name=f"dagger:{args.out.name}",
+        elapsed=time.time() - start,
+    )
+    for r in rows:
+        print(
+            f"iteration {k} on {r['rung']}: success {r['success_rate']:.2f}, clean "
+            f"{r['clean_success_rate']:.2f}, violation periods median "
+            f"{r['violation_periods_median']:.0f}",
+            flush=True,
+        )
 
 
 def _dagger_fit(
@@ -299,35 +345,33 @@ def _dagger_fit(
 def _dagger_rollouts(
     args: argparse.Namespace,
     k: int,
-    expert: Any,
+    expert: str,
     path: Path,
     scenarios: list[str],
     row: dict[str, Any],
 ) -> list[AgentStream]:
     """Iteration ``k``'s rollouts of the clone saved at ``path`` on every scenario, labelled
-    by ``expert`` with the iteration's ``row["beta"]`` (the summaries go into ``row``);
-    written as a dataset with --save-data."""
+    by ``expert`` (a policy source) with the iteration's ``row["beta"]`` (the summaries go
+    into ``row``), on ``--workers`` processes; written as a dataset with --save-data."""
     streams: list[AgentStream] = []
+    jobs = []
     for j, entry in enumerate(scenarios):
         scenario, episodes = _scenario_episodes(entry, args.episodes_per_iteration)
-        overrides = env_overrides(scenario, args)
-        new, metrics = rollouts(
-            _env_factory(scenario, overrides, args.max_cycles),
-            expert,
+        job = rollout_job(scenario, args, learner=path, beta=row["beta"], noise=args.noise,
+                          gate=args.gate)  # fmt: skip
+        job = dataclasses.replace(job, expert=expert)
+        new, metrics = parallel_rollouts(
+            job,
             episodes,
             args.seed + 1000 * k + 100 * j,
-            learner=lambda spec, p=path: ClonedPolicy(spec, p),
-            beta=row["beta"],
+            workers=args.workers,
             desc=f"dagger {k} {scenario}",
-            noise=args.noise,
-            gate=args.gate,
         )
         streams += new
+        jobs.append(job)
         row[f"rollouts_{scenario}"] = _summary(metrics)
     if args.save_data:
-        first, _ = _scenario_episodes(scenarios[0], args.episodes_per_iteration)
-        overrides = env_overrides(first, args)
-        obs_space, act_space = _spaces(first, overrides)
+        obs_space, act_space = _spaces(jobs[0])
         dataset.write_dataset(
             streams,
             args.out / "data",
@@ -336,17 +380,21 @@ def _dagger_rollouts(
             act_space,
             algorithm=f"DAgger iteration {k}, labels {args.expert}",
             # one environment to recover only when the rollouts had one scenario
-            spec=_env_spec(first, overrides, args.max_cycles) if len(scenarios) == 1 else None,
+            spec=_env_spec(jobs[0]) if len(jobs) == 1 else None,
         )
     return streams
 
 
 def _stacked(
-    streams: list[AgentStream],
+    streams: list[AgentStream], memory: bool = False
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Observations, expert labels, ring radii and learner-acted flags, stream after
-    stream (each stream's last observation has no label)."""
+    """Observations (``memory``: each followed by its memory block), expert labels, ring
+    radii and learner-acted flags, stream after stream (each stream's last observation has
+    no label)."""
     obs = np.concatenate([np.stack(s.observations[:-1]) for s in streams])
+    if memory:
+        blocks = np.concatenate([np.stack(s.memory[:-1]) for s in streams])
+        obs = np.concatenate([obs, blocks], axis=1)
     act = np.concatenate([np.stack(s.actions) for s in streams])
     ring = np.concatenate([np.full(len(s.actions), s.object_ring_radius) for s in streams])
     acted = np.concatenate([s.learner_acted for s in streams])
@@ -364,13 +412,19 @@ def _dagger_settings(args: argparse.Namespace, scenarios: list[str]) -> dict[str
         "max_cycles": args.max_cycles,
         "constraint_mode": args.constraint_mode,
         "n_agents": args.n_agents,
+        "current": args.current,
+        "mismatch": args.mismatch,
+        "workers": args.workers,
         "expert": args.expert,
         "init": args.init,
     }
 
 
 def _add_env_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--n-agents", type=int, default=None, help="random family only")
+    add_condition_arguments(p)
+    p.add_argument(
+        "--workers", type=int, default=1, help="processes that play the episodes (one core each)"
+    )
     p.add_argument("--max-cycles", type=int, default=None, help="cap on the episode length")
     p.add_argument("--constraint-mode", default=None, choices=["penalize", "terminate"])
     p.add_argument(
@@ -434,6 +488,13 @@ def main(argv: list[str] | None = None) -> None:
     d.add_argument(
         "--gate", type=float, default=None, help="learner acts only within this of the label"
     )
+    d.add_argument(
+        "--eval-episodes",
+        type=int,
+        default=0,
+        help="after each fit, evaluate the network on every rung this many episodes (0: none)",
+    )
+    d.add_argument("--eval-seed", type=int, default=None, help="their seed (default --seed)")
     d.add_argument("--out", type=Path, default=Path("runs/dagger"))
     _add_env_args(d)
     args = ap.parse_args(argv)

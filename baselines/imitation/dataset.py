@@ -1,13 +1,14 @@
 """Expert demonstrations as Minari datasets: each robot's stream is one single-agent episode.
 
 Minari has no multi-agent support, so an episode of N robots becomes N episodes (its
-observations, the expert's actions, the shared reward, terminations, and per-step
-expert statistics in ``infos``: ``solve_ms``, ``expert_iterations``, ``expert_fallbacks``,
-``learner_acted`` (DAgger) and ``object_ring_radius`` (the object the robot carries, which
-it knows before the task: the ring's radius, 0 for the bar); entry 0 belongs to the reset
-observation). Dataset ``data/NAME`` is a Minari root of its own (``MINARI_DATASETS_PATH``
-= ``data/NAME``, holding only this dataset, id ``uvms/NAME-v0``), so other folders next to
-it never reach Minari's scan of its root.
+observations, the expert's actions, the shared reward, terminations, and per-step expert
+statistics in ``infos``: ``solve_ms``, ``expert_iterations``, ``expert_fallbacks``,
+``learner_acted`` (DAgger), ``object_ring_radius`` (the object the robot carries, which it
+knows before the task: the ring's radius, 0 for the bar) and ``memory`` (the robot's memory
+block, ``uvms_env.env.memory``); entry 0 belongs to the reset observation). Dataset
+``data/NAME`` is a Minari root of its own (``MINARI_DATASETS_PATH`` = ``data/NAME``,
+holding only this dataset, id ``uvms/NAME-v0``), so other folders next to it never reach
+Minari's scan of its root.
 
 Each dataset records the environment it came from as a Gymnasium ``EnvSpec`` of
 ``uvms_env/CoopTransport-v0`` with the scenario and its overrides as kwargs, so
@@ -47,6 +48,8 @@ class AgentStream:
     fallbacks: list[int] = field(default_factory=list)  # expert fallbacks so far
     learner_acted: list[bool] = field(default_factory=list)  # executed: learner (DAgger)
     object_ring_radius: float = float("nan")  # the carried object; 0 for the bar
+    # (T+1, 16): the robot's memory block at each observation (uvms_env.env.memory)
+    memory: list[np.ndarray] = field(default_factory=list)
 
     @staticmethod
     def start(obs: np.ndarray, seed: int, object_ring_radius: float = float("nan")) -> AgentStream:
@@ -90,6 +93,7 @@ def _infos(s: AgentStream) -> dict[str, np.ndarray]:
         "expert_fallbacks": col(s.fallbacks, np.int64, 0),
         "learner_acted": col(s.learner_acted, np.bool_, False),
         "object_ring_radius": np.full(t + 1, s.object_ring_radius, dtype=np.float64),
+        **({"memory": np.stack(s.memory).astype(np.float32)} if len(s.memory) == t + 1 else {}),
     }
 
 
@@ -141,13 +145,24 @@ def write_dataset(
     return dataset_id
 
 
-def read_many(paths: list[Path]) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+def read_many(
+    paths: list[Path], memory: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Concatenated (observations, actions, object ring radius per sample; NaN where a
     dataset did not record it) of several ``data/NAME`` datasets, and the number of
-    robot streams."""
+    robot streams. ``memory``: each observation followed by the robot's memory block
+    (``memory`` features; ValueError where a dataset did not record it)."""
     obs, act, ring, n = [], [], [], 0
     for p in paths:
         o, a, eps = read_dataset(*split_path(p))
+        if memory:
+            if any("memory" not in ep.infos for ep in eps):
+                raise ValueError(
+                    f"{p} has no memory blocks (collected before they were recorded): "
+                    "collect it again for memory features"
+                )
+            blocks = np.concatenate([np.asarray(ep.infos["memory"])[:-1] for ep in eps])
+            o = np.concatenate([o, blocks.astype(np.float32)], axis=1)
         obs.append(o)
         act.append(a)
         ring += [

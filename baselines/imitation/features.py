@@ -1,13 +1,18 @@
 """What the cloned network sees: features of one robot's own observation, computed in
 numpy for training batches and as one compiled CasADi function for decisions.
 
-``features`` (84 numbers) is the environment's ``observation_mode="features"``, by the
-same name everywhere: ``uvms_env.env.priors.featurize`` (76 numbers in the robot's own
-heading frame, ``time_fraction`` dropped) and the steady input a_ss
-(``uvms_env.env.priors``). ``uvms-v1`` is the 76 numbers alone. Saved policies that say
+``features`` (84 numbers) and ``memory`` (100) are the environment's
+``observation_mode="features"`` and ``"memory"``, by the same names everywhere:
+``uvms_env.env.priors.featurize`` (76 numbers in the robot's own heading frame,
+``time_fraction`` dropped) and the steady input a_ss (``uvms_env.env.priors``); ``memory``
+puts the robot's memory block (``uvms_env.env.memory``: its last command and its
+disturbance estimate, 16) between them, and its input is the raw observation with the
+memory block after it (95 numbers: data and decisions carry the block the robot built
+along its own stream). ``uvms-v1`` is the 76 numbers alone. Saved policies that say
 ``uvms-v2`` are read as ``features`` (``canonical_features``). Networks on ``features``
-learn the residual a - a_ss (``network.MLPPolicyNet``): the holding forces depend on the
-grasp geometry and the load share through the arm's kinematics (why: docs/imitation.md).
+and ``memory`` learn the residual a - a_ss (``network.MLPPolicyNet``): the holding forces
+depend on the grasp geometry and the load share through the arm's kinematics (why:
+docs/imitation.md).
 
 ``raw`` feeds the observation unchanged (any dimension).
 
@@ -33,6 +38,8 @@ from uvms_env.env.priors import (
     ACT_DIM,
     BASE_FEATURES,
     FEATURES_SIZE,
+    MEMORY_BLOCK,
+    MEMORY_FEATURES_SIZE,
     OBS_DIM,
     featurize,
     featurize_sx,
@@ -40,9 +47,11 @@ from uvms_env.env.priors import (
     steady_sx,
 )
 
-FEATURES = ("raw", "uvms-v1", "features")
-FEEDFORWARD = ("features",)  # feature sets whose last 8 numbers are the steady input
-FEATURE_DIMS = {"uvms-v1": BASE_FEATURES, "features": FEATURES_SIZE}
+FEATURES = ("raw", "uvms-v1", "features", "memory")
+FEEDFORWARD = ("features", "memory")  # feature sets whose last 8 numbers are the steady input
+FEATURE_DIMS = {"uvms-v1": BASE_FEATURES, "features": FEATURES_SIZE, "memory": MEMORY_FEATURES_SIZE}
+# ``memory`` reads the robot's memory block (uvms_env.env.memory) after its raw observation
+MEMORY_INPUT = OBS_DIM + MEMORY_BLOCK
 INPUT_CLIP = 10.0  # normalized inputs are clipped to +-10 standard deviations
 # Earlier names of a feature set -> its name (saved policies keep the name they had).
 LEGACY_FEATURES = {"uvms-v2": "features"}
@@ -59,11 +68,16 @@ def check_features(features: str) -> None:
 
 
 def features_sx(o: cs.SX, features: str, ring_radius: float) -> cs.SX:
+    """The features of ``o``: the raw observation, or (``memory``) the raw observation and
+    the memory block after it."""
     check_features(features)
     if features == "raw":
         return o
-    base = featurize_sx(o)
-    return cs.vertcat(base, steady_sx(o, ring_radius)) if features in FEEDFORWARD else base
+    raw = o[:OBS_DIM]
+    base = featurize_sx(raw)
+    if features == "memory":
+        return cs.vertcat(base, o[OBS_DIM:MEMORY_INPUT], steady_sx(raw, ring_radius))
+    return cs.vertcat(base, steady_sx(raw, ring_radius)) if features in FEEDFORWARD else base
 
 
 def inputs_sx(
@@ -99,8 +113,11 @@ def object_ring(ring_radius: float | None, features: str) -> float:
 
 
 def input_dim(features: str, n_features: int) -> int:
-    """The observation length of the compiled functions (``raw`` takes any)."""
-    return OBS_DIM if features != "raw" else n_features
+    """The observation length of the compiled functions (``raw`` takes any; ``memory``
+    the raw observation and the memory block)."""
+    if features == "raw":
+        return n_features
+    return MEMORY_INPUT if features == "memory" else OBS_DIM
 
 
 class CompiledInputs:
@@ -141,12 +158,21 @@ class CompiledInputs:
 def prepare(
     obs: np.ndarray, features: str, ring_radius: np.ndarray | float | None = None
 ) -> np.ndarray:
-    """(M, 79) observations -> (M, F) float32 features; ``ring_radius`` per sample (or one
-    value) for the feature sets that need the object."""
+    """(M, 79) observations (``memory``: (M, 95), the memory block after each) -> (M, F)
+    float32 features; ``ring_radius`` per sample (or one value) for the feature sets that
+    need the object."""
     check_features(features)
     obs = np.asarray(obs)
     if features == "raw":
         return obs.astype(np.float32)
+    memory = None
+    if features == "memory":
+        if obs.shape[-1] != MEMORY_INPUT:
+            raise ValueError(
+                f"memory features need the raw observation and the memory block "
+                f"({MEMORY_INPUT} numbers), got {obs.shape}"
+            )
+        obs, memory = obs[..., :OBS_DIM], obs[..., OBS_DIM:]
     base = featurize(obs)
     if features not in FEEDFORWARD:
         return base
@@ -165,5 +191,8 @@ def prepare(
     for ring in np.unique(rings):
         rows = np.flatnonzero(rings == ring)
         steady[rows] = steady_inputs(o2[rows], float(ring))
-    out = np.concatenate([np.atleast_2d(base), steady], axis=1)
+    parts = [np.atleast_2d(base), steady]
+    if memory is not None:
+        parts.insert(1, np.atleast_2d(memory).astype(np.float32))
+    out = np.concatenate(parts, axis=1)
     return out[0] if single else out

@@ -5,11 +5,13 @@ normalization, clipping, the layers and the output (``decision``). Where nothing
 compiled (``UVMS_ENV_NO_COMPILE``, no C compiler), or with ``compiled=False``, a network
 with hidden layers runs its layers in numpy float32 after the compiled input function
 instead. The torch network (``MLPPolicyNet.predict``) is the reference both are tested
-against. The same network serves every robot; it is stateless, so ``reset`` does
-nothing. The object (for ``features`` features) comes from the robot's ``AgentSpec``.
+against. The same network serves every robot; on ``memory`` features each robot's policy
+keeps its own ``RobotMemory`` (``uvms_env.env.memory``), cleared by ``reset`` and told
+by ``executed`` what another controller sent instead; on the others it is stateless. The
+object (for ``features`` and ``memory``) comes from the robot's ``AgentSpec``.
 
-May import: numpy, torch, ``uvms_env.policy`` and this package's network, features and
-decision.
+May import: numpy, torch, ``uvms_env.policy``, ``uvms_env.env.memory`` and this package's
+network, features and decision.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import torch
 from baselines.imitation.decision import decision_function
 from baselines.imitation.features import CompiledInputs, input_dim, object_ring
 from baselines.imitation.network import MLPPolicyNet
+from uvms_env.env.memory import RobotMemory
 from uvms_env.policy import AgentSpec
 
 
@@ -53,6 +56,11 @@ class ClonedPolicy:
             )
         self.compiled = fn is not None
         self._inputs = CompiledInputs(self.features, mean, inv_std, ring_radius=ring, fn=fn)
+        self._memory = None
+        if self.features == "memory":
+            if spec is None:
+                raise ValueError("a clone on memory features needs the robot's AgentSpec")
+            self._memory = RobotMemory(spec.period, spec.object_ring_radius)
         if not self.compiled:
             self._numpy_layers(layers)
         self.stats: dict[str, Any] = {}
@@ -68,12 +76,27 @@ class ClonedPolicy:
         self._buffers = [np.ones(len(w), dtype=np.float32) for w in layers[1:]]
 
     def reset(self) -> None:
-        pass
+        if self._memory is not None:
+            self._memory.reset()
+
+    def executed(self, action: np.ndarray) -> None:
+        """Another controller (a safety filter, DAgger's mixing) applied ``action``: the
+        memory follows what was sent."""
+        if self._memory is not None:
+            self._memory.executed(action)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
+        obs = np.asarray(obs)
+        if self._memory is None:
+            return self._decide(obs)
+        action = self._decide(np.concatenate([obs, self._memory.observe(obs)]))
+        self._memory.issued(action)
+        return action
+
+    def _decide(self, obs: np.ndarray) -> np.ndarray:
         if self.compiled:
-            return self._inputs(np.asarray(obs)).astype(np.float32)
-        np.copyto(self._first, self._inputs(np.asarray(obs)), casting="same_kind")
+            return self._inputs(obs).astype(np.float32)
+        np.copyto(self._first, self._inputs(obs), casting="same_kind")
         h = self._x
         for w, nxt in zip(self._hidden, self._buffers, strict=True):
             np.tanh(h @ w, out=nxt[:-1])

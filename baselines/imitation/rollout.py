@@ -20,19 +20,40 @@ expert's is. A clone that has left the expert's state distribution spends the re
 plain DAgger rollout in fast joint motion against the limits, and the aggregate fills
 with those (expert-saturated, hard to fit) states; gating keeps the visited states near
 the ones the learner has to master, yet reached by the learner's own small errors.
+
+Every stream also records each robot's memory block (``uvms_env.env.memory``: the last
+command it executed and its disturbance estimate) at each observation, as a policy on
+``memory`` features would have built it along that stream. A learner with a memory is
+asked for its action every step and told what was executed, so that its memory follows
+the stream whoever acted.
+
+``parallel_rollouts`` plays a ``RolloutJob`` (what to play, by names and paths: it
+crosses process boundaries) on worker processes, one contiguous block of episodes each;
+the streams come back in episode order, the same as one process would give. A job may
+draw each episode's team size from a set (``n_agents``, the random family, cycled over
+the episodes) and its current and mismatch through the environment's ``randomize``.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
+import os
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
 from baselines.imitation.dataset import AgentStream
+from uvms_env.env.memory import RobotMemory
 from uvms_env.episode import Step, play
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
+
+_LABELLING_STREAM = 0xDA66E2  # mixed into each episode's seed: its labelling draws
 
 
 def rollouts(
@@ -47,17 +68,19 @@ def rollouts(
     noise: float = 0.0,
     gate: float | None = None,
 ) -> tuple[list[AgentStream], list[dict]]:
-    """Per-robot streams (obs, expert label, reward, ...) and each episode's end metrics.
-    Episode ``ep`` uses ``env_factory(seed + ep)`` reset with ``seed + ep``."""
+    """Per-robot streams (obs, expert label, reward, memory, ...) and each episode's end
+    metrics. Episode ``ep`` uses ``env_factory(seed + ep)`` reset with ``seed + ep``; its
+    mixing and noise draws come from a generator of its own, keyed by that seed."""
     if not 0.0 <= beta <= 1.0:
         raise ValueError(f"beta must be in [0, 1], got {beta}")
     if not noise >= 0.0:
         raise ValueError(f"noise must be >= 0, got {noise}")
-    rng = np.random.default_rng(seed)
     streams: list[AgentStream] = []
     metrics: list[dict] = []
     bar = tqdm(total=episodes, desc=desc, disable=not progress, unit="ep")
     for ep in range(episodes):
+        # each episode's mixing and noise draws: its own stream, keyed by its seed
+        rng = np.random.default_rng([seed + ep, _LABELLING_STREAM])
         labelled = _Labelling(seed + ep, rng, learner, beta, noise, gate)
 
         def record(step: Step, labelled: _Labelling = labelled, ep: int = ep) -> None:
@@ -101,6 +124,9 @@ class _Labelling:
         ring = specs[0].object_ring_radius
         self.streams = {a: AgentStream.start(obs[a], self.ep_seed, ring) for a in agents}
         self.stream_list = list(self.streams.values())
+        self.memories = [RobotMemory(spec.period, ring) for spec in specs]
+        for a, memory in zip(agents, self.memories, strict=True):
+            self.streams[a].memory.append(memory.observe(obs[a]))
         if self.learner is not None:
             self.learners = [self.learner(s) for s in specs]
             for p in self.learners:
@@ -114,9 +140,15 @@ class _Labelling:
         s.fallbacks.append(int(stats.get("fallbacks", 0) or 0))
         s.actions.append(label)
         executed = label
-        use_learner = self.learners is not None and self.rng.random() >= self.beta
+        learner = self.learners[i] if self.learners is not None else None
+        # a learner with a memory decides every step, so that its memory follows the stream
+        stateful = learner is not None and hasattr(learner, "executed")
+        use_learner = learner is not None and self.rng.random() >= self.beta
+        proposal = None
+        if use_learner or stateful:
+            proposal = np.asarray(learner.act(obs), dtype=np.float32)  # type: ignore[union-attr]
         if use_learner:
-            proposal = np.asarray(self.learners[i].act(obs), dtype=np.float32)
+            assert proposal is not None
             if self.gate is None or np.max(np.abs(proposal - label)) <= self.gate:
                 executed = proposal
             else:
@@ -129,6 +161,9 @@ class _Labelling:
             hook = getattr(expert, "executed", None)
             if hook is not None:
                 hook(executed)
+        if stateful and not (use_learner and self.noise == 0.0):
+            learner.executed(executed)  # type: ignore[union-attr]
+        self.memories[i].issued(executed)
         s.learner_acted.append(bool(use_learner))
         return executed
 
@@ -138,6 +173,104 @@ class _Labelling:
             s.observations.append(
                 np.asarray(step.observations.get(a, s.observations[-1]), np.float32)
             )
+            s.memory.append(self.memories[i].observe(s.observations[-1]))
             s.rewards.append(float(step.rewards.get(a, 0.0)))
             s.terminations.append(bool(step.terminations.get(a, False)))
             s.truncations.append(bool(step.truncations.get(a, False)))
+
+
+@dataclass(frozen=True)
+class RolloutJob:
+    """What ``parallel_rollouts`` plays, by names and paths (it is pickled to the workers):
+    ``scenario`` with environment ``overrides`` (``randomize`` included), each episode's
+    team size drawn from ``n_agents`` (random family; cycled: episode e plays
+    ``n_agents[e % len]``; empty: the overrides'), episodes capped at ``cap`` periods,
+    labelled by ``expert`` (a ``baselines.evaluate`` policy source), the ``learner`` a
+    clone's ``policy.pt`` (None: demonstrations) with ``beta``, ``noise`` and ``gate`` as
+    in ``rollouts``."""
+
+    scenario: str
+    overrides: dict[str, Any] = field(default_factory=dict)
+    n_agents: tuple[int, ...] = ()
+    cap: int | None = None
+    expert: str = "nmpc"
+    learner: Path | None = None
+    beta: float = 1.0
+    noise: float = 0.0
+    gate: float | None = None
+
+    def env(self, seed: int, episode: int) -> Any:
+        """The environment of episode ``episode`` (geometry ``seed`` for seeded families)."""
+        import uvms_env
+
+        overrides = dict(self.overrides)
+        if self.n_agents:
+            overrides["n_agents"] = self.n_agents[episode % len(self.n_agents)]
+        env = uvms_env.parallel_env(scenario=self.scenario, seed=seed, **overrides)
+        if self.cap:
+            env.max_cycles = min(env.max_cycles, self.cap)
+        return env
+
+
+def _play_block(
+    job: RolloutJob, first: int, count: int, seed: int, desc: str, progress: bool
+) -> tuple[list[AgentStream], list[dict]]:
+    """Episodes ``first .. first + count - 1`` of ``job`` (episode e: seed ``seed + e``), in
+    this process."""
+    from baselines.imitation.policy import ClonedPolicy
+    from baselines.policies import PolicySource
+
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    expert = PolicySource.parse(job.expert).factory(seed + first)
+    learner = None
+    if job.learner is not None:
+        path = job.learner
+        learner = lambda spec: ClonedPolicy(spec, path)  # noqa: E731
+    return rollouts(
+        lambda s: job.env(s, s - seed),
+        expert,
+        count,
+        seed + first,
+        learner=learner,
+        beta=job.beta,
+        progress=progress,
+        desc=desc,
+        noise=job.noise,
+        gate=job.gate,
+    )
+
+
+def parallel_rollouts(
+    job: RolloutJob,
+    episodes: int,
+    seed: int,
+    workers: int = 1,
+    progress: bool = True,
+    desc: str = "rollouts",
+) -> tuple[list[AgentStream], list[dict]]:
+    """``episodes`` episodes of ``job`` (episode e: seed ``seed + e``) on ``workers``
+    processes (1: this one), each a contiguous block; streams and metrics in episode
+    order. The labelling draws of a block come from its own first seed, so a block's
+    episodes do not depend on how many workers share the job."""
+    workers = max(1, min(int(workers), episodes))
+    if workers == 1:
+        return _play_block(job, 0, episodes, seed, desc, progress)
+    # one period of each team size first, in this process: the compiled models land in
+    # the disk cache before the workers would race to build them
+    warm = dataclasses.replace(job, cap=1)
+    for e in range(min(episodes, max(1, len(job.n_agents)))):
+        _play_block(warm, e, 1, seed, desc, progress=False)
+    bounds = np.linspace(0, episodes, workers + 1).astype(int)
+    streams: list[AgentStream] = []
+    metrics: list[dict] = []
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = [
+            pool.submit(_play_block, job, int(a), int(b - a), seed, f"{desc} [{w}]", progress)
+            for w, (a, b) in enumerate(itertools.pairwise(bounds))
+            if b > a
+        ]
+        for fut in futures:
+            new, done = fut.result()
+            streams += new
+            metrics += done
+    return streams, metrics

@@ -23,7 +23,7 @@ import casadi as cs
 import numpy as np
 
 from baselines.imitation.decision import layers_digest, network_graph
-from baselines.imitation.features import CompiledInputs, inputs_sx
+from baselines.imitation.features import FEEDFORWARD, CompiledInputs, input_dim, inputs_sx
 from uvms_env.dynamics.compiled import compile_function
 from uvms_env.env.priors import ACT_DIM, OBS_DIM, Priors, steady_sx
 
@@ -71,7 +71,7 @@ def actor_function(
 
 def _build(priors: Priors, ring_radius: float, layers: list[np.ndarray]) -> cs.Function | None:
     features = priors.observation_mode  # the feature sets share the modes' names
-    args, z, ff, tag = inputs_sx(features, ring_radius, OBS_DIM)
+    args, z, ff, tag = inputs_sx(features, ring_radius, input_dim(features, OBS_DIM))
     if z.numel() != len(layers[0]) - 1:
         raise ValueError(
             f"the actor reads {len(layers[0]) - 1} numbers, the run's priors give {z.numel()}"
@@ -79,7 +79,7 @@ def _build(priors: Priors, ring_radius: float, layers: list[np.ndarray]) -> cs.F
     if priors.action_mode == "torque":
         steady = cs.DM.zeros(ACT_DIM)
     else:
-        steady = ff if features == "features" else steady_sx(args[0], ring_radius)
+        steady = ff if features in FEEDFORWARD else steady_sx(args[0], ring_radius)
     name = f"ppo_actor_{tag}_{layers_digest(layers)}"
     sym, out, steady_mx = network_graph(name, args, z, steady, layers)
     fn = cs.Function(name, sym, [priors.command_sx(sym[0], out, steady_mx)])
@@ -95,7 +95,8 @@ def compiled_actor(
     local_dim: int | None,
 ) -> CompiledInputs | None:
     """``__call__(raw_obs) -> input`` (float64 view, overwritten by the next call) for an
-    SB3 PPO model, or None where it cannot be compiled (see the module docstring).
+    SB3 PPO model, or None where it cannot be compiled (see the module docstring); in the
+    memory mode ``raw_obs`` is followed by the robot's memory block.
     ``norm``: the saved (mean, std, clip); ``local_dim``: the actor's share of a central
     critic's observation (the first numbers)."""
     layers = ppo_layers(model)

@@ -14,7 +14,8 @@ Written on SB3 because SB3 has no centralized critic and the MARL libraries that
 (RLlib, BenchMARL) train elsewhere; two small pieces suffice: ``CentralStateVecEnv``
 (appends the state) and ``CentralCriticPolicy`` (slices it off for the actor).
 
-May import: numpy, torch, gymnasium, stable-baselines3 and ``uvms_env.vector``.
+May import: numpy, torch, gymnasium, stable-baselines3, ``uvms_env.dynamics`` (sizes) and
+``uvms_env.vector``.
 """
 
 from __future__ import annotations
@@ -29,27 +30,51 @@ from stable_baselines3.common.vec_env import VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 from torch import nn
 
+from uvms_env.dynamics import NQ
 from uvms_env.vector.sb3 import VectorVecEnv
 
 
 class CentralStateVecEnv(VecEnvWrapper):
     """Each robot sub-environment's observation followed by its copy's global state
-    (``terminal_observation`` too, with the ended episode's last state)."""
+    (``terminal_observation`` too, with the ended episode's last state).
 
-    def __init__(self, venv: VectorVecEnv) -> None:
+    ``max_agents``: the state padded to a team of that size, so that teams of every size
+    up to it give the critic one layout (runs over several team sizes): every robot's q
+    and zeta padded with zeros to ``max_agents`` robots, the object, waypoint and time, and
+    a mask of ``max_agents`` numbers (1: a robot of the team)."""
+
+    def __init__(self, venv: VectorVecEnv, max_agents: int | None = None) -> None:
         if not isinstance(venv, VectorVecEnv):
             raise TypeError(
                 f"MAPPO's central state comes from the batched env (VectorVecEnv), "
                 f"got {type(venv).__name__}"
             )
+        n_agents = venv.n_agents
+        if max_agents is not None and max_agents < n_agents:
+            raise ValueError(f"max_agents {max_agents} is below the team size {n_agents}")
+        self.max_agents = max_agents
         self.local_dim = int(venv.observation_space.shape[0])
         self.state_dim = int(venv.vector_env.state().shape[1])
+        if max_agents is not None:
+            robots = 2 * NQ * n_agents
+            self.state_dim += (2 * NQ + 1) * max_agents - robots
         n = self.local_dim + self.state_dim
         space = spaces.Box(-np.inf, np.inf, (n,), np.float32)
         super().__init__(venv, observation_space=space)
 
+    def _padded(self, state: np.ndarray) -> np.ndarray:
+        """(K, 20 N + 19) states in the padded layout (``max_agents``), else as they are."""
+        if self.max_agents is None:
+            return state
+        n, m, k = self.venv.n_agents, self.max_agents, len(state)
+        q, zeta = state[:, : NQ * n], state[:, NQ * n : 2 * NQ * n]
+        pad = np.zeros((k, NQ * (m - n)), np.float32)
+        mask = np.zeros((k, m), np.float32)
+        mask[:, :n] = 1.0
+        return np.concatenate([q, pad, zeta, pad, state[:, 2 * NQ * n :], mask], axis=1)
+
     def _with_state(self, obs: np.ndarray, state: np.ndarray) -> np.ndarray:
-        per_robot = np.repeat(state, self.venv.n_agents, axis=0)  # sub-env k N + a
+        per_robot = np.repeat(self._padded(state), self.venv.n_agents, axis=0)  # k N + a
         return np.concatenate([obs, per_robot], axis=1, dtype=np.float32)
 
     def reset(self) -> np.ndarray:
@@ -60,6 +85,8 @@ class CentralStateVecEnv(VecEnvWrapper):
         obs, reward, done, infos = self.venv.step_wait()
         final_state = self.venv.last_infos["final_state"]
         n = self.venv.n_agents
+        if done.any():
+            final_state = self._padded(final_state)
         for i in np.flatnonzero(done).tolist():
             final = infos[i]["terminal_observation"]
             infos[i]["terminal_observation"] = np.concatenate(

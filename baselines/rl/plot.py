@@ -14,7 +14,9 @@ evaluations and the training episodes' mean return.
 ``--group NAME=RUN,RUN,...``: runs of one variant over training seeds, drawn as the mean
 and its 95% confidence band (Student t over the seeds) of the training episodes' return,
 their constraint cost per robot (``episode_cost_mean``) and the evaluations'
-success and clean success on the training rung.
+success and clean success on the training rung; with ``--per-seed``, every seed's
+evaluations on every rung (success, clean success, median violation periods). DAgger runs
+(``baselines.imitate dagger --eval-episodes``) write the same evaluations.csv.
 """
 
 from __future__ import annotations
@@ -172,6 +174,78 @@ def plot_groups(groups: dict[str, list[Path]], out: Path) -> None:
     plt.close(fig)
 
 
+SEED_PANELS = (
+    ("success_rate", "success rate"),
+    ("clean_success_rate", "clean success rate"),
+    ("violation_periods_median", "violation periods per episode (median)"),
+)
+
+
+def rung_table(run: Path) -> dict[str, dict[str, np.ndarray]]:
+    """evaluations.csv by rung: rung -> column -> values, in robot-step order."""
+    path = run / "evaluations.csv"
+    if not path.exists():
+        return {}
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    out: dict[str, dict[str, np.ndarray]] = {}
+    for rung in dict.fromkeys(r.get("rung") or "" for r in rows):
+        mine = [r for r in rows if (r.get("rung") or "") == rung]
+        out[rung] = {k: np.array([_num(r.get(k)) for r in mine]) for k in mine[0]}
+    return out
+
+
+def plot_seed_curves(groups: dict[str, list[Path]], out: Path) -> None:
+    """Every seed's evaluations, one column per rung, one row per ``SEED_PANELS`` metric:
+    a line per run (its group's color), robot-steps on x (violation periods on a
+    symmetric log scale: they span 0 to thousands)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tables = {(name, run): rung_table(run) for name, runs in groups.items() for run in runs}
+    rungs = list(dict.fromkeys(r for t in tables.values() for r in t))
+    if not rungs:
+        raise SystemExit("no evaluations.csv with rows in the runs")
+    fig, axes = plt.subplots(
+        len(SEED_PANELS), len(rungs), figsize=(2.6 * len(rungs) + 1, 6.5), squeeze=False
+    )
+    names = list(groups)
+    for (name, run), table in tables.items():
+        color = f"C{names.index(name)}"
+        seed = groups[name].index(run)
+        for j, rung in enumerate(rungs):
+            if rung not in table:
+                continue
+            t = table[rung]
+            for i, (key, _) in enumerate(SEED_PANELS):
+                if key not in t:
+                    continue
+                label = f"{name}" if (i, j, seed) == (0, 0, 0) else None
+                axes[i, j].plot(t["robot_steps"], t[key], "o-", color=color, ms=2, lw=1,
+                                alpha=0.8, label=label)  # fmt: skip
+    for j, rung in enumerate(rungs):
+        axes[0, j].set_title(rung, fontsize=9)
+        for i, (_, title) in enumerate(SEED_PANELS):
+            ax = axes[i, j]
+            ax.grid(alpha=0.3)
+            ax.tick_params(labelsize=7)
+            if i < 2:
+                ax.set_ylim(-0.05, 1.05)
+            else:
+                ax.set_yscale("symlog", linthresh=10)
+            if j == 0:
+                ax.set_ylabel(title, fontsize=8)
+            if i == len(SEED_PANELS) - 1:
+                ax.set_xlabel("robot-steps", fontsize=8)
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=80)
+    plt.close(fig)
+
+
 def _rung_evaluations(run: Path) -> dict[str, np.ndarray] | None:
     """The evaluations on the run's training rung (the first rung of a ladder)."""
     path = run / "evaluations.csv"
@@ -205,13 +279,13 @@ def _first_rung(path: Path) -> dict[str, np.ndarray]:
 
 
 def _training_rung(config: dict, first: str | None) -> str | None:
-    from baselines.runs import LADDER
-
-    n = config.get("overrides", {}).get("n_agents", 2)
-    for name, (scenario, overrides) in LADDER.items():
-        if scenario == config.get("scenario") and overrides.get("n_agents", 2) == n:
-            return name
-    return config.get("scenario", first)
+    """The rung of evaluations.csv that is the run's own training scenario: on the ladder
+    (``--eval-ladder``) the random rung of its team size or paper, else the first rung."""
+    scenario = config.get("scenario")
+    if config.get("eval_ladder") and scenario in ("random", "paper"):
+        n = config.get("overrides", {}).get("n_agents", 2)
+        return f"random_n{n}" if scenario == "random" else "paper"
+    return first or scenario
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -224,6 +298,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--group", action="append", default=[], metavar="NAME=RUN,RUN", help="seeds of a variant"
     )
+    ap.add_argument(
+        "--per-seed",
+        action="store_true",
+        help="with --group: every seed's evaluations per rung (success, clean success, "
+        "violation periods) instead of the mean and band of the training rung",
+    )
     ap.add_argument("--out", type=Path, default=Path("docs/figures/learning_curves.png"))
     args = ap.parse_args(argv)
     if args.group:
@@ -233,7 +313,7 @@ def main(argv: list[str] | None = None) -> None:
             if not sep:
                 raise SystemExit(f"expected NAME=RUN,RUN, got {item!r}")
             groups[name] = [Path(r) for r in runs.split(",")]
-        plot_groups(groups, args.out)
+        (plot_seed_curves if args.per_seed else plot_groups)(groups, args.out)
     elif args.runs:
         plot(args.runs, args.out)
     else:

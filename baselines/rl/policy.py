@@ -20,12 +20,13 @@ import numpy as np
 
 from uvms_env.dynamics import NU
 from uvms_env.env.channel import ChannelSettings, channel_settings
+from uvms_env.env.memory import RobotMemory
 from uvms_env.env.observation import OBSERVATION_SIZE
 from uvms_env.env.options import ENV_OPTIONS, priors_of
 from uvms_env.env.priors import Priors
 from uvms_env.policy import AgentSpec
 
-ALGOS = ("ppo", "sac")
+ALGOS = ("ppo", "sac", "recurrent_ppo")
 PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "pretrained"
 
 
@@ -42,6 +43,17 @@ def resolve_run(algo: str, path: str | None) -> Path:
     return folder
 
 
+def algorithm_class(algo: str) -> Any:
+    """The SB3 (or sb3-contrib) class of ``algo``."""
+    if algo == "recurrent_ppo":
+        from sb3_contrib import RecurrentPPO
+
+        return RecurrentPPO
+    from stable_baselines3 import PPO, SAC
+
+    return {"ppo": PPO, "sac": SAC}[algo]
+
+
 def _load(algo: str, folder: str) -> tuple[Any, Any]:
     """The model and observation statistics, cached until the files change (a training
     run re-saves its evaluation snapshot into the same folder)."""
@@ -56,10 +68,9 @@ def _load(algo: str, folder: str) -> tuple[Any, Any]:
 def _load_cached(algo: str, folder: str, stamps: tuple) -> tuple[Any, Any]:
     del stamps  # part of the cache key only
     import torch
-    from stable_baselines3 import PPO, SAC
 
     torch.set_num_threads(1)  # one episode per process: threads shared with others stall
-    model = {"ppo": PPO, "sac": SAC}[algo].load(Path(folder) / "model.zip", device="cpu")
+    model = algorithm_class(algo).load(Path(folder) / "model.zip", device="cpu")
     norm_path = Path(folder) / "vecnormalize.pkl"
     stats = None
     if norm_path.exists():
@@ -94,16 +105,66 @@ def run_comm(folder: Path) -> ChannelSettings | None:
     return comm_from_options(json.loads(config.read_text()).get("overrides", {}))
 
 
+class RobotInputs:
+    """What every trained policy's adapter does around its network, written once: the
+    robot's raw observation to the network's input (the run's priors, the robot's memory
+    in the memory mode, the inbox under a channel) and the network's numbers back to the
+    env action (the priors' command of the first 8, then the send flag and message as they
+    are). ``inputs`` then ``action`` once per decision; ``reset`` at each episode;
+    ``executed`` when another controller (a safety filter) sent something else."""
+
+    def __init__(
+        self, priors: Priors, spec: AgentSpec, comm: ChannelSettings | None = None
+    ) -> None:
+        self.priors, self.comm = priors, comm
+        self.ring = spec.object_ring_radius
+        self.memory = RobotMemory(spec.period, self.ring) if priors.remembers else None
+
+    def reset(self) -> None:
+        if self.memory is not None:
+            self.memory.reset()
+
+    def executed(self, action: np.ndarray) -> None:
+        if self.memory is not None:
+            self.memory.executed(np.asarray(action)[:NU])
+
+    def block(self, obs: np.ndarray) -> np.ndarray | None:
+        """The memory block of this decision (None without a memory); call once per
+        decision, before ``action``."""
+        if self.memory is None:
+            return None
+        return self.memory.observe(np.asarray(obs, np.float32)[:OBSERVATION_SIZE])
+
+    def inputs(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(raw observation, network input) of one robot's env observation."""
+        return policy_input(self.priors, obs, self.ring, self.comm, self.block(obs))
+
+    def action(self, raw: np.ndarray, chosen: np.ndarray) -> np.ndarray:
+        """The env action of the network's ``chosen`` numbers (and the memory's command)."""
+        return self.sent(policy_action(self.priors, raw, chosen, self.ring, self.comm))
+
+    def sent(self, action: np.ndarray) -> np.ndarray:
+        """``action`` as the robot sends it; the memory notes its inputs."""
+        if self.memory is not None:
+            self.memory.issued(action[:NU])
+        return action
+
+
 def policy_input(
-    priors: Priors, obs: np.ndarray, ring: float, comm: ChannelSettings | None
+    priors: Priors,
+    obs: np.ndarray,
+    ring: float,
+    comm: ChannelSettings | None,
+    memory: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(raw observation, network input) of one robot's env observation: the priors'
-    observation of the raw part, then, under a channel, the inbox as the env appends it."""
+    observation of the raw part (with the robot's ``memory`` block in the memory mode),
+    then, under a channel, the inbox as the env appends it."""
     obs = np.asarray(obs, dtype=np.float32)
     if comm is None:
-        return obs, priors.observe(obs, ring)
+        return obs, priors.observe(obs, ring, memory=memory)
     raw = obs[:OBSERVATION_SIZE]
-    x = np.asarray(priors.observe(raw, ring), np.float32)
+    x = np.asarray(priors.observe(raw, ring, memory=memory), np.float32)
     return raw, np.concatenate([x, obs[OBSERVATION_SIZE:]])
 
 
@@ -128,7 +189,8 @@ class SB3Policy:
     """``act(obs)``: the run's deterministic action for one robot's raw observation, as
     the normalized input. ``compiled`` (default): the whole decision as one compiled call
     (``baselines.rl.actor``) where the model allows it, else SB3's ``predict``;
-    ``self.compiled`` says which."""
+    ``self.compiled`` says which. The priors, the memory and the channel: ``RobotInputs``;
+    a recurrent model (``recurrent_ppo``) also keeps its LSTM state, cleared by ``reset``."""
 
     def __init__(self, spec: AgentSpec, algo: str, folder: Path, compiled: bool = True) -> None:
         if algo not in ALGOS:
@@ -138,7 +200,10 @@ class SB3Policy:
         self.priors = run_priors(folder)
         self.comm = run_comm(folder)
         self.reads_messages = self.comm is not None  # it sees the inbox, it may send
-        self._ring = spec.object_ring_radius
+        self._io = RobotInputs(self.priors, spec, self.comm)
+        self._recurrent = algo == "recurrent_ppo"
+        self._state: Any = None
+        self._start = True
         # MAPPO: the actor reads only the first local_dim numbers; the critic's global
         # state, which a robot does not have, is padded with zeros.
         local = getattr(self.model.policy, "local_dim", None)
@@ -148,21 +213,35 @@ class SB3Policy:
         if compiled and algo == "ppo" and self.comm is None:
             from baselines.rl.actor import compiled_actor
 
-            self._decide = compiled_actor(self.model, self.priors, self._ring, self._norm, local)
+            ring = spec.object_ring_radius
+            self._decide = compiled_actor(self.model, self.priors, ring, self._norm, local)
         self.compiled = self._decide is not None
         self.stats: dict[str, Any] = {}
 
     def reset(self) -> None:
-        pass
+        self._io.reset()
+        self._state, self._start = None, True
+
+    def executed(self, action: np.ndarray) -> None:
+        self._io.executed(action)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        if self._decide is not None:
-            return self._decide(np.asarray(obs)).astype(np.float32)
-        raw, x = policy_input(self.priors, obs, self._ring, self.comm)
+        obs = np.asarray(obs)
+        if self._decide is not None:  # the priors are inside the compiled decision
+            block = self._io.block(obs)
+            full = obs if block is None else np.concatenate([obs, block])
+            return self._io.sent(self._decide(full).astype(np.float32))
+        raw, x = self._io.inputs(obs)
         if self._pad is not None:
             x = np.concatenate([x, self._pad])
         if self._norm is not None:
             mean, std, clip = self._norm
             x = np.clip((x - mean) / std, -clip, clip).astype(np.float32)
-        action, _ = self.model.predict(x, deterministic=True)
-        return policy_action(self.priors, raw, np.clip(action, -1.0, 1.0), self._ring, self.comm)
+        if self._recurrent:
+            action, self._state = self.model.predict(
+                x, state=self._state, episode_start=np.array([self._start]), deterministic=True
+            )
+            self._start = False
+        else:
+            action, _ = self.model.predict(x, deterministic=True)
+        return self._io.action(raw, np.clip(action, -1.0, 1.0))

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from baselines.rl.policy import policy_action, policy_input, run_comm, run_priors
+from baselines.rl.policy import RobotInputs, run_comm, run_priors
 from uvms_env.policy import AgentSpec
 
 ACTOR_FILE = "actor.pt"
@@ -142,18 +142,20 @@ class TorchRLPolicy:
         self.priors = run_priors(file.parent)
         self.comm = run_comm(file.parent)
         self.reads_messages = self.comm is not None  # it sees the inbox, it may send
-        self._ring = spec.object_ring_radius
+        self._io = RobotInputs(self.priors, spec, self.comm)
         self.stats: dict[str, Any] = {}
 
     def reset(self) -> None:
-        pass
+        self._io.reset()
+
+    def executed(self, action: np.ndarray) -> None:
+        self._io.executed(action)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        raw, x = policy_input(self.priors, obs, self._ring, self.comm)
+        raw, x = self._io.inputs(obs)
         with torch.no_grad():
             loc, _ = self.net(torch.as_tensor(np.asarray(x, np.float32)))
-        chosen = np.clip(torch.tanh(loc).numpy(), -1.0, 1.0)
-        return policy_action(self.priors, raw, chosen, self._ring, self.comm)
+        return self._io.action(raw, np.clip(torch.tanh(loc).numpy(), -1.0, 1.0))
 
 
 def factory(path: str | None):

@@ -221,12 +221,15 @@ class EpisodeTracker:
     the discounted return that scales the reward (VecNormalize's ``ret_rms``), carried
     across rollouts on the device."""
 
-    def __init__(self, k: int, gamma: float, device: torch.device) -> None:
+    def __init__(
+        self, k: int, gamma: float, device: torch.device, ret_stats: RunningNorm | None = None
+    ) -> None:
         self.gamma = gamma
         self.ret = torch.zeros(k, device=device)
         self.len = torch.zeros(k, device=device)
         self.discounted = torch.zeros(k, device=device)
-        self.ret_stats = RunningNorm(1).to(device)
+        # shared by the groups of a run over several team sizes: one reward scale
+        self.ret_stats = ret_stats if ret_stats is not None else RunningNorm(1).to(device)
 
     @torch.no_grad()
     def observe(self, reward: torch.Tensor, done: torch.Tensor) -> tuple[list[float], list[int]]:
@@ -296,7 +299,7 @@ class Engine:
             raise ValueError(f"unknown hyperparameters {sorted(unknown)}; known: {known}")
         self.run, self.args = run, args
         self.hp = {**HYPERPARAMETERS, **run.settings.hyperparameters}
-        self.collector: Any = None
+        self.collectors: list[Any] = []
         self.costs: StepCosts | None = None
         self.lagrangian: Lagrangian | None = None
         self.robot_steps = 0
@@ -307,49 +310,68 @@ class Engine:
         from torchrl.data import LazyTensorStorage, ReplayBuffer
         from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
 
+        from uvms_env.vector.sb3 import PART_SEED_STRIDE
+
         s, a, hp = self.run.settings, self.args, self.hp
+        sizes: tuple[int | None, ...] = tuple(s.team_sizes) or (None,)
+        if s.cost is not None and len(sizes) > 1:
+            raise ValueError(
+                "--cost with several team sizes: train it with the sb3 engine (one multiplier "
+                "over every robot), or give the torchrl engine one team size"
+            )
         device = parse_device(a.device, a.backend)
         pool = seeded_pool(s.scenario, s.overrides, s.geometry_pool)
         torch.set_num_threads(a.torch_threads)
         torch.manual_seed(s.seed + self.run.config["resumes"])
         setup_start = time.perf_counter()
-        env = make_env(
-            s.scenario, s.num_envs, a.backend, device, a.dtype, pool, a.env_threads, s.overrides
-        )
-        env.set_seed(self.run.episode_seed)
-        dev = self.dev = env.device
-        n = env.vector_env.n
+        envs = []
+        for j, n_agents in enumerate(sizes):
+            overrides = dict(s.overrides)
+            if n_agents is not None:
+                overrides["n_agents"] = n_agents
+            env = make_env(
+                s.scenario, s.num_envs, a.backend, device, a.dtype, pool, a.env_threads, overrides
+            )
+            env.set_seed(self.run.episode_seed + j * PART_SEED_STRIDE)
+            envs.append(env)
+        dev = self.dev = envs[0].device
         if s.cost is not None:
-            self.costs = StepCosts(env.vector_env)
-            self.lagrangian = Lagrangian(s.cost, s.num_envs * n)
-        actor, critic, actor_net, critic_net = build_modules(env, hp)
+            self.costs = StepCosts(envs[0].vector_env)
+            self.lagrangian = Lagrangian(s.cost, s.num_envs * envs[0].vector_env.n)
+        actor, critic, actor_net, critic_net = build_modules(envs[0], hp)
         loss = ppo_loss(actor, critic, hp)
         optimizer = torch.optim.Adam(loss.parameters(), lr=hp["lr"])
-        tracker = EpisodeTracker(s.num_envs, hp["gamma"], dev)
+        shared = RunningNorm(1).to(dev)
+        trackers = [EpisodeTracker(s.num_envs, hp["gamma"], dev, shared) for _ in envs]
         if s.resume is not None:
             self.robot_steps = self._restore(
-                Path(s.resume), actor_net, critic_net, optimizer, tracker
+                Path(s.resume), actor_net, critic_net, optimizer, trackers[0]
             )
         steps = int(hp["rollout_steps"])
         rows_per_batch = s.num_envs * steps
-        self.robot_steps_per_batch = rows_per_batch * n
+        robots = sum(env.vector_env.n for env in envs)
+        self.robot_steps_per_batch = rows_per_batch * robots
         remaining = max(0, s.robot_steps - self.robot_steps)
         self.iterations = math.ceil(remaining / self.robot_steps_per_batch)
-        self.collector = Collector(
-            env,
-            actor,
-            frames_per_batch=rows_per_batch,
-            total_frames=max(1, self.iterations) * rows_per_batch,
-            device=dev,
-            auto_register_policy_transforms=False,  # the actor is memoryless: no InitTracker
-        )
-        minibatch = max(1, rows_per_batch // int(hp["minibatches"]))
+        self.collectors = [
+            Collector(
+                env,
+                actor,
+                frames_per_batch=rows_per_batch,
+                total_frames=max(1, self.iterations) * rows_per_batch,
+                device=dev,
+                auto_register_policy_transforms=False,  # the actor is memoryless: no InitTracker
+            )
+            for env in envs
+        ]
+        samples = rows_per_batch * robots  # robot samples per iteration, every group
+        minibatch = max(1, samples // int(hp["minibatches"]))
         self.buffer = ReplayBuffer(
-            storage=LazyTensorStorage(rows_per_batch, device=dev),
+            storage=LazyTensorStorage(samples, device=dev),
             sampler=SamplerWithoutReplacement(),
             batch_size=minibatch,
         )
-        self.loss, self.optimizer, self.tracker = loss, optimizer, tracker
+        self.loss, self.optimizer, self.trackers = loss, optimizer, trackers
         self.actor_net, self.critic_net = actor_net, critic_net
         self.run.config["hardware"].update(hardware(dev))
         return {
@@ -358,42 +380,55 @@ class Engine:
             "dtype": a.dtype,
             "geometry_pool": pool,
             "env_threads": a.env_threads,
-            "robots": s.num_envs * n,
+            "robots": s.num_envs * robots,
+            "team_sizes": [env.vector_env.n for env in envs],
             "hyperparameters": hp,
-            "minibatch_rows": minibatch,
+            "minibatch_robot_samples": minibatch,
             "robot_steps_per_iteration": self.robot_steps_per_batch,
             "torch_threads": torch.get_num_threads(),
             "setup_s": round(time.perf_counter() - setup_start, 1),
         }
 
     def learn(self) -> int:
+        from tensordict import TensorDict
+
         from uvms_env.vector.torchrl_env import GROUP
 
         if self.iterations == 0:
             return self.robot_steps
-        hp, loss, tracker = self.hp, self.loss, self.tracker
+        hp, loss = self.hp, self.loss
         tick = time.perf_counter()
-        for batch in self.collector:
+        for batches in zip(*self.collectors, strict=True):
             if self.dev.type == "cuda":
                 torch.cuda.synchronize(self.dev)  # the timings below are the device's
             collect_s = time.perf_counter() - tick
             tock = time.perf_counter()
-            reward = batch["next", GROUP, "reward"]  # (K, T, N, 1): the team's, per robot
-            done = batch["next", "done"][..., 0]
-            if self.lagrangian is not None:
-                reward = reward - self._penalties(done)
-                batch["next", GROUP, "reward"] = reward
-            # the team's return as robot 0 receives it (the SB3 engine's monitor, too)
-            returns, lengths = tracker.observe(reward[:, :, 0, 0], done)
-            if hp["scale_reward"]:
-                batch["next", GROUP, "reward"] = tracker.scale(reward)
-            with torch.no_grad():
-                loss.value_estimator(
-                    batch,
-                    params=loss.critic_network_params,
-                    target_params=loss.target_critic_network_params,
-                )
-            self.buffer.extend(batch.reshape(-1))
+            returns: list[float] = []
+            lengths: list[int] = []
+            samples, observations = [], []
+            for batch, tracker in zip(batches, self.trackers, strict=True):
+                reward = batch["next", GROUP, "reward"]  # (K, T, N, 1): the team's, per robot
+                done = batch["next", "done"][..., 0]
+                if self.lagrangian is not None:
+                    reward = reward - self._penalties(done)
+                    batch["next", GROUP, "reward"] = reward
+                # the team's return as robot 0 receives it (the SB3 engine's monitor, too)
+                ended_returns, ended_lengths = tracker.observe(reward[:, :, 0, 0], done)
+                returns += ended_returns
+                lengths += ended_lengths
+                if hp["scale_reward"]:
+                    batch["next", GROUP, "reward"] = tracker.scale(reward)
+                with torch.no_grad():
+                    loss.value_estimator(
+                        batch,
+                        params=loss.critic_network_params,
+                        target_params=loss.target_critic_network_params,
+                    )
+                # robot samples (K T N): one policy for every robot, teams of any size
+                robots = batch.get(GROUP).exclude("next").reshape(-1)
+                samples.append(TensorDict({GROUP: robots}, batch_size=robots.batch_size))
+                observations.append(robots["observation"])
+            self.buffer.extend(torch.cat(samples) if len(samples) > 1 else samples[0])
             for _ in range(int(hp["epochs"]) * int(hp["minibatches"])):
                 values = loss(self.buffer.sample())
                 total = values["loss_objective"] + values["loss_critic"]
@@ -406,10 +441,11 @@ class Engine:
             if hp["normalize_observation"]:
                 # after the update: the rollout was collected and is learned from with
                 # the same statistics, so the PPO ratio starts at 1
-                obs = batch[GROUP, "observation"]
+                obs = torch.cat(observations)
                 self.actor_net.norm.update(obs)
                 self.critic_net.norm.update(obs)
-            self.collector.update_policy_weights_()
+            for collector in self.collectors:
+                collector.update_policy_weights_()
             if self.dev.type == "cuda":
                 torch.cuda.synchronize(self.dev)
             self.totals["collect_s"] += collect_s
@@ -471,9 +507,9 @@ class Engine:
         return {k: round(v, 1) if isinstance(v, float) else v for k, v in self.totals.items()}
 
     def close(self) -> None:
-        if self.collector is not None:
-            self.collector.shutdown()
-            self.collector = None
+        for collector in self.collectors:
+            collector.shutdown()
+        self.collectors = []
 
     def _actor_settings(self) -> dict[str, Any]:
         return {
@@ -491,7 +527,7 @@ class Engine:
             "robot_steps": self.robot_steps,
             "actor": host(self.actor_net.state_dict()),
             "critic": host(self.critic_net.state_dict()),
-            "return_stats": host(self.tracker.ret_stats.state_dict()),
+            "return_stats": host(self.trackers[0].ret_stats.state_dict()),
             "optimizer": self.optimizer.state_dict(),
         }
 

@@ -32,12 +32,13 @@ from typing import TYPE_CHECKING, Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+from baselines.rl.policy import algorithm_class
 from baselines.runs import TRAIN_ENV_DEFAULTS, Run, seeded_pool
 
 if TYPE_CHECKING:
     from baselines.lagrangian import CostSettings
 
-ALGOS = ("ppo", "sac")
+ALGOS = ("ppo", "sac", "recurrent_ppo")
 # Seeded families: every episode a geometry of the bank's first 1,024 seeds (built once,
 # kept on disk): diverse starts without building a geometry inside a step.
 DEFAULTS: dict[str, Any] = {"num_envs": 4, "geometry_pool": 1024}
@@ -48,6 +49,15 @@ ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
     # our budgets and one gradient step per collected robot-step (gradient_steps = the
     # number of sub-environments, set in ``build``).
     "ppo": {"n_steps": 256, "batch_size": 256, "gae_lambda": 0.95, "gamma": 0.99, "ent_coef": 0.0},
+    # sb3-contrib's RecurrentPPO (an LSTM before the actor's and the critic's MLPs): PPO's
+    # settings; its minibatches are whole sequences of a sub-environment's rollout
+    "recurrent_ppo": {
+        "n_steps": 256,
+        "batch_size": 256,
+        "gae_lambda": 0.95,
+        "gamma": 0.99,
+        "ent_coef": 0.0,
+    },
     "sac": {
         "learning_starts": 2000,
         "batch_size": 256,
@@ -64,7 +74,14 @@ PPO_MIN_BATCH = 256
 NET = [64, 64]
 # PPO starts with action std exp(-1) ~ 0.37 instead of 1: with std 1 nearly every step
 # violates the joint and vehicle speed limits and the penalties swamp the progress term.
-POLICY_KWARGS: dict[str, dict[str, Any]] = {"ppo": {"log_std_init": -1.0}, "sac": {}}
+# RecurrentPPO: a 64-unit LSTM (sb3-contrib's default 256 would dominate the update time
+# of a 64-64 network) shared by nothing: the critic has its own.
+POLICY_KWARGS: dict[str, dict[str, Any]] = {
+    "ppo": {"log_std_init": -1.0},
+    "sac": {},
+    "recurrent_ppo": {"log_std_init": -1.0, "lstm_hidden_size": 64},
+}
+ON_POLICY = ("ppo", "recurrent_ppo")
 # SAC has no rollouts: one progress row per this many steps of every sub-environment.
 SAC_ROW_STEPS = 256
 DTYPES = ("float32", "float64")
@@ -154,47 +171,78 @@ def make_vec_env(
     cost: CostSettings | None = None,
     central_critic: bool = False,
     filter_penalty: float | None = None,
+    team_sizes: tuple[int, ...] = (),
 ):
     """``CostPenalty`` (with ``cost``) over ``ShieldPenalty`` (with ``filter_penalty``) over
     ``VecMonitor`` over ``num_envs`` env copies as
     ``num_envs * N`` robot sub-environments of one ``VectorEnv`` (in ``dtype``, on
     ``env_threads`` threads, None: all cores; seeded families: episodes on the first
     ``geometry_pool`` bank geometries, 0 or None: each copy keeps its first).
+    ``team_sizes`` (several): one ``VectorEnv`` of ``num_envs`` copies per team size,
+    side by side (``ConcatVecEnv``), the central critic's state padded to the largest team.
     ``filter_penalty``: shielded training, ``baselines.rl.shield.ShieldPenalty`` with that
-    weight."""
+    weight (one team size)."""
     from stable_baselines3.common.vec_env import VecMonitor
 
-    kwargs = {**TRAIN_ENV_DEFAULTS, **overrides}
     from uvms_env.vector import VectorEnv
-    from uvms_env.vector.sb3 import VectorVecEnv
+    from uvms_env.vector.sb3 import PART_SEED_STRIDE, ConcatVecEnv, VectorVecEnv
 
     settings = env_settings(scenario, dtype, geometry_pool, env_threads, overrides)
-    if settings["geometry_pool"] is not None:
-        kwargs["geometry_pool"] = settings["geometry_pool"]
-    inner = VectorEnv(
-        scenario,
-        num_envs=num_envs,
-        dtype=settings["dtype"],
-        threads=settings["env_threads"],
-        **kwargs,
-    )
-    venv: Any = VectorVecEnv(inner, seed=seed)
-    if central_critic:
-        from baselines.rl.mappo import CentralStateVecEnv
+    sizes: tuple[int | None, ...] = tuple(team_sizes) or (None,)
+    if filter_penalty is not None and len(sizes) > 1:
+        raise ValueError("shielded training (--filter) takes one team size")
+    parts, inners = [], []
+    for j, n in enumerate(sizes):
+        kwargs = {**TRAIN_ENV_DEFAULTS, **overrides}
+        if n is not None:
+            kwargs["n_agents"] = n
+        if settings["geometry_pool"] is not None:
+            kwargs["geometry_pool"] = settings["geometry_pool"]
+        inner = VectorEnv(
+            scenario,
+            num_envs=num_envs,
+            dtype=settings["dtype"],
+            threads=settings["env_threads"],
+            **kwargs,
+        )
+        part: Any = VectorVecEnv(inner, seed=seed + j * PART_SEED_STRIDE)
+        if central_critic:
+            from baselines.rl.mappo import CentralStateVecEnv
 
-        venv = CentralStateVecEnv(venv)
+            most = max(sizes) if len(sizes) > 1 else None  # type: ignore[type-var]
+            part = CentralStateVecEnv(part, max_agents=most)
+        parts.append(part)
+        inners.append(inner)
+    venv: Any = parts[0] if len(parts) == 1 else ConcatVecEnv(parts)
     # VecMonitor below the filter's and the cost's penalties: episodes' returns are the
     # environment's team reward (neither normalized nor penalized), as every engine records
     venv = VecMonitor(venv)
     if filter_penalty is not None:
         from baselines.rl.shield import Shield, ShieldPenalty
 
-        venv = ShieldPenalty(venv, Shield(inner, filter_penalty))
+        venv = ShieldPenalty(venv, Shield(inners[0], filter_penalty))
     if cost is not None:
         from baselines.rl.cost import CostPenalty
 
         venv = CostPenalty(venv, cost)
     return venv
+
+
+def central_layer(venv: Any) -> Any:
+    """The (first) ``CentralStateVecEnv`` inside a VecEnv stack, or None."""
+    from baselines.rl.mappo import CentralStateVecEnv
+    from uvms_env.vector.sb3 import ConcatVecEnv
+
+    while venv is not None and not isinstance(venv, CentralStateVecEnv):
+        venv = venv.parts[0] if isinstance(venv, ConcatVecEnv) else getattr(venv, "venv", None)
+    return venv
+
+
+def team_leaders(venv: Any) -> Any:
+    """Which sub-environments are each team's first robot (one per team episode)."""
+    while venv is not None and not hasattr(venv, "team_leaders"):
+        venv = getattr(venv, "venv", None)
+    return venv.team_leaders if venv is not None else None
 
 
 def find_resume(path: Path) -> tuple[Path, Path, Path | None]:
@@ -230,10 +278,6 @@ def _checkpoint_steps(path: Path) -> int:
     return int(path.stem.split("_")[-2])
 
 
-def _checkpoint_steps(path: Path) -> int:
-    return int(path.stem.split("_")[-2])
-
-
 class Engine:
     """SB3's PPO or SAC under a ``baselines.runs.Run`` (``baselines.runs.Engine``)."""
 
@@ -241,7 +285,7 @@ class Engine:
         if algo not in ALGO_DEFAULTS:
             raise ValueError(f"unknown algorithm {algo!r}; expected one of {ALGOS}")
         if args.central_critic and algo != "ppo":
-            raise ValueError("a central critic (MAPPO) needs --algo ppo")
+            raise ValueError("a central critic (MAPPO) needs --algo ppo (no LSTM)")
         if getattr(args, "init_actor", None) and algo != "ppo":
             raise ValueError("--init-actor initializes PPO's actor (--algo ppo)")
         self.run, self.algo, self.args = run, algo, args
@@ -291,15 +335,16 @@ class Engine:
             cost=s.cost,
             central_critic=a.central_critic,
             filter_penalty=a.filter_penalty if getattr(a, "filter", False) else None,
+            team_sizes=s.team_sizes,
         )
         if s.resume is not None:
             model, venv = self._resumed(venv, hp)
         else:
-            if algo == "ppo" and "batch_size" not in hyperparameters:
+            if algo in ON_POLICY and "batch_size" not in hyperparameters:
                 rollout = hp["n_steps"] * venv.num_envs
                 hp["batch_size"] = max(PPO_MIN_BATCH, rollout // PPO_MINIBATCHES)
             model, venv = self._new_model(venv, hp, chosen_policy_kwargs, clone)
-        if algo == "ppo":
+        if algo in ON_POLICY:
             hp["batch_size"] = model.batch_size  # the one used (a resumed model keeps its own)
         # SB3's own scalars go to tensorboard; the shared progress.csv is the run's
         model.set_logger(configure(str(self.run.folder), ["tensorboard"]))
@@ -325,13 +370,12 @@ class Engine:
     def _resumed(self, venv: Any, hp: dict[str, Any]) -> tuple[Any, Any]:
         """The model and normalized env of ``--resume`` (SAC: its replay buffer and its
         gradient steps, recorded into ``hp``)."""
-        from stable_baselines3 import PPO, SAC
         from stable_baselines3.common.vec_env import VecNormalize
 
         model_path, norm_path, buffer_path = find_resume(Path(self.run.settings.resume))
         venv = VecNormalize.load(str(norm_path), venv)
         venv.training = True
-        model = {"ppo": PPO, "sac": SAC}[self.algo].load(model_path, env=venv, device="cpu")
+        model = algorithm_class(self.algo).load(model_path, env=venv, device="cpu")
         if buffer_path is not None and hasattr(model, "load_replay_buffer"):
             model.load_replay_buffer(buffer_path)
         if self.algo == "sac":
@@ -344,23 +388,20 @@ class Engine:
     ) -> tuple[Any, Any]:
         """A new model on the normalized env (MAPPO's policy with ``--central-critic``, the
         actor from ``clone`` with ``--init-actor``)."""
-        from stable_baselines3 import PPO, SAC
         from stable_baselines3.common.vec_env import VecNormalize
-
-        from baselines.rl.cost import find_layer
 
         s = self.run.settings
         venv = VecNormalize(venv, clip_obs=10.0)
         if self.algo == "sac":
             hp.setdefault("gradient_steps", venv.num_envs)
-        policy: Any = "MlpPolicy"
+        policy: Any = "MlpLstmPolicy" if self.algo == "recurrent_ppo" else "MlpPolicy"
         kwargs = {"net_arch": NET, **policy_kwargs}
         if self.args.central_critic:
-            from baselines.rl.mappo import CentralCriticPolicy, CentralStateVecEnv
+            from baselines.rl.mappo import CentralCriticPolicy
 
             policy = CentralCriticPolicy
-            kwargs["local_dim"] = find_layer(venv, CentralStateVecEnv).local_dim
-        cls = {"ppo": PPO, "sac": SAC}[self.algo]
+            kwargs["local_dim"] = central_layer(venv).local_dim
+        cls = algorithm_class(self.algo)
         model = cls(policy, venv, seed=s.seed, device="cpu", policy_kwargs=kwargs, verbose=0, **hp)
         if clone is not None:
             from baselines.rl import init_actor
@@ -420,11 +461,13 @@ def _progress_callback(engine: Engine) -> Any:
 
     class ProgressCallback(BaseCallback):
         def _init_callback(self) -> None:
-            self.n = _team_size(self.training_env)
+            leaders = team_leaders(self.training_env)
+            self.leaders = leaders if leaders is not None else [True] * self.model.n_envs
             self.returns: list[float] = []
             self.lengths: list[float] = []
             self.last = self.model.num_timesteps
-            self.warmup = getattr(engine.args, "critic_warmup", 0) if engine.algo == "ppo" else 0
+            on_policy = engine.algo in ON_POLICY
+            self.warmup = getattr(engine.args, "critic_warmup", 0) if on_policy else 0
             if self.warmup > self.model.num_timesteps:
                 from baselines.rl.init_actor import freeze_actor
 
@@ -432,7 +475,7 @@ def _progress_callback(engine: Engine) -> Any:
 
         def _on_step(self) -> bool:
             for i, info in enumerate(self.locals["infos"]):
-                if "episode" in info and i % self.n == 0:
+                if "episode" in info and self.leaders[i]:
                     self.returns.append(float(info["episode"]["r"]))
                     self.lengths.append(float(info["episode"]["l"]))
             return True
@@ -470,9 +513,3 @@ def _progress_callback(engine: Engine) -> Any:
                 write_summary(run.folder, shield.summary(steps))
 
     return ProgressCallback()
-
-
-def _team_size(venv: Any) -> int:
-    while venv is not None and not hasattr(venv, "n_agents"):
-        venv = getattr(venv, "venv", None)
-    return int(venv.n_agents) if venv is not None else 1

@@ -35,6 +35,8 @@ import numpy as np
 
 from uvms_env.dynamics import NQ, NU
 from uvms_env.env.channel import Channel
+from uvms_env.env.conditions import Conditions
+from uvms_env.env.memory import Memory
 from uvms_env.env.observation import (
     NOISE_STD_Q,
     NOISE_STD_ZETA,
@@ -86,9 +88,12 @@ class Engine:
         """a_ss of raw observations (..., 79) -> (..., 8) float64."""
         return steady_inputs(raw, ring)
 
-    def features(self, raw: Any, steady: Any, priors: Priors, ring: float) -> Any:
-        """The features observation of raw observations whose a_ss is ``steady``."""
-        return priors.observe(raw, ring, steady)
+    def features(
+        self, raw: Any, steady: Any, priors: Priors, ring: float, memory: Any = None
+    ) -> Any:
+        """The features observation of raw observations whose a_ss is ``steady`` (and
+        whose robots' memory blocks are ``memory``, in the memory mode)."""
+        return priors.observe(raw, ring, steady, memory)
 
 
 class EnvCore:
@@ -134,10 +139,16 @@ class EnvCore:
         batch = (k,) if self.batched else ()
         self.obs = xp.zeros((*batch, n, OBSERVATION_SIZE), np.float32)  # the raw views
         self.steady = xp.zeros((*batch, n, NU)) if self.priors.needs_steady else None
+        # observation_mode="memory": each robot's memory of its own measurements
+        self.memory = (
+            Memory((*batch, n), s.period, self.ring, xp) if self.priors.remembers else None
+        )
         # on the device: CuPy takes no numpy operand in its arithmetic
         self._noise_q = xp.asarray(s.sensor_noise * NOISE_STD_Q)
         self._noise_zeta = xp.asarray(s.sensor_noise * NOISE_STD_ZETA)
         self.scenarios: list[Scenario] = [s] * k
+        # each environment's current episode conditions (uvms_env.env.conditions)
+        self.conditions = [Conditions(s.current, s.mismatch)] * k
         self._geometry_set = np.zeros(k, bool)
         # ``command_filter(raw_obs, commands, first)`` -> commands: replaces each step's
         # normalized inputs before they reach the simulator (a safety filter in the
@@ -218,19 +229,30 @@ class EnvCore:
 
     def reset(self, rows: list[int]) -> None:
         """New episodes in ``rows``: the next draws of each one's generator (truth model,
-        current, sensor noise), the start state, the task's bookkeeping and the first
-        observations (in ``obs``)."""
+        current, sensor noise; with ``randomize``, the conditions), the start state, the
+        task's bookkeeping and the first observations (in ``obs``)."""
         sim_seeds = []
         for i in rows:
             rng = np.random.default_rng(self.seeders[i].integers(SEED_LIMIT))
             sim_seeds.append(int(rng.integers(SEED_LIMIT)))
             self.noise_rngs[i] = rng
-        self.engine.reset(rows, sim_seeds)
+        draws = self.setup.draws
+        if draws is None:
+            self.engine.reset(rows, sim_seeds)
+        else:
+            drawn = []
+            for i, seed in zip(rows, sim_seeds, strict=True):
+                s = self.scenarios[i]
+                drawn.append(draws.draw(seed, Conditions(s.current, s.mismatch)))
+                self.conditions[i] = drawn[-1]
+            self.engine.reset(rows, sim_seeds, drawn)
         ids = self.ids_of(rows)
         self.task.max_cycles = self.max_cycles
         self.task.reset(ids)
         self.engine.set_waypoints(ids, self.task.robot_waypoint[ids])
         self.evaluate(ids, rows, None)
+        if self.memory is not None:
+            self.memory.reset(ids)
         self.task.start(ids, self.engine.object_pose(ids))
         if self.channel is not None:
             self.channel.reset(ids, rows)
@@ -288,7 +310,10 @@ class EnvCore:
         task.max_cycles = self.max_cycles  # an attribute a user may change
         sampled = task.tick(diverged)
         rows = list(range(self.k)) if engine.noisy else []
+        previous = self.obs.copy() if self.memory is not None else None
         team = self.evaluate(self.all, rows, a)
+        if self.memory is not None:
+            self.memory.update(self.all, previous, self.obs, command)
         x_o = engine.object_pose(self.all)
         wrench_sq = None
         if sampled is not None and task._any(sampled):
@@ -350,7 +375,8 @@ class EnvCore:
         if self.priors.observation_mode == "raw":
             out = raw.copy()
         else:
-            out = self.engine.features(raw, self.steady[ids], self.priors, self.ring)
+            memory = self.memory.block(ids) if self.memory is not None else None
+            out = self.engine.features(raw, self.steady[ids], self.priors, self.ring, memory)
         if self.channel is None:
             return out
         inbox = self.channel.block(ids)

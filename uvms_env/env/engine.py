@@ -22,6 +22,7 @@ import numpy as np
 
 from uvms_env.dynamics import NQ
 from uvms_env.dynamics.compiled import BufferCall, RebuiltOnUnpickle
+from uvms_env.env.conditions import Conditions
 from uvms_env.env.core import Engine
 from uvms_env.env.kinematics import TeamKinematics
 from uvms_env.env.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT, make_navigator
@@ -111,8 +112,13 @@ class ScalarEngine(Engine):
         self._zero = np.zeros((n, 8))
         self._q_meas, self._zeta_meas = self._q, self._zeta
 
-    def reset(self, rows: list[int], sim_seeds: list[int]) -> None:
-        self.sim.reset(seed=sim_seeds[0])
+    def reset(
+        self, rows: list[int], sim_seeds: list[int], conditions: list[Conditions] | None = None
+    ) -> None:
+        if conditions is None:
+            self.sim.reset(seed=sim_seeds[0])
+        else:
+            self.sim.reset(sim_seeds[0], conditions[0].current, conditions[0].mismatch)
         self._info = None
 
     def step(self, tau: np.ndarray) -> np.bool_:

@@ -23,6 +23,7 @@ from gymnasium import spaces
 
 from uvms_env.dynamics import NQ, NU
 from uvms_env.env.channel import ChannelSettings, block_bounds, channel_settings
+from uvms_env.env.conditions import ConditionDraws, condition_draws
 from uvms_env.env.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE, observation_bounds
 from uvms_env.env.priors import ACTION_MODES, DEFAULT_RESIDUAL_SCALE, OBSERVATION_MODES, Priors
 from uvms_env.env.reward import RewardWeights
@@ -73,6 +74,11 @@ ENV_OPTIONS: dict[str, Option] = {
         "acoustic channel: None/'off' (silent team) or a preset (uvms_env.env.channel)",
         optional=True,
     ),
+    "randomize": Option(
+        "draws",
+        "per-episode draws of the current preset and the mismatch (uvms_env.env.conditions)",
+        optional=True,
+    ),
 }
 RESET_SEED = Option("int", "reset's seed", low=0, optional=True)
 # Seeded-family scenarios kept per geometry seed (each costs an IPOPT solve to build).
@@ -93,11 +99,13 @@ class EnvSetup:
     reward_weights: RewardWeights = field(init=False)
     priors: Priors = field(init=False)
     comm: ChannelSettings | None = field(init=False)  # the acoustic channel (None: off)
+    draws: ConditionDraws | None = field(init=False)  # per-episode conditions (None: fixed)
 
     def __post_init__(self) -> None:
         self.reward_weights = RewardWeights.from_mapping(self.options.get("reward_weights"))
         self.priors = priors_of(self.options)
         self.comm = channel_settings(self.options.get("comm"))
+        self.draws = condition_draws(self.options.get("randomize"))
         self._bank = GeometryBank(self.family, self.n_agents) if self.seeded else None  # type: ignore[arg-type]
         self._by_seed: dict[int, Scenario] = {}
 

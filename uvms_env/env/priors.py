@@ -19,7 +19,8 @@ what it knows before the task, offered to learning as an action or observation o
 * ``Priors``: the environment options ``action_mode`` ("torque": the action is the
   normalized input; "residual": the input is clip(a_ss + h + s r, -1, 1) around the
   robot's own a_ss, r the action in [-1, 1], s = ``residual_scale``) and ``observation_mode``
-  ("raw": the 79 numbers; "features": ``featurize`` and a_ss, 84 numbers). The single
+  ("raw": the 79 numbers; "features": ``featurize`` and a_ss, 84 numbers; "memory":
+  ``featurize``, the robot's memory (``uvms_env.env.memory``, 16) and a_ss, 100). The single
   and the batched environment and the policies trained with them all call this class,
   so an option means the same everywhere.
 * ``hold_stiffness`` kp and ``hold_damping`` kd (residual mode; default 0: h = 0): a
@@ -65,7 +66,11 @@ OBSTACLE_RANGE = 5.0  # m; obstacle offsets beyond this are scaled down to it
 _JOINTS = slice(OBSERVATION_STRUCTURE["q"].start + 6, OBSERVATION_STRUCTURE["q"].stop)
 _JOINT_RATES = slice(OBSERVATION_STRUCTURE["zeta"].start + 6, OBSERVATION_STRUCTURE["zeta"].stop)
 ACTION_MODES = ("torque", "residual")
-OBSERVATION_MODES = ("raw", "features")
+OBSERVATION_MODES = ("raw", "features", "memory")
+# observation_mode="memory": featurize, the robot's memory (uvms_env.env.memory: the last
+# command and the disturbance estimate, 16), then a_ss (last, as in "features")
+MEMORY_BLOCK = 2 * ACT_DIM
+MEMORY_FEATURES_SIZE = BASE_FEATURES + MEMORY_BLOCK + ACT_DIM
 # Residual reach 0.3 of the saturation: enough to correct a_ss (the expert's inputs stay
 # within ~0.25 of it on the paper scenario) while a uniformly random residual still holds
 # the object (a_ss alone succeeds on short and random N = 2).
@@ -160,17 +165,18 @@ def featurize_sx(o: cs.SX) -> cs.SX:
 @functools.cache
 def _steady_input(ring_radius: float) -> cs.Function:
     """The expert's a_ss(x, theta, v_d) for the bar (``ring_radius`` 0) or a ring."""
-    uvms, obj = default_model(), _object(ring_radius)
+    uvms, obj = default_model(), object_model(ring_radius)
     return build_steady_input(uvms, obj, build_local_model(uvms, obj))
 
 
-def _object(ring_radius: float) -> ObjectModel:
+def object_model(ring_radius: float) -> ObjectModel:
+    """The carried object by the compiled functions' name for it (0: the bar)."""
     return ObjectModel("ring", ring_radius) if ring_radius > 0 else ObjectModel("bar")
 
 
-def steady_sx(o: cs.SX, ring_radius: float) -> cs.SX:
-    """a_ss (8) of the robot in observation ``o``: own q and zeta, own grasp and share,
-    the object's nominal parameters, the observed navigation twist."""
+def own_model_inputs(o: cs.SX, ring_radius: float) -> tuple[cs.SX, cs.SX]:
+    """(x, theta) of the robot's local model from its observation ``o``: own q and zeta,
+    own grasp and load share and the object's nominal parameters (known before the task)."""
     f = OBSERVATION_STRUCTURE
     # the observation holds R_Oi row-major: this is R^T
     r_t = cs.reshape(o[f["grasp_rotation"]], 3, 3)
@@ -178,10 +184,16 @@ def steady_sx(o: cs.SX, ring_radius: float) -> cs.SX:
         o[f["grasp_offset"]],
         cs.reshape(r_t.T, 9, 1),  # R_Oi column-major
         o[f["load_share"]],
-        cs.DM(_object(ring_radius).nominal_parameters()),
+        cs.DM(object_model(ring_radius).nominal_parameters()),
     )
-    own = o[f["q"].start : f["zeta"].stop]  # q and zeta
-    return _steady_input(ring_radius)(own, theta, o[f["nav_velocity"]])
+    return o[f["q"].start : f["zeta"].stop], theta
+
+
+def steady_sx(o: cs.SX, ring_radius: float) -> cs.SX:
+    """a_ss (8) of the robot in observation ``o``: own q and zeta, own grasp and share,
+    the object's nominal parameters, the observed navigation twist."""
+    own, theta = own_model_inputs(o, ring_radius)
+    return _steady_input(ring_radius)(own, theta, o[OBSERVATION_STRUCTURE["nav_velocity"]])
 
 
 @functools.cache
@@ -258,22 +270,39 @@ class Priors:
 
     @property
     def observation_size(self) -> int:
-        return FEATURES_SIZE if self.observation_mode == "features" else OBS_DIM
+        return {"features": FEATURES_SIZE, "memory": MEMORY_FEATURES_SIZE}.get(
+            self.observation_mode, OBS_DIM
+        )
+
+    @property
+    def remembers(self) -> bool:
+        """The observation carries the robot's memory (``uvms_env.env.memory``)."""
+        return self.observation_mode == "memory"
 
     @property
     def needs_steady(self) -> bool:
         return not self.plain
 
     def observe(
-        self, raw: np.ndarray, ring_radius: float, steady: np.ndarray | None = None
+        self,
+        raw: np.ndarray,
+        ring_radius: float,
+        steady: np.ndarray | None = None,
+        memory: np.ndarray | None = None,
     ) -> np.ndarray:
-        """What the policy sees: the raw observation, or its features and a_ss (float32).
-        ``steady``: a_ss of ``raw`` when the caller has it already."""
+        """What the policy sees: the raw observation, or its features (with the robot's
+        ``memory`` block in the memory mode) and a_ss, float32. ``steady``: a_ss of ``raw``
+        when the caller has it already."""
         if self.observation_mode == "raw":
             return raw
         if steady is None:
             steady = steady_inputs(raw, ring_radius)
-        return np.concatenate([featurize(raw), steady], -1).astype(np.float32)
+        parts = [featurize(raw), steady]
+        if self.remembers:
+            if memory is None:
+                raise ValueError("observation_mode='memory' needs the robot's memory block")
+            parts.insert(1, memory)
+        return np.concatenate(parts, -1).astype(np.float32)
 
     def command(
         self,

@@ -30,8 +30,9 @@ class Option:
     """One keyword option. ``kind``: "int", "float" (finite), "bool", "choice" (one of
     ``choices``), "weights" (a mapping name -> finite float; the names are checked by
     their consumer), "functions" (a mapping name -> callable or "module:function"
-    string; imported and checked by their consumer) or "comm" (the acoustic channel's
-    settings, checked by ``uvms_env.env.channel``). ``low``/``high`` bound numbers
+    string; imported and checked by their consumer), "comm" (the acoustic channel's
+    settings, checked by ``uvms_env.env.channel``) or "draws" (per-episode draws of the
+    conditions, checked by ``uvms_env.env.conditions``). ``low``/``high`` bound numbers
     (inclusive unless ``*_open``); ``optional``: None is allowed too."""
 
     kind: str
@@ -55,6 +56,8 @@ class Option:
             text = "dict name -> callable or 'module:function'"
         elif self.kind == "comm":
             text = "'off', a preset name, a ChannelSettings or a dict"
+        elif self.kind == "draws":
+            text = "dict: current -> presets, mismatch -> [low, high]"
         else:
             text = f"{'finite float' if self.kind == 'float' else 'int'}{self._range()}"
         return f"None or {text}" if self.optional else text
@@ -89,7 +92,7 @@ class Option:
             return self._check_weights(name, value)
         if self.kind == "functions":
             return self._check_functions(name, value)
-        if self.kind == "comm":  # checked by its consumer (uvms_env.env.channel)
+        if self.kind in ("comm", "draws"):  # checked by their consumers (uvms_env.env)
             return value
         if isinstance(value, bool | np.bool_):
             raise self._error(name, value, TypeError)

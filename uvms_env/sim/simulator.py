@@ -101,23 +101,28 @@ class StepInfo:
 
 
 def draw_truth_parameters(
-    s: Scenario, nominal: np.ndarray, nominal_object: np.ndarray, rng: np.random.Generator
+    s: Scenario,
+    nominal: np.ndarray,
+    nominal_object: np.ndarray,
+    rng: np.random.Generator,
+    mismatch: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """An episode's truth model: the robots' (N, NP) and the object's (NPO,) parameters,
-    perturbed by the scenario's ``mismatch`` and scaled by its ``damping_scale``."""
+    perturbed by ``mismatch`` (None: the scenario's) and scaled by its ``damping_scale``."""
     p = nominal.copy()
     po = nominal_object.copy()
-    if s.mismatch > 0:
+    m = s.mismatch if mismatch is None else float(mismatch)
+    if m > 0:
         # Hydrodynamic coefficients (added mass, damping, drag scales, joint friction)
         # are uncertain by +-mismatch. Masses and displaced volumes are weighed and
         # trimmed before a dive, so they get a tenth of it: a 10% volume error would
         # be 13 N of buoyancy on a 10 N heave saturation, a task no controller can do.
         rel = np.full(p.shape[1], 1.0)
         rel[PARAMETER_LAYOUT["vehicle_displaced_volume"]] = WEIGHED_FRACTION
-        p = p * (1 + s.mismatch * rel * rng.uniform(-1, 1, p.shape))
+        p = p * (1 + m * rel * rng.uniform(-1, 1, p.shape))
         # the extra-mass entry is an absolute kg value around 0: perturb the vehicle mass
         p[:, PARAMETER_LAYOUT["vehicle_extra_mass"]] = (
-            s.mismatch
+            m
             * WEIGHED_FRACTION
             * rng.uniform(-1, 1, (len(p), 1))
             * default_model().params.vehicle.mass
@@ -125,7 +130,7 @@ def draw_truth_parameters(
         rel_o = np.full(po.shape, 1.0)
         rel_o[OBJECT_PARAMETER_LAYOUT["mass"]] = WEIGHED_FRACTION
         rel_o[OBJECT_PARAMETER_LAYOUT["displaced_volume"]] = WEIGHED_FRACTION
-        po = po * (1 + s.mismatch * rel_o * rng.uniform(-1, 1, po.shape))
+        po = po * (1 + m * rel_o * rng.uniform(-1, 1, po.shape))
     p = np.ascontiguousarray(np.stack([scale_damping(pi, s.damping_scale) for pi in p]))
     po[3] *= s.damping_scale  # object drag scale
     return p, np.ascontiguousarray(po)
@@ -214,13 +219,20 @@ class Simulator(RebuiltOnUnpickle):
         self._x[2 * NQ * n + 6 :] = v_o
 
     # -- episode -----------------------------------------------------------------------
-    def reset(self, seed: int | None = None) -> SimState:
-        """Back to the scenario's start at rest; draws the truth model and the current."""
+    def reset(
+        self, seed: int | None = None, current: str | None = None, mismatch: float | None = None
+    ) -> SimState:
+        """Back to the scenario's start at rest; draws the truth model and the current,
+        under the scenario's current preset and mismatch or this episode's ``current``
+        and ``mismatch`` (``uvms_env.env.conditions``)."""
         s = self.scenario
         rng = np.random.default_rng(seed if seed is not None else s.seed)
         self.parameters, self.object_parameters = draw_truth_parameters(
-            s, self.nominal_parameters, self.nominal_object_parameters, rng
+            s, self.nominal_parameters, self.nominal_object_parameters, rng, mismatch
         )
+        preset = self.uvms.params.currents[current or s.current]
+        if preset is not self.current_model.preset:
+            self.current_model = OceanCurrent(preset)
         self.current_model.reset(rng)
         self.set_state(s.initial_q, np.zeros((self.n, NQ)), s.object_start, np.zeros(6))
         self.t = 0.0

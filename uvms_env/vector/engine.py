@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from uvms_env.dynamics import NQ, NU
+from uvms_env.env.conditions import Conditions
 from uvms_env.env.core import Engine
 from uvms_env.env.kinematics import (
     BATCH_CYLINDERS,
@@ -99,9 +100,8 @@ class BatchedEngine(Engine):
                 self._kernel(fns["prior_features"]),
             )
         self._inputs(segments)
-        self._currents = [
-            OceanCurrent(self.sim.uvms.params.currents[base.current]) for _ in range(k)
-        ]
+        self._presets = self.sim.uvms.params.currents
+        self._currents = [OceanCurrent(self._presets[base.current]) for _ in range(k)]
         self._current_on = self._currents[0].preset.max > 0.0
         self._nav_table = xp.zeros((k, max_waypoints(setup.family, base), NAV_PARAMETERS))
         self._nav_tables: dict[int, np.ndarray] = {}  # id(scenario) -> navigation table
@@ -194,10 +194,19 @@ class BatchedEngine(Engine):
         ):
             a[:, k:] = a[:, :1]
 
-    def reset(self, rows: list[int], sim_seeds: list[int]) -> None:
-        generators = self.sim.reset(np.array(rows), sim_seeds)
-        for i, gen in zip(rows, generators, strict=True):
+    def reset(
+        self, rows: list[int], sim_seeds: list[int], conditions: list[Conditions] | None = None
+    ) -> None:
+        mismatch = None if conditions is None else [c.mismatch for c in conditions]
+        generators = self.sim.reset(np.array(rows), sim_seeds, mismatch)
+        for j, (i, gen) in enumerate(zip(rows, generators, strict=True)):
+            if conditions is not None:
+                preset = self._presets[conditions[j].current]
+                if preset is not self._currents[i].preset:
+                    self._currents[i] = OceanCurrent(preset)
             self._currents[i].reset(gen)
+        if conditions is not None:
+            self._current_on = any(c.preset.max > 0.0 for c in self._currents)
         self._a[:, self._on_device(np.array(rows))] = 0.0
 
     def step(self, tau: Any) -> Any:
@@ -312,11 +321,14 @@ class BatchedEngine(Engine):
             return super().steady(raw, ring)
         return self._robot_columns(self._prior_kernels[0], raw, NU)
 
-    def features(self, raw: Any, steady: Any, priors: Priors, ring: float) -> Any:
+    def features(
+        self, raw: Any, steady: Any, priors: Priors, ring: float, memory: Any = None
+    ) -> Any:
         if self._prior_kernels is None:
-            return super().features(raw, steady, priors, ring)
+            return super().features(raw, steady, priors, ring, memory)
         features = self._robot_columns(self._prior_kernels[1], raw, BASE_FEATURES)
-        return self.xp.concatenate([features, steady], -1).astype(np.float32)
+        parts = [features, steady] if memory is None else [features, memory, steady]
+        return self.xp.concatenate(parts, -1).astype(np.float32)
 
     def _robot_columns(self, kernel: Any, raw: Any, size: int) -> Any:
         """(m, N, size) float64: a prior's kernel over the m N robots' observations."""

@@ -24,6 +24,9 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices,
 
 from uvms_env.vector.env import VectorEnv
 
+# ConcatVecEnv: part j's seed is the given one plus j times this (a prime: the parts'
+# episode seeds do not line up)
+PART_SEED_STRIDE = 7919
 # Attributes SB3 asks every sub-environment for that a VectorEnv does not define.
 _ATTRIBUTE_DEFAULTS: dict[str, Any] = {"render_mode": None}
 
@@ -63,6 +66,8 @@ class VectorVecEnv(VecEnv):
         self.vector_env = vector_env
         self.n_agents = vector_env.n
         self.agents = list(vector_env.possible_agents)
+        # each team's first robot: one sub-environment per team episode (records, callbacks)
+        self.team_leaders = np.tile(np.arange(vector_env.n) == 0, vector_env.num_envs)
         super().__init__(
             vector_env.num_envs * vector_env.n,
             vector_env.single_observation_space,
@@ -158,3 +163,105 @@ class VectorVecEnv(VecEnv):
 
     def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
         return [False] * self._count(indices)
+
+
+class ConcatVecEnv(VecEnv):
+    """Several ``VecEnv`` of robot sub-environments side by side as one: e.g. one
+    ``VectorVecEnv`` per team size, so that one policy learns from teams of every size at
+    once (the observation of a robot does not depend on N). Sub-environment i of part j
+    is number ``offset_j + i``; ``team_leaders`` concatenates the parts' (each team's
+    first robot). The parts share the observation and action spaces (checked) and step
+    one after another in this process.
+
+    ``get_attr``, ``set_attr`` and ``env_method`` go to the part that holds each index."""
+
+    def __init__(self, parts: Sequence[VecEnv]) -> None:
+        parts = list(parts)
+        if not parts:
+            raise ValueError("ConcatVecEnv needs at least one part")
+        first = parts[0]
+        for j, part in enumerate(parts[1:], 1):
+            if part.observation_space != first.observation_space:
+                raise ValueError(
+                    f"part {j}'s observation space {part.observation_space} differs from "
+                    f"part 0's {first.observation_space}"
+                )
+            if part.action_space != first.action_space:
+                raise ValueError(
+                    f"part {j}'s action space {part.action_space} differs from part 0's "
+                    f"{first.action_space}"
+                )
+        self.parts = parts
+        sizes = [p.num_envs for p in parts]
+        self._bounds = np.concatenate([[0], np.cumsum(sizes)])
+        self.team_leaders = np.concatenate(
+            [np.asarray(getattr(p, "team_leaders", np.ones(p.num_envs, bool))) for p in parts]
+        )
+        super().__init__(int(sum(sizes)), first.observation_space, first.action_space)
+
+    def _slices(self) -> list[slice]:
+        return [slice(a, b) for a, b in zip(self._bounds[:-1], self._bounds[1:], strict=True)]
+
+    def reset(self) -> np.ndarray:
+        out = [p.reset() for p in self.parts]
+        self.reset_infos = [info for p in self.parts for info in p.reset_infos]
+        return np.concatenate(out)
+
+    def step_async(self, actions: np.ndarray) -> None:
+        for p, sl in zip(self.parts, self._slices(), strict=True):
+            p.step_async(actions[sl])
+
+    def step_wait(self) -> VecEnvStepReturn:
+        results = [p.step_wait() for p in self.parts]
+        obs = np.concatenate([r[0] for r in results])
+        rewards = np.concatenate([r[1] for r in results])
+        dones = np.concatenate([r[2] for r in results])
+        infos = [info for r in results for info in r[3]]
+        return obs, rewards, dones, infos
+
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """Part j is seeded ``seed + j * PART_SEED_STRIDE`` (None: keep its pending seed)."""
+        out: list[int | None] = []
+        for j, p in enumerate(self.parts):
+            out += list(p.seed(None if seed is None else seed + j * PART_SEED_STRIDE))
+        return out
+
+    def close(self) -> None:
+        for p in self.parts:
+            p.close()
+
+    def _located(self, indices: VecEnvIndices) -> list[tuple[VecEnv, list[int]]]:
+        """(part, its local indices) for each part that holds some of ``indices``."""
+        wanted = list(self._get_indices(indices))
+        out = []
+        for p, (a, b) in zip(self.parts, zip(self._bounds[:-1], self._bounds[1:], strict=True),
+                             strict=True):  # fmt: skip
+            local = [int(i - a) for i in wanted if a <= i < b]
+            if local:
+                out.append((p, local))
+        return out
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        return [v for p, local in self._located(indices) for v in p.get_attr(attr_name, local)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        for p, local in self._located(indices):
+            p.set_attr(attr_name, value, local)
+
+    def env_method(
+        self,
+        method_name: str,
+        *method_args: Any,
+        indices: VecEnvIndices = None,
+        **method_kwargs: Any,
+    ) -> list[Any]:
+        return [
+            v
+            for p, local in self._located(indices)
+            for v in p.env_method(method_name, *method_args, indices=local, **method_kwargs)
+        ]
+
+    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
+        return [
+            v for p, local in self._located(indices) for v in p.env_is_wrapped(wrapper_class, local)
+        ]

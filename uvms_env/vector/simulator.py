@@ -28,6 +28,7 @@ May import: numpy (cupy for the CUDA backend), ``uvms_env.sim``, ``uvms_env.dyna
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -142,23 +143,27 @@ class BatchedSimulator:
             self.scenarios[i] = s
         self._fill_padding()
 
-    def reset(self, env_ids: Any, seeds: Any) -> list[np.random.Generator]:
+    def reset(
+        self, env_ids: Any, seeds: Any, mismatch: Sequence[float | None] | None = None
+    ) -> list[np.random.Generator]:
         """Environments ``env_ids`` back to their scenario's start at rest, with the truth
-        model drawn from ``seeds`` (one per environment) exactly as ``Simulator.reset``.
-        Returns each environment's generator after those draws: ``Simulator.reset`` goes
-        on to draw the ocean current from it, and so does a caller that keeps currents."""
+        model drawn from ``seeds`` (one per environment) exactly as ``Simulator.reset``,
+        under each one's ``mismatch`` (None: the scenario's). Returns each environment's
+        generator after those draws: ``Simulator.reset`` goes on to draw the ocean current
+        from it, and so does a caller that keeps currents."""
         ids = np.atleast_1d(np.asarray(env_ids))
         seeds = list(seeds) if np.ndim(seeds) else [seeds] * len(ids)
         if len(seeds) != len(ids):
             raise ValueError(f"{len(ids)} environments but {len(seeds)} seeds")
+        mismatches = [None] * len(ids) if mismatch is None else list(mismatch)
         x = np.zeros((state_size(self.n), len(ids)))
         p = np.zeros((NP * self.n, len(ids)))
         po = np.zeros((NPO, len(ids)))
         generators = []
-        for col, (i, seed) in enumerate(zip(ids.tolist(), seeds, strict=True)):
+        for col, (i, seed, m) in enumerate(zip(ids.tolist(), seeds, mismatches, strict=True)):
             s = self.scenarios[i]
             rng = np.random.default_rng(seed if seed is not None else s.seed)
-            pi, poi = draw_truth_parameters(s, *self._nominal, rng)
+            pi, poi = draw_truth_parameters(s, *self._nominal, rng, m)
             generators.append(rng)
             p[:, col], po[:, col] = pi.reshape(-1), poi
             x[:, col] = np.concatenate(

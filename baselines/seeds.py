@@ -1,0 +1,156 @@
+"""A learned policy over its training seeds: aggregate statistics of the same evaluation's
+episodes for every seed's model, as the field reports them (Agarwal et al. 2021,
+"Deep RL at the edge of the statistical precipice": the interquartile mean and stratified
+bootstrap intervals, through their library ``rliable``).
+
+    python -m baselines.ladder --policy dagger:runs/d0 --policy dagger:runs/d1 \\
+        --policy dagger:runs/d2 --episodes 10 --seed 202 --out runs/ladder_seeds
+    python -m baselines.seeds runs/ladder_seeds/episodes.csv \\
+        --group "DAgger=dagger:runs/d0,dagger:runs/d1,dagger:runs/d2" --out runs/seeds
+
+For each group (one model per training seed) and case (the rows' ``scenario``: a ladder
+case such as ``random N=4``), each seed's score is its rate of success, its rate of clean
+success and its median violation periods per episode over the case's episodes; a group's
+score matrix is seeds x cases. Reported per group and metric: the IQM over all (seed,
+case) scores and the mean, each with a 95% stratified bootstrap interval (resampling
+seeds within each case), plus every seed's score per case. Writes ``seeds.md`` and
+``seeds.json``.
+
+May import: the standard library, numpy and rliable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+METRICS = {
+    "success": "success rate",
+    "clean_success": "clean success rate",
+    "violation_periods": "median violation periods per episode",
+}
+BOOTSTRAP_REPS = 2000
+
+
+def parse_group(text: str) -> tuple[str, list[str]]:
+    """``NAME=POLICY,POLICY,...`` -> (name, policies)."""
+    name, sep, policies = text.partition("=")
+    if not sep or not name or not policies:
+        raise SystemExit(f"--group takes NAME=POLICY,POLICY,..., got {text!r}")
+    return name, [p for p in policies.split(",") if p]
+
+
+def read_rows(path: Path) -> list[dict[str, Any]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _flag(value: Any) -> float:
+    return 1.0 if str(value).strip().lower() in ("true", "1", "1.0") else 0.0
+
+
+def score_matrix(
+    rows: list[dict[str, Any]], policies: list[str], metric: str
+) -> tuple[np.ndarray, list[str]]:
+    """(seeds x cases) scores of ``metric`` and the cases, in the rows' order."""
+    cases = list(dict.fromkeys(r["scenario"] for r in rows if r["policy"] in policies))
+    table = np.full((len(policies), len(cases)), np.nan)
+    for i, policy in enumerate(policies):
+        for j, case in enumerate(cases):
+            mine = [r for r in rows if r["policy"] == policy and r["scenario"] == case]
+            if not mine:
+                continue
+            if metric == "violation_periods":
+                table[i, j] = float(np.median([float(r[metric] or 0.0) for r in mine]))
+            else:
+                table[i, j] = float(np.mean([_flag(r[metric]) for r in mine]))
+    missing = [policies[i] for i in range(len(policies)) if np.isnan(table[i]).all()]
+    if missing:
+        raise ValueError(f"no episodes of {missing} in the rows")
+    return table, cases
+
+
+def interval_estimates(table: np.ndarray, seed: int = 0) -> dict[str, tuple[float, float, float]]:
+    """IQM and mean of a (seeds x cases) table, each (point, low, high) with a 95%
+    stratified bootstrap interval (rliable)."""
+    from rliable import library as rly
+    from rliable import metrics
+
+    def both(scores: np.ndarray) -> np.ndarray:
+        return np.array([metrics.aggregate_iqm(scores), metrics.aggregate_mean(scores)])
+
+    point, interval = rly.get_interval_estimates(
+        {"group": table}, both, reps=BOOTSTRAP_REPS, random_state=np.random.RandomState(seed)
+    )
+    p, ci = point["group"], interval["group"]
+    return {
+        "iqm": (float(p[0]), float(ci[0, 0]), float(ci[1, 0])),
+        "mean": (float(p[1]), float(ci[0, 1]), float(ci[1, 1])),
+    }
+
+
+def report(rows: list[dict[str, Any]], groups: dict[str, list[str]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for name, policies in groups.items():
+        entry: dict[str, Any] = {"policies": policies, "metrics": {}}
+        for metric in METRICS:
+            table, cases = score_matrix(rows, policies, metric)
+            entry["cases"] = cases
+            entry["metrics"][metric] = {
+                **interval_estimates(table),
+                "per_seed": table.tolist(),
+            }
+        out[name] = entry
+    return out
+
+
+def markdown(summary: dict[str, Any]) -> str:
+    lines = [
+        "| group | metric | IQM [95% CI] | mean [95% CI] |",
+        "|---|---|---|---|",
+    ]
+    for name, entry in summary.items():
+        for metric, title in METRICS.items():
+            m = entry["metrics"][metric]
+            iqm, mean = m["iqm"], m["mean"]
+            lines.append(
+                f"| {name} | {title} | {iqm[0]:.3g} [{iqm[1]:.3g}, {iqm[2]:.3g}] | "
+                f"{mean[0]:.3g} [{mean[1]:.3g}, {mean[2]:.3g}] |"
+            )
+    for name, entry in summary.items():
+        lines += ["", f"{name}, per seed (rows) and case (columns):", ""]
+        lines.append("| metric | seed | " + " | ".join(entry["cases"]) + " |")
+        lines.append("|---|---|" + "---|" * len(entry["cases"]))
+        for metric, title in METRICS.items():
+            for i, scores in enumerate(entry["metrics"][metric]["per_seed"]):
+                cells = " | ".join(f"{v:.3g}" for v in scores)
+                lines.append(f"| {title} | {i} | {cells} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(
+        prog="python -m baselines.seeds",
+        description=__doc__.split("May import")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("episodes", type=Path, help="an evaluator's or the ladder's episodes.csv")
+    ap.add_argument("--group", action="append", required=True, metavar="NAME=POLICY,POLICY")
+    ap.add_argument("--out", type=Path, default=Path("runs/seeds"))
+    args = ap.parse_args(argv)
+    groups = dict(parse_group(g) for g in args.group)
+    summary = report(read_rows(args.episodes), groups)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "seeds.json").write_text(json.dumps(summary, indent=2) + "\n")
+    text = markdown(summary)
+    (args.out / "seeds.md").write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

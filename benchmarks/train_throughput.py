@@ -1,0 +1,165 @@
+"""End-to-end PPO training speed per engine, robot-steps per second, with its shares.
+
+    python benchmarks/train_throughput.py [--engines sb3 torchrl] [--n-agents 4]
+                                          [--robot-steps 200000] [--repeats 2]
+
+Each engine trains PPO for ``--robot-steps`` on ``random`` with the team size(s) of
+``--n-agents``, a mild current and mismatch 0.1, through ``baselines.train.train`` (the
+command line's code path: the run folder, records and all), twice per repeat: with the
+settings before this benchmark existed (``BEFORE``: the engines' old defaults) and with
+today's defaults, alternating (the load of a shared machine drifts). Reported per run:
+robot-steps/s over the whole learning loop (setup excluded: compiling and building
+geometries happen once per machine and run), and the shares of the learning time spent
+in the environment's step (``VectorEnv.step``), in the rest of collecting (the policy's
+forward, the library's buffers and bookkeeping) and in the update. The table holds the
+medians over repeats. Run it on a quiet machine: ``uptime`` before and after.
+
+May import: the standard library, numpy, ``baselines`` and ``uvms_env``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np
+
+from baselines import train as trainer
+from baselines.runs import RunSettings
+from uvms_env.vector import VectorEnv
+
+# The engines' defaults before the distribution-training work (2026-11-26): copies per
+# run and the update's settings. Today's defaults are the engines' own.
+BEFORE: dict[str, dict[str, Any]] = {
+    "sb3": {"num_envs": 4, "hp": {"n_steps": 256, "n_epochs": 10}},
+    "torchrl": {"num_envs": 64, "hp": {"rollout_steps": 256, "epochs": 10, "minibatches": 32}},
+}
+CONDITIONS = {"current": "mild", "mismatch": 0.1}
+
+
+class StepTimer:
+    """Seconds spent in ``VectorEnv.step`` (every instance), while installed."""
+
+    def __init__(self) -> None:
+        self.seconds = 0.0
+        self._original = VectorEnv.step
+
+    def __enter__(self) -> StepTimer:
+        original, timer = self._original, self
+
+        def timed(env: VectorEnv, actions: Any) -> Any:
+            start = time.perf_counter()
+            try:
+                return original(env, actions)
+            finally:
+                timer.seconds += time.perf_counter() - start
+
+        VectorEnv.step = timed  # type: ignore[method-assign]
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        VectorEnv.step = self._original  # type: ignore[method-assign]
+
+
+def one_run(engine: str, settings: str, sizes: tuple[int, ...], robot_steps: int) -> dict:
+    """Train once; returns robot-steps/s and the time shares of the learning loop."""
+    module = trainer.engine_module(engine)
+    chosen = BEFORE[engine] if settings == "before" else {"hp": {}}
+    folder = Path(tempfile.mkdtemp(prefix=f"throughput_{engine}_"))
+    run_settings = RunSettings(
+        scenario="random",
+        overrides=dict(CONDITIONS) | ({"n_agents": sizes[0]} if len(sizes) == 1 else {}),
+        robot_steps=robot_steps,
+        num_envs=chosen.get("num_envs", module.DEFAULTS["num_envs"]),
+        seed=0,
+        out=folder,
+        checkpoint_every=0,
+        geometry_pool=module.DEFAULTS["geometry_pool"],
+        hyperparameters=dict(chosen["hp"]),
+        progress=False,
+        record_eval=False,
+        team_sizes=sizes if len(sizes) > 1 else (),
+    )
+    from baselines.runs import Run
+
+    run = Run.start(run_settings, engine, "ppo")
+    args = trainer.build_parser(engine).parse_args(["--engine", engine])
+    engine_obj = module.Engine(run, "ppo", args)
+    try:
+        run.write_config(**engine_obj.build())
+        update = _time_updates(engine, engine_obj)
+        with StepTimer() as env_timer:
+            start = time.perf_counter()
+            steps = engine_obj.learn()
+            wall = time.perf_counter() - start
+    finally:
+        engine_obj.close()
+        shutil.rmtree(folder, ignore_errors=True)
+    updating = update()
+    return {
+        "robot_steps_per_s": steps / wall,
+        "env": env_timer.seconds / wall,
+        "update": updating / wall,
+        "collect_other": max(0.0, 1.0 - (env_timer.seconds + updating) / wall),
+        "wall_s": wall,
+        "robot_steps": steps,
+    }
+
+
+def _time_updates(engine: str, engine_obj: Any):
+    """A function that returns the seconds the engine has spent updating so far."""
+    if engine == "torchrl":
+        return lambda: engine_obj.totals["update_s"]
+    model = engine_obj.model
+    spent = [0.0]
+    original = model.train
+
+    def timed() -> None:
+        start = time.perf_counter()
+        original()
+        spent[0] += time.perf_counter() - start
+
+    model.train = timed
+    return lambda: spent[0]
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("May import")[0])
+    ap.add_argument("--engines", nargs="+", default=["sb3", "torchrl"], choices=["sb3", "torchrl"])
+    ap.add_argument("--n-agents", type=int, nargs="+", default=[4])
+    ap.add_argument("--robot-steps", type=int, default=200_000)
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--settings", nargs="+", default=["before", "after"])
+    args = ap.parse_args(argv)
+    sizes = tuple(args.n_agents)
+    print(f"load before: {os.getloadavg()}")
+    results: dict[tuple[str, str], list[dict]] = {}
+    for _ in range(args.repeats):
+        for engine in args.engines:
+            for settings in args.settings:
+                row = one_run(engine, settings, sizes, args.robot_steps)
+                results.setdefault((engine, settings), []).append(row)
+                rate = row["robot_steps_per_s"]
+                print(f"{engine} {settings}: {rate:,.0f} robot-steps/s", flush=True)
+    print(f"load after: {os.getloadavg()}")
+    print(
+        "\n| engine | settings | robot-steps/s | env step | rest of collecting | update |\n"
+        "|---|---|---|---|---|---|"
+    )
+    for (engine, settings), rows in results.items():
+        med = {k: float(np.median([r[k] for r in rows])) for k in rows[0]}
+        print(
+            f"| {engine} | {settings} | {med['robot_steps_per_s']:,.0f} | {med['env']:.0%} | "
+            f"{med['collect_other']:.0%} | {med['update']:.0%} |"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""Hydra plugin package of benchmarl-uvms (the plugin: ``benchmarl_uvms_searchpath.py``)."""

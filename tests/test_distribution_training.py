@@ -1,0 +1,293 @@
+"""Training on a distribution of team sizes and conditions, with memory: the shared
+condition flags, ``ConcatVecEnv`` (one VecEnv per team size), MAPPO's padded state, the
+SB3 engine (PPO on the memory observation, RecurrentPPO) and the TorchRL engine over
+several team sizes, their evaluations under the run's conditions, the imitation CLI's
+parallel rollouts over the distribution and the aggregate over training seeds. Tiny
+budgets: these check the paths, not the learning."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from baselines.options import add_condition_arguments, condition_overrides, team_sizes
+from baselines.train import build_parser, main, settings_from
+
+pytest.importorskip("stable_baselines3")
+
+# 6-step episodes, 2 copies per team size, a small pool of geometries, no checkpoints
+TINY = [
+    *("--scenario", "random", "--num-envs", "2", "--seed", "1", "--no-progress"),
+    *("--env-option", "max_cycles=6", "--checkpoint-every", "0", "--geometry-pool", "4"),
+    *("--n-agents", "2", "3", "--current", "none", "mild", "--mismatch", "0", "0.1"),
+]
+SB3_TINY = ["--hp", "n_steps=8", "--hp", "batch_size=16", "--hp", "n_epochs=1"]
+MEMORY = ["--env-option", "action_mode=residual", "--env-option", "observation_mode=memory"]
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _parsed(argv: list[str]) -> argparse.Namespace:
+    ap = argparse.ArgumentParser()
+    add_condition_arguments(ap)
+    return ap.parse_args(argv)
+
+
+# -- flags ------------------------------------------------------------------------------------
+def test_condition_flags_become_overrides_and_draws():
+    args = _parsed(["--n-agents", "2", "4", "4", "--current", "none", "mild", "--mismatch", "0.1"])
+    assert team_sizes(args) == (2, 4)
+    assert condition_overrides(args) == {
+        "mismatch": 0.1,
+        "randomize": {"current": ["none", "mild"]},
+    }
+    args = _parsed(["--current", "mild", "--mismatch", "0", "0.2"])
+    assert condition_overrides(args) == {"current": "mild", "randomize": {"mismatch": [0.0, 0.2]}}
+    with pytest.raises(SystemExit, match="LOW HIGH"):
+        condition_overrides(_parsed(["--mismatch", "0.2", "0.1"]))
+
+
+def test_trainer_settings_from_the_condition_flags():
+    defaults = {"num_envs": 4, "geometry_pool": 8}
+
+    def settings(*argv: str):
+        return settings_from(build_parser("sb3").parse_args(list(argv)), defaults)
+
+    s = settings("--scenario", "random", "--n-agents", "2", "3", "4")
+    assert s.team_sizes == (2, 3, 4) and "n_agents" not in s.overrides
+    s = settings("--scenario", "random", "--n-agents", "5")
+    assert s.team_sizes == () and s.overrides["n_agents"] == 5
+    with pytest.raises(ValueError, match="once"):
+        settings("--scenario", "random", "--n-agents", "2", "3", "--env-option", "n_agents=2")
+    with pytest.raises(ValueError, match="--scenario random"):
+        settings("--scenario", "paper", "--n-agents", "2", "3")
+    with pytest.raises(ValueError, match="contradicts"):
+        settings("--current", "mild", "--env-option", 'current="none"')
+
+
+# -- the VecEnv over several team sizes ---------------------------------------------------------
+def test_concat_vec_env_steps_each_part_as_alone():
+    from uvms_env.vector import VectorEnv
+    from uvms_env.vector.sb3 import ConcatVecEnv, VectorVecEnv
+
+    def part(n: int, seed: int) -> VectorVecEnv:
+        return VectorVecEnv(VectorEnv("random", num_envs=2, n_agents=n, max_cycles=5), seed=seed)
+
+    both = ConcatVecEnv([part(2, 3), part(3, 4)])
+    alone = [part(2, 3), part(3, 4)]
+    assert both.num_envs == 2 * 2 + 2 * 3
+    assert both.team_leaders.tolist() == [1, 0, 1, 0, 1, 0, 0, 1, 0, 0]
+    obs = both.reset()
+    np.testing.assert_array_equal(obs, np.concatenate([p.reset() for p in alone]))
+    rng = np.random.default_rng(0)
+    for _ in range(7):  # past an episode end: the parts reset on their own
+        act = rng.uniform(-0.5, 0.5, (both.num_envs, 8)).astype(np.float32)
+        got = both.step(act)
+        want = [alone[0].step(act[:4]), alone[1].step(act[4:])]
+        np.testing.assert_array_equal(got[0], np.concatenate([w[0] for w in want]))
+        np.testing.assert_array_equal(got[1], np.concatenate([w[1] for w in want]))
+        np.testing.assert_array_equal(got[2], np.concatenate([w[2] for w in want]))
+        assert [i.get("cost") for i in got[3]] == [i.get("cost") for w in want for i in w[3]]
+    assert both.get_attr("n", [0, 5]) == [2, 3]
+    features = VectorEnv("random", num_envs=1, n_agents=2, observation_mode="features")
+    with pytest.raises(ValueError, match="observation space"):
+        ConcatVecEnv([part(2, 3), VectorVecEnv(features)])
+
+
+def test_mappo_state_padded_to_the_largest_team():
+    from baselines.rl.mappo import CentralStateVecEnv
+    from uvms_env.dynamics import NQ
+    from uvms_env.vector import VectorEnv
+    from uvms_env.vector.sb3 import VectorVecEnv
+
+    inner = VectorEnv("random", num_envs=2, n_agents=2, max_cycles=5)
+    padded = CentralStateVecEnv(VectorVecEnv(inner, seed=0), max_agents=4)
+    obs = padded.reset()
+    local, state = obs[:, : padded.local_dim], obs[:, padded.local_dim :]
+    raw = inner.state()
+    assert state.shape[1] == 4 * 2 * NQ + 19 + 4
+    robots = 2 * NQ
+    np.testing.assert_array_equal(state[0, :robots], raw[0, :robots])  # q of both robots
+    assert not state[:, robots : 2 * robots].any()  # q of the two absent ones
+    np.testing.assert_array_equal(state[0, 2 * robots : 3 * robots], raw[0, robots : 2 * robots])
+    np.testing.assert_array_equal(state[:, -4:], [[1, 1, 0, 0]] * 4)
+    assert local.shape[1] == 79
+    with pytest.raises(ValueError, match="below the team size"):
+        CentralStateVecEnv(VectorVecEnv(inner, seed=0), max_agents=1)
+
+
+# -- the engines over several team sizes --------------------------------------------------------
+@pytest.fixture(scope="module")
+def memory_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("dist") / "ppo_memory"
+    main(["--engine", "sb3", "--robot-steps", "100", "--eval-every", "50", "--eval-episodes", "1",
+          "--eval-seed", "7", "--out", str(out), *TINY, *SB3_TINY, *MEMORY])  # fmt: skip
+    return out
+
+
+def test_sb3_trains_over_team_sizes_and_evaluates_under_the_runs_conditions(memory_run):
+    config = json.loads((memory_run / "config.json").read_text())
+    assert config["team_sizes"] == [2, 3] and config["eval_seed"] == 7
+    assert config["engine_settings"]["robot_sub_envs"] == 2 * (2 + 3)
+    assert config["overrides"]["randomize"] == {"current": ["none", "mild"], "mismatch": [0, 0.1]}
+    rows = _rows(memory_run / "evaluations.csv")
+    assert [r["rung"] for r in rows[:2]] == ["random_n2", "random_n3"]
+    assert all(float(r["violation_periods_median"]) >= 0 for r in rows)
+
+
+def test_memory_policy_decides_compiled_as_with_predict(memory_run):
+    """The compiled decision of a PPO actor on the memory observation rebuilds the robot's
+    memory as the environment did and matches SB3's predict (numpy priors) step by step."""
+    import uvms_env
+    from baselines.rl.policy import SB3Policy
+    from uvms_env.policy import AgentSpec
+
+    env = uvms_env.parallel_env("random", n_agents=3, current="mild", mismatch=0.1)
+    obs, _ = env.reset(seed=5)
+    spec = AgentSpec.from_scenario(env.scenario, 1)
+    fast, slow = SB3Policy(spec, "ppo", memory_run), SB3Policy(spec, "ppo", memory_run, False)
+    assert fast.compiled and not slow.compiled
+    for _ in range(6):
+        a, b = fast.act(obs["uvms_1"]), slow.act(obs["uvms_1"])
+        np.testing.assert_allclose(a, b, rtol=0, atol=2e-5)
+        obs, *_ = env.step({x: a if x == "uvms_1" else np.zeros(8) for x in env.agents})
+    assert fast._io.memory.observe(obs["uvms_1"])[:8].any()  # it remembers what it sent
+
+
+def test_recurrent_ppo_trains_and_its_state_restarts_each_episode(tmp_path):
+    pytest.importorskip("sb3_contrib")
+    import uvms_env
+    from baselines.rl.policy import SB3Policy
+    from uvms_env.policy import AgentSpec
+
+    out = tmp_path / "rppo"
+    main(["--engine", "sb3", "--algo", "recurrent_ppo", "--robot-steps", "80", "--out", str(out),
+          *TINY, *SB3_TINY, "--hp", 'policy_kwargs={"lstm_hidden_size": 8}'])  # fmt: skip
+    env = uvms_env.parallel_env("random", n_agents=2)
+    obs, _ = env.reset(seed=2)
+    policy = SB3Policy(AgentSpec.from_scenario(env.scenario, 0), "recurrent_ppo", out)
+    stream = [obs["uvms_0"]]
+    for _ in range(4):
+        obs, *_ = env.step({a: np.zeros(8) for a in env.agents})
+        stream.append(obs["uvms_0"])
+    first = [policy.act(o) for o in stream]
+    policy.reset()
+    again = [policy.act(o) for o in stream]
+    np.testing.assert_array_equal(np.stack(first), np.stack(again))
+    # the LSTM carries something: the same observation twice is not the same decision
+    assert not np.array_equal(policy.act(stream[0]), first[0])
+
+
+def test_torchrl_trains_over_team_sizes(tmp_path):
+    pytest.importorskip("torchrl", minversion="0.14")
+    out = tmp_path / "torchrl"
+    main(["--engine", "torchrl", "--robot-steps", "100", "--out", str(out), *TINY,
+          "--hp", "rollout_steps=4", "--hp", "minibatches=2", "--hp", "epochs=1",
+          "--hp", "hidden=[8]"])  # fmt: skip
+    config = json.loads((out / "config.json").read_text())
+    assert config["engine_settings"]["team_sizes"] == [2, 3]
+    # 2 copies x 4 steps x (2 + 3) robots per iteration
+    assert config["engine_settings"]["robot_steps_per_iteration"] == 40
+    assert config["robot_steps"] == 120
+    with pytest.raises(ValueError, match="--cost with several team sizes"):
+        main(["--engine", "torchrl", "--robot-steps", "40", "--out", str(tmp_path / "c"),
+              *TINY, "--cost", "count"])  # fmt: skip
+
+
+# -- imitation over the distribution --------------------------------------------------------
+def test_parallel_rollouts_equal_one_process_and_cycle_the_team_sizes():
+    from baselines.imitation.rollout import RolloutJob, parallel_rollouts
+
+    job = RolloutJob(
+        "random",
+        {"randomize": {"current": ["none", "mild"]}, "internal_wrench_every": 0},
+        (2, 3),
+        cap=5,
+        expert="experts.scripted:expert",
+        noise=0.05,
+    )
+    one, m1 = parallel_rollouts(job, 4, 40, workers=1, progress=False)
+    two, m2 = parallel_rollouts(job, 4, 40, workers=2, progress=False)
+    assert len(one) == 2 + 3 + 2 + 3 and len(m1) == len(m2) == 4
+    for a, b in zip(one, two, strict=True):
+        np.testing.assert_array_equal(np.stack(a.observations), np.stack(b.observations))
+        np.testing.assert_array_equal(np.stack(a.actions), np.stack(b.actions))
+        np.testing.assert_array_equal(np.stack(a.memory), np.stack(b.memory))
+        assert len(a.memory) == len(a.observations)
+
+
+def test_imitation_cli_collects_and_clones_memory_over_the_distribution(tmp_path):
+    pytest.importorskip("minari")
+    import uvms_env
+    from baselines.imitation.cli import main as imitate
+    from baselines.imitation.dataset import read_many
+    from baselines.imitation.network import MLPPolicyNet
+    from baselines.imitation.policy import ClonedPolicy
+    from uvms_env.env.memory import RobotMemory
+    from uvms_env.policy import AgentSpec
+
+    data = tmp_path / "data" / "dist"
+    imitate(["collect", "--scenario", "random", "--n-agents", "2", "3", "--current", "none",
+             "mild", "--mismatch", "0", "0.1", "--episodes", "2", "--max-cycles", "6",
+             "--workers", "2", "--expert", "experts.scripted:expert", "--noise", "0.05",
+             "--out", str(data)])  # fmt: skip
+    obs, act, _, streams = read_many([data], memory=True)
+    assert streams == 5 and obs.shape == (5 * 6, 79 + 16) and act.shape == (5 * 6, 8)
+    out = tmp_path / "bc"
+    imitate(["bc", "--data", str(data), "--features", "memory", "--epochs", "2",
+             "--hidden", "8", "--out", str(out)])  # fmt: skip
+    net = MLPPolicyNet.load(out / "policy.pt")
+    assert net.features == "memory"
+    env = uvms_env.parallel_env("random", n_agents=3)
+    o, _ = env.reset(seed=1)
+    spec = AgentSpec.from_scenario(env.scenario, 0)
+    ring = spec.object_ring_radius
+    policy, memory = ClonedPolicy(spec, out / "policy.pt"), RobotMemory(spec.period, ring)
+    policy.reset()
+    for _ in range(4):
+        x = np.concatenate([o["uvms_0"], memory.observe(o["uvms_0"])])
+        a = policy.act(o["uvms_0"])
+        np.testing.assert_allclose(a, net.predict(x[None], spec.object_ring_radius)[0],
+                                   atol=1e-5)  # fmt: skip
+        memory.issued(a)
+        o, *_ = env.step({x_: a if x_ == "uvms_0" else np.zeros(8) for x_ in env.agents})
+
+
+# -- over training seeds ----------------------------------------------------------------------
+def test_seed_aggregate_is_rliables_iqm_of_the_seed_by_case_scores(tmp_path):
+    pytest.importorskip("rliable")
+    from baselines.seeds import main as seeds_main
+
+    rng = np.random.default_rng(0)
+    rows, rates = [], np.zeros((3, 2))
+    for s in range(3):
+        for j, case in enumerate(("random N=2", "paper")):
+            wins = rng.random(10) < 0.3 + 0.2 * s
+            rates[s, j] = wins.mean()
+            for e, w in enumerate(wins):
+                rows.append({"policy": f"p{s}", "scenario": case, "episode": e,
+                             "success": w, "clean_success": False,
+                             "violation_periods": 10 * s + e})  # fmt: skip
+    path = tmp_path / "episodes.csv"
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    seeds_main([str(path), "--group", "G=p0,p1,p2", "--out", str(tmp_path / "out")])
+    summary = json.loads((tmp_path / "out" / "seeds.json").read_text())["G"]
+    success = summary["metrics"]["success"]
+    np.testing.assert_allclose(success["per_seed"], rates)
+    point, low, high = success["iqm"]
+    assert point == pytest.approx(stats.trim_mean(rates.reshape(-1), 0.25))
+    assert low <= point <= high
+    assert summary["metrics"]["violation_periods"]["per_seed"][2] == [24.5, 24.5]
+    assert summary["cases"] == ["random N=2", "paper"]
