@@ -11,8 +11,9 @@ reference (``l1 s + l2 s^2`` per constraint), expressed as DAQP's per-row soft w
 (linear weight l1, reciprocal quadratic weight 1 / (2 l2)); a constraint is violated in
 the plan only where satisfying it is impossible or its multiplier exceeds l1.
 
-The condensed QP has 40 variables; the sparse stage-wise QP would have 240 (16 slacks
-per node) and costs far more (docs/expert.md, "Solvers").
+The condensed QP has 40 variables (the inputs of the 5 nodes); the sparse stage-wise QP
+would also carry every node's state and one slack per soft constraint and node
+(``ocp.NC``), and costs far more (docs/expert.md, "Solvers").
 
 A failed QP never stalls the loop: the controller applies the shifted previous plan (or,
 with no plan yet, the nominal holding input) and counts a fallback.

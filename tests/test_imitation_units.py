@@ -231,3 +231,20 @@ def test_the_committed_clones_earlier_feature_name_reads_as_features():
         net = MLPPolicyNet.load(path)
         assert saved in ("uvms-v2", "features") and net.features == "features", name
         assert net.residual  # the steady input is fed forward
+
+
+def test_margin_weights_grow_towards_a_limit():
+    from baselines.imitation.bc import margin_weights
+    from uvms_env.env.observation import OBSERVATION_STRUCTURE as ST
+
+    obs = np.zeros((4, 79), np.float32)
+    rate = ST["zeta"].start + 7  # a joint rate
+    obs[1, rate] = 0.05  # half the 0.1 rad/s limit: the inner half, no extra weight
+    obs[2, rate] = -0.075  # three quarters: p = 0.5
+    obs[3, ST["q"].start + 8] = 2.5  # a joint beyond its 2 rad limit: p = 1
+    w = margin_weights(obs, 4.0)
+    np.testing.assert_allclose(w / w[0], [1.0, 1.0, 2.0, 5.0], rtol=1e-6)
+    assert w.mean() == pytest.approx(1.0)
+    assert np.array_equal(margin_weights(obs, 0.0), np.ones(4))
+    with pytest.raises(ValueError, match=">= 0"):
+        margin_weights(obs, -1.0)

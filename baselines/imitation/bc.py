@@ -8,7 +8,8 @@ loss; the CSV log gets one row per epoch (``stage, epoch, train_loss, val_loss``
 deviation in the data: the arm-joint and yaw torques vary ~3x less than the surge and sway
 forces, and an unweighted MSE lets their (relatively) large errors through, which then
 integrate into joint drift. ``lr_schedule="cosine"`` anneals the step size to zero over
-the epochs (a lower final loss at the same cost).
+the epochs (a lower final loss at the same cost). ``margin_weight`` weighs each sample
+by how near the robot is to a speed or joint limit (``margin_weights``).
 """
 
 from __future__ import annotations
@@ -41,6 +42,38 @@ def loss_weights(act: np.ndarray, loss_scale: str) -> np.ndarray:
     raise ValueError(f"loss_scale must be one of {LOSS_SCALES}, got {loss_scale!r}")
 
 
+def margin_weights(obs: np.ndarray, strength: float) -> np.ndarray:
+    """Per-sample weights 1 + ``strength`` p^2 (mean 1 over the samples), p in [0, 1] how
+    far into the outer half of its range the robot's nearest speed or joint limit is,
+    from its own measured state (the first 79 numbers of each sample: the raw
+    observation): p = clip(2 max_c |x_c| / limit_c - 1, 0, 1) over its joint angles, joint
+    rates, vehicle linear and angular rates. Near a limit the expert's action is decided
+    by the constraint rather than the task (set-valued away from it): a clone that is off
+    there violates, so those samples count more (``--margin-weight``)."""
+    if strength < 0:
+        raise ValueError(f"margin weight must be >= 0, got {strength}")
+    if strength == 0:
+        return np.ones(len(obs), dtype=np.float32)
+    from uvms_env.dynamics.uvms import default_model
+    from uvms_env.env.observation import OBSERVATION_STRUCTURE
+
+    limits = default_model().params.limits
+    q = obs[:, OBSERVATION_STRUCTURE["q"]]
+    zeta = obs[:, OBSERVATION_STRUCTURE["zeta"]]
+    ratios = np.concatenate(
+        [
+            np.abs(q[:, 6:]) / limits.joint_position,
+            np.abs(zeta[:, 6:]) / limits.joint_speed,
+            np.abs(zeta[:, :3]) / limits.vehicle_linear_speed,
+            np.abs(zeta[:, 3:6]) / limits.vehicle_angular_speed,
+        ],
+        axis=1,
+    )
+    p = np.clip(2.0 * ratios.max(axis=1) - 1.0, 0.0, 1.0)
+    w = 1.0 + strength * p**2
+    return (w / w.mean()).astype(np.float32)
+
+
 def fit(
     obs: np.ndarray,
     act: np.ndarray,
@@ -58,10 +91,12 @@ def fit(
     loss_scale: str = "none",
     lr_schedule: str = "constant",
     ring_radius: np.ndarray | float | None = None,
+    margin_weight: float = 0.0,
 ) -> tuple[MLPPolicyNet, list[float]]:
     """Train a new network (or continue training ``net``, keeping its normalization) and
-    return it with the per-epoch training losses (weighted as ``loss_scale`` says).
-    ``ring_radius``: the object per sample, for features that need it."""
+    return it with the per-epoch training losses (weighted as ``loss_scale`` says, and per
+    sample by ``margin_weights`` with ``margin_weight`` > 0). ``ring_radius``: the object
+    per sample, for features that need it."""
     if obs.ndim != 2 or act.ndim != 2 or len(obs) != len(act):
         raise ValueError(f"obs (M, D) and act (M, A) must match, got {obs.shape} and {act.shape}")
     if lr_schedule not in LR_SCHEDULES:
@@ -79,23 +114,24 @@ def fit(
     val_idx, train_idx = perm[:n_val], perm[n_val:]
     x = torch.as_tensor(x_all, dtype=torch.float32)
     y = torch.as_tensor(np.clip(act, -1, 1), dtype=torch.float32)
-    xv, yv = x[val_idx], y[val_idx]
-    x, y = x[train_idx], y[train_idx]
+    samples = torch.as_tensor(margin_weights(np.asarray(obs), margin_weight))[:, None]
+    xv, yv, sv = x[val_idx], y[val_idx], samples[val_idx]
+    x, y, samples = x[train_idx], y[train_idx], samples[train_idx]
 
-    def weighted_mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-        return ((pred - target) ** 2 * weight).mean()
+    def weighted_mse(pred: torch.Tensor, target: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+        return ((pred - target) ** 2 * weight * s).mean()
 
     losses: list[float] = []
     rows = []
     bar = tqdm(total=epochs, desc=stage, disable=not progress, unit="epoch")
-    steps = train_epochs(net, x, y, weight, epochs, batch_size, lr, lr_schedule, gen)
+    steps = train_epochs(net, x, y, weight * samples, epochs, batch_size, lr, lr_schedule, gen)
     for epoch, train_loss in enumerate(steps):
         losses.append(train_loss)
         net.eval()
         val = float("nan")
         if n_val:
             with torch.no_grad():
-                val = weighted_mse(net(xv), yv).item()
+                val = weighted_mse(net(xv), yv, sv).item()
         rows.append([stage, epoch, len(x), losses[-1], val])
         bar.update()
         bar.set_postfix(loss=f"{losses[-1]:.3g}", val=f"{val:.3g}")
@@ -125,7 +161,8 @@ def train_epochs(
     gen: torch.Generator,
 ) -> Iterator[float]:
     """Adam on the weighted MSE of ``net`` over (x, y), shuffled by ``gen``; yields each
-    epoch's mean training loss (the network left in training mode until then)."""
+    epoch's mean training loss (the network left in training mode until then). ``weight``:
+    per component (A,), or per sample and component (M, A)."""
     opt = torch.optim.Adam(net.parameters(), lr=lr)
     steps_per_epoch = max(1, -(-len(x) // batch_size))
     sched = (
@@ -139,7 +176,8 @@ def train_epochs(
         total = 0.0
         for k in range(0, len(x), batch_size):
             idx = order[k : k + batch_size]
-            loss = ((net(x[idx]) - y[idx]) ** 2 * weight).mean()
+            w = weight[idx] if weight.ndim == 2 else weight
+            loss = ((net(x[idx]) - y[idx]) ** 2 * w).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()

@@ -145,6 +145,7 @@ def _fit_options(args: argparse.Namespace) -> dict[str, Any]:
         "batch_size": args.batch_size,
         "loss_scale": args.loss_scale,
         "lr_schedule": args.lr_schedule,
+        "margin_weight": args.margin_weight,
     }
 
 
@@ -444,6 +445,12 @@ def _add_train_args(p: argparse.ArgumentParser, epochs: int, data_required: bool
         "--loss-scale", default="none", choices=bc.LOSS_SCALES, help="std: per-component 1/var"
     )
     p.add_argument("--hidden", type=int, nargs="*", default=[128, 128], help="widths; none: linear")
+    p.add_argument(
+        "--margin-weight",
+        type=float,
+        default=0.0,
+        help="samples near a speed or joint limit weigh up to 1 + W (bc.margin_weights)",
+    )
     p.add_argument("--features", default="features", choices=FEATURES, help="input set")
     p.add_argument("--seed", type=int, default=0)
 

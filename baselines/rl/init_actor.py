@@ -1,10 +1,10 @@
 """Expert-initialized PPO: the SB3 PPO actor starts as a behaviour clone of the expert
 (``--init-actor dagger:pretrained``, ``dagger:PATH`` or ``bc:PATH``).
 
-The clones on ``features`` (``baselines.imitation.network``) compute
+The clones on ``features`` or ``memory`` (``baselines.imitation.network``) compute
 a = clip(a_ss + f(z), -1, 1), z = clip((x - m) / s_x, -10, 10), f a tanh MLP, x the 84
-features of the robot's own observation. PPO with ``action_mode=residual``,
-``observation_mode=features`` and no joint hold computes
+(100) features of the robot's own observation (and memory). PPO with
+``action_mode=residual``, ``observation_mode`` the clone's and no joint hold computes
 a = clip(a_ss + s clip(mu(z'), -1, 1), -1, 1), z' the VecNormalize'd x, mu its actor's
 mean. So the clone's weights carry over: the actor's hidden layers are the clone's
 (same widths, tanh), its output layer the clone's divided by the residual scale s, and
@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.imitation.features import INPUT_CLIP
+from baselines.imitation.features import FEEDFORWARD, INPUT_CLIP
 from baselines.imitation.network import MLPPolicyNet
 
 SOURCES = ("dagger", "bc")
@@ -46,20 +46,21 @@ def clone_path(source: str) -> Any:
 
 def load_clone(source: str) -> MLPPolicyNet:
     net = MLPPolicyNet.load(clone_path(source))
-    if net.features != "features" or not net.residual:
+    if net.features not in FEEDFORWARD or not net.residual:
         raise ValueError(
-            f"--init-actor needs a clone on the 'features' inputs (a residual around a_ss), "
-            f"{source} uses {net.features!r}"
+            f"--init-actor needs a clone on the 'features' or 'memory' inputs (a residual "
+            f"around a_ss), {source} uses {net.features!r}"
         )
     return net
 
 
-def check_priors(priors: Any) -> None:
-    """The environment options a clone's actor carries over to (module docstring)."""
-    if priors.action_mode != "residual" or priors.observation_mode != "features":
+def check_priors(priors: Any, net: MLPPolicyNet) -> None:
+    """The environment options a clone's actor carries over to (module docstring): the
+    residual action and the clone's own inputs as the observation mode."""
+    if priors.action_mode != "residual" or priors.observation_mode != net.features:
         raise ValueError(
             "--init-actor needs --env-option action_mode=residual "
-            "--env-option observation_mode=features"
+            f"--env-option observation_mode={net.features} (the clone's inputs)"
         )
     if priors.holds:
         raise ValueError("--init-actor needs no joint hold (hold_stiffness = hold_damping = 0)")

@@ -131,7 +131,8 @@ def add_arguments(g: Any) -> None:
         default=None,
         metavar="SOURCE",
         help="PPO's actor starts as a clone: dagger:pretrained, dagger:PATH or bc:PATH "
-        "(needs action_mode=residual, observation_mode=features; baselines.rl.init_actor)",
+        "(needs action_mode=residual and the clone's inputs as observation_mode: features "
+        "or memory; baselines.rl.init_actor)",
     )
     g.add_argument(
         "--critic-warmup",
@@ -315,8 +316,8 @@ class Engine:
             from baselines.rl import init_actor
             from baselines.rl.policy import priors_from_options
 
-            init_actor.check_priors(priors_from_options(s.env_options()))
             clone = init_actor.load_clone(a.init_actor)
+            init_actor.check_priors(priors_from_options(s.env_options()), clone)
             if "log_std_init" not in policy_extra:
                 chosen_policy_kwargs.pop("log_std_init", None)
             chosen_policy_kwargs = init_actor.policy_kwargs(clone, chosen_policy_kwargs)

@@ -18,7 +18,9 @@ import os
 import platform
 import shutil
 import subprocess
+import sys
 import tempfile
+import time
 from pathlib import Path
 
 import casadi as cs
@@ -78,9 +80,16 @@ def compile_function(fn: cs.Function) -> cs.Function:
         )
         lib = cache_dir() / f"{fn.name()}_{key.hexdigest()[:16]}.so"
         if not lib.exists():
+            # a first use on this machine compiles for seconds to minutes: say so, or a
+            # progress bar around the first step shows an ETA of hours
+            print(f"compiling {fn.name()} (first use on this machine) ...", file=sys.stderr,
+                  flush=True)  # fmt: skip
+            start = time.perf_counter()
             part = lib.with_suffix(f".{os.getpid()}.part")
             subprocess.run([cc, *CFLAGS, str(src), "-o", str(part), "-lm"], check=True)
             part.replace(lib)  # atomic: parallel workers never load a half-written library
+            print(f"compiled {fn.name()} in {time.perf_counter() - start:.1f} s, cached in "
+                  f"{lib.parent}", file=sys.stderr, flush=True)  # fmt: skip
     return cs.external(fn.name(), str(lib))
 
 
