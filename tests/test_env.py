@@ -505,11 +505,30 @@ def test_rgb_array_rendering(paper, tmp_path):
     env.close()
 
 
-def test_mp4_needs_imageio(tmp_path):
-    pytest.importorskip("imageio")
+def test_mp4_needs_imageio(tmp_path, monkeypatch):
+    """Without imageio an .mp4 is a clear ImportError naming it (a GIF still writes,
+    through Pillow); with imageio and its ffmpeg plugin the video reads back frame by
+    frame."""
+    import builtins
+
+    frames = [np.full((64, 64, 3), 40 * k, np.uint8) for k in range(3)]
+    real_import = builtins.__import__
+
+    def no_imageio(name, *args, **kwargs):
+        if name.startswith("imageio"):
+            raise ImportError(f"no module named {name!r}")
+        return real_import(name, *args, **kwargs)
+
+    with monkeypatch.context() as m:
+        m.setattr(builtins, "__import__", no_imageio)
+        with pytest.raises(ImportError, match="imageio"):
+            save_video(frames, tmp_path / "a.mp4")
+        assert save_video(frames, tmp_path / "a.gif").stat().st_size > 0
+    imageio = pytest.importorskip("imageio.v2")
     pytest.importorskip("imageio_ffmpeg")
-    frame = np.zeros((64, 64, 3), np.uint8)
-    assert save_video([frame] * 3, tmp_path / "a.mp4").exists()
+    read = imageio.mimread(save_video(frames, tmp_path / "b.mp4"))
+    assert len(read) == 3 and read[0].shape[:2] == (64, 64)
+    assert read[2].mean() > read[0].mean() + 40  # the frames in their order
 
 
 def test_human_rendering_is_headless_safe(paper, monkeypatch):
