@@ -291,3 +291,33 @@ def test_seed_aggregate_is_rliables_iqm_of_the_seed_by_case_scores(tmp_path):
     assert low <= point <= high
     assert summary["metrics"]["violation_periods"]["per_seed"][2] == [24.5, 24.5]
     assert summary["cases"] == ["random N=2", "paper"]
+
+
+def test_dagger_warm_starts_and_evaluates_each_iteration_per_team_size(tmp_path):
+    """``--warm-start E``: iterations fine-tune the previous network for E epochs;
+    ``--eval-episodes``: each iteration's network on every team size under the run's
+    conditions, at the labelled robot-steps so far (evaluations.csv, the engines' schema)."""
+    pytest.importorskip("minari")
+    from baselines.imitation.cli import main as imitate
+    from baselines.runs import EVAL_COLUMNS
+
+    data = tmp_path / "data" / "demo"
+    expert = "experts.scripted:expert"
+    conditions = ["--n-agents", "2", "3", "--current", "none", "mild", "--max-cycles", "5"]
+    imitate(["collect", "--scenario", "random", "--episodes", "2", "--expert", expert,
+             "--out", str(data), *conditions])  # fmt: skip
+    out = tmp_path / "dagger"
+    imitate(["dagger", "--data", str(data), "--features", "memory", "--epochs", "3",
+             "--warm-start", "1", "--hidden", "8", "--scenario", "random:2", "--iterations", "2",
+             "--expert", expert, "--eval-episodes", "1", "--eval-seed", "9", "--out", str(out),
+             *conditions])  # fmt: skip
+    losses = _rows(out / "dagger_loss.csv")
+    epochs = {stage: sum(r["stage"] == stage for r in losses) for stage in ("dagger_0", "dagger_1")}
+    assert epochs == {"dagger_0": 3, "dagger_1": 1}
+    rows = _rows(out / "evaluations.csv")
+    assert list(rows[0]) == list(EVAL_COLUMNS)
+    assert [r["rung"] for r in rows] == ["random_n2", "random_n3"] * 3  # iterations 0, 1, 2
+    steps = [int(r["robot_steps"]) for r in rows[::2]]
+    assert steps[0] == (2 + 3) * 5 and steps[0] < steps[1] < steps[2]
+    info = json.loads((out / "train.json").read_text())
+    assert info["warm_start_epochs"] == 1 and info["n_agents"] == [2, 3]

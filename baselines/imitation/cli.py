@@ -249,7 +249,8 @@ def train_dagger(args: argparse.Namespace) -> None:
         else:
             obs, act = np.concatenate([obs, new_obs]), np.concatenate([act, new_act])
             ring = np.concatenate([ring, new_ring])
-        net, losses = _dagger_fit(args, log, obs, act, ring, k, None if args.init is None else net)
+        warm = args.init is not None or args.warm_start is not None
+        net, losses = _dagger_fit(args, log, obs, act, ring, k, net if warm else None)
         row.update(
             samples=len(obs),
             new_samples=len(new_obs),
@@ -329,7 +330,10 @@ def _dagger_fit(
     start_net: MLPPolicyNet | None = None,
 ) -> tuple[MLPPolicyNet, list[float]]:
     """Iteration ``k``'s fit on the aggregate (its own seed and loss-log stage), from
-    ``start_net`` when given, else from scratch."""
+    ``start_net`` when given (``--warm-start`` epochs, where given), else from scratch."""
+    fit = _fit_arguments(args)
+    if start_net is not None and k > 0 and args.warm_start is not None:
+        fit["epochs"] = args.warm_start
     return bc.fit(
         obs,
         act,
@@ -339,7 +343,7 @@ def _dagger_fit(
         seed=args.seed + k,
         log_path=log,
         stage=f"dagger_{k}",
-        **_fit_arguments(args),
+        **fit,
     )
 
 
@@ -406,6 +410,7 @@ def _dagger_settings(args: argparse.Namespace, scenarios: list[str]) -> dict[str
     return {
         "scenarios": scenarios,
         "iterations": args.iterations,
+        "warm_start_epochs": args.warm_start,
         "episodes_per_iteration": args.episodes_per_iteration,
         "beta_schedule": f"beta_k = {args.beta}**k",
         "rollout_noise": args.noise,
@@ -486,6 +491,14 @@ def main(argv: list[str] | None = None) -> None:
         help="NAME or NAME:EPISODES (per iteration); repeatable; default short",
     )
     d.add_argument("--iterations", type=int, default=4)
+    d.add_argument(
+        "--warm-start",
+        type=int,
+        default=None,
+        metavar="EPOCHS",
+        help="iterations 1.. fine-tune the previous network for EPOCHS epochs on the "
+        "aggregate (default: a new network each iteration, --epochs)",
+    )
     d.add_argument("--episodes-per-iteration", type=int, default=2, help="per scenario")
     d.add_argument("--beta", type=float, default=0.5, help="beta_k = beta**k")
     d.add_argument("--save-data", action="store_true", help="write each iteration's data")

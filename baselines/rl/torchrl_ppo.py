@@ -53,9 +53,10 @@ ALGOS = ("ppo",)
 BACKENDS = ("cpu", "cuda")
 DTYPES = ("float32", "float64")
 HYPERPARAMETERS: dict[str, Any] = {
-    "rollout_steps": 256,  # per env copy and iteration (SB3's n_steps)
-    "minibatches": 32,  # per epoch, over the rollout's K x rollout_steps rows
-    "epochs": 10,
+    # the sb3 engine's regime: short rollouts of many copies, few epochs, large minibatches
+    "rollout_steps": 32,  # per env copy and iteration (SB3's n_steps)
+    "minibatches": 4,  # per epoch, over the rollout's robot samples
+    "epochs": 4,
     "lr": 3e-4,
     "gamma": 0.99,
     "gae_lambda": 0.95,

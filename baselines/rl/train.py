@@ -41,18 +41,30 @@ if TYPE_CHECKING:
 ALGOS = ("ppo", "sac", "recurrent_ppo")
 # Seeded families: every episode a geometry of the bank's first 1,024 seeds (built once,
 # kept on disk): diverse starts without building a geometry inside a step.
-DEFAULTS: dict[str, Any] = {"num_envs": 4, "geometry_pool": 1024}
+# 64 copies: the batched step and torch's forward amortize their per-call cost over many
+# robots (benchmarks/train_throughput.py).
+DEFAULTS: dict[str, Any] = {"num_envs": 64, "geometry_pool": 1024}
 ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
-    # PPO: SB3 defaults except a smaller rollout per sub-env (many sub-envs) and a
-    # small network; on the vector path batch_size scales with the rollout (below).
+    # PPO: the many-environments regime of GPU simulators' PPO (short rollouts of many
+    # copies, few epochs, large minibatches): 32 steps per sub-env, 4 epochs; on the
+    # vector path batch_size scales with the rollout (below). SB3's own defaults (2,048
+    # steps, 10 epochs, minibatches of 64) spent most of the time in the update here.
     # SAC: SB3 defaults except a short warm-up, a replay buffer sized to
     # our budgets and one gradient step per collected robot-step (gradient_steps = the
     # number of sub-environments, set in ``build``).
-    "ppo": {"n_steps": 256, "batch_size": 256, "gae_lambda": 0.95, "gamma": 0.99, "ent_coef": 0.0},
+    "ppo": {
+        "n_steps": 32,
+        "n_epochs": 4,
+        "batch_size": 256,
+        "gae_lambda": 0.95,
+        "gamma": 0.99,
+        "ent_coef": 0.0,
+    },
     # sb3-contrib's RecurrentPPO (an LSTM before the actor's and the critic's MLPs): PPO's
     # settings; its minibatches are whole sequences of a sub-environment's rollout
     "recurrent_ppo": {
-        "n_steps": 256,
+        "n_steps": 32,
+        "n_epochs": 4,
         "batch_size": 256,
         "gae_lambda": 0.95,
         "gamma": 0.99,
@@ -66,10 +78,10 @@ ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
         "buffer_size": 50_000,
     },
 }
-# PPO, batch_size not given: n_steps * sub-envs / 32 (32 minibatches per epoch), at least
-# 256. With a fixed 256 the update dominated
-# the wall time at 64 copies (the measured figures are in the docs' training section).
-PPO_MINIBATCHES = 32
+# PPO, batch_size not given: n_steps * sub-envs / 4 (4 minibatches per epoch), at least
+# 256. Small minibatches made the update dominate the wall time (the measured figures:
+# docs/rl.md, "The sb3 engine").
+PPO_MINIBATCHES = 4
 PPO_MIN_BATCH = 256
 NET = [64, 64]
 # PPO starts with action std exp(-1) ~ 0.37 instead of 1: with std 1 nearly every step
