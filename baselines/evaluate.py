@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from baselines.options import add_condition_arguments
 from baselines.policies import PolicySource, check_policy
 from baselines.stats import bootstrap_mean_interval, wilson_interval
 from uvms_env.env.constraints import CONSTRAINTS
@@ -476,9 +477,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--max-cycles", type=int, default=None)
-    ap.add_argument("--n-agents", type=int, default=None, help="random family only")
-    ap.add_argument("--current", default=None, choices=["none", "mild", "strong"])
-    ap.add_argument("--mismatch", type=float, default=None)
+    add_condition_arguments(ap, draws=False)  # the trainers' flags, one value each
     ap.add_argument(
         "--comm",
         default=None,

@@ -35,33 +35,27 @@ def key_value_pairs(items: list[str]) -> dict[str, Any]:
     return out
 
 
+# flag -> (type, what one value is, what several values are), shared by every CLI
+CONDITION_FLAGS: dict[str, tuple[Any, str, str]] = {
+    "--n-agents": (int, "team size (random family)", "a set to draw from"),
+    "--current": (str, "ocean current preset", "each episode draws one"),
+    "--mismatch": (float, "model mismatch", "LOW HIGH: each episode draws one uniformly"),
+}
+
+
 def add_condition_arguments(g: Any, draws: bool = True) -> None:
     """``--n-agents``, ``--current`` and ``--mismatch``; ``draws``: each takes several
     values (a set of team sizes, of presets, a range), else one."""
-    many = "+" if draws else None
-    g.add_argument(
-        "--n-agents",
-        type=int,
-        nargs=many,
-        default=None,
-        metavar="N",
-        help="team size (random family)" + ("; several: a set to draw from" if draws else ""),
-    )
-    g.add_argument(
-        "--current",
-        nargs=many,
-        default=None,
-        choices=CURRENT_PRESETS,
-        help="ocean current preset" + ("; several: each episode draws one" if draws else ""),
-    )
-    g.add_argument(
-        "--mismatch",
-        type=float,
-        nargs=many,
-        default=None,
-        metavar="M",
-        help="model mismatch" + ("; LOW HIGH: each episode draws one uniformly" if draws else ""),
-    )
+    for flag, (kind, one, several) in CONDITION_FLAGS.items():
+        g.add_argument(
+            flag,
+            type=kind,
+            nargs="+" if draws else None,
+            default=None,
+            choices=CURRENT_PRESETS if flag == "--current" else None,
+            metavar=None if flag == "--current" else flag[2].upper(),
+            help=one + (f"; several: {several}" if draws else ""),
+        )
 
 
 def team_sizes(args: argparse.Namespace) -> tuple[int, ...]:

@@ -464,9 +464,11 @@ def evaluate_rungs(
     robot_steps: int,
     name: str,
     elapsed: float = 0.0,
+    max_cycles: int | None = None,
 ) -> list[dict[str, Any]]:
     """``policy`` (an evaluator ``--policy`` spec) on every rung, ``episodes`` each from
-    ``seed``: one row per rung appended to ``folder``'s evaluations.csv (``EVAL_COLUMNS``)
+    ``seed`` (capped at ``max_cycles`` periods, None: the scenarios' own episodes): one row
+    per rung appended to ``folder``'s evaluations.csv (``EVAL_COLUMNS``)
     and the episodes to its marl_eval.json (algorithm ``name``); returns the rows. Every
     training loop that evaluates as it learns (the RL engines, DAgger) writes here."""
     from baselines.distributed import marl_eval
@@ -477,7 +479,9 @@ def evaluate_rungs(
         Run._write_header(path, EVAL_COLUMNS)
     out = []
     for rung, (scenario, overrides) in rungs.items():
-        rows = evaluate([policy], [scenario], episodes, seed, 1, overrides, progress=False)
+        rows = evaluate(
+            [policy], [scenario], episodes, seed, 1, overrides, max_cycles, progress=False
+        )
         summary = aggregate(rows, seed)[0]
         failed = [r["error"] for r in rows if r["error"]]
         if failed:

@@ -309,8 +309,8 @@ def test_dagger_warm_starts_and_evaluates_each_iteration_per_team_size(tmp_path)
     out = tmp_path / "dagger"
     imitate(["dagger", "--data", str(data), "--features", "memory", "--epochs", "3",
              "--warm-start", "1", "--hidden", "8", "--scenario", "random:2", "--iterations", "2",
-             "--expert", expert, "--eval-episodes", "1", "--eval-seed", "9", "--out", str(out),
-             *conditions])  # fmt: skip
+             "--expert", expert, "--eval-episodes", "1", "--eval-seed", "9",
+             "--eval-max-cycles", "5", "--out", str(out), *conditions])  # fmt: skip
     losses = _rows(out / "dagger_loss.csv")
     epochs = {stage: sum(r["stage"] == stage for r in losses) for stage in ("dagger_0", "dagger_1")}
     assert epochs == {"dagger_0": 3, "dagger_1": 1}

@@ -310,6 +310,7 @@ def _evaluate_iteration(
         samples,
         name=f"dagger:{args.out.name}",
         elapsed=time.time() - start,
+        max_cycles=args.eval_max_cycles,
     )
     for r in rows:
         print(
@@ -515,6 +516,12 @@ def main(argv: list[str] | None = None) -> None:
         help="after each fit, evaluate the network on every rung this many episodes (0: none)",
     )
     d.add_argument("--eval-seed", type=int, default=None, help="their seed (default --seed)")
+    d.add_argument(
+        "--eval-max-cycles",
+        type=int,
+        default=None,
+        help="cap on the evaluation episodes (default: the scenarios' own length)",
+    )
     d.add_argument("--out", type=Path, default=Path("runs/dagger"))
     _add_env_args(d)
     args = ap.parse_args(argv)

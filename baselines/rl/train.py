@@ -60,16 +60,6 @@ ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
         "gamma": 0.99,
         "ent_coef": 0.0,
     },
-    # sb3-contrib's RecurrentPPO (an LSTM before the actor's and the critic's MLPs): PPO's
-    # settings; its minibatches are whole sequences of a sub-environment's rollout
-    "recurrent_ppo": {
-        "n_steps": 32,
-        "n_epochs": 4,
-        "batch_size": 256,
-        "gae_lambda": 0.95,
-        "gamma": 0.99,
-        "ent_coef": 0.0,
-    },
     "sac": {
         "learning_starts": 2000,
         "batch_size": 256,
@@ -78,6 +68,9 @@ ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
         "buffer_size": 50_000,
     },
 }
+# sb3-contrib's RecurrentPPO (an LSTM before the actor's and the critic's MLPs): PPO's
+# settings; its minibatches are whole sequences of a sub-environment's rollout
+ALGO_DEFAULTS["recurrent_ppo"] = dict(ALGO_DEFAULTS["ppo"])
 # PPO, batch_size not given: n_steps * sub-envs / 4 (4 minibatches per epoch), at least
 # 256. Small minibatches made the update dominate the wall time (the measured figures:
 # docs/rl.md, "The sb3 engine").
