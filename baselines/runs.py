@@ -397,6 +397,7 @@ class Run:
         keys = ("return", "episode_steps", "final_pos_error_m")
         return {
             "scenario": scenario,
+            "overrides": overrides,
             "seed": 0,
             "episodes": [
                 {

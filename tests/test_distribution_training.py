@@ -321,3 +321,34 @@ def test_dagger_warm_starts_and_evaluates_each_iteration_per_team_size(tmp_path)
     assert steps[0] == (2 + 3) * 5 and steps[0] < steps[1] < steps[2]
     info = json.loads((out / "train.json").read_text())
     assert info["warm_start_epochs"] == 1 and info["n_agents"] == [2, 3]
+
+
+def test_dagger_resumes_to_the_network_of_an_uninterrupted_run(tmp_path):
+    """``--resume RUN`` (a run saved with --save-data) continues from the last iteration's
+    network and aggregate: the resumed run's network is the straight run's, bit for bit."""
+    pytest.importorskip("minari")
+    import torch
+
+    from baselines.imitation.cli import main as imitate
+
+    data = tmp_path / "data" / "demo"
+    expert = "experts.scripted:expert"
+    env = ["--n-agents", "2", "3", "--max-cycles", "4"]
+    imitate(["collect", "--scenario", "random", "--episodes", "2", "--expert", expert,
+             "--out", str(data), *env])  # fmt: skip
+    common = ["--data", str(data), "--features", "memory", "--epochs", "2", "--warm-start", "1",
+              "--hidden", "8", "--scenario", "random:2", "--expert", expert, "--save-data",
+              "--noise", "0.05", "--beta", "0.5", *env]  # fmt: skip
+    straight, resumed = tmp_path / "straight", tmp_path / "resumed"
+    imitate(["dagger", *common, "--iterations", "2", "--out", str(straight)])
+    imitate(["dagger", *common, "--iterations", "1", "--out", str(resumed)])
+    imitate(["dagger", *common, "--iterations", "2", "--resume", str(resumed)])
+    a = torch.load(straight / "policy.pt", weights_only=False)["state"]
+    b = torch.load(resumed / "policy.pt", weights_only=False)["state"]
+    for key in a:
+        assert torch.equal(a[key], b[key]), key
+    info = json.loads((resumed / "train.json").read_text())
+    assert [h["iteration"] for h in info["history"]] == [0, 1, 2]
+    unsaved = [a for a in common if a != "--save-data"]
+    with pytest.raises(SystemExit, match="--save-data"):
+        imitate(["dagger", *unsaved, "--iterations", "3", "--resume", str(resumed)])

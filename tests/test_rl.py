@@ -116,7 +116,15 @@ def test_pretrained_reproduces_recorded_evaluation(algo, name):
     recorded = json.loads((folder / "config.json").read_text())["eval"]
     n = len(recorded["episodes"])
     runs = [
-        evaluate([source], [recorded["scenario"]], n, recorded["seed"], 1, progress=False)
+        evaluate(
+            [source],
+            [recorded["scenario"]],
+            n,
+            recorded["seed"],
+            1,
+            recorded.get("overrides"),
+            progress=False,
+        )
         for _ in range(2)
     ]
     for first, second, rec in zip(*runs, recorded["episodes"], strict=True):
@@ -125,8 +133,9 @@ def test_pretrained_reproduces_recorded_evaluation(algo, name):
         assert first["episode_steps"] == second["episode_steps"]
         assert first["seed"] == rec["seed"]
         assert bool(first["success"]) == rec["success"]
-        assert first["episode_steps"] == rec["episode_steps"]
         # bit for bit only on the machine that recorded it: the compiled physics is built
-        # with -march=native, and another CPU's rounding (seen: AVX-512 vs not) grows over
-        # hundreds of closed-loop steps, here by up to 1.5% of the return
+        # with -march=native, and another CPU's rounding (seen: AVX-512 vs not; another
+        # BLAS kernel) grows over hundreds of closed-loop steps, here by up to 1.5% of the
+        # return; the episode's length moves with it
+        assert first["episode_steps"] == pytest.approx(rec["episode_steps"], rel=0.05)
         assert first["return"] == pytest.approx(rec["return"], rel=0.05)

@@ -208,6 +208,8 @@ def _init_network(source: str) -> MLPPolicyNet:
 
 def train_dagger(args: argparse.Namespace) -> None:
     start = time.time()
+    if args.resume is not None:
+        args.out = args.resume
     if not args.data and args.init is None:
         raise SystemExit("dagger needs --data (demonstrations) or --init (a clone to start from)")
     obs = act = ring = None
@@ -217,21 +219,33 @@ def train_dagger(args: argparse.Namespace) -> None:
         obs, act, ring, n_streams = dataset.read_many(args.data, memory=memory)
     scenarios = args.scenario or ["short"]
     log = args.out / "dagger_loss.csv"
-    log.unlink(missing_ok=True)
-
-    if args.init is None:
+    done = _resumed(args, memory)
+    if done is not None:
+        net, history, first, before = done
+        if history[-1]["iteration"] >= 1:  # the rollouts of the iterations done so far
+            paths = [args.out / "data" / f"iter_{k}" for k in range(1, first)]
+            old_obs, old_act, old_ring, _ = dataset.read_many(paths, memory=memory)
+            obs = old_obs if obs is None else np.concatenate([obs, old_obs])
+            act = old_act if act is None else np.concatenate([act, old_act])
+            ring = old_ring if ring is None else np.concatenate([ring, old_ring])
+        start -= before
+    elif args.init is None:
+        log.unlink(missing_ok=True)
         net, losses = _dagger_fit(args, log, obs, act, ring, 0)
         history: list[dict[str, Any]] = [
             {"iteration": 0, "beta": 1.0, "samples": len(obs), "loss": losses[-1]}
         ]
         _evaluate_iteration(args, net, 0, len(obs), start)
+        first = 1
     else:
+        log.unlink(missing_ok=True)
         net = _init_network(args.init)
         history = [{"iteration": 0, "init": args.init, "samples": 0 if obs is None else len(obs)}]
+        first = 1
     distill = args.expert == SELF_FILTER
     if not distill:
         PolicySource.parse(args.expert)  # a wrong name fails before any rollout
-    for k in range(1, args.iterations + 1):
+    for k in range(first, args.iterations + 1):
         path = (args.out / f"iter_{k - 1}" / "policy.pt").resolve()
         net.save(path, {"method": "dagger", "iteration": k - 1})
         # safe distillation: the teacher is the safety filter around the network itself
@@ -261,18 +275,61 @@ def train_dagger(args: argparse.Namespace) -> None:
         _evaluate_iteration(args, net, k, len(obs), start)
         history.append(row)
         print(json.dumps(row))
+        # after every iteration: what --resume continues from
+        _save_dagger(args, net, scenarios, n_streams, len(obs), history, start)
+    info = _save_dagger(args, net, scenarios, n_streams, len(obs), history, start)
+    print(f"saved {args.out / 'policy.pt'} ({len(obs)} samples, {info['train_wall_s']} s)")
+
+
+def _save_dagger(
+    args: argparse.Namespace,
+    net: MLPPolicyNet,
+    scenarios: list[str],
+    n_streams: int,
+    samples: int,
+    history: list[dict[str, Any]],
+    start: float,
+) -> dict[str, Any]:
+    """The run's ``policy.pt`` and ``train.json`` as they stand."""
     info = {
         "method": "dagger",
         **_common(args),
         **_dagger_settings(args, scenarios),
         "demo_robot_streams": n_streams,
-        "samples": len(obs),
+        "samples": samples,
         "history": history,
         "train_wall_s": round(time.time() - start, 1),
     }
     net.save(args.out / "policy.pt", info)
     _write_json(args.out / "train.json", info)
-    print(f"saved {args.out / 'policy.pt'} ({len(obs)} samples, {info['train_wall_s']} s)")
+    return info
+
+
+def _resumed(
+    args: argparse.Namespace, memory: bool
+) -> tuple[MLPPolicyNet, list[dict[str, Any]], int, float] | None:
+    """``--resume RUN``: (its network, its history, the next iteration, its wall time so
+    far), from the ``policy.pt`` and ``train.json`` written after each iteration; the
+    iterations' rollouts must have been saved (``--save-data``). None without --resume."""
+    if args.resume is None:
+        return None
+    info_path = args.resume / "train.json"
+    if not info_path.exists() or not (args.resume / "policy.pt").exists():
+        raise SystemExit(f"nothing to resume at {args.resume} (no train.json and policy.pt)")
+    info = json.loads(info_path.read_text())
+    history = info["history"]
+    last = history[-1]["iteration"]
+    if last >= 1 and not info.get("save_data"):
+        raise SystemExit(
+            f"{args.resume} did not save its rollouts (--save-data): its aggregate is lost"
+        )
+    if not args.save_data:
+        raise SystemExit("--resume needs --save-data: the next resume reads this run's rollouts")
+    net = MLPPolicyNet.load(args.resume / "policy.pt")
+    if (net.features == "memory") != memory:
+        raise SystemExit(f"{args.resume} was trained on {net.features!r} features")
+    print(f"resuming {args.resume} after iteration {last}")
+    return net, history, last + 1, float(info.get("train_wall_s", 0.0))
 
 
 def dagger_rungs(args: argparse.Namespace, scenarios: list[str]) -> dict[str, tuple[str, dict]]:
@@ -412,6 +469,7 @@ def _dagger_settings(args: argparse.Namespace, scenarios: list[str]) -> dict[str
         "scenarios": scenarios,
         "iterations": args.iterations,
         "warm_start_epochs": args.warm_start,
+        "save_data": args.save_data,
         "episodes_per_iteration": args.episodes_per_iteration,
         "beta_schedule": f"beta_k = {args.beta}**k",
         "rollout_noise": args.noise,
@@ -503,6 +561,13 @@ def main(argv: list[str] | None = None) -> None:
     d.add_argument("--episodes-per-iteration", type=int, default=2, help="per scenario")
     d.add_argument("--beta", type=float, default=0.5, help="beta_k = beta**k")
     d.add_argument("--save-data", action="store_true", help="write each iteration's data")
+    d.add_argument(
+        "--resume",
+        type=Path,
+        default=None,
+        metavar="RUN",
+        help="continue a run saved with --save-data up to --iterations (its folder is --out)",
+    )
     d.add_argument(
         "--noise", type=float, default=0.0, help="std of Gaussian noise on executed actions"
     )
