@@ -12,7 +12,9 @@ robot-steps/s over the whole learning loop (setup excluded: compiling and buildi
 geometries happen once per machine and run), and the shares of the learning time spent
 in the environment's step (``VectorEnv.step``), in the rest of collecting (the policy's
 forward, the library's buffers and bookkeeping) and in the update. The table holds the
-medians over repeats. Run it on a quiet machine: ``uptime`` before and after.
+medians over repeats. Run it on a quiet machine (it prints the load before and after),
+with the pool's geometries built beforehand (``--geometry-pool``: building one in the
+loop would count as training time).
 
 May import: the standard library, numpy, ``baselines`` and ``uvms_env``.
 """
@@ -68,7 +70,9 @@ class StepTimer:
         VectorEnv.step = self._original  # type: ignore[method-assign]
 
 
-def one_run(engine: str, settings: str, sizes: tuple[int, ...], robot_steps: int) -> dict:
+def one_run(
+    engine: str, settings: str, sizes: tuple[int, ...], robot_steps: int, pool: int
+) -> dict:
     """Train once; returns robot-steps/s and the time shares of the learning loop."""
     module = trainer.engine_module(engine)
     chosen = BEFORE[engine] if settings == "before" else {"hp": {}}
@@ -81,7 +85,7 @@ def one_run(engine: str, settings: str, sizes: tuple[int, ...], robot_steps: int
         seed=0,
         out=folder,
         checkpoint_every=0,
-        geometry_pool=module.DEFAULTS["geometry_pool"],
+        geometry_pool=pool,
         hyperparameters=dict(chosen["hp"]),
         progress=False,
         record_eval=False,
@@ -137,6 +141,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--robot-steps", type=int, default=200_000)
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--settings", nargs="+", default=["before", "after"])
+    ap.add_argument(
+        "--geometry-pool",
+        type=int,
+        default=256,
+        help="bank geometries per team size (build them first: python -m "
+        "uvms_env.vector.build_bank random --n-agents N --seeds 0:256)",
+    )
     args = ap.parse_args(argv)
     sizes = tuple(args.n_agents)
     print(f"load before: {os.getloadavg()}")
@@ -144,7 +155,7 @@ def main(argv: list[str] | None = None) -> None:
     for _ in range(args.repeats):
         for engine in args.engines:
             for settings in args.settings:
-                row = one_run(engine, settings, sizes, args.robot_steps)
+                row = one_run(engine, settings, sizes, args.robot_steps, args.geometry_pool)
                 results.setdefault((engine, settings), []).append(row)
                 rate = row["robot_steps_per_s"]
                 print(f"{engine} {settings}: {rate:,.0f} robot-steps/s", flush=True)
