@@ -97,6 +97,8 @@ def test_concat_vec_env_steps_each_part_as_alone():
         np.testing.assert_array_equal(got[1], np.concatenate([w[1] for w in want]))
         np.testing.assert_array_equal(got[2], np.concatenate([w[2] for w in want]))
         assert [i.get("cost") for i in got[3]] == [i.get("cost") for w in want for i in w[3]]
+        values = [a.last_infos["constraint_values"].reshape(-1, 8) for a in alone]
+        np.testing.assert_array_equal(both.last_infos["constraint_values"], np.concatenate(values))
     assert both.get_attr("n", [0, 5]) == [2, 3]
     features = VectorEnv("random", num_envs=1, n_agents=2, observation_mode="features")
     with pytest.raises(ValueError, match="observation space"):
@@ -130,7 +132,8 @@ def test_mappo_state_padded_to_the_largest_team():
 def memory_run(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("dist") / "ppo_memory"
     main(["--engine", "sb3", "--robot-steps", "100", "--eval-every", "50", "--eval-episodes", "1",
-          "--eval-seed", "7", "--out", str(out), *TINY, *SB3_TINY, *MEMORY])  # fmt: skip
+          "--eval-seed", "7", "--out", str(out), "--cost", "magnitude", *TINY, *SB3_TINY,
+          *MEMORY])  # fmt: skip
     return out
 
 

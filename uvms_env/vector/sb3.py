@@ -199,6 +199,20 @@ class ConcatVecEnv(VecEnv):
         )
         super().__init__(int(sum(sizes)), first.observation_space, first.action_space)
 
+    @property
+    def last_infos(self) -> dict[str, np.ndarray]:
+        """The parts' last batched infos that are per robot, in sub-environment order:
+        ``constraint_values`` (robots, C) and ``cost`` (robots,) (what the parts' other
+        infos hold per environment copy has no common shape)."""
+        infos = [p.last_infos for p in self.parts]  # type: ignore[attr-defined]
+        width = infos[0]["constraint_values"].shape[-1]
+        return {
+            "constraint_values": np.concatenate(
+                [np.asarray(i["constraint_values"]).reshape(-1, width) for i in infos]
+            ),
+            "cost": np.concatenate([np.asarray(i["cost"]).reshape(-1) for i in infos]),
+        }
+
     def _slices(self) -> list[slice]:
         return [slice(a, b) for a, b in zip(self._bounds[:-1], self._bounds[1:], strict=True)]
 
