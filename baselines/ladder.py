@@ -13,8 +13,10 @@ then two comparisons per team size on the paired episodes (same seed, same geome
 Each price is given for completion time (periods to success), internal wrench RMS and
 control effort, as the mean difference over the episodes both rungs succeeded in (a
 bootstrap 95% interval) and the ratio of their means; success rates come with Wilson
-intervals. Writes the evaluator's outputs (``episodes.csv``, ``results.*``, plots) and
-``ladder.md``, ``ladder.json`` and ``price_vs_n.png`` to ``--out``.
+intervals. ``--from EPISODES_CSV`` (repeatable) aggregates earlier runs' episodes instead of
+playing (rungs run apart on the same seed). Writes the evaluator's outputs
+(``episodes.csv``, ``results.*``, plots) and ``ladder.md``, ``ladder.json`` and
+``price_vs_n.png`` to ``--out``.
 
 May import: the standard library, numpy, matplotlib and ``baselines.evaluate`` /
 ``baselines.stats``.
@@ -23,6 +25,7 @@ May import: the standard library, numpy, matplotlib and ``baselines.evaluate`` /
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 from pathlib import Path
 from typing import Any
@@ -100,6 +103,12 @@ def rung_summary(rows: list[dict[str, Any]], seed: int) -> dict[str, Any]:
     ms = np.concatenate([np.asarray(r.get("_decision_ms", []), float) for r in rows] or [[]])
     out["decision_ms_median"] = float(np.median(ms)) if len(ms) else None
     out["decision_ms_p95"] = float(np.quantile(ms, 0.95)) if len(ms) else None
+    if not len(ms):  # rows read back from episodes.csv: the episodes' own summaries
+        medians = _values(rows, "policy_time_ms_median")
+        p95s = _values(rows, "policy_time_ms_p95")
+        if np.isfinite(medians).any():
+            out["decision_ms_median"] = float(np.nanmedian(medians))
+            out["decision_ms_p95"] = float(np.nanmedian(p95s))
     return out
 
 
@@ -309,6 +318,46 @@ def plot_prices(result: dict[str, Any], out: Path) -> None:
     plt.close(fig)
 
 
+def read_episodes(path: Path) -> list[dict[str, Any]]:
+    """An evaluator's ``episodes.csv`` back as rows: booleans and numbers typed, empty
+    cells None (the per-decision times are not in the file: ``rung_summary`` then
+    summarizes the episodes' own medians and 95th percentiles)."""
+
+    def typed(value: str) -> Any:
+        if value in ("True", "False"):
+            return value == "True"
+        if value == "":
+            return None
+        try:
+            return float(value)
+        except ValueError:
+            return value
+
+    with open(path, newline="") as fh:
+        rows = [{k: typed(v) for k, v in r.items()} for r in csv.DictReader(fh)]
+    for r in rows:
+        r["episode"] = int(r["episode"])
+        r["error"] = r.get("error") or ""
+    return rows
+
+
+def merged(paths: list[Path], seed: int, out: Path) -> dict[str, Any]:
+    """The ladder of several runs' episodes (the same cases and seed, e.g. the expert
+    rungs run apart from the learned ones: each rung plays the same seeded episodes
+    whatever else runs beside it), rungs in ``LADDER`` order, then any others."""
+    rows = [r for p in paths for r in read_episodes(p)]
+    present = list(dict.fromkeys(r["policy"] for r in rows))
+    policies = [p for p in LADDER if p in present] + [p for p in present if p not in LADDER]
+    labels = list(dict.fromkeys(r["scenario"] for r in rows))
+    result = ladder(rows, policies, labels, seed)
+    result["command"] = {"merged": [str(p) for p in paths], "seed": seed}
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "ladder.json").write_text(json.dumps(result, indent=2))
+    (out / "ladder.md").write_text(markdown(result) + "\n" + overview(result))
+    plot_prices(result, out)
+    return result
+
+
 def run(
     policies: list[str],
     team_sizes: tuple[int, ...],
@@ -377,8 +426,22 @@ def main(argv: list[str] | None = None) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument("--policy", action="append", default=None, help=f"rungs (default {LADDER})")
+    ap.add_argument(
+        "--from",
+        dest="sources",
+        action="append",
+        type=Path,
+        default=None,
+        metavar="EPISODES_CSV",
+        help="no evaluation: the ladder of these runs' episodes.csv together (same seed)",
+    )
     add_case_arguments(ap, TEAM_SIZES, "runs/ladder")
     args = ap.parse_args(argv)
+    if args.sources:
+        result = merged(args.sources, args.seed, args.out)
+        print(markdown(result))
+        print(f"wrote {args.out}/ladder.md, ladder.json and price_vs_n.png")
+        return
     policies = args.policy or list(LADDER)
     result = run(
         policies,

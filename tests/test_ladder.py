@@ -94,3 +94,32 @@ def test_the_ladder_command_runs_end_to_end(tmp_path):
     assert "Price of decentralization" in text
     assert "| `nmpc:central` | full | 0 / 0 / 1 | 0 / 0 / 1 |" in text  # 8 periods: no success
     assert np.isfinite(central["decision_ms_median"])
+
+
+def test_runs_apart_merge_into_the_ladder_of_one_run(tmp_path):
+    """``--from``: rungs evaluated apart on the same seed give, read back from their
+    episodes.csv, the rung summaries of one run with all of them (each rung plays the
+    same seeded episodes whatever runs beside it); decision times then come from the
+    episodes' own medians."""
+    common = ["--n-agents", "2", "--no-paper", "--episodes", "2", "--seed", "4",
+              "--workers", "1", "--max-cycles", "8"]  # fmt: skip
+    main(["--policy", "zero", "--policy", "random", *common, "--out", str(tmp_path / "both")])
+    main(["--policy", "zero", *common, "--out", str(tmp_path / "a")])
+    main(["--policy", "random", *common, "--out", str(tmp_path / "b")])
+    sources = ["--from", str(tmp_path / "a" / "episodes.csv")]
+    sources += ["--from", str(tmp_path / "b" / "episodes.csv")]
+    main([*sources, "--seed", "4", "--out", str(tmp_path / "m")])
+    one = json.loads((tmp_path / "both" / "ladder.json").read_text())["rungs"]
+    merged = json.loads((tmp_path / "m" / "ladder.json").read_text())["rungs"]
+    assert [(s["policy"], s["scenario"]) for s in merged] == [
+        (s["policy"], s["scenario"]) for s in one
+    ]
+    timing = ("decision_ms_median", "decision_ms_p95")
+    for a, b in zip(one, merged, strict=True):
+        assert set(a) == set(b)
+        for key in set(a) - set(timing):
+            if isinstance(a[key], str) or a[key] is None:
+                assert a[key] == b[key], key
+            else:  # CSV keeps every digit of a float: the same numbers
+                np.testing.assert_allclose(a[key], b[key], rtol=1e-12, err_msg=key)
+        assert b["decision_ms_median"] > 0
