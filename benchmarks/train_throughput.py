@@ -10,8 +10,9 @@ settings before this benchmark existed (``BEFORE``: the engines' old defaults) a
 today's defaults, alternating (the load of a shared machine drifts). Reported per run:
 robot-steps/s over the whole learning loop (setup excluded: compiling and building
 geometries happen once per machine and run), and the shares of the learning time spent
-in the environment's step (``VectorEnv.step``), in the rest of collecting (the policy's
-forward, the library's buffers and bookkeeping) and in the update. The table holds the
+in the environment's step (``VectorEnv.step``), in the policy's forward passes while
+collecting, in the rest of collecting (the library's buffers, normalization and
+bookkeeping) and in the update. The table holds the
 medians over repeats. Run it on a quiet machine (it prints the load before and after),
 with the pool's geometries built beforehand (``--geometry-pool``: building one in the
 loop would count as training time).
@@ -99,6 +100,7 @@ def one_run(
     try:
         run.write_config(**engine_obj.build())
         update = _time_updates(engine, engine_obj)
+        forward = _time_forward(engine, engine_obj)
         with StepTimer() as env_timer:
             start = time.perf_counter()
             steps = engine_obj.learn()
@@ -106,15 +108,52 @@ def one_run(
     finally:
         engine_obj.close()
         shutil.rmtree(folder, ignore_errors=True)
-    updating = update()
+    updating, acting = update(), forward()
     return {
         "robot_steps_per_s": steps / wall,
         "env": env_timer.seconds / wall,
+        "forward": acting / wall,
         "update": updating / wall,
-        "collect_other": max(0.0, 1.0 - (env_timer.seconds + updating) / wall),
+        "collect_other": max(0.0, 1.0 - (env_timer.seconds + acting + updating) / wall),
         "wall_s": wall,
         "robot_steps": steps,
     }
+
+
+def _time_forward(engine: str, engine_obj: Any):
+    """A function that returns the seconds the policy's forward passes have taken while
+    collecting (SB3: the policy's ``forward``; TorchRL: the actor network's, outside the
+    update's own passes)."""
+    spent = [0.0]
+    if engine == "torchrl":
+        net = engine_obj.actor_net
+        updating = [False]
+        train = engine_obj.loss.forward
+
+        def in_update(*args: Any, **kwargs: Any) -> Any:
+            updating[0] = True
+            try:
+                return train(*args, **kwargs)
+            finally:
+                updating[0] = False
+
+        engine_obj.loss.forward = in_update
+    else:
+        net = engine_obj.model.policy
+        updating = [False]
+    original = net.forward
+
+    def timed(*args: Any, **kwargs: Any) -> Any:
+        if updating[0]:
+            return original(*args, **kwargs)
+        start = time.perf_counter()
+        try:
+            return original(*args, **kwargs)
+        finally:
+            spent[0] += time.perf_counter() - start
+
+    net.forward = timed
+    return lambda: spent[0]
 
 
 def _time_updates(engine: str, engine_obj: Any):
@@ -161,14 +200,14 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"{engine} {settings}: {rate:,.0f} robot-steps/s", flush=True)
     print(f"load after: {os.getloadavg()}")
     print(
-        "\n| engine | settings | robot-steps/s | env step | rest of collecting | update |\n"
-        "|---|---|---|---|---|---|"
+        "\n| engine | settings | robot-steps/s | env step | policy forward | rest of "
+        "collecting | update |\n|---|---|---|---|---|---|---|"
     )
     for (engine, settings), rows in results.items():
         med = {k: float(np.median([r[k] for r in rows])) for k in rows[0]}
         print(
             f"| {engine} | {settings} | {med['robot_steps_per_s']:,.0f} | {med['env']:.0%} | "
-            f"{med['collect_other']:.0%} | {med['update']:.0%} |"
+            f"{med['forward']:.0%} | {med['collect_other']:.0%} | {med['update']:.0%} |"
         )
 
 
