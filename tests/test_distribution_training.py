@@ -355,3 +355,48 @@ def test_dagger_resumes_to_the_network_of_an_uninterrupted_run(tmp_path):
     unsaved = [a for a in common if a != "--save-data"]
     with pytest.raises(SystemExit, match="--save-data"):
         imitate(["dagger", *unsaved, "--iterations", "3", "--resume", str(resumed)])
+
+
+def test_anchor_penalty_is_the_distance_to_the_clones_residual():
+    """``AnchorPenalty``: each robot's reward minus W mean((s a - clip(r_c, -s, s))^2),
+    r_c the clone's residual on the observation the action answered: zero for the clone's
+    own action, the formula otherwise (recomputed here from the network's layers)."""
+    import torch
+
+    from baselines.imitation.network import MLPPolicyNet
+    from baselines.rl.anchor import AnchorPenalty
+    from uvms_env.vector import VectorEnv
+    from uvms_env.vector.sb3 import VectorVecEnv
+
+    def venv() -> VectorVecEnv:
+        inner = VectorEnv("random", num_envs=2, n_agents=2, observation_mode="memory",
+                          action_mode="residual", residual_scale=0.5, max_cycles=5)  # fmt: skip
+        return VectorVecEnv(inner, seed=3)
+
+    plain = venv()
+    obs = plain.reset()
+    rng = np.random.default_rng(0)
+    data = np.concatenate([obs.repeat(8, 0)[:, :-8] + rng.normal(0, 0.1, (32, 92)),
+                           obs.repeat(8, 0)[:, -8:]], 1).astype(np.float32)  # fmt: skip
+    # a clone on the memory inputs (its weights at random: the wrapper reads any network)
+    clone = MLPPolicyNet(100, 8, (8,), features="memory")
+    clone.set_normalization(data)
+    anchored = AnchorPenalty(venv(), clone, 0.5, 3.0)
+    assert np.array_equal(anchored.reset(), obs)
+    with torch.no_grad():
+        x = torch.as_tensor(obs)
+        residual = (clone(x) - x[:, -8:]).numpy()
+    for actions, expected_zero in ((np.clip(residual / 0.5, -1, 1), True),
+                                   (rng.uniform(-1, 1, residual.shape), False)):  # fmt: skip
+        plain_step = plain.step(actions.astype(np.float32))
+        got = anchored.step(actions.astype(np.float32))
+        target = np.clip(residual, -0.5, 0.5)
+        penalty = 3.0 * np.mean((0.5 * np.clip(actions, -1, 1) - target) ** 2, axis=1)
+        np.testing.assert_allclose(plain_step[1] - got[1], penalty, rtol=1e-5, atol=1e-6)
+        assert (penalty.max() < 1e-10) == expected_zero
+        assert [i["anchor_penalty"] for i in got[3]] == pytest.approx(penalty.tolist())
+        with torch.no_grad():
+            x = torch.as_tensor(got[0])
+            residual = (clone(x) - x[:, -8:]).numpy()
+    with pytest.raises(ValueError, match="reads 100 numbers"):
+        AnchorPenalty(VectorVecEnv(VectorEnv("random", num_envs=1, n_agents=2)), clone, 0.5, 1.0)

@@ -17,7 +17,8 @@ wrapper ``baselines.rl.cost.CostPenalty``, priors as environment options
 (``--env-option action_mode=residual``), ``--central-critic`` (MAPPO,
 ``baselines.rl.mappo``; without it IPPO with parameter sharing), ``--filter`` (shielded
 training, ``baselines.rl.shield``, figures in ``shield.csv``), ``--init-actor`` (the
-DAgger clone as PPO's actor, ``baselines.rl.init_actor``). Guide: docs/rl.md.
+DAgger clone as PPO's actor, ``baselines.rl.init_actor``), ``--anchor`` (the reward keeps
+it near that clone, ``baselines.rl.anchor``). Guide: docs/rl.md.
 
 May import: numpy, torch and stable-baselines3 (inside the engine), ``baselines.runs``,
 ``baselines.lagrangian``, ``baselines.rl`` and ``uvms_env``.
@@ -138,6 +139,14 @@ def add_arguments(g: Any) -> None:
         help="PPO's actor starts as a clone: dagger:pretrained, dagger:PATH or bc:PATH "
         "(needs action_mode=residual and the clone's inputs as observation_mode: features "
         "or memory; baselines.rl.init_actor)",
+    )
+    g.add_argument(
+        "--anchor",
+        type=float,
+        default=0.0,
+        metavar="W",
+        help="with --init-actor: each robot's reward minus W times the squared distance "
+        "of its residual from the clone's (baselines.rl.anchor)",
     )
     g.add_argument(
         "--critic-warmup",
@@ -343,6 +352,17 @@ class Engine:
             filter_penalty=a.filter_penalty if getattr(a, "filter", False) else None,
             team_sizes=s.team_sizes,
         )
+        anchor = getattr(a, "anchor", 0.0)
+        if anchor:
+            if not getattr(a, "init_actor", None):
+                raise ValueError("--anchor keeps PPO near its initial clone: give --init-actor")
+            from baselines.rl import init_actor
+            from baselines.rl.anchor import AnchorPenalty
+            from baselines.rl.policy import priors_from_options
+
+            scale = priors_from_options(s.env_options()).residual_scale
+            reference = clone if clone is not None else init_actor.load_clone(a.init_actor)
+            venv = AnchorPenalty(venv, reference, scale, anchor)
         if s.resume is not None:
             model, venv = self._resumed(venv, hp)
         else:
@@ -371,6 +391,7 @@ class Engine:
             "filter": {"penalty": a.filter_penalty} if self.shield is not None else None,
             "init_actor": getattr(a, "init_actor", None),
             "critic_warmup": getattr(a, "critic_warmup", 0),
+            "anchor": getattr(a, "anchor", 0.0),
         }
 
     def _resumed(self, venv: Any, hp: dict[str, Any]) -> tuple[Any, Any]:
