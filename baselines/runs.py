@@ -16,8 +16,9 @@ one ``progress.csv`` and one ``evaluations.csv`` schema, periodic evaluation thr
 The folder: ``config.json`` (``Run.start``'s record, then the engine's ``engine_settings``),
 ``progress.csv`` (``PROGRESS_COLUMNS``, one row per iteration, appended by a resumed run),
 ``evaluations.csv`` (``EVAL_COLUMNS``, one row per evaluation and rung),
-``marl_eval.json`` (the same evaluations for marl-eval), ``eval_snapshot/`` and whatever
-the engine saves (its policy and checkpoints).
+``marl_eval.json`` (the same evaluations for marl-eval), ``eval_snapshot/``, ``best/``
+(the snapshot whose evaluation scored best so far, ``evaluation_score``: early stopping on
+the evaluation seed) and whatever the engine saves (its policy and checkpoints).
 
 Every budget and cadence counts robot-steps (one step of one robot; an env step of N
 robots is N robot-steps), whatever the engine counts internally.
@@ -48,6 +49,7 @@ CONFIG_FILE = "config.json"
 PROGRESS_FILE = "progress.csv"
 EVAL_FILE = "evaluations.csv"
 SNAPSHOT = "eval_snapshot"
+BEST = "best"
 # One row per training iteration (a rollout and its update): the training episodes that
 # ended in it (unscaled team return), the constraint cost and multiplier of
 # PPO-Lagrangian (empty without it) and the throughput.
@@ -248,6 +250,7 @@ class Run:
             "wall_time_s": None,
             "robot_steps_per_s": None,
             "eval": None,
+            "best": self.previous.get("best") if self.resumed else None,
         }
         self.multiplier: float | None = None
         self._start = time.perf_counter()
@@ -354,7 +357,7 @@ class Run:
             engine.checkpoint(robot_steps)
         if self.evaluation_due(robot_steps):
             engine.save(self.snapshot)
-            self.evaluate(robot_steps, engine.policy(self.snapshot))
+            self.keep_best(robot_steps, self.evaluate(robot_steps, engine.policy(self.snapshot)))
 
     def evaluation_due(self, robot_steps: int) -> bool:
         if self.settings.eval_every <= 0 or robot_steps < self._next_eval:
@@ -385,6 +388,22 @@ class Run:
             name=f"{self.config['engine']}_{self.config['algo']}:{self.folder.name}",
             elapsed=time.perf_counter() - self._start,
         )
+
+    def keep_best(self, robot_steps: int, rows: list[dict[str, Any]]) -> bool:
+        """Copy the snapshot just evaluated to ``best/`` when its ``evaluation_score``
+        beats every earlier one of the run (resumed runs included); record it in
+        config.json. Whether it did."""
+        score = evaluation_score(rows)
+        best = self.config.get("best")
+        if best is not None and tuple(best["score"]) >= score:
+            return False
+        target = self.folder / BEST
+        shutil.rmtree(target, ignore_errors=True)
+        shutil.copytree(self.snapshot, target)
+        self.config["best"] = {"robot_steps": int(robot_steps), "score": list(score)}
+        write_json(self.folder / CONFIG_FILE, self.config)
+        write_json(target / CONFIG_FILE, self.config)
+        return True
 
     def record(self, policy: str) -> dict[str, Any]:
         """The saved policy's per-episode result on fixed seeds (the training scenario,
@@ -516,6 +535,17 @@ def evaluate_rungs(
         )
         out.append(row)
     return out
+
+
+def evaluation_score(rows: list[dict[str, Any]]) -> tuple[float, float, float]:
+    """How one evaluation (its rows, one per rung) ranks against another, higher better:
+    clean successes summed over the rungs, then successes, then the fewest violation
+    periods (the rungs' medians summed, negated)."""
+    return (
+        round(sum(r["clean_success_rate"] for r in rows), 9),
+        round(sum(r["success_rate"] for r in rows), 9),
+        -round(sum(r["violation_periods_median"] for r in rows), 9),
+    )
 
 
 def _header(path: Path) -> tuple[str, ...]:
