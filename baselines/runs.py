@@ -446,6 +446,15 @@ class Run:
         write_json(self.folder / CONFIG_FILE, self.config)
         if engine is not None and self.settings.record_eval:
             self.config["eval"] = self.record(engine.policy(self.folder))
+            best = self.folder / BEST
+            if best.is_dir():  # the early-stopped policy gets its own record
+                best_config = {
+                    **self.config,
+                    "robot_steps": self.config["best"]["robot_steps"],
+                    "run_robot_steps": self.config["robot_steps"],
+                }
+                best_config["eval"] = self.record(engine.policy(best))
+                write_json(best / CONFIG_FILE, best_config)
         if self.snapshot.is_dir():
             shutil.rmtree(self.snapshot, ignore_errors=True)
         write_json(self.folder / CONFIG_FILE, self.config)

@@ -145,6 +145,13 @@ def test_sb3_trains_over_team_sizes_and_evaluates_under_the_runs_conditions(memo
     rows = _rows(memory_run / "evaluations.csv")
     assert [r["rung"] for r in rows[:2]] == ["random_n2", "random_n3"]
     assert all(float(r["violation_periods_median"]) >= 0 for r in rows)
+    best = json.loads((memory_run / "best" / "config.json").read_text())  # early stopping
+    assert best["best"] == config["best"] and best["best"]["robot_steps"] in {
+        int(r["robot_steps"]) for r in rows
+    }
+    assert best["robot_steps"] == best["best"]["robot_steps"]
+    assert len(best["eval"]["episodes"]) == len(config["eval"]["episodes"])
+    assert (memory_run / "best" / "model.zip").is_file()
 
 
 def test_memory_policy_decides_compiled_as_with_predict(memory_run):
