@@ -145,6 +145,7 @@ class RunSettings:
     record_eval: bool = True  # the final policy's per-episode result, in config.json
     team_sizes: tuple[int, ...] = ()  # several: one group of env copies each (empty: one)
     eval_seed: int | None = None  # the periodic evaluations' seed (None: ``seed``)
+    eval_max_cycles: int | None = None  # cap on evaluation episodes (None: the scenario's)
 
     def env_options(self) -> dict[str, Any]:
         """The environment options training uses: the defaults, then the overrides."""
@@ -240,6 +241,7 @@ class Run:
             "eval_episodes": settings.eval_episodes,
             "eval_ladder": settings.eval_ladder,
             "eval_seed": settings.evaluation_seed,
+            "eval_max_cycles": settings.eval_max_cycles,
             "team_sizes": list(settings.team_sizes),
             "checkpoint_every": settings.checkpoint_every,
             "cost": settings.cost.as_dict() if settings.cost is not None else None,
@@ -387,6 +389,7 @@ class Run:
             robot_steps,
             name=f"{self.config['engine']}_{self.config['algo']}:{self.folder.name}",
             elapsed=time.perf_counter() - self._start,
+            max_cycles=s.eval_max_cycles,
         )
 
     def keep_best(self, robot_steps: int, rows: list[dict[str, Any]]) -> bool:
@@ -412,11 +415,15 @@ class Run:
         from baselines.evaluate import evaluate
 
         scenario, overrides = next(iter(self.settings.rungs().values()))
-        rows = evaluate([policy], [scenario], RECORD_EPISODES, 0, 1, overrides, progress=False)
+        max_cycles = self.settings.eval_max_cycles
+        rows = evaluate(
+            [policy], [scenario], RECORD_EPISODES, 0, 1, overrides, max_cycles, progress=False
+        )
         keys = ("return", "episode_steps", "final_pos_error_m")
         return {
             "scenario": scenario,
             "overrides": overrides,
+            "max_cycles": max_cycles,
             "seed": 0,
             "episodes": [
                 {

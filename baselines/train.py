@@ -108,6 +108,13 @@ def add_shared_arguments(ap: argparse.ArgumentParser, engine: str, algos: tuple[
         help="seed of the periodic evaluations' episodes (default: --seed)",
     )
     g.add_argument(
+        "--eval-max-cycles",
+        type=int,
+        default=None,
+        help="cap on the evaluation episodes and the final record (default: the scenarios' "
+        "own length)",
+    )
+    g.add_argument(
         "--eval-ladder",
         action="store_true",
         help="evaluate on every rung of the task ladder, not the scenario alone",
@@ -198,6 +205,7 @@ def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> Any:
         progress=not args.no_progress,
         team_sizes=sizes,
         eval_seed=args.eval_seed,
+        eval_max_cycles=args.eval_max_cycles,
     )
 
 

@@ -26,6 +26,7 @@ TINY = [
     *("--scenario", "random", "--num-envs", "2", "--seed", "1", "--no-progress"),
     *("--env-option", "max_cycles=6", "--checkpoint-every", "0", "--geometry-pool", "4"),
     *("--n-agents", "2", "3", "--current", "none", "mild", "--mismatch", "0", "0.1"),
+    *("--eval-max-cycles", "30"),
 ]
 SB3_TINY = ["--hp", "n_steps=8", "--hp", "batch_size=16", "--hp", "n_epochs=1"]
 MEMORY = ["--env-option", "action_mode=residual", "--env-option", "observation_mode=memory"]
@@ -145,6 +146,9 @@ def test_sb3_trains_over_team_sizes_and_evaluates_under_the_runs_conditions(memo
     rows = _rows(memory_run / "evaluations.csv")
     assert [r["rung"] for r in rows[:2]] == ["random_n2", "random_n3"]
     assert all(float(r["violation_periods_median"]) >= 0 for r in rows)
+    assert config["eval_max_cycles"] == 30  # the evaluations and the record capped
+    assert all(float(r["episode_steps"]) <= 30 for r in rows)
+    assert all(e["episode_steps"] <= 30 for e in config["eval"]["episodes"])
     best = json.loads((memory_run / "best" / "config.json").read_text())  # early stopping
     assert best["best"] == config["best"] and best["best"]["robot_steps"] in {
         int(r["robot_steps"]) for r in rows

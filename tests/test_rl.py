@@ -123,6 +123,7 @@ def test_pretrained_reproduces_recorded_evaluation(algo, name):
             recorded["seed"],
             1,
             recorded.get("overrides"),
+            recorded.get("max_cycles"),
             progress=False,
         )
         for _ in range(2)
