@@ -35,6 +35,7 @@ CONFIG_KEYS = (
     "eval_episodes",
     "eval_ladder",
     "eval_seed",
+    "eval_max_cycles",
     "team_sizes",
     "checkpoint_every",
     "cost",
@@ -45,13 +46,14 @@ CONFIG_KEYS = (
     "wall_time_s",
     "robot_steps_per_s",
     "eval",
+    "best",
 )
 
 TINY = [
     *("--scenario", "short", "--num-envs", "2", "--seed", "1", "--no-progress"),
     *("--env-option", "max_cycles=6", "--checkpoint-every", "0"),
 ]
-COMMON = [*TINY, "--eval-every", "64", "--eval-episodes", "1"]
+COMMON = [*TINY, "--eval-every", "64", "--eval-episodes", "1", "--eval-max-cycles", "30"]
 ENGINE_ARGS = {
     "sb3": [
         "--hp",
