@@ -18,6 +18,7 @@ from nav_points import twist
 from pettingzoo.test import parallel_api_test, parallel_seed_test
 
 import uvms_env
+from uvms_env.dynamics import NU
 from uvms_env.env import (
     CONSTRAINTS,
     ENV_ID,
@@ -245,16 +246,25 @@ def test_obstacles_sorted_and_padded(paper):
     assert np.array_equal(block[2], np.array(FAR_OBSTACLE, dtype=np.float32))
 
 
+@pytest.mark.parametrize("mode", ["raw", "memory"])
 @pytest.mark.parametrize("family", ["paper", "random"])
-def test_observations_are_local(family, paper):
-    """Two global states that differ only in robot j give robot i the same observation."""
+def test_observations_are_local(family, mode, paper):
+    """Two global states that differ only in robot j give robot i the same observation
+    (in the memory mode, after a few steps, the last command and the disturbance estimate
+    included)."""
     if family == "paper":
         scenario = paper
     else:  # three robots around a ring, spheres and cylinders
         scenario = uvms_env.parallel_env("random", n_agents=3, seed=4).scenario
     for noise in (0.0, 1.0):
-        e = CoopTransportEnv(scenario, sensor_noise=noise)
-        e.reset(seed=3)
+        e = CoopTransportEnv(scenario, sensor_noise=noise, observation_mode=mode)
+
+        def start(e: CoopTransportEnv = e) -> None:  # same noise draws, a memory in use
+            e.reset(seed=3)
+            for k in range(3):
+                e.step({a: np.full(NU, 0.1 * (k + 1)) for a in e.possible_agents})
+
+        start()
         st = e.sim.state
         q, zeta, x_o, v_o = st.q.copy(), st.zeta.copy(), st.x_O.copy(), st.v_O.copy()
         for j in range(e.n):
@@ -263,7 +273,7 @@ def test_observations_are_local(family, paper):
             zeta2[j] += np.linspace(-0.2, 0.2, 10)
             views = []
             for qq, zz in ((q, zeta), (q2, zeta2)):
-                e.reset(seed=3)  # same noise draws
+                start()
                 e.sim.set_state(qq, zz, x_o, v_o)
                 views.append(e.observe())
             for i, agent in enumerate(e.possible_agents):

@@ -16,7 +16,7 @@ from baselines.train import build_parser, settings_from
 from uvms_env.policy import AgentSpec
 
 PRIORS = [
-    "--env-option", "action_mode=residual", "--env-option", "observation_mode=features",
+    "--env-option", "action_mode=residual", "--env-option", "observation_mode=memory",
     "--env-option", "residual_scale=1.0",
 ]  # fmt: skip
 
@@ -83,6 +83,7 @@ def test_the_critic_warmup_keeps_the_actor_and_trains_the_critic(tmp_path):
                 *PRIORS, "--init-actor", "dagger:pretrained", "--num-envs", "1",
                 "--hp", "n_steps=64", "--robot-steps", "256", "--checkpoint-every", "0",
                 "--critic-warmup", str(warmup), "--no-progress", "--out", str(out),
+                "--eval-max-cycles", "20",
             ]
         )  # fmt: skip
         return PPO.load(out / "model.zip", device="cpu").policy

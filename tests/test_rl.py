@@ -95,8 +95,7 @@ def test_cli_records_the_env_settings(tmp_path):
 
 
 COMMITTED = [
-    ("ppo", "ppo"),  # the DAgger clone fine-tuned on random N = 2
-    ("ppo", "ppo_shielded"),  # the same with the safety filter in training
+    ("ppo", "ppo"),  # the DAgger clone fine-tuned over the ladder's distribution
 ]
 
 
