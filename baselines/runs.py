@@ -82,6 +82,13 @@ RECORD_EPISODES = 2  # the final policy's recorded per-episode evaluation ("eval
 # Training drops the internal-wrench metric (docs/simulator.md, "Measured"): it changes
 # no observation, reward or dynamics.
 TRAIN_ENV_DEFAULTS: dict[str, Any] = {"internal_wrench_every": 0}
+# The batched step of every engine: its precisions (float32 is the fast mode; its
+# deviation is far below a stochastic policy's own noise, and evaluation stays on float64
+# single envs) and its kernel threads (one: with two, a kernel call waits for both cores,
+# so anything else running on a small machine, torch included, stalls the step).
+DTYPES = ("float32", "float64")
+DEFAULT_DTYPE = "float32"
+DEFAULT_ENV_THREADS = 1
 # The options a periodic evaluation keeps from training's: the team, the channel and the
 # conditions (the evaluation plays the plain environment otherwise: a policy applies its
 # own priors).

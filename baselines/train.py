@@ -39,12 +39,12 @@ from baselines.options import (
     team_sizes,
 )
 
-ENGINES = ("sb3", "torchrl", "rllib")
 ENGINE_MODULES = {
     "sb3": "baselines.rl.train",
     "torchrl": "baselines.rl.torchrl_ppo",
     "rllib": "baselines.distributed.rllib_train",
 }
+ENGINES = tuple(ENGINE_MODULES)
 SHARED_GROUP = "shared options (every engine)"
 
 

@@ -37,8 +37,11 @@ def test_train_save_resume_evaluate(tmp_path):
             **kw,
         )
 
-    train("sb3", "ppo", settings(128, eval_every=128, eval_episodes=1, checkpoint_every=128,
-                                 eval_max_cycles=40))
+    train(
+        "sb3",
+        "ppo",
+        settings(128, eval_every=128, eval_episodes=1, checkpoint_every=128, eval_max_cycles=40),
+    )
     for name in ("model.zip", "vecnormalize.pkl", "config.json", "progress.csv"):
         assert (out / name).exists(), name
     assert (out / "evaluations.csv").read_text().count("\n") == 2  # header + one evaluation

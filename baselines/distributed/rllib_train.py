@@ -28,13 +28,13 @@ import os
 from pathlib import Path
 from typing import Any
 
+from baselines.distributed.rllib_policy import POLICY_ID
 from baselines.lagrangian import Lagrangian
 from baselines.runs import Run, seeded_pool
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 ALGOS = ("ppo",)
-POLICY_ID = "shared"
 # SB3 PPO's defaults where RLlib has the same knob (gamma, lambda, lr, clip, epochs,
 # minibatch), the SB3 trainer's 256-step rollout per robot sub-env times 4 copies x 2
 # robots = 2,048 robot-steps, which with N = 2 is 1,024 env steps (RLlib counts env steps).

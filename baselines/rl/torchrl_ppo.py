@@ -47,11 +47,17 @@ from baselines.rl.torchrl_policy import (
     mlp,
     save_actor,
 )
-from baselines.runs import TRAIN_ENV_DEFAULTS, Run, seeded_pool
+from baselines.runs import (
+    DEFAULT_DTYPE,
+    DEFAULT_ENV_THREADS,
+    DTYPES,
+    TRAIN_ENV_DEFAULTS,
+    Run,
+    seeded_pool,
+)
 
 ALGOS = ("ppo",)
 BACKENDS = ("cpu", "cuda")
-DTYPES = ("float32", "float64")
 HYPERPARAMETERS: dict[str, Any] = {
     # the sb3 engine's regime: short rollouts of many copies, few epochs, large minibatches
     "rollout_steps": 32,  # per env copy and iteration (SB3's n_steps)
@@ -72,10 +78,6 @@ HYPERPARAMETERS: dict[str, Any] = {
 TRAINER_FILE = "trainer.pt"
 # As the SB3 engine: a seeded family's episodes take the bank's first 1,024 geometries.
 DEFAULTS: dict[str, Any] = {"num_envs": 64, "geometry_pool": 1024}
-# As the SB3 engine: float32 is the fast mode, and one kernel thread leaves the other
-# core of a small machine to torch.
-DEFAULT_DTYPE = "float32"
-DEFAULT_ENV_THREADS = 1
 
 
 OPTIONS_NOTE = f"--hp KEY=JSON sets one of {', '.join(HYPERPARAMETERS)}"

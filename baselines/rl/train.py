@@ -33,13 +33,19 @@ from typing import TYPE_CHECKING, Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from baselines.rl.policy import algorithm_class
-from baselines.runs import TRAIN_ENV_DEFAULTS, Run, seeded_pool
+from baselines.rl.policy import ALGOS, algorithm_class
+from baselines.runs import (
+    DEFAULT_DTYPE,
+    DEFAULT_ENV_THREADS,
+    DTYPES,
+    TRAIN_ENV_DEFAULTS,
+    Run,
+    seeded_pool,
+)
 
 if TYPE_CHECKING:
     from baselines.lagrangian import CostSettings
 
-ALGOS = ("ppo", "sac", "recurrent_ppo")
 # Seeded families: every episode a geometry of the bank's first 1,024 seeds (built once,
 # kept on disk): diverse starts without building a geometry inside a step.
 # 64 copies: the batched step and torch's forward amortize their per-call cost over many
@@ -90,14 +96,7 @@ POLICY_KWARGS: dict[str, dict[str, Any]] = {
 ON_POLICY = ("ppo", "recurrent_ppo")
 # SAC has no rollouts: one progress row per this many steps of every sub-environment.
 SAC_ROW_STEPS = 256
-DTYPES = ("float32", "float64")
-# float32: the batched step is faster than float64 and its deviation is far below a
-# stochastic policy's own noise (docs: figures). Evaluation stays on float64 single envs.
-DEFAULT_DTYPE = "float32"
 DEFAULT_GEOMETRY_POOL = DEFAULTS["geometry_pool"]
-# One thread for the batched kernels, as for torch: with two, a kernel call waits for
-# both cores, so anything else running on a small machine stalls the step.
-DEFAULT_ENV_THREADS = 1
 
 
 OPTIONS_NOTE = "--hp KEY=JSON: an argument of SB3's PPO or SAC (policy_kwargs adds to the defaults)"
