@@ -240,11 +240,9 @@ def aggregate(rows: list[dict[str, Any]], seed: int) -> list[dict[str, Any]]:
             else None
         )
         ms = np.concatenate([np.asarray(r["_decision_ms"], float) for r in group] or [[]])
-        summary["policy_time_ms"] = {
-            "median": float(np.median(ms)) if len(ms) else None,
-            "p95": float(np.quantile(ms, 0.95)) if len(ms) else None,
-            "max": float(ms.max()) if len(ms) else None,
-        }
+        summary["policy_time_ms"] = decision_time_summary(ms) or dict.fromkeys(
+            ("median", "p95", "max")
+        )
         out.append(summary)
     return out
 
