@@ -100,6 +100,9 @@ def rung_summary(rows: list[dict[str, Any]], seed: int) -> dict[str, Any]:
         finite = vals[np.isfinite(vals)]
         out[key] = float(finite.mean()) if len(finite) else None
         out[f"{key}_ci95"] = list(bootstrap_mean_interval(vals, seed=seed)) if len(finite) else None
+    vals = _values(reach, "violation_periods")
+    finite = vals[np.isfinite(vals)]  # the typical episode: a few run-aways dominate the mean
+    out["violation_periods_median"] = float(np.median(finite)) if len(finite) else None
     ms = np.concatenate([np.asarray(r.get("_decision_ms", []), float) for r in rows] or [[]])
     out["decision_ms_median"] = float(np.median(ms)) if len(ms) else None
     out["decision_ms_p95"] = float(np.quantile(ms, 0.95)) if len(ms) else None
@@ -202,7 +205,7 @@ def _mean_ci(s: dict[str, Any], key: str, digits: int) -> str:
 def markdown(result: dict[str, Any]) -> str:
     lines = [
         "| scenario | policy | information | success | clean success | completion periods "
-        "| internal wrench rms N | control effort | violation periods / ep. "
+        "| internal wrench rms N | control effort | violation periods / ep. mean (median) "
         "| decision ms median / p95 |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
@@ -218,7 +221,8 @@ def markdown(result: dict[str, Any]) -> str:
         lines.append(
             f"| {s['scenario']} | `{s['policy']}` | {s['information']} | {rate} | {clean} | "
             f"{_mean_ci(s, 'completion_periods', 0)} | {_mean_ci(s, 'internal_wrench_rms', 2)} | "
-            f"{_mean_ci(s, 'control_effort', 0)} | {fmt(s.get('violation_periods'), 1)} | "
+            f"{_mean_ci(s, 'control_effort', 0)} | {fmt(s.get('violation_periods'), 1)} "
+            f"({fmt(s.get('violation_periods_median'), 0)}) | "
             f"{fmt(s['decision_ms_median'], 3)} / {fmt(s['decision_ms_p95'], 3)} |"
         )
     for kind, rows in result["prices"].items():

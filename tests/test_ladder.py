@@ -48,6 +48,10 @@ def test_prices_are_paired_differences_over_the_episodes_both_succeeded_in():
     expert_rung = next(s for s in result["rungs"] if s["policy"] == "nmpc")
     assert expert_rung["success"] == 2 and expert_rung["completion_periods"] == 675.0
     assert expert_rung["violation_periods"] == 0.0  # a zero is a value, not a gap
+    for k, v in enumerate((0, 3, 900)):  # the median episode beside the run-away's mean
+        rows[3 + k]["violation_periods"] = v
+    spread = next(s for s in ladder(rows, ["nmpc"], ["random N=3"], 0)["rungs"])
+    assert spread["violation_periods"] == 301.0 and spread["violation_periods_median"] == 3.0
     assert [q["rung"] for q in result["prices"]["decentralization"]] == ["nmpc"]
     assert result["prices"]["learning"] == []  # no learned rung here
 
