@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from gymnasium.spaces import Box
@@ -218,19 +220,16 @@ def test_dataset_round_trip(tmp_path):
     assert n == 3 and np.array_equal(ring, np.repeat([0.0, 0.5, 1.0], [5, 6, 7]))
 
 
-def test_the_committed_clones_earlier_feature_name_reads_as_features():
-    """The committed ``dagger`` model was saved when the feature set was ``uvms-v2``:
-    it loads as ``features``, the environment's observation mode's name."""
+def test_a_clone_saved_under_the_earlier_feature_name_reads_as_features():
+    """A clone saved when the feature set was called ``uvms-v2`` (the committed clone of
+    0f56e9d) loads as ``features``, the environment's observation mode's name."""
     import torch
 
-    from baselines.policies import PRETRAINED
-
-    for name in ("dagger",):
-        path = PRETRAINED / name / "policy.pt"
-        saved = torch.load(path, map_location="cpu", weights_only=False)["features"]
-        net = MLPPolicyNet.load(path)
-        assert saved in ("uvms-v2", "features") and net.features == "features", name
-        assert net.residual  # the steady input is fed forward
+    path = Path(__file__).parent / "golden" / "features_clone_0f56e9d.pt"
+    saved = torch.load(path, map_location="cpu", weights_only=False)["features"]
+    net = MLPPolicyNet.load(path)
+    assert saved == "uvms-v2" and net.features == "features"
+    assert net.residual  # the steady input is fed forward
 
 
 def test_margin_weights_grow_towards_a_limit():
