@@ -149,6 +149,7 @@ class RobotMemory:
         self._call = BufferCall(_update_one(float(ring)))
         self._out = self._call(self._prev, self._zeta, self._u, self._d, np.array([period]))[0]
         self._block = np.zeros(2 * NU, np.float32)
+        self._f32 = np.zeros(NU, np.float32)
         self._seen = self._sent = False
 
     def reset(self) -> None:
@@ -170,8 +171,14 @@ class RobotMemory:
         return self._block.copy()
 
     def issued(self, command: np.ndarray) -> None:
-        """The normalized input (8,) sent after the last ``observe``."""
-        self._u[:] = sent(np.asarray(command, np.float64).reshape(NU))
+        """The normalized input (8,) sent after the last ``observe``: ``sent`` in place
+        (np.clip's dispatch alone took longer than the compiled update)."""
+        u = self._u
+        u[:] = command  # (8,) or (1, 8)
+        np.minimum(u, 1.0, out=u)
+        np.maximum(u, -1.0, out=u)
+        self._f32[:] = u
+        u[:] = self._f32
         self._sent = True
 
     executed = issued
