@@ -437,6 +437,29 @@ def evaluate(
     return rows
 
 
+def read_episodes(path: Path) -> list[dict[str, Any]]:
+    """``write_outputs``' episodes.csv back as rows: booleans and numbers typed, empty
+    cells None, ``error`` "" when absent (the per-decision times are not in the file, only
+    each episode's summary ``policy_time_ms_*``)."""
+
+    def typed(value: str) -> Any:
+        if value in ("True", "False"):
+            return value == "True"
+        if value == "":
+            return None
+        try:
+            return float(value)
+        except ValueError:
+            return value
+
+    with open(path, newline="") as fh:
+        rows = [{k: typed(v) for k, v in r.items()} for r in csv.DictReader(fh)]
+    for r in rows:
+        r["episode"] = int(r["episode"])
+        r["error"] = r.get("error") or ""
+    return rows
+
+
 def write_outputs(rows: list[dict[str, Any]], seed: int, out: Path) -> list[dict[str, Any]]:
     out.mkdir(parents=True, exist_ok=True)
     summaries = aggregate(rows, seed)

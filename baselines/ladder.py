@@ -25,14 +25,13 @@ May import: the standard library, numpy, matplotlib and ``baselines.evaluate`` /
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from baselines.evaluate import Case, evaluate, write_outputs
+from baselines.evaluate import Case, evaluate, read_episodes, write_outputs
 from baselines.stats import bootstrap_mean_interval, wilson_interval
 
 CENTRAL = "nmpc:central"
@@ -100,8 +99,7 @@ def rung_summary(rows: list[dict[str, Any]], seed: int) -> dict[str, Any]:
         finite = vals[np.isfinite(vals)]
         out[key] = float(finite.mean()) if len(finite) else None
         out[f"{key}_ci95"] = list(bootstrap_mean_interval(vals, seed=seed)) if len(finite) else None
-    vals = _values(reach, "violation_periods")
-    finite = vals[np.isfinite(vals)]  # the typical episode: a few run-aways dominate the mean
+    # the typical episode beside the mean, which a few run-aways dominate
     out["violation_periods_median"] = float(np.median(finite)) if len(finite) else None
     ms = np.concatenate([np.asarray(r.get("_decision_ms", []), float) for r in rows] or [[]])
     out["decision_ms_median"] = float(np.median(ms)) if len(ms) else None
@@ -320,29 +318,6 @@ def plot_prices(result: dict[str, Any], out: Path) -> None:
     fig.tight_layout()
     fig.savefig(out / "price_vs_n.png", dpi=120)
     plt.close(fig)
-
-
-def read_episodes(path: Path) -> list[dict[str, Any]]:
-    """An evaluator's ``episodes.csv`` back as rows: booleans and numbers typed, empty
-    cells None (the per-decision times are not in the file: ``rung_summary`` then
-    summarizes the episodes' own medians and 95th percentiles)."""
-
-    def typed(value: str) -> Any:
-        if value in ("True", "False"):
-            return value == "True"
-        if value == "":
-            return None
-        try:
-            return float(value)
-        except ValueError:
-            return value
-
-    with open(path, newline="") as fh:
-        rows = [{k: typed(v) for k, v in r.items()} for r in csv.DictReader(fh)]
-    for r in rows:
-        r["episode"] = int(r["episode"])
-        r["error"] = r.get("error") or ""
-    return rows
 
 
 def merged(paths: list[Path], seed: int, out: Path) -> dict[str, Any]:

@@ -8,6 +8,8 @@ bootstrap intervals, through their library ``rliable``).
     python -m baselines.seeds runs/ladder_seeds/episodes.csv \\
         --group "DAgger=dagger:runs/d0,dagger:runs/d1,dagger:runs/d2" --out runs/seeds
 
+Several episodes.csv (runs of the same seed played apart) are read as one.
+
 For each group (one model per training seed) and case (the rows' ``scenario``: a ladder
 case such as ``random N=4``), each seed's score is its rate of success, its rate of clean
 success and its median violation periods per episode over the case's episodes; a group's
@@ -16,18 +18,20 @@ case) scores and the mean, each with a 95% stratified bootstrap interval (resamp
 seeds within each case), plus every seed's score per case. Writes ``seeds.md`` and
 ``seeds.json``.
 
-May import: the standard library, numpy and rliable.
+May import: the standard library, numpy, rliable and ``baselines.evaluate`` (its
+episodes.csv reader).
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from baselines.evaluate import read_episodes
 
 METRICS = {
     "success": "success rate",
@@ -45,15 +49,6 @@ def parse_group(text: str) -> tuple[str, list[str]]:
     return name, [p for p in policies.split(",") if p]
 
 
-def read_rows(path: Path) -> list[dict[str, Any]]:
-    with open(path, newline="") as fh:
-        return list(csv.DictReader(fh))
-
-
-def _flag(value: Any) -> float:
-    return 1.0 if str(value).strip().lower() in ("true", "1", "1.0") else 0.0
-
-
 def score_matrix(
     rows: list[dict[str, Any]], policies: list[str], metric: str
 ) -> tuple[np.ndarray, list[str]]:
@@ -68,7 +63,7 @@ def score_matrix(
             if metric == "violation_periods":
                 table[i, j] = float(np.median([float(r[metric] or 0.0) for r in mine]))
             else:
-                table[i, j] = float(np.mean([_flag(r[metric]) for r in mine]))
+                table[i, j] = float(np.mean([bool(r[metric]) for r in mine]))
     missing = [policies[i] for i in range(len(policies)) if np.isnan(table[i]).all()]
     if missing:
         raise ValueError(f"no episodes of {missing} in the rows")
@@ -84,9 +79,16 @@ def interval_estimates(table: np.ndarray, seed: int = 0) -> dict[str, tuple[floa
     def both(scores: np.ndarray) -> np.ndarray:
         return np.array([metrics.aggregate_iqm(scores), metrics.aggregate_mean(scores)])
 
-    point, interval = rly.get_interval_estimates(
-        {"group": table}, both, reps=BOOTSTRAP_REPS, random_state=np.random.RandomState(seed)
-    )
+    # rliable's stratified resampling draws from numpy's global generator whatever
+    # random_state says (two calls gave two intervals): seed it, then put it back
+    saved = np.random.get_state()  # noqa: NPY002 (the library's global state)
+    np.random.seed(seed)  # noqa: NPY002
+    try:
+        point, interval = rly.get_interval_estimates(
+            {"group": table}, both, reps=BOOTSTRAP_REPS, random_state=np.random.RandomState(seed)
+        )
+    finally:
+        np.random.set_state(saved)  # noqa: NPY002
     p, ci = point["group"], interval["group"]
     return {
         "iqm": (float(p[0]), float(ci[0, 0]), float(ci[1, 0])),
@@ -139,12 +141,14 @@ def main(argv: list[str] | None = None) -> None:
         description=__doc__.split("May import")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ap.add_argument("episodes", type=Path, help="an evaluator's or the ladder's episodes.csv")
+    ap.add_argument(
+        "episodes", type=Path, nargs="+", help="evaluators' or ladders' episodes.csv (same seed)"
+    )
     ap.add_argument("--group", action="append", required=True, metavar="NAME=POLICY,POLICY")
     ap.add_argument("--out", type=Path, default=Path("runs/seeds"))
     args = ap.parse_args(argv)
     groups = dict(parse_group(g) for g in args.group)
-    summary = report(read_rows(args.episodes), groups)
+    summary = report([r for p in args.episodes for r in read_episodes(p)], groups)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "seeds.json").write_text(json.dumps(summary, indent=2) + "\n")
     text = markdown(summary)
