@@ -2,40 +2,20 @@
 
     python -m baselines.comm_sweep --episodes 10 --seed 202 --workers 2 --out runs/comm_sweep
 
-The talking expert (``nmpc:comm``, ``nmpc_expert.comm``) plays the ladder's cases (random
-N = 2..6 and ``paper``, a ``mild`` current, ``mismatch=0.1``: ``baselines.ladder``) under
-every point of a grid of channels, bit rate x loss probability x modem latency, each a
-``ChannelSettings`` variation of ``--preset`` (default ``atm900``), and under the
-``ideal`` channel (the full-information end of the curve). The silent expert (``nmpc``)
-and the centralized bound (``nmpc:central``) play the same episodes once, without a
-channel: the channel changes no physics draw and neither of them talks, so their episodes
-are the same under any channel (``docs/channel.md``).
+The talking expert (``nmpc:comm``) plays the ladder's cases under every point of a grid of
+channels (bit rate x loss probability x modem latency, variations of ``--preset``) and
+under ``ideal``; the silent expert and the centralized bound play the same episodes once,
+without a channel (neither talks, and the channel changes no physics draw).
+Reference: docs/channel.md.
 
-Per (case, channel): clean success, completion time (periods to success) and internal
-wrench RMS, and the talking expert against the silent one on the paired episodes (ratio of
-means over the episodes both succeeded in: ``baselines.ladder.price``). Writes the
-evaluator's outputs (``episodes.csv``, ``results.*``; a channel point's rows carry the
-case and the channel in ``scenario``), ``sweep.csv``, ``sweep.json``, ``sweep.md`` and
-``comm_curve.png`` (the ratios against the bit rate, one line per loss and latency, the
-silent expert, the ``ideal`` channel and the centralized bound as horizontal references)
-to ``--out``.
-
-The default (2 bit rates x 2 losses x 1 latency = 4 channels, plus ``ideal``; random
-N = 2, 4, 6 and ``paper``) at ``--episodes 10`` is 7 runs x 40 episodes, about 25 minutes
-on 2 cores (an episode takes ~10 s on one, docs/channel.md); ``--n-agents 2 3 4 5 6``
-plays the ladder's five team sizes, the grid's flags take more points (each point is one
-more run).
-
-May import: the standard library, numpy, matplotlib, ``uvms_env.env.channel`` and
-``baselines.evaluate`` / ``baselines.ladder``.
+May import: the standard library, numpy, ``uvms_env.env.channel``, ``baselines.evaluation``,
+``baselines.options`` and ``baselines.ladder``.
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
 import dataclasses
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,19 +23,22 @@ from typing import Any
 
 import numpy as np
 
-from baselines.evaluate import Case, evaluate, write_outputs
+from baselines.evaluation.outputs import Play, run_and_write, write_result
+from baselines.evaluation.report import pyplot, save
+from baselines.evaluation.runner import Case, Settings
 from baselines.ladder import (
     CENTRAL,
-    CONDITIONS,
     EXPERT,
     PRICED,
     add_case_arguments,
-    cases,
-    conditions_of,
+    case_order,
+    cases_of,
     fmt,
     price,
+    rung_summary,
+    settings_of,
 )
-from baselines.ladder import rung_summary as summary_of
+from baselines.options import command_parser
 from uvms_env.env.channel import ChannelSettings, channel_settings
 
 TALKER = "nmpc:comm"
@@ -146,7 +129,7 @@ def summarize(
             group = [r for r in split if r["policy"] == run and r["scenario"] == case]
             if not group:
                 continue
-            s = summary_of(group, seed)
+            s = rung_summary(group, seed)
             if run != EXPERT:
                 p = price(split, run, EXPERT, case, seed)
                 for name, key in PRICED.items():
@@ -196,7 +179,7 @@ def markdown(result: dict[str, Any]) -> str:
         "ratios vs silent: completion / wrench (paired) |",
         "|---|---|---|---|---|---|",
     ]
-    for s in sorted(result["per_case"], key=lambda s: (s["scenario"] == "paper", s["scenario"])):
+    for s in sorted(result["per_case"], key=case_order):
         n = s["episodes"] - s["out_of_reach"]
         ratios = (
             f"{fmt(s.get('completion_periods_ratio'), 3)} / "
@@ -240,11 +223,6 @@ def plot_curve(result: dict[str, Any], out: Path) -> None:
     wrench ratios against the silent expert) the talking expert against the bit rate,
     one line per (loss, latency); the silent expert, the ``ideal`` channel and the
     centralized bound as horizontal lines. An unlimited rate sits right of the others."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     pooled = result["pooled"]
     ref = {e["run"]: e for e in pooled}
     talk = [e for e in pooled if "bit_rate" in e and e["channel"] != IDEAL]
@@ -257,7 +235,7 @@ def plot_curve(result: dict[str, Any], out: Path) -> None:
     panels = [("clean success", "clean_success_rate")] + [
         (f"{name} / silent expert", f"{key}_ratio") for name, key in CURVE.items()
     ]
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.4 * len(panels), 3.6))
+    fig, axes = pyplot().subplots(1, len(panels), figsize=(4.4 * len(panels), 3.6))
     for ax, (title, key) in zip(axes, panels, strict=True):
         lines: dict[tuple[float, int], list[tuple[float, float]]] = {}
         for e in talk:
@@ -281,55 +259,27 @@ def plot_curve(result: dict[str, Any], out: Path) -> None:
                 [*sorted(set(finite)), far], [*(f"{r:g}" for r in sorted(set(finite))), "inf"]
             )
     axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "comm_curve.png", dpi=120)
-    plt.close(fig)
+    save(fig, out / "comm_curve.png")
 
 
 def run(
     points: list[ChannelPoint],
-    team_sizes: tuple[int, ...],
-    paper: bool,
-    episodes: int,
-    seed: int,
-    workers: int,
+    base: list[Case],
+    settings: Settings,
     out: Path,
-    conditions: dict[str, Any] | None = None,
-    max_cycles: int | None = None,
     references: bool = True,
-    progress: bool = True,
 ) -> dict[str, Any]:
-    """Evaluate the talking expert on every (case, channel), the references once per case,
-    write every output, return the sweep's summaries."""
-    base = cases(team_sizes, paper)
-    env = dict(CONDITIONS if conditions is None else conditions)
-    # one evaluation per kind of run (the references without a channel), rows pooled
-    rows = evaluate(
-        [TALKER],
-        sweep_cases(base, points),
-        episodes,
-        seed,
-        workers,
-        env,
-        max_cycles,
-        progress=progress,
-    )
+    """Evaluate the talking expert on every (case, channel), the references once per case
+    (without a channel), write every output, return the sweep's summaries."""
+    plays: list[Play] = [([TALKER], sweep_cases(base, points))]
     if references:
-        rows += evaluate(
-            [EXPERT, CENTRAL], base, episodes, seed, workers, env, max_cycles, progress=progress
-        )
-    out.mkdir(parents=True, exist_ok=True)
-    write_outputs(rows, seed, out)
-    result = summarize(rows, [c.label for c in base], points, seed)
-    result["command"] = {
-        "episodes": episodes,
-        "seed": seed,
-        "conditions": env,
-        "max_cycles": max_cycles,
-        "channels": {p.label: dataclasses.asdict(p.settings) for p in points},
-    }
-    (out / "sweep.json").write_text(json.dumps(result, indent=2, default=str))
-    (out / "sweep.md").write_text(markdown(result))
+        plays.append(([EXPERT, CENTRAL], base))
+    rows, _ = run_and_write(settings, plays, out)
+    result = summarize(rows, [c.label for c in base], points, settings.seed)
+    channels = {p.label: dataclasses.asdict(p.settings) for p in points}
+    write_result(
+        out, "sweep", result, markdown(result), {**settings.record(), "channels": channels}
+    )
     write_csv(result, out / "sweep.csv")
     plot_curve(result, out)
     return result
@@ -340,11 +290,7 @@ def _numbers(text: str, kind: type) -> tuple[Any, ...]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(
-        prog="python -m baselines.comm_sweep",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = command_parser("baselines.comm_sweep", __doc__)
     ap.add_argument("--preset", default=PRESET, help="the channel the grid varies")
     ap.add_argument(
         "--bit-rates",
@@ -368,16 +314,7 @@ def main(argv: list[str] | None = None) -> None:
     except ValueError as exc:
         ap.error(str(exc))
     result = run(
-        points,
-        tuple(args.n_agents),
-        not args.no_paper,
-        args.episodes,
-        args.seed,
-        args.workers,
-        args.out,
-        conditions_of(args),
-        args.max_cycles,
-        references=not args.no_references,
+        points, cases_of(args), settings_of(args), args.out, references=not args.no_references
     )
     print(markdown(result))
     print(

@@ -2,37 +2,30 @@
 
     python -m baselines.ladder --episodes 10 --seed 202 --workers 2 --out runs/ladder
 
-One evaluation (``baselines.evaluate``) of the rungs ``LADDER`` on the cases random
-N = 2..6 and ``paper``, all with a ``mild`` current and ``mismatch=0.1`` by default;
-then two comparisons per team size on the paired episodes (same seed, same geometry):
+One evaluation of the rungs ``LADDER`` on random N = 2..6 and ``paper``, then per team
+size the price of decentralization (each distributed expert against ``nmpc:central``) and
+the price of learning (each learned rung against ``nmpc``) on the paired episodes.
+``--from EPISODES_CSV`` aggregates earlier runs instead of playing.
+Reference: docs/evaluation.md, docs/results.md.
 
-* the **price of decentralization**: each distributed expert against the centralized
-  bound (``nmpc:central``, a team policy with full information);
-* the **price of learning**: each learned rung against the distributed expert (``nmpc``).
-
-Each price is given for completion time (periods to success), internal wrench RMS and
-control effort, as the mean difference over the episodes both rungs succeeded in (a
-bootstrap 95% interval) and the ratio of their means; success rates come with Wilson
-intervals. ``--from EPISODES_CSV`` (repeatable) aggregates earlier runs' episodes instead of
-playing (rungs run apart on the same seed). Writes the evaluator's outputs
-(``episodes.csv``, ``results.*``, plots) and ``ladder.md``, ``ladder.json`` and
-``price_vs_n.png`` to ``--out``.
-
-May import: the standard library, numpy, matplotlib and ``baselines.evaluate`` /
+May import: the standard library, numpy, ``baselines.evaluation``, ``baselines.options`` and
 ``baselines.stats``.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from baselines.evaluate import Case, evaluate, read_episodes, write_outputs
-from baselines.stats import bootstrap_mean_interval, wilson_interval
+from baselines.evaluation.outputs import read_episodes, run_and_write, write_result
+from baselines.evaluation.report import pyplot, save
+from baselines.evaluation.runner import Case, Settings
+from baselines.evaluation.summary import metric_values, summarize
+from baselines.options import command_parser
+from baselines.stats import bootstrap_mean_interval
 
 CENTRAL = "nmpc:central"
 EXPERT = "nmpc"
@@ -65,51 +58,15 @@ def cases(team_sizes: tuple[int, ...] = TEAM_SIZES, paper: bool = True) -> list[
     return [*out, Case("paper", "paper")] if paper else out
 
 
-def _completion(row: dict[str, Any]) -> float:
-    """Periods to success; NaN for an episode that did not succeed."""
-    return float(row.get("episode_steps", np.nan)) if row.get("success") else float("nan")
-
-
-def _values(rows: list[dict[str, Any]], key: str) -> np.ndarray:
-    if key == "completion_periods":
-        return np.array([_completion(r) for r in rows])
-    return np.array([np.nan if r.get(key) in (None, "") else float(r[key]) for r in rows])
-
-
 def rung_summary(rows: list[dict[str, Any]], seed: int) -> dict[str, Any]:
-    """One rung on one case: rates with Wilson, metrics' means with bootstrap intervals
-    (completion time over the successes, the others over every episode that ran)."""
-    reach = [r for r in rows if r.get("current_within_reach", True)]
-    n = len(reach)
-    out: dict[str, Any] = {
-        "policy": rows[0]["policy"],
-        "information": rows[0].get("information", "local"),
-        "scenario": rows[0]["scenario"],
-        "episodes": len(rows),
-        "out_of_reach": len(rows) - n,
-        "errors": sum(bool(r.get("error")) for r in rows),
-    }
-    for name in ("success", "clean_success"):
-        k = sum(bool(r.get(name)) for r in reach)
-        out[name] = k
-        out[f"{name}_rate"] = k / n if n else float("nan")
-        out[f"{name}_ci95"] = list(wilson_interval(k, n))
-    for key in (*PRICED.values(), "violation_periods"):
-        vals = _values(reach, key)
-        finite = vals[np.isfinite(vals)]
-        out[key] = float(finite.mean()) if len(finite) else None
-        out[f"{key}_ci95"] = list(bootstrap_mean_interval(vals, seed=seed)) if len(finite) else None
-    # the typical episode beside the mean, which a few run-aways dominate
-    out["violation_periods_median"] = float(np.median(finite)) if len(finite) else None
-    ms = np.concatenate([np.asarray(r.get("_decision_ms", []), float) for r in rows] or [[]])
-    out["decision_ms_median"] = float(np.median(ms)) if len(ms) else None
-    out["decision_ms_p95"] = float(np.quantile(ms, 0.95)) if len(ms) else None
-    if not len(ms):  # rows read back from episodes.csv: the episodes' own summaries
-        medians = _values(rows, "policy_time_ms_median")
-        p95s = _values(rows, "policy_time_ms_p95")
-        if np.isfinite(medians).any():
-            out["decision_ms_median"] = float(np.nanmedian(medians))
-            out["decision_ms_p95"] = float(np.nanmedian(p95s))
+    """One rung on one case: ``summarize`` over the episodes within reach (completion
+    time over the successes), its priced metrics and violation periods, and the decision
+    time's median and p95."""
+    out = summarize(rows, seed, (*PRICED.values(), "violation_periods"), within_reach_only=True)
+    for key in ("violations", "intervention_rate", "intervention_mean"):
+        del out[key]
+    times = out.pop("policy_time_ms")
+    out["decision_ms_median"], out["decision_ms_p95"] = times["median"], times["p95"]
     return out
 
 
@@ -145,8 +102,8 @@ def price(
         ),
     }
     for name, key in PRICED.items():
-        a = _values([mine[k] for k in both], key)
-        b = _values([ref[k] for k in both], key)
+        a = metric_values([mine[k] for k in both], key)
+        b = metric_values([ref[k] for k in both], key)
         ok = np.isfinite(a) & np.isfinite(b)
         if not ok.any():
             out[name] = None
@@ -193,6 +150,11 @@ def fmt(x: Any, digits: int = 2) -> str:
     return f"{x:,.{digits}f}" if isinstance(x, float) else str(x)
 
 
+def case_order(summary: dict[str, Any]) -> tuple[bool, str]:
+    """Tables list the cases random N = 2..6 first, then paper."""
+    return (summary["scenario"] == "paper", summary["scenario"])
+
+
 def _mean_ci(s: dict[str, Any], key: str, digits: int) -> str:
     ci = s.get(f"{key}_ci95")
     if s.get(key) is None:
@@ -207,8 +169,8 @@ def markdown(result: dict[str, Any]) -> str:
         "| decision ms median / p95 |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    # grouped by case (random N = 2..6, then paper), rungs in ladder order within each
-    for s in sorted(result["rungs"], key=lambda s: (s["scenario"] == "paper", s["scenario"])):
+    # grouped by case, rungs in ladder order within each
+    for s in sorted(result["rungs"], key=case_order):
         n = s["episodes"] - s["out_of_reach"]
         rate = (
             f"{s['success']}/{n} [{fmt(s['success_ci95'][0])}, {fmt(s['success_ci95'][1])}]"
@@ -287,12 +249,7 @@ def overview(result: dict[str, Any]) -> str:
 def plot_prices(result: dict[str, Any], out: Path) -> None:
     """Ratio of means (rung / reference) against the team size, one panel per metric;
     points with fewer than ``MIN_PAIRED`` paired successes are left out."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(PRICED), figsize=(4.2 * len(PRICED), 3.4), sharex=True)
+    fig, axes = pyplot().subplots(1, len(PRICED), figsize=(4.2 * len(PRICED), 3.4), sharex=True)
     for ax, name in zip(np.atleast_1d(axes), PRICED, strict=True):
         for kind, style in (("decentralization", "-o"), ("learning", "--s")):
             by_rung: dict[str, list[tuple[int, float]]] = {}
@@ -315,9 +272,13 @@ def plot_prices(result: dict[str, Any], out: Path) -> None:
     first = np.atleast_1d(axes)[0]
     if first.get_legend_handles_labels()[0]:  # nothing priced (e.g. no success): no legend
         first.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "price_vs_n.png", dpi=120)
-    plt.close(fig)
+    save(fig, out / "price_vs_n.png")
+
+
+def write(result: dict[str, Any], command: dict[str, Any], out: Path) -> None:
+    """``ladder.json`` (with ``command``), ``ladder.md`` and ``price_vs_n.png`` in ``out``."""
+    write_result(out, "ladder", result, markdown(result) + "\n" + overview(result), command)
+    plot_prices(result, out)
 
 
 def merged(paths: list[Path], seed: int, out: Path) -> dict[str, Any]:
@@ -329,49 +290,15 @@ def merged(paths: list[Path], seed: int, out: Path) -> dict[str, Any]:
     policies = [p for p in LADDER if p in present] + [p for p in present if p not in LADDER]
     labels = list(dict.fromkeys(r["scenario"] for r in rows))
     result = ladder(rows, policies, labels, seed)
-    result["command"] = {"merged": [str(p) for p in paths], "seed": seed}
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "ladder.json").write_text(json.dumps(result, indent=2))
-    (out / "ladder.md").write_text(markdown(result) + "\n" + overview(result))
-    plot_prices(result, out)
+    write(result, {"merged": [str(p) for p in paths], "seed": seed}, out)
     return result
 
 
-def run(
-    policies: list[str],
-    team_sizes: tuple[int, ...],
-    paper: bool,
-    episodes: int,
-    seed: int,
-    workers: int,
-    out: Path,
-    conditions: dict[str, Any] | None = None,
-    max_cycles: int | None = None,
-    progress: bool = True,
-) -> dict[str, Any]:
+def run(policies: list[str], chosen: list[Case], settings: Settings, out: Path) -> dict[str, Any]:
     """Evaluate the rungs on the cases, write every output, return the ladder."""
-    chosen = cases(team_sizes, paper)
-    rows = evaluate(
-        policies,
-        chosen,
-        episodes,
-        seed,
-        workers,
-        dict(CONDITIONS if conditions is None else conditions),
-        max_cycles,
-        progress=progress,
-    )
-    write_outputs(rows, seed, out)
-    result = ladder(rows, policies, [c.label for c in chosen], seed)
-    result["command"] = {
-        "episodes": episodes,
-        "seed": seed,
-        "conditions": CONDITIONS if conditions is None else conditions,
-        "max_cycles": max_cycles,
-    }
-    (out / "ladder.json").write_text(json.dumps(result, indent=2))
-    (out / "ladder.md").write_text(markdown(result) + "\n" + overview(result))
-    plot_prices(result, out)
+    rows, _ = run_and_write(settings, [(policies, chosen)], out)
+    result = ladder(rows, policies, [c.label for c in chosen], settings.seed)
+    write(result, settings.record(), out)
     return result
 
 
@@ -394,16 +321,19 @@ def add_case_arguments(ap: argparse.ArgumentParser, team_sizes: tuple[int, ...],
     ap.add_argument("--out", type=Path, default=Path(out))
 
 
-def conditions_of(args: argparse.Namespace) -> dict[str, Any]:
-    return {"current": args.current, "mismatch": args.mismatch}
+def settings_of(args: argparse.Namespace) -> Settings:
+    """The evaluation settings of ``add_case_arguments``' flags."""
+    conditions = {"current": args.current, "mismatch": args.mismatch}
+    return Settings(args.episodes, args.seed, args.workers, conditions, args.max_cycles)
+
+
+def cases_of(args: argparse.Namespace) -> list[Case]:
+    """The cases of ``add_case_arguments``' flags."""
+    return cases(tuple(args.n_agents), not args.no_paper)
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(
-        prog="python -m baselines.ladder",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = command_parser("baselines.ladder", __doc__)
     ap.add_argument("--policy", action="append", default=None, help=f"rungs (default {LADDER})")
     ap.add_argument(
         "--from",
@@ -422,17 +352,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"wrote {args.out}/ladder.md, ladder.json and price_vs_n.png")
         return
     policies = args.policy or list(LADDER)
-    result = run(
-        policies,
-        tuple(args.n_agents),
-        not args.no_paper,
-        args.episodes,
-        args.seed,
-        args.workers,
-        args.out,
-        conditions_of(args),
-        args.max_cycles,
-    )
+    result = run(policies, cases_of(args), settings_of(args), args.out)
     print(markdown(result))
     print(f"wrote {args.out}/ladder.md, ladder.json, price_vs_n.png and the evaluator's outputs")
 

@@ -1,30 +1,15 @@
-"""Constraint-aware training for every PPO engine: a per-robot constraint cost and a
-Lagrange multiplier on it (PPO-Lagrangian), independent of the RL library.
-
-PPO-Lagrangian (Ray, Achiam and Amodei 2019, "Benchmarking safe exploration in deep RL"):
-each robot's reward becomes r - lambda c_i, where c_i is that robot's constraint cost this
-step, and after each rollout lambda moves by gradient ascent on the dual,
+"""Constraint-aware training for every PPO trainer: a per-robot constraint cost and a
+Lagrange multiplier on it (PPO-Lagrangian, Ray, Achiam and Amodei 2019), independent of
+the RL library:
 
     lambda <- clip(lambda + lr (J_c - d), 0, lambda_max),
 
 J_c the mean cost per robot of the episodes that ended in the rollout and d the cost
-limit per episode. With ``lr = 0`` it is a fixed penalty of weight lambda.
-
-Costs (per robot, per step; the environment's constraint values g <= 0 hold):
-
-* ``count``: the number of violated constraints (the environment's ``cost``). Under
-  exploration it is nearly constant, so its gradient says little about how far a robot
-  is from satisfying a limit.
-* ``magnitude``: the positive parts of g, each divided by its limit's scale
-  (``SCALES``: 0.1 rad/s for the speed limits, 2 rad for the joint limits, ...), summed:
-  a joint rate of 0.15 rad/s costs 0.5, one of 0.3 costs 2.
-
-An engine applies it where its rewards are made: ``Lagrangian.penalize`` on a step's
-batched constraint values, ``Lagrangian.end_rollout`` once per rollout. The SB3 engine's
-VecEnv wrapper is ``baselines.rl.cost.CostPenalty``; RLlib's envs penalize their own steps
-(``baselines.distributed.rllib_env``) and hand their episode costs to the driver's dual
-step. Written here because the RL libraries have no constrained RL and the safe-RL ones
-(OmniSafe, safety-gymnasium) bring their own environment loop and pins.
+limit per episode; ``lr = 0`` is a fixed penalty. Costs ``count`` and ``magnitude``
+(``SCALES``): docs/rl.md. A trainer calls ``Lagrangian.penalize`` where its rewards are
+made and ``Lagrangian.end_rollout`` once per rollout. Written here because the RL
+libraries have no constrained RL and the safe-RL ones (OmniSafe, safety-gymnasium) bring
+their own environment loop and pins.
 
 May import: numpy and ``uvms_env.env.constraints``.
 """

@@ -1,6 +1,7 @@
 """Command-line pieces shared by the trainers, the imitation CLI and the evaluator:
 ``KEY=JSON`` options (``--env-option``, ``--hp``) and the conditions of the episodes
-(``--n-agents``, ``--current``, ``--mismatch``), the same flag names in every command.
+(``--n-agents``, ``--current``, ``--mismatch``), the same flag names in every command;
+the periodic evaluations' flags of the trainers and DAgger (``--eval-*``).
 
 Where training draws from a distribution, the condition flags take several values: team
 sizes (each episode, or each group of environment copies, one of them), current presets
@@ -18,6 +19,16 @@ import json
 from typing import Any
 
 from uvms_env.scenarios.overrides import CURRENT_PRESETS
+
+
+def command_parser(prog: str, doc: str) -> argparse.ArgumentParser:
+    """The parser of ``python -m PROG``: its module docstring ``doc`` as the description,
+    as written, up to its "May import" line."""
+    return argparse.ArgumentParser(
+        prog=f"python -m {prog}",
+        description=doc.split("May import")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
 
 
 def key_value_pairs(items: list[str]) -> dict[str, Any]:
@@ -92,3 +103,17 @@ def condition_overrides(args: argparse.Namespace) -> dict[str, Any]:
     if draws:
         out["randomize"] = draws
     return out
+
+
+def add_evaluation_arguments(g: Any, episodes: int, episodes_help: str | None = None) -> None:
+    """``--eval-episodes`` (default ``episodes``), ``--eval-seed`` and ``--eval-max-cycles``:
+    the periodic evaluations of a training run (the RL trainers' and DAgger's)."""
+    g.add_argument("--eval-episodes", type=int, default=episodes, help=episodes_help)
+    g.add_argument("--eval-seed", type=int, default=None, help="their seed (default: --seed)")
+    g.add_argument(
+        "--eval-max-cycles",
+        type=int,
+        default=None,
+        help="cap on the evaluation episodes and an RL run's final record (default: the "
+        "scenarios' own length)",
+    )

@@ -1,34 +1,28 @@
 """Policy sources for the evaluator: ``--policy NAME[:ARG]`` to a per-agent factory.
 
-Known names: ``nmpc`` (the expert, ``nmpc:ipopt`` for its reference solver, ``nmpc:paper``
-for the paper's controller without the disturbance observer, ``nmpc:comm`` for the expert
-that talks over the acoustic channel, ``--comm PRESET``: ``nmpc_expert.comm``;
-``nmpc:central``: the centralized NMPC, a *team* policy with full information, the bound of
-the ladder, never a decentralized entry: ``PolicySource.team``), ``random`` (uniform
-actions, seeded per episode and agent), ``zero`` (all inputs zero), and ``module:factory``
-(a user's ``factory(spec) -> Policy`` importable as ``package.module:factory``),
-``ppo:PATH`` / ``sac:PATH`` / ``recurrent_ppo:PATH`` (an SB3 or sb3-contrib run folder;
-``ppo:pretrained`` the committed model), ``bc:PATH`` / ``dagger:PATH`` (a folder with
-``policy.pt``; ``dagger:pretrained`` the committed clone), ``rllib:PATH`` (an RLlib run or
-checkpoint) and ``torchrl:PATH`` (a run folder of ``--engine torchrl``: its ``actor.pt``).
-Any of them with the suffix ``+filter`` (e.g. ``dagger:pretrained+filter``) runs inside the
-expert's safety filter (``nmpc_expert.SafetyFilter``).
+Names: the expert's variants (``nmpc``, ``nmpc:ipopt``, ``nmpc:paper``, ``nmpc:comm``;
+``nmpc:central`` is a *team* policy, ``PolicySource.team``), ``random``, ``zero``,
+``module:factory``, the saved networks of ``baselines.registry.LOADERS`` and any of them
+with ``+filter``. Reference: docs/evaluation.md.
+
+May import: numpy, ``uvms_env``, ``nmpc_expert`` (inside functions) and
+``baselines.registry`` (whose loaders are imported on demand).
 """
 
 from __future__ import annotations
 
+import ast
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from baselines.registry import LOADERS, loader
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 from uvms_env.team_policy import FULL_INFORMATION, LOCAL_INFORMATION, TeamPolicyFactory
 
-PRETRAINED = Path(__file__).resolve().parent / "pretrained"
 TALK_OPTION = "comm"  # nmpc:comm, the expert that talks over the channel
 FILTER_SUFFIX = "+filter"
 
@@ -63,8 +57,10 @@ class ZeroPolicy:
 
 
 def _nmpc(arg: str | None, seed: int) -> PolicyFactory:
-    """``nmpc[:OPTIONS]``, OPTIONS comma-separated: a solver (rti, ipopt) and/or a
-    controller (observer, paper), e.g. ``nmpc:paper``, ``nmpc:ipopt``."""
+    """``nmpc[:OPTIONS]``, OPTIONS comma-separated: a solver (rti, ipopt), a controller
+    (observer, paper) and/or settings ``NAME=VALUE`` (``nmpc_expert.NMPCSettings``' fields,
+    VALUE a Python literal), e.g. ``nmpc:paper``, ``nmpc:ipopt``,
+    ``nmpc:goal_integral_angle_limit=0.3``."""
     from nmpc_expert import (  # the expert is optional at import time
         CONTROLLERS,
         make_policy,
@@ -72,8 +68,12 @@ def _nmpc(arg: str | None, seed: int) -> PolicyFactory:
     )
 
     solver, controller, talk = "rti", None, False
+    settings: dict[str, Any] = {}
     for option in (arg or "").split(","):
-        if option in ("rti", "ipopt"):
+        if "=" in option:
+            name, value = option.split("=", 1)
+            settings[name.strip()] = _literal(value)
+        elif option in ("rti", "ipopt"):
             solver = option
         elif option in CONTROLLERS:
             controller = option
@@ -81,8 +81,9 @@ def _nmpc(arg: str | None, seed: int) -> PolicyFactory:
             talk = True
         elif option:
             raise ValueError(
-                f"unknown nmpc option {option!r}: use rti, ipopt, {TALK_OPTION} or one of "
-                f"{CONTROLLERS} (or nmpc:central alone: the centralized team policy)"
+                f"unknown nmpc option {option!r}: use rti, ipopt, {TALK_OPTION}, one of "
+                f"{CONTROLLERS} or NAME=VALUE settings (or nmpc:central alone: the "
+                "centralized team policy)"
             )
     if talk:
         if solver != "rti" or controller not in (None, "observer"):
@@ -90,8 +91,17 @@ def _nmpc(arg: str | None, seed: int) -> PolicyFactory:
                 f"nmpc:{TALK_OPTION} shares the disturbance observer's estimate: it runs the "
                 "observer controller with rti only"
             )
-        return make_talking_policy(solver)
-    return make_policy(solver, controller)
+        return make_talking_policy(solver, **settings)
+    return make_policy(solver, controller, **settings)
+
+
+def _literal(text: str) -> Any:
+    """A setting's value: a Python literal (``0.3``, ``None``, ``(1.0, 0.8)``) or, failing
+    that, the text itself."""
+    try:
+        return ast.literal_eval(text.strip())
+    except (ValueError, SyntaxError):
+        return text.strip()
 
 
 def _random(arg: str | None, seed: int) -> PolicyFactory:
@@ -102,56 +112,13 @@ def _zero(arg: str | None, seed: int) -> PolicyFactory:
     return ZeroPolicy
 
 
-def _sb3(algo: str) -> Callable[[str | None, int], PolicyFactory]:
-    def build(arg: str | None, seed: int) -> PolicyFactory:
-        from baselines.rl.policy import SB3Policy, resolve_run
+def _saved(name: str) -> Callable[[str | None, int], PolicyFactory]:
+    """A saved network: its loader (``baselines.registry.LOADERS``) finds it now."""
 
-        folder = resolve_run(algo, arg)
-        return lambda spec: SB3Policy(spec, algo, folder)
+    def build(arg: str | None, seed: int) -> PolicyFactory:
+        return loader(name).factory(name, arg)
 
     return build
-
-
-def cloned_path(method: str, arg: str | None) -> Path:
-    """The ``policy.pt`` of ``bc:ARG`` / ``dagger:ARG``."""
-    folder = Path(arg) if arg not in (None, "", "pretrained") else PRETRAINED / method
-    path = folder if folder.suffix == ".pt" else folder / "policy.pt"
-    if not path.exists():
-        raise ValueError(f"no {method} policy at {path}")
-    return path
-
-
-def _cloned(method: str) -> Callable[[str | None, int], PolicyFactory]:
-    def build(arg: str | None, seed: int) -> PolicyFactory:
-        from baselines.imitation.policy import ClonedPolicy
-
-        path = cloned_path(method, arg)
-        return lambda spec: ClonedPolicy(spec, path)
-
-    return build
-
-
-def _user(module: str, attr: str) -> Callable[[str | None, int], PolicyFactory]:
-    def build(arg: str | None, seed: int) -> PolicyFactory:
-        try:
-            factory = getattr(importlib.import_module(module), attr)
-        except (ImportError, AttributeError) as exc:
-            raise ValueError(f"cannot import policy factory {module}:{attr}: {exc}") from exc
-        return factory
-
-    return build
-
-
-def _rllib(arg: str | None, seed: int) -> PolicyFactory:
-    from baselines.distributed.rllib_policy import factory  # Ray is optional
-
-    return factory(arg)
-
-
-def _torchrl(arg: str | None, seed: int) -> PolicyFactory:
-    from baselines.rl.torchrl_policy import factory
-
-    return factory(arg)
 
 
 # team policies (``uvms_env.team_policy``): name -> the option of ``nmpc`` that selects one
@@ -169,13 +136,7 @@ BUILTIN: dict[str, Callable[[str | None, int], PolicyFactory]] = {
     "nmpc": _nmpc,
     "random": _random,
     "zero": _zero,
-    "ppo": _sb3("ppo"),
-    "sac": _sb3("sac"),
-    "recurrent_ppo": _sb3("recurrent_ppo"),
-    "bc": _cloned("bc"),
-    "dagger": _cloned("dagger"),
-    "rllib": _rllib,
-    "torchrl": _torchrl,
+    **{name: _saved(name) for name in LOADERS},
 }
 
 
@@ -230,7 +191,10 @@ class PolicySource:
             )
         if self.name == "module":
             module, _, attr = self.arg.partition(":")  # type: ignore[union-attr]
-            inner = _user(module, attr)(None, episode_seed)
+            try:
+                inner = getattr(importlib.import_module(module), attr)
+            except (ImportError, AttributeError) as exc:
+                raise ValueError(f"cannot import policy factory {module}:{attr}: {exc}") from exc
         else:
             inner = BUILTIN[self.name](self.arg, episode_seed)
         if not self.filtered:

@@ -1,30 +1,20 @@
-"""The run layer every training engine writes through: one run folder, one ``config.json``,
-one ``progress.csv`` and one ``evaluations.csv`` schema, periodic evaluation through
-``baselines.evaluate`` and resuming.
+"""The run layer every RL library's trainer writes through: one run folder, one
+``config.json``, one ``progress.csv`` and one ``evaluations.csv`` schema, periodic
+evaluation through ``baselines.evaluate`` and resuming.
 
-    run = Run.start(settings, engine="sb3", algo="ppo", command=argv)
-    engine = Engine(run, algo, args)           # an RL library's trainer (``Engine``)
-    run.write_config(**engine.build())         # env and model; config.json
-    steps = engine.learn()                     # calls, after each iteration,
-        # run.after_iteration(engine, robot_steps, returns=..., lengths=...): the progress
-        # row, a checkpoint and an evaluation of a fresh snapshot when due
-    engine.save(run.folder); engine.close()
-    run.finish(steps, engine)                  # robot-steps, wall time, recorded evaluation
+    run = Run.start(settings, library="sb3", algo="ppo", command=argv)
+    trainer = Trainer(run, algo, args)         # the library's trainer (``Trainer``)
+    run.write_config(**trainer.build())        # env and model; config.json
+    steps = trainer.learn()                    # calls run.after_iteration(...) each iteration
+    trainer.save(run.folder); trainer.close()
+    run.finish(steps)                          # robot-steps, wall time, recorded evaluation
 
-``baselines.train.train`` is that sequence.
+``baselines.train.train`` is that sequence. Every budget and cadence counts robot-steps.
+The run folder's files: docs/rl.md.
 
-The folder: ``config.json`` (``Run.start``'s record, then the engine's ``engine_settings``),
-``progress.csv`` (``PROGRESS_COLUMNS``, one row per iteration, appended by a resumed run),
-``evaluations.csv`` (``EVAL_COLUMNS``, one row per evaluation and rung),
-``marl_eval.json`` (the same evaluations for marl-eval), ``eval_snapshot/``, ``best/``
-(the snapshot whose evaluation scored best so far, ``evaluation_score``: early stopping on
-the evaluation seed) and whatever the engine saves (its policy and checkpoints).
-
-Every budget and cadence counts robot-steps (one step of one robot; an env step of N
-robots is N robot-steps), whatever the engine counts internally.
-
-May import: the standard library, numpy, ``baselines.evaluate``, ``baselines.ladder``,
-``baselines.distributed.marl_eval``, ``baselines.lagrangian`` and ``uvms_env``.
+May import: the standard library, numpy, ``baselines.evaluation``, ``baselines.ladder``,
+``baselines.distributed.marl_eval``, ``baselines.lagrangian``, ``baselines.loaded_policy``
+(the config file it reads back), ``baselines.registry`` and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -44,8 +34,9 @@ from typing import Any, Protocol
 import numpy as np
 
 from baselines.lagrangian import CostSettings
+from baselines.loaded_policy import CONFIG_FILE, read_config
+from baselines.registry import policy_spec
 
-CONFIG_FILE = "config.json"
 PROGRESS_FILE = "progress.csv"
 EVAL_FILE = "evaluations.csv"
 SNAPSHOT = "eval_snapshot"
@@ -82,7 +73,7 @@ RECORD_EPISODES = 2  # the final policy's recorded per-episode evaluation ("eval
 # Training drops the internal-wrench metric (docs/simulator.md, "Measured"): it changes
 # no observation, reward or dynamics.
 TRAIN_ENV_DEFAULTS: dict[str, Any] = {"internal_wrench_every": 0}
-# The batched step of every engine: its precisions (float32 is the fast mode; its
+# The batched step of every trainer: its precisions (float32 is the fast mode; its
 # deviation is far below a stochastic policy's own noise, and evaluation stays on float64
 # single envs) and its kernel threads (one: with two, a kernel call waits for both cores,
 # so anything else running on a small machine, torch included, stalls the step).
@@ -95,15 +86,25 @@ DEFAULT_ENV_THREADS = 1
 EVAL_KEEP = ("n_agents", "comm", "current", "mismatch", "randomize")
 
 
-class Engine(Protocol):
-    """What an RL library implements to train under a ``Run`` (``Engine(run, algo, args)``,
-    ``args`` its own command-line options). A training-loop addition that is no library's
-    business (a safety filter around the env, a policy initialized from the expert) goes in
-    ``build``: it makes the env and the model."""
+def add_step_arguments(g: Any) -> None:
+    """``--dtype`` and ``--env-threads``: the batched step's precision and threads."""
+    g.add_argument(
+        "--dtype", choices=DTYPES, default=DEFAULT_DTYPE, help="the batched step's precision"
+    )
+    g.add_argument(
+        "--env-threads", type=int, default=DEFAULT_ENV_THREADS, help="threads of the batched step"
+    )
+
+
+class Trainer(Protocol):
+    """What an RL library implements to train under a ``Run`` (``Trainer(run, algo,
+    args)``, ``args`` its own command-line options). A training-loop addition that is no
+    library's business (a safety filter around the env, a policy initialized from the
+    expert) goes in ``build``: it makes the env and the model."""
 
     def build(self) -> dict[str, Any]:
         """Make the env and the model (from ``run.settings.resume`` when set); return the
-        engine's settings for config.json."""
+        library's settings for config.json."""
         ...
 
     def learn(self) -> int:
@@ -112,19 +113,16 @@ class Engine(Protocol):
         ...
 
     def save(self, folder: Path) -> None:
-        """Write what the policy loader (``policy``) and a resume need into ``folder``."""
+        """Write what the policy's loader (``baselines.registry``) and a resume need into
+        ``folder``."""
         ...
 
     def checkpoint(self, robot_steps: int) -> None:
         """Save a numbered checkpoint under the run folder."""
         ...
 
-    def policy(self, folder: Path) -> str:
-        """The evaluator's ``--policy`` spec of a policy saved in ``folder``."""
-        ...
-
     def results(self) -> dict[str, Any]:
-        """What the engine adds to ``engine_settings`` at the end."""
+        """What the trainer adds to ``library_settings`` at the end."""
         ...
 
     def close(self) -> None: ...
@@ -132,12 +130,12 @@ class Engine(Protocol):
 
 @dataclass
 class RunSettings:
-    """What every engine shares (``baselines.train``'s shared options)."""
+    """What every library shares (``baselines.train``'s shared options)."""
 
     scenario: str = "short"
     overrides: dict[str, Any] = field(default_factory=dict)
     robot_steps: int = 200_000
-    num_envs: int | None = None  # None: the engine's default
+    num_envs: int | None = None  # None: the library's default
     seed: int = 0
     out: Path = Path("runs/train")
     eval_every: int = 0
@@ -146,7 +144,7 @@ class RunSettings:
     checkpoint_every: int = 50_000
     resume: Path | None = None
     cost: CostSettings | None = None
-    geometry_pool: int | None = None  # None: the engine's default
+    geometry_pool: int | None = None  # None: the library's default
     hyperparameters: dict[str, Any] = field(default_factory=dict)
     progress: bool = True
     record_eval: bool = True  # the final policy's per-episode result, in config.json
@@ -211,19 +209,13 @@ def _plain(x: Any) -> Any:
     return str(x)
 
 
-def read_config(folder: Path) -> dict[str, Any]:
-    """A run's config.json ({} when it has none)."""
-    path = Path(folder) / CONFIG_FILE
-    return json.loads(path.read_text()) if path.exists() else {}
-
-
 class Run:
     """One training run's folder and records; see the module docstring."""
 
     def __init__(
         self,
         settings: RunSettings,
-        engine: str,
+        library: str,
         algo: str,
         command: list[str] | None = None,
         previous: dict[str, Any] | None = None,
@@ -234,7 +226,7 @@ class Run:
         self.previous = previous or {}
         self.resumed = settings.resume is not None
         self.config: dict[str, Any] = {
-            "engine": engine,
+            "library": library,
             "algo": algo,
             "command": shlex.join(command) if command else None,
             "scenario": settings.scenario,
@@ -254,7 +246,7 @@ class Run:
             "cost": settings.cost.as_dict() if settings.cost is not None else None,
             "resumes": self.previous.get("resumes", -1) + 1 if self.resumed else 0,
             "hardware": hardware(),
-            "engine_settings": {},
+            "library_settings": {},
             "robot_steps": self.previous.get("robot_steps", 0) if self.resumed else 0,
             "wall_time_s": None,
             "robot_steps_per_s": None,
@@ -281,7 +273,7 @@ class Run:
 
     @classmethod
     def start(
-        cls, settings: RunSettings, engine: str, algo: str, command: list[str] | None = None
+        cls, settings: RunSettings, library: str, algo: str, command: list[str] | None = None
     ) -> Run:
         """A new run, or with ``settings.resume`` the continuation of the run there (its
         config.json: resumes, robot-steps and wall time so far, the last multiplier)."""
@@ -290,29 +282,33 @@ class Run:
             resume = Path(settings.resume)
             folder = resume if resume.is_dir() else resume.parent
             previous = read_config(folder) or read_config(folder.parent)
-            if previous and previous.get("engine", engine) != engine:
-                raise ValueError(
-                    f"{resume} was trained by the {previous['engine']} engine, not {engine}"
-                )
+            trained_by = previous.get("library", previous.get("engine", library))
+            if trained_by != library:  # "engine": the key's earlier name
+                raise ValueError(f"{resume} was trained with {trained_by}, not {library}")
             if settings.cost is not None and (previous.get("cost") or {}).get("final_multiplier"):
                 settings.cost.multiplier = previous["cost"]["final_multiplier"]
-        return cls(settings, engine, algo, command, previous)
+        return cls(settings, library, algo, command, previous)
 
     @property
     def snapshot(self) -> Path:
-        """Where the engine saves the policy that a periodic evaluation loads."""
+        """Where the trainer saves the policy that a periodic evaluation loads."""
         return self.folder / SNAPSHOT
 
     @property
-    def episode_seed(self) -> int:
-        """The seed of the run's env copies: a resumed run gets new episodes, so it does
-        not replay the first ones."""
+    def env_seed(self) -> int:
+        """The seed this session hands its env copies (they derive every episode's seed
+        from it): the run's seed, moved on by each resume so that a resumed run does not
+        replay its first episodes."""
         return self.settings.seed + 1_000_003 * self.config["resumes"]
 
-    def write_config(self, **engine_settings: Any) -> None:
-        """Record the engine's own settings (``engine_settings``) and write config.json;
-        the first iteration's time counts from here (not the engine's setup)."""
-        self.config["engine_settings"].update(engine_settings)
+    def policy_spec(self, folder: Path) -> str:
+        """The evaluator's ``--policy`` spec of this run's policy saved in ``folder``."""
+        return policy_spec(self.config["library"], self.config["algo"], folder)
+
+    def write_config(self, **library_settings: Any) -> None:
+        """Record the library's own settings (``library_settings``) and write config.json;
+        the first iteration's time counts from here (not the trainer's setup)."""
+        self.config["library_settings"].update(library_settings)
         write_json(self.folder / CONFIG_FILE, self.config)
         self._tick = time.perf_counter()
 
@@ -358,15 +354,16 @@ class Run:
             )
         return row
 
-    def after_iteration(self, engine: Engine, robot_steps: int, **stats: Any) -> None:
+    def after_iteration(self, trainer: Trainer, robot_steps: int, **stats: Any) -> None:
         """The progress row (``iteration``'s arguments), then a checkpoint and an
         evaluation of a fresh snapshot when due."""
         self.iteration(robot_steps, **stats)
         if self.checkpoint_due(robot_steps):
-            engine.checkpoint(robot_steps)
+            trainer.checkpoint(robot_steps)
         if self.evaluation_due(robot_steps):
-            engine.save(self.snapshot)
-            self.keep_best(robot_steps, self.evaluate(robot_steps, engine.policy(self.snapshot)))
+            trainer.save(self.snapshot)
+            policy = self.policy_spec(self.snapshot)
+            self.keep_best(robot_steps, self.evaluate(robot_steps, policy))
 
     def evaluation_due(self, robot_steps: int) -> bool:
         if self.settings.eval_every <= 0 or robot_steps < self._next_eval:
@@ -394,7 +391,7 @@ class Run:
             s.eval_episodes,
             s.evaluation_seed,
             robot_steps,
-            name=f"{self.config['engine']}_{self.config['algo']}:{self.folder.name}",
+            name=f"{self.config['library']}_{self.config['algo']}:{self.folder.name}",
             elapsed=time.perf_counter() - self._start,
             max_cycles=s.eval_max_cycles,
         )
@@ -419,7 +416,7 @@ class Run:
         """The saved policy's per-episode result on fixed seeds (the training scenario,
         seed 0): a regression value produced by running, which tests check for the
         committed models."""
-        from baselines.evaluate import evaluate
+        from baselines.evaluation.runner import evaluate
 
         scenario, overrides = next(iter(self.settings.rungs().values()))
         max_cycles = self.settings.eval_max_cycles
@@ -443,10 +440,11 @@ class Run:
             ],
         }
 
-    def finish(self, robot_steps: int, engine: Engine | None = None, **results: Any) -> dict:
+    def finish(self, robot_steps: int, **results: Any) -> dict:
         """Robot-steps done, wall time (all sessions of a resumed run), robot-steps/s of
-        this session, the last multiplier and (``settings.record_eval``) the recorded
-        evaluation of ``engine``'s policy saved in the run folder; written to config.json."""
+        this session, the last multiplier, the trainer's ``results`` and
+        (``settings.record_eval``) the recorded evaluation of the policy saved in the run
+        folder; written to config.json."""
         wall = time.perf_counter() - self._start
         done = robot_steps - self._steps_at_start
         self.config.update(
@@ -454,12 +452,12 @@ class Run:
             wall_time_s=round(self._wall_before + wall, 1),
             robot_steps_per_s=round(done / wall, 1) if wall > 0 else None,
         )
-        self.config["engine_settings"].update(results)
+        self.config["library_settings"].update(results)
         if self.config["cost"] is not None and self.multiplier is not None:
             self.config["cost"]["final_multiplier"] = self.multiplier
         write_json(self.folder / CONFIG_FILE, self.config)
-        if engine is not None and self.settings.record_eval:
-            self.config["eval"] = self.record(engine.policy(self.folder))
+        if self.settings.record_eval:
+            self.config["eval"] = self.record(self.policy_spec(self.folder))
             best = self.folder / BEST
             if best.is_dir():  # the early-stopped policy gets its own record
                 best_config = {
@@ -467,7 +465,7 @@ class Run:
                     "robot_steps": self.config["best"]["robot_steps"],
                     "run_robot_steps": self.config["robot_steps"],
                 }
-                best_config["eval"] = self.record(engine.policy(best))
+                best_config["eval"] = self.record(self.policy_spec(best))
                 write_json(best / CONFIG_FILE, best_config)
         if self.snapshot.is_dir():
             shutil.rmtree(self.snapshot, ignore_errors=True)
@@ -513,9 +511,10 @@ def evaluate_rungs(
     ``seed`` (capped at ``max_cycles`` periods, None: the scenarios' own episodes): one row
     per rung appended to ``folder``'s evaluations.csv (``EVAL_COLUMNS``)
     and the episodes to its marl_eval.json (algorithm ``name``); returns the rows. Every
-    training loop that evaluates as it learns (the RL engines, DAgger) writes here."""
+    training loop that evaluates as it learns (the RL trainers, DAgger) writes here."""
     from baselines.distributed import marl_eval
-    from baselines.evaluate import aggregate, evaluate
+    from baselines.evaluation.runner import evaluate
+    from baselines.evaluation.summary import aggregate
 
     path = Path(folder) / EVAL_FILE
     if not path.exists():

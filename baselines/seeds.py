@@ -1,37 +1,30 @@
-"""A learned policy over its training seeds: aggregate statistics of the same evaluation's
-episodes for every seed's model, as the field reports them (Agarwal et al. 2021,
-"Deep RL at the edge of the statistical precipice": the interquartile mean and stratified
-bootstrap intervals, through their library ``rliable``).
+"""A learned policy over its training seeds: the interquartile mean and stratified bootstrap
+intervals (Agarwal et al. 2021, through ``rliable``) of every seed's model on the same
+evaluation's episodes.
 
     python -m baselines.ladder --policy dagger:runs/d0 --policy dagger:runs/d1 \\
         --policy dagger:runs/d2 --episodes 10 --seed 202 --out runs/ladder_seeds
     python -m baselines.seeds runs/ladder_seeds/episodes.csv \\
         --group "DAgger=dagger:runs/d0,dagger:runs/d1,dagger:runs/d2" --out runs/seeds
 
-Several episodes.csv (runs of the same seed played apart) are read as one.
+Several episodes.csv (runs of the same seed played apart) are read as one. A group's
+score matrix is seeds x cases (the rows' ``scenario``); bootstrap intervals resample
+seeds within each case. Reference: docs/rl.md, docs/results.md.
 
-For each group (one model per training seed) and case (the rows' ``scenario``: a ladder
-case such as ``random N=4``), each seed's score is its rate of success, its rate of clean
-success and its median violation periods per episode over the case's episodes; a group's
-score matrix is seeds x cases. Reported per group and metric: the IQM over all (seed,
-case) scores and the mean, each with a 95% stratified bootstrap interval (resampling
-seeds within each case), plus every seed's score per case. Writes ``seeds.md`` and
-``seeds.json``.
-
-May import: the standard library, numpy, rliable and ``baselines.evaluate`` (its
-episodes.csv reader).
+May import: the standard library, numpy, rliable, ``baselines.evaluation.outputs`` (the
+episodes.csv reader) and ``baselines.options``.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from baselines.evaluate import read_episodes
+from baselines.evaluation.outputs import read_episodes
+from baselines.options import command_parser
 
 METRICS = {
     "success": "success rate",
@@ -136,11 +129,7 @@ def markdown(summary: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(
-        prog="python -m baselines.seeds",
-        description=__doc__.split("May import")[0],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = command_parser("baselines.seeds", __doc__)
     ap.add_argument(
         "episodes", type=Path, nargs="+", help="evaluators' or ladders' episodes.csv (same seed)"
     )

@@ -8,8 +8,9 @@ environment through the episode driver (``uvms_env.episode.play_team``; N = 2: t
 team decision (the whole ``act``: state check, reference, steady inputs, the horizon's
 period steps, the linearization, condensing and the screened QP), median, p95 and max.
 ``--parts``: also the median time of each compiled part (the horizon's period steps and
-the linearization call) at the first state, where the rest is numpy and DAQP. The first
-run compiles the linearization of each team size (~10-20 s, cached on disk).
+the linearization call, with its discretization in numpy) at the first state, where the
+rest is numpy and DAQP. The first run compiles the linearization of each team size
+(~10-20 s, cached on disk).
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ def parts(n: int, repeats: int = 20) -> dict[str, float]:
     team.reset()
     state = env.state()
     team.act(state)
-    x0 = state[: team.nx].astype(np.float64)
+    plan, model = team.solver, team.model
 
     def timed(fn) -> float:
         out = []
@@ -57,22 +58,12 @@ def parts(n: int, repeats: int = 20) -> dict[str, float]:
             out.append((time.perf_counter() - t) * 1e3)
         return float(np.median(out))
 
-    lin_args = (
-        np.ascontiguousarray(x0),
-        team._a0,
-        team.xbar,
-        team._a_nodes,
-        team.model.parameters,
-        team.model.object_parameters,
-        team._grasp,
-        team._eps,
-    )
     return {
         "decision": timed(lambda: team.act(state)),
         "period steps": timed(
-            lambda: [team.predict(team.xbar[k], team.abar[k]) for k in range(team.horizon)]
+            lambda: [model.predict(plan.xbar[k], plan.abar[k]) for k in range(team.horizon)]
         ),
-        "linearization": timed(lambda: team._lin(*lin_args)),
+        "linearization": timed(lambda: model.linearize(plan.xbar, plan.abar)),
     }
 
 

@@ -25,7 +25,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
-from baselines.policies import PolicySource, cloned_path
+from baselines.policies import PolicySource
 from uvms_env.policy import AgentSpec, PolicyFactory
 
 NUMPY = "{} (numpy layers)"
@@ -60,7 +60,7 @@ def factories(policy: str, numpy_layers: bool, seed: int) -> dict[str, PolicyFac
         source = PolicySource.parse(policy)
         if source.name not in ("bc", "dagger") or source.filtered:
             raise SystemExit("--numpy needs a bc:... or dagger:... policy")
-        path = cloned_path(source.name, source.arg)
+        path = ClonedPolicy.locate(source.name, source.arg)
         out[NUMPY.format(policy)] = lambda spec: ClonedPolicy(spec, path, compiled=False)
     return out
 

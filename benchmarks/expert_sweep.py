@@ -7,7 +7,7 @@
 Cases: the random family at each team size N (``--episodes`` each) and the paper
 scenario with the mild current and ``mismatch=0.1`` (``--paper-episodes``). Every case
 is one ``baselines.evaluate`` run of all the policies on the same seeded episodes
-(``episode_seed(seed, scenario, k)``), written to ``OUT/<case>/`` (episodes.csv,
+(``case_episode_seed(seed, scenario, k)``), written to ``OUT/<case>/`` (episodes.csv,
 results.json, results.md); ``--resume`` reuses a case whose results.json exists, so an
 interrupted sweep continues. ``OUT/summary.md`` puts the cases side by side: success and
 clean success (success with 0 violation periods) over the episodes whose current is
@@ -25,7 +25,9 @@ from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from baselines.evaluate import VIOLATION_KINDS, evaluate, write_outputs
+from baselines.evaluation.outputs import write_outputs
+from baselines.evaluation.runner import evaluate
+from baselines.evaluation.summary import VIOLATION_KINDS
 
 PAPER_CASE = ("paper_mild_mismatch0.1", "paper", {"current": "mild", "mismatch": 0.1})
 

@@ -1,12 +1,12 @@
-"""End-to-end PPO training speed per engine, robot-steps per second, with its shares.
+"""End-to-end PPO training speed per RL library, robot-steps per second, with its shares.
 
-    python benchmarks/train_throughput.py [--engines sb3 torchrl] [--n-agents 4]
+    python benchmarks/train_throughput.py [--libraries sb3 torchrl] [--n-agents 4]
                                           [--robot-steps 200000] [--repeats 2]
 
-Each engine trains PPO for ``--robot-steps`` on ``random`` with the team size(s) of
+Each library trains PPO for ``--robot-steps`` on ``random`` with the team size(s) of
 ``--n-agents``, a mild current and mismatch 0.1, through ``baselines.train.train`` (the
 command line's code path: the run folder, records and all), twice per repeat: with the
-settings before this benchmark existed (``BEFORE``: the engines' old defaults) and with
+settings before this benchmark existed (``BEFORE``: the libraries' old defaults) and with
 today's defaults, alternating (the load of a shared machine drifts). Reported per run:
 robot-steps/s over the whole learning loop (setup excluded: compiling and building
 geometries happen once per machine and run), and the shares of the learning time spent
@@ -35,11 +35,12 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from baselines import train as trainer
+from baselines.registry import trainer_module
 from baselines.runs import RunSettings
 from uvms_env.vector import VectorEnv
 
-# The engines' defaults before the distribution-training work (2026-11-26): copies per
-# run and the update's settings. Today's defaults are the engines' own.
+# The libraries' defaults before the distribution-training work (2026-11-26): copies per
+# run and the update's settings. Today's defaults are the libraries' own.
 BEFORE: dict[str, dict[str, Any]] = {
     "sb3": {"num_envs": 4, "hp": {"n_steps": 256, "n_epochs": 10}},
     "torchrl": {"num_envs": 64, "hp": {"rollout_steps": 256, "epochs": 10, "minibatches": 32}},
@@ -72,12 +73,12 @@ class StepTimer:
 
 
 def one_run(
-    engine: str, settings: str, sizes: tuple[int, ...], robot_steps: int, pool: int
+    library: str, settings: str, sizes: tuple[int, ...], robot_steps: int, pool: int
 ) -> dict:
     """Train once; returns robot-steps/s and the time shares of the learning loop."""
-    module = trainer.engine_module(engine)
-    chosen = BEFORE[engine] if settings == "before" else {"hp": {}}
-    folder = Path(tempfile.mkdtemp(prefix=f"throughput_{engine}_"))
+    module = trainer_module(library)
+    chosen = BEFORE[library] if settings == "before" else {"hp": {}}
+    folder = Path(tempfile.mkdtemp(prefix=f"throughput_{library}_"))
     run_settings = RunSettings(
         scenario="random",
         overrides=dict(CONDITIONS) | ({"n_agents": sizes[0]} if len(sizes) == 1 else {}),
@@ -94,19 +95,19 @@ def one_run(
     )
     from baselines.runs import Run
 
-    run = Run.start(run_settings, engine, "ppo")
-    args = trainer.build_parser(engine).parse_args(["--engine", engine])
-    engine_obj = module.Engine(run, "ppo", args)
+    run = Run.start(run_settings, library, "ppo")
+    args = trainer.build_parser(library).parse_args(["--library", library])
+    trainer_obj = module.Trainer(run, "ppo", args)
     try:
-        run.write_config(**engine_obj.build())
-        update = _time_updates(engine, engine_obj)
-        forward = _time_forward(engine, engine_obj)
+        run.write_config(**trainer_obj.build())
+        update = _time_updates(library, trainer_obj)
+        forward = _time_forward(library, trainer_obj)
         with StepTimer() as env_timer:
             start = time.perf_counter()
-            steps = engine_obj.learn()
+            steps = trainer_obj.learn()
             wall = time.perf_counter() - start
     finally:
-        engine_obj.close()
+        trainer_obj.close()
         shutil.rmtree(folder, ignore_errors=True)
     updating, acting = update(), forward()
     return {
@@ -120,15 +121,15 @@ def one_run(
     }
 
 
-def _time_forward(engine: str, engine_obj: Any):
+def _time_forward(library: str, trainer_obj: Any):
     """A function that returns the seconds the policy's forward passes have taken while
     collecting (SB3: the policy's ``forward``; TorchRL: the actor network's, outside the
     update's own passes)."""
     spent = [0.0]
-    if engine == "torchrl":
-        net = engine_obj.actor_net
+    if library == "torchrl":
+        net = trainer_obj.actor_net
         updating = [False]
-        train = engine_obj.loss.forward
+        train = trainer_obj.loss.forward
 
         def in_update(*args: Any, **kwargs: Any) -> Any:
             updating[0] = True
@@ -137,9 +138,9 @@ def _time_forward(engine: str, engine_obj: Any):
             finally:
                 updating[0] = False
 
-        engine_obj.loss.forward = in_update
+        trainer_obj.loss.forward = in_update
     else:
-        net = engine_obj.model.policy
+        net = trainer_obj.model.policy
         updating = [False]
     original = net.forward
 
@@ -156,11 +157,11 @@ def _time_forward(engine: str, engine_obj: Any):
     return lambda: spent[0]
 
 
-def _time_updates(engine: str, engine_obj: Any):
-    """A function that returns the seconds the engine has spent updating so far."""
-    if engine == "torchrl":
-        return lambda: engine_obj.totals["update_s"]
-    model = engine_obj.model
+def _time_updates(library: str, trainer_obj: Any):
+    """A function that returns the seconds the trainer has spent updating so far."""
+    if library == "torchrl":
+        return lambda: trainer_obj.totals["update_s"]
+    model = trainer_obj.model
     spent = [0.0]
     original = model.train
 
@@ -175,7 +176,9 @@ def _time_updates(engine: str, engine_obj: Any):
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("May import")[0])
-    ap.add_argument("--engines", nargs="+", default=["sb3", "torchrl"], choices=["sb3", "torchrl"])
+    ap.add_argument(
+        "--libraries", nargs="+", default=["sb3", "torchrl"], choices=["sb3", "torchrl"]
+    )
     ap.add_argument("--n-agents", type=int, nargs="+", default=[4])
     ap.add_argument("--robot-steps", type=int, default=200_000)
     ap.add_argument("--repeats", type=int, default=2)
@@ -192,21 +195,21 @@ def main(argv: list[str] | None = None) -> None:
     print(f"load before: {os.getloadavg()}")
     results: dict[tuple[str, str], list[dict]] = {}
     for _ in range(args.repeats):
-        for engine in args.engines:
+        for library in args.libraries:
             for settings in args.settings:
-                row = one_run(engine, settings, sizes, args.robot_steps, args.geometry_pool)
-                results.setdefault((engine, settings), []).append(row)
+                row = one_run(library, settings, sizes, args.robot_steps, args.geometry_pool)
+                results.setdefault((library, settings), []).append(row)
                 rate = row["robot_steps_per_s"]
-                print(f"{engine} {settings}: {rate:,.0f} robot-steps/s", flush=True)
+                print(f"{library} {settings}: {rate:,.0f} robot-steps/s", flush=True)
     print(f"load after: {os.getloadavg()}")
     print(
-        "\n| engine | settings | robot-steps/s | env step | policy forward | rest of "
+        "\n| library | settings | robot-steps/s | env step | policy forward | rest of "
         "collecting | update |\n|---|---|---|---|---|---|---|"
     )
-    for (engine, settings), rows in results.items():
+    for (library, settings), rows in results.items():
         med = {k: float(np.median([r[k] for r in rows])) for k in rows[0]}
         print(
-            f"| {engine} | {settings} | {med['robot_steps_per_s']:,.0f} | {med['env']:.0%} | "
+            f"| {library} | {settings} | {med['robot_steps_per_s']:,.0f} | {med['env']:.0%} | "
             f"{med['forward']:.0%} | {med['collect_other']:.0%} | {med['update']:.0%} |"
         )
 

@@ -6,18 +6,12 @@ controller per robot, behind the shared policy interface (``uvms_env.policy``).
     paper = NMPCPolicy(spec, settings=NMPCSettings.paper())  # the paper's controller
     safe = SafetyFilter(spec, other_policy)   # the expert's constraints around any policy
 
-Modules (one job each): ``ocp`` (the
-OCP's compiled pieces and the RTI's QP), ``rti`` (fast default solver), ``ipopt_solver``
-(reference solver), ``safety_filter`` (the expert's constraints around any
-policy), ``filter_batch`` (many robots' filters with their QP builders in one
-lane-parallel call), ``workspace`` (the filter's workspace rows), ``reference``
-(navigation-function reference over the horizon), ``observation`` (reading the own
-observation), ``settings``, ``policy``, ``central`` and ``central_model`` (the
-centralized NMPC of the whole team: a full-information team policy, the ladder's bound,
-``uvms_env.team_policy``), ``comm`` (the talking expert, ``nmpc:comm``: the distributed
-expert with messages over the acoustic channel), ``rollout`` (closed loop + metrics),
-``figures``, ``__main__`` (the main job). The prediction model (MODEL section 5) and the
-steady input are ``uvms_env.dynamics.local_model``.
+One job per module, each said in its docstring: the OCP and its solvers (``ocp``, ``rti``,
+``ipopt_solver``), the safety filter (``safety_filter``, ``filter_batch``,
+``filter_workspace_rows``), the centralized NMPC (``central``, ``central_rti``,
+``team_model``, ``central_model``), the talking expert (``comm``). The prediction model
+(MODEL section 5) and the steady input are ``uvms_env.dynamics.local_model``.
+Reference: docs/expert.md.
 
 May import: numpy, scipy, casadi, matplotlib, tqdm and ``uvms_env``. Never ``baselines``.
 """

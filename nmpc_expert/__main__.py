@@ -5,9 +5,7 @@ figures, an animation, metrics.json and the trajectory (.npz).
         [--controller observer|paper] [--seed 0] [--n-agents N]
         [--current none|mild|strong] [--mismatch 0.1] [--max-cycles 2000] [--no-figures]
 
-``--controller``: ``observer`` (the default) is the expert with offset-free local
-prediction (a disturbance observer on its own measured rates, ``NMPCSettings``);
-``paper`` is the paper's controller without it. The IPOPT solver runs the paper's
+``--controller``: docs/expert.md, "Two controllers". The IPOPT solver runs the paper's
 controller only.
 
 One NMPCPolicy per agent on the PettingZoo environment (``uvms_env.parallel_env``), each
@@ -70,7 +68,6 @@ def main(argv: list[str] | None = None) -> dict:
     )
     metrics["controller"] = controller
     metrics["wall_time_s"] = time.perf_counter() - start
-    args.out.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(args.out / "trajectory.npz", **arr)
     if not args.no_figures:
         from nmpc_expert.figures import make_figures

@@ -1,24 +1,16 @@
 """The centralized controller's prediction model: the truth simulator's closed chain.
 
 The team's prediction over one shooting interval is the simulator's own compiled period
-step (``uvms_env.sim.simulator.compiled_chain``: the same RK4 substeps and the same
-projection onto the grasp manifold), called at the nominal parameters and zero current.
-What the controller predicts for one period is therefore what the simulator computes for
-it, whenever the simulator accepts the period without refining it (its normal case).
+step (``uvms_env.sim.simulator.compiled_chain``), called at the nominal parameters and
+zero current, so the controller predicts for one period what the simulator computes for
+it whenever the simulator accepts the period without refining it.
 
-The sensitivities are not the step's: the exact Jacobian of the period step (132 states
-and 48 inputs at N = 6, 8 RK4 substeps and a Newton projection) would be a large
-automatic-differentiation graph and minutes of compilation per team size. Instead one
-compiled call (``linearization``) gives, at the measured state, the Jacobians of the
-chain's continuous right-hand side ``chain.rhs``: over the state by forward differences
-(one mapped evaluation of the compiled rhs per column) and over the inputs exactly (the
-rhs is affine in the inputs, so a unit difference is exact). The controller discretizes
-them once per decision and freezes them over the horizon (``central``); the defects are
-the exact step's, so a real-time iteration still converges to a plan consistent with the
-simulator's dynamics. The same call gives the internal (squeeze) wrench at every node of
-the plan and its exact input Jacobian at the first node (the squeeze is linear in the
-grasp wrenches, which are affine in the inputs), and the manipulability of every robot
-with its gradient.
+The sensitivities are not the step's (its exact Jacobian would be a large AD graph and
+minutes of compilation per team size): one compiled call (``linearization``) gives, at
+the measured state, the Jacobians of ``chain.rhs`` (over the state by forward
+differences, over the inputs exactly: the rhs is affine in them), the internal (squeeze)
+wrench at every node with its exact input Jacobian at the first, and the manipulability
+of every robot with its gradient. Reference: docs/expert.md, "Centralized bound".
 
 May import: numpy, casadi, ``uvms_env`` (dynamics, sim).
 """

@@ -3,34 +3,13 @@
 The default (observer) expert, plus an acoustic channel (``uvms_env.env.channel``): every
 period each robot broadcasts its disturbance estimate on its vehicle's linear rates,
 rotated into the world frame, and fuses what it receives into the team's mean estimate,
-which replaces its own estimate in the steady-input shift (``observer_input_gain``).
-
-Why the mean: robot i's estimate d_i (``LocalController.disturbance``, the velocity change
-per period that its local model misses) holds the part common to the team, the current
-(the team moves rigidly, so the current drags every vehicle alike in the world frame),
-and its own part, the teammates' pull (the internal wrench). Internal forces sum to zero
-over the team, so the team mean keeps the common part and averages the squeeze away: with
-it in the input shift every robot counters the current the same way instead of each
-countering its own share of the squeeze. The prediction model keeps each robot's own
-estimate (its own model error, squeeze included, is what it predicts with).
-
-**Message** (the channel's ``message_dim`` numbers, at least ``MESSAGE_NUMBERS``):
-numbers 0-2, ``R_i d_i[0:3] / scale`` clipped to [-1, 1]: the world-frame velocity change
-per period on the vehicle's linear rates (R_i the vehicle's attitude, body -> world), in
-units of ``scale`` = ``MESSAGE_SCALE_LIMITS`` vehicle linear speed limits (the settings',
-``message_scale``). Number 3 (when ``message_dim`` >= 4): the sender's index i, as
--1 + 2 i / (``SENDER_LEVELS`` - 1) (the channel does not name senders); the rest 0. The
-channel quantizes them (error <= 1 / (2^b - 1) per number: ``scale`` / (2^b - 1) on the
-estimate). ``decode_message`` and ``decode_sender`` invert the encoding.
-
-**Fusion** (each period, from the inbox): a valid message of age a periods weighs
-``w(a) = 1`` up to ``FRESH_PERIODS``, falling linearly to 0 at ``STALE_PERIODS``; older
-ones are ignored, and of one sender only the newest counts (without a sender number, at
-``message_dim`` 3, a sender may count twice). The fused world-frame estimate is (d_own +
-sum_k w_k m_k) / (1 + sum_k w_k), rotated back into the robot's body frame; ``own_share``
-(default 0) keeps that part of the robot's own deviation from it (1: its own estimate,
-as silent; 0.5 measured between the two, docs/channel.md).
-**No usable message: exactly the silent expert** (its own estimate, bit for bit; tested).
+which replaces its own estimate in the steady-input shift (``observer_input_gain``); the
+prediction model keeps each robot's own estimate. Why the mean, the message's numbers
+(``encode_message``; ``decode_message`` and ``decode_sender`` invert it) and the fusion
+(``age_weight``; of one sender only the newest message counts, so without a sender
+number, at ``message_dim`` 3, a sender may count twice; ``own_share``) are written once,
+in docs/channel.md, "The talking expert". **No usable message: exactly the silent expert**
+(its own estimate, bit for bit; tested).
 
 Needs a channel: built from a spec without one (``AgentSpec.comm`` None) it raises, as it
 does when ``message_dim`` < ``MESSAGE_NUMBERS``.
@@ -88,7 +67,7 @@ def attitude(q: np.ndarray) -> np.ndarray:
 
 def encode_message(d_world: np.ndarray, scale: float, message_dim: int, sender: int) -> np.ndarray:
     """The ``message_dim`` numbers of a world-frame estimate and, when there is room, the
-    sender's index (module docstring)."""
+    sender's index (docs/channel.md, "The talking expert")."""
     m = np.zeros(message_dim)
     m[:MESSAGE_NUMBERS] = np.clip(np.asarray(d_world, float) / scale, -1.0, 1.0)
     if message_dim > MESSAGE_NUMBERS:
@@ -224,10 +203,6 @@ class TalkingNMPCPolicy(NMPCPolicy):
         if self._rotation is None:
             self._rotation = attitude(self._x0[: NX // 2])
         return self._rotation
-
-    def message_stats(self) -> dict[str, Any]:
-        """What the robot sent and used last period (for tests and analysis)."""
-        return {"message": self.message.copy(), "fused": self.fused, "weights": self._weights}
 
 
 def make_talking_policy(

@@ -39,20 +39,19 @@ def _draw_scene(ax, scenario) -> None:
     for obs in scenario.obstacles:
         if isinstance(obs, Cylinder):
             ax.add_patch(plt.Circle((obs.x, obs.y), obs.radius, color="0.5"))
-            ax.add_patch(
-                plt.Circle(
-                    (obs.x, obs.y),
-                    obs.radius + scenario.team_radius,
-                    fill=False,
-                    ls=":",
-                    color="0.5",
-                )
-            )
+            inflated = obs.radius + scenario.team_radius
+            ax.add_patch(plt.Circle((obs.x, obs.y), inflated, fill=False, ls=":", color="0.5"))
         else:
             c = obs.center
             ax.add_patch(plt.Circle((c[0], c[1]), obs.radius, color="0.6"))
     wp = scenario.waypoints
     ax.plot(wp[:, 0], wp[:, 1], "k*", ms=10, label="waypoints")
+
+
+def _save(fig, out: Path, name: str) -> str:
+    fig.savefig(out / name, dpi=110)
+    plt.close(fig)
+    return name
 
 
 def _draw_team(ax, q: np.ndarray, x_o: np.ndarray, color: str) -> None:
@@ -119,9 +118,7 @@ def _trajectory_figure(arr: dict[str, np.ndarray], scenario, out: Path) -> str:
     ax.set_ylabel("y (east) [m]")
     ax.set_title("Trajectory among the obstacles (dotted: inflated by the team radius)")
     ax.legend(loc="upper left", fontsize=8)
-    fig.savefig(out / "trajectory.png", dpi=110)
-    plt.close(fig)
-    return "trajectory.png"
+    return _save(fig, out, "trajectory.png")
 
 
 def _object_figure(arr: dict[str, np.ndarray], scenario, out: Path) -> str:
@@ -142,9 +139,7 @@ def _object_figure(arr: dict[str, np.ndarray], scenario, out: Path) -> str:
     axs[1].set_xlabel("t [s]")
     axs[1].legend(fontsize=8)
     fig.suptitle("Object coordinates")
-    fig.savefig(out / "object.png", dpi=110)
-    plt.close(fig)
-    return "object.png"
+    return _save(fig, out, "object.png")
 
 
 def _manipulability_figure(arr: dict[str, np.ndarray], out: Path) -> str:
@@ -158,9 +153,7 @@ def _manipulability_figure(arr: dict[str, np.ndarray], out: Path) -> str:
     ax.set_ylabel("det(Jbar Jbar^T)")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "manipulability.png", dpi=110)
-    plt.close(fig)
-    return "manipulability.png"
+    return _save(fig, out, "manipulability.png")
 
 
 def _velocities_figure(arr: dict[str, np.ndarray], lim, out: Path) -> str:
@@ -184,9 +177,7 @@ def _velocities_figure(arr: dict[str, np.ndarray], lim, out: Path) -> str:
     axs[0, 1].set_title("vehicle angular [rad/s]")
     axs[0, 2].set_title("joint rates [rad/s]")
     fig.tight_layout()
-    fig.savefig(out / "velocities.png", dpi=110)
-    plt.close(fig)
-    return "velocities.png"
+    return _save(fig, out, "velocities.png")
 
 
 def _animation(arr: dict[str, np.ndarray], scenario, out: Path, frames: int = 50) -> list[str]:
@@ -240,6 +231,4 @@ def _per_robot(
         ax.legend(fontsize=legend, ncol=len(names) + 1)
     axs[-1, 0].set_xlabel("t [s]")
     fig.suptitle(title)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path.name
+    return _save(fig, path.parent, path.name)

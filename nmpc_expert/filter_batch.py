@@ -5,15 +5,11 @@
                                             # objects); the same actions as
                                             # [f.act(o) for f, o in zip(filters, observations)]
 
-Each robot's filter still runs alone on its own observation (no communication): the
-batch only evaluates the same compiled function for many robots at once. A filter's
-decision is the QP builder (linearization of the local model over the horizon and
-condensing; most of a filter's time) and then DAQP on the small dense QP. The builders
-of all robots that carry the same object (one ``OCPFunctions``) are evaluated in one
-call of ``uvms_env.vector.kernels.BatchedFunction`` built from the builder's symbolic
-graph: SIMD lanes, one robot per lane, the library the batched environment uses. The
+Each robot's filter still runs alone on its own observation (no communication). The
+builders of all robots that carry the same object (one ``OCPFunctions``) are evaluated in
+one call of ``uvms_env.vector.kernels.BatchedFunction``, one robot per SIMD lane; the
 QPs are then solved one after another (DAQP has no batched interface; each QP has a
-different active set).
+different active set). Reference: docs/safety-filter.md, "Many filters at once".
 
 Rounding: the lane build uses the vector maths library where the scalar build calls
 libm, so the builders agree to ~1e-15 relative, not bit for bit; the tests compare the

@@ -8,7 +8,7 @@ the Hessian is IPOPT's limited-memory approximation, since the exact Hessian of 
 constraints is a graph of ~10^7 operations. Slow (a second or so per decision): it is the
 yardstick for the fast solver, not a real-time controller.
 
-May import: numpy, casadi and this package's ``ocp``/``local_model``/``settings``.
+May import: numpy, casadi and this package's ``ocp``/``rti``/``local_model``/``settings``.
 """
 
 from __future__ import annotations
@@ -19,32 +19,29 @@ import casadi as cs
 import numpy as np
 
 from nmpc_expert.ocp import NC, NW, WEIGHT_OFFSETS, OCPFunctions, node_terms
+from nmpc_expert.rti import RealTimeIteration
 from nmpc_expert.settings import NMPCSettings
 from uvms_env.dynamics import NU
 from uvms_env.dynamics.compiled import BufferCall
 from uvms_env.dynamics.local_model import NTHETA, NX
 
 
-class IpoptSolver:
-    """Converged multiple-shooting NMPC. Same interface as ``RTISolver``."""
+class IpoptSolver(RealTimeIteration):
+    """Converged multiple-shooting NMPC. Same interface as ``RTISolver``, whose plan,
+    shift (here with the slacks ``sbar``) and fallback it shares; ``step`` solves to
+    convergence instead of iterating once."""
 
     name = "ipopt"
 
     def __init__(
         self, funcs: OCPFunctions, theta: np.ndarray, weights: np.ndarray, settings: NMPCSettings
     ) -> None:
+        n = funcs.horizon
+        super().__init__(n, NX, (NU,), theta, weights)
         self.funcs = funcs
-        n = self.n = funcs.horizon
-        self.theta = np.ascontiguousarray(theta, dtype=float)
-        self.weights = np.ascontiguousarray(weights, dtype=float)
         self._build = BufferCall(funcs.qp_builder)
         self._no_disturbance = np.zeros(NX)  # the paper's model (no disturbance observer)
-        self.xbar = np.zeros((n + 1, NX))
-        self.abar = np.zeros((n, NU))
         self.sbar = np.zeros((n, NC))
-        self.xd = np.zeros((n + 1, 6))
-        self.vd = np.zeros((n + 1, 6))
-        self.has_plan = False
         self._solver, self._lbg, self._ubg = self._make(settings)
 
     def _make(self, settings: NMPCSettings):
@@ -115,21 +112,14 @@ class IpoptSolver:
         )
         return solver, np.concatenate(lbg), np.concatenate(ubg)
 
-    def reset(self) -> None:
-        self.has_plan = False
-
-    def shift(self, x0: np.ndarray, a_init: np.ndarray) -> None:
+    def shift(self, x0: np.ndarray, a_init: np.ndarray | None) -> None:
         if self.has_plan:
-            self.xbar[:-1] = self.xbar[1:].copy()
-            self.abar[:-1] = self.abar[1:].copy()
             self.sbar[:-1] = self.sbar[1:].copy()
         else:
-            self.xbar[:] = x0
-            self.abar[:] = a_init
             self.sbar[:] = 0.0
-        self.xbar[0] = x0
+        super().shift(x0, a_init)
 
-    def step(self, x0: np.ndarray, a_init: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+    def step(self, x0: np.ndarray, a_init: np.ndarray | None) -> tuple[np.ndarray, dict[str, Any]]:
         self.shift(x0, a_init)
         a_ref = self._build(
             self.xbar, self.abar, self.theta, self.xd, self.vd, self.weights, self._no_disturbance
@@ -168,8 +158,3 @@ class IpoptSolver:
             "slack_max": float(self.sbar.max()),
         }
         return self.abar[0].copy(), info
-
-    def fallback(self, x0: np.ndarray, a_hold: np.ndarray) -> np.ndarray:
-        if self.has_plan:
-            return self.abar[0].copy()
-        return np.clip(a_hold, -1.0, 1.0)

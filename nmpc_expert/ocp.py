@@ -4,28 +4,19 @@
   substeps, and its sensitivities (Phi = dF/dx, Gamma = dF/da) chained through the RK4
   substeps from the Jacobian of f, frozen over each substep's four stages.
 * ``outputs``: the cost residuals and soft-constraint values at a node, with Jacobians.
-* ``qp_builder``: the condensed Gauss-Newton QP of one real-time iteration: the state
-  deviations eliminated through the linearized dynamics, a dense QP in the N * 8 input
-  steps with hard saturation bounds and the soft constraints of x_1..x_N as rows.
+* ``qp_builder``: the condensed Gauss-Newton QP of one real-time iteration
+  (``build_qp_builder``).
 
-The Jacobian of f used for the sensitivities drops the terms that are small at the speeds
-of this task (within the vehicle speed limits of ``parameters.toml``, ``[limits]``): the
-configuration dependence of the mass matrix times the acceleration and of the
-velocity-dependent forces. It keeps the kinematics, the restoring forces (roll and pitch
-are passive), the full velocity dependence (damping, Coriolis, the object's share) and
-the input matrix. The defects (F(x_k, a_k) - x_{k+1}) are exact, so the RTI converges to
-a dynamically consistent plan; the exact AD Jacobian costs far more to call and to
-compile (docs/expert.md, "Solvers").
+The Jacobian of f used for the sensitivities drops the configuration dependence of the
+mass matrix and of the velocity forces (small within the speed limits); the defects are
+exact, so the RTI converges to a dynamically consistent plan (docs/expert.md, "Solvers").
 
-Soft constraints (NC = 17 per node, normalized by their limits so one penalty fits all):
-body twist of the vehicle (6), joint rates (4), joint angles (4), object pitch (1),
-vehicle pitch (1), manipulability (1). They apply to x_1..x_N, never to the measured x_0.
-Their limits are not numbers here: they enter through the weight vector (``lower``,
-``upper``, ``scale``), built from ``NMPCSettings``, whose limits are the environment's
-(the model's ``[limits]`` and ``uvms_env.env.constraints``), tightened relative to them.
-The vehicle pitch is the environment's other representation constraint; it is passive
-(the arm's reaction tilts the vehicle) and never nears its bound under the expert, but a
-cloned policy inside the safety filter tilted a vehicle past it (``safety_filter``).
+Soft constraints (NC = 17 per node, ``CONSTRAINT_NAMES``, normalized by their limits so one
+penalty fits all) apply to x_1..x_N, never to the measured x_0. Their limits enter through
+the weight vector (``lower``, ``upper``, ``scale``), built from ``NMPCSettings``. The
+vehicle pitch is passive and never nears its bound under the expert, but a cloned policy
+inside the safety filter tilted a vehicle past it (``safety_filter``).
+Reference: docs/expert.md ("OCP", "Constraints").
 
 May import: numpy, casadi and ``uvms_env.dynamics`` (the local model lives there:
 ``uvms_env.dynamics.local_model``, shared with the environment's priors).
@@ -35,6 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cache
+from itertools import accumulate
 
 import casadi as cs
 import numpy as np
@@ -52,17 +44,37 @@ from uvms_env.dynamics.local_model import (
 )
 from uvms_env.dynamics.uvms import default_model
 
-NC = 17  # soft constraints per node
-NW = 6 + 6 + 6 + NU + 5 * NC + 1  # weight/bound vector: see ``weight_vector``
-# start of each part of the weight vector (``weight_vector``)
-WEIGHT_OFFSETS = {
-    "r_u": 18,
-    "slack_l1": 18 + NU,
-    "slack_l2": 18 + NU + NC,
-    "lower": 18 + NU + 2 * NC,
-    "upper": 18 + NU + 3 * NC,
-    "scale": 18 + NU + 4 * NC,
+# The soft constraints of one node, in the order ``node_terms`` stacks them (rows of the
+# QP per node; ``central`` selects them by name).
+CONSTRAINT_NAMES = (
+    *(f"vehicle_speed_{a}" for a in ("u", "v", "w", "p", "q", "r")),
+    *(f"joint_speed_{k}" for k in range(1, 5)),
+    *(f"joint_position_{k}" for k in range(1, 5)),
+    "object_pitch",
+    "vehicle_pitch",
+    "manipulability",
+)
+NC = len(CONSTRAINT_NAMES)  # soft constraints per node (17)
+# The entry of the local state x = [q; zeta] each row is (None: a function of several:
+# the object's pitch through its pose, the manipulability through q).
+CONSTRAINT_STATE: tuple[int | None, ...] = (*range(NQ, 2 * NQ), *range(6, NQ), None, 4, None)
+# The parts of the weight vector (``weight_vector``), in order; ``steady_state`` is 1 when
+# R penalizes a - a_ss, 0 when it penalizes a.
+_WEIGHT_SIZES = {
+    "q_x": 6,
+    "q_v": 6,
+    "p_x": 6,
+    "r_u": NU,
+    **{name: NC for name in ("slack_l1", "slack_l2", "lower", "upper", "scale")},
+    "steady_state": 1,
 }
+_WEIGHT_ENDS = list(accumulate(_WEIGHT_SIZES.values()))
+WEIGHT_LAYOUT = {
+    name: slice(end - size, end)
+    for (name, size), end in zip(_WEIGHT_SIZES.items(), _WEIGHT_ENDS, strict=True)
+}
+NW = _WEIGHT_ENDS[-1]  # size of the weight/bound vector
+WEIGHT_OFFSETS = {name: part.start for name, part in WEIGHT_LAYOUT.items()}  # where each starts
 
 
 def weight_vector(
@@ -77,9 +89,9 @@ def weight_vector(
     scale: np.ndarray,
     steady_state: bool,
 ) -> np.ndarray:
-    """Pack the builder's ``w`` input: diagonal weights (Qx, Qv, Px, R), slack penalties
-    (L1, L2), normalized constraint bounds (lower, upper: for c / scale) and the
-    row scales, and whether R penalizes a - a_ss (1) or a (0)."""
+    """Pack the builder's ``w`` input (``WEIGHT_LAYOUT``): diagonal weights (Qx, Qv, Px, R),
+    slack penalties (L1, L2), normalized constraint bounds (lower, upper: for c / scale)
+    and the row scales, and whether R penalizes a - a_ss (1) or a (0)."""
     parts = [q_x, q_v, p_x, r_u, slack_l1, slack_l2, lower, upper, scale, [float(steady_state)]]
     return np.concatenate([np.asarray(p, float).ravel() for p in parts])
 
@@ -145,7 +157,7 @@ def build_interval(model: LocalModel, f_jac: cs.Function, period: float, substep
 def node_terms(model: LocalModel, x, theta, xd, vd):
     """Unweighted residual [pose error (angles wrapped); twist error] and the NC
     constraint values [zeta (10); q_m (4); theta_O; theta_i; det(Jbar Jbar^T)] at one
-    node (theta_i = q[4], the vehicle's ZYX pitch)."""
+    node (theta_i = q[4], the vehicle's ZYX pitch), in ``CONSTRAINT_NAMES`` order."""
     x_o, v_o = model.object_state(x, theta)
     r = cs.vertcat(x_o[:3] - xd[:3], wrap(x_o[3:] - xd[3:]), v_o - vd)
     c = cs.vertcat(x[NQ:], x[6:NQ], x_o[4], x[4], model.manipulability(x))
@@ -178,10 +190,9 @@ def build_qp_builder(
         min 0.5 da' H da + f' da   s.t.  lb <= da <= ub (saturation, hard),
                                          lbc <= C da <= ubc (soft, per node k = 1..N)
 
-    With N = 5 it has 40 variables and 85 soft rows, small enough for a dense active-set
-    solver; condensing here (compiled) costs microseconds. The soft rows are the
-    normalized constraint values of x_1..x_N; their L1 + L2 slack penalties are the
-    solver's business (``rti``).
+    Dense and small (docs/expert.md, "Solvers"). The soft rows are the normalized
+    constraint values of x_1..x_N; their L1 + L2 slack penalties are the solver's
+    business (``rti``).
 
     Offset-free prediction: ``d`` (NX) is added to every interval's end state, F(x_k, a_k)
     + d, the disturbance observer's estimate of what the local model misses per period
@@ -195,53 +206,22 @@ def build_qp_builder(
     g_t (G' with G = [G_1; ...; G_N], NX N x 8N), e ([e_1; ...; e_N]), a_ref (NU x N).
     """
     n = horizon
-    nz = n * NU
     xbar, abar = cs.MX.sym("xbar", NX, n + 1), cs.MX.sym("abar", NU, n)
     theta = cs.MX.sym("theta", NTHETA)
     xd, vd = cs.MX.sym("xd", 6, n + 1), cs.MX.sym("vd", 6, n + 1)
     w = cs.MX.sym("w", NW)
     d = cs.MX.sym("d", NX)
-    o = 0
-    q_x, q_v, p_x = w[o : o + 6], w[o + 6 : o + 12], w[o + 12 : o + 18]
-    o += 18
-    r_u = w[o : o + NU]
-    o += NU
-    lower, upper, scale = (w[o + k * NC : o + (k + 1) * NC] for k in (2, 3, 4))
-    use_ss = w[o + 5 * NC]
+    use_ss = w[WEIGHT_OFFSETS["steady_state"]]
 
     f_next, phis, gams = interval.map(n, "serial")(xbar[:, :n], abar, cs.repmat(theta, 1, n))
     f_next = f_next + cs.repmat(d, 1, n)
     # node 0 is the measured state: neither its cost nor its constraints depend on da
     thetas = cs.repmat(theta, 1, n)
-    r, jr, c, jc = outputs.map(n, "serial")(xbar[:, 1:], thetas, xd[:, 1:], vd[:, 1:])
+    node = outputs.map(n, "serial")(xbar[:, 1:], thetas, xd[:, 1:], vd[:, 1:])
     a_ref = use_ss * steady.map(n, "serial")(xbar[:, :n], cs.repmat(theta, 1, n), vd[:, :n])
-    inv_scale = 1 / scale
-
-    r_all = cs.repmat(r_u, n, 1)
-    h_mat = cs.diag(2 * r_all)
-    f_vec = 2 * r_all * cs.vec(abar - a_ref)
-    g_k, e_k = cs.MX(NX, nz), cs.MX(NX, 1)
-    c_rows, lbc, ubc, g_rows, e_rows = [], [], [], [], []
-    w_run = cs.vertcat(q_x, q_v)
-    w_end = cs.vertcat(p_x, cs.MX.zeros(6))  # terminal: pose only (paper's E)
-    for k in range(n):
-        phi_k, gam_k = phis[:, k * NX : (k + 1) * NX], gams[:, k * NU : (k + 1) * NU]
-        # dx_{k+1} = Phi_k dx_k + Gamma_k da_k + defect_k
-        g_k = phi_k @ g_k + cs.horzcat(cs.MX(NX, k * NU), gam_k, cs.MX(NX, nz - (k + 1) * NU))
-        e_k = phi_k @ e_k + (f_next[:, k] - xbar[:, k + 1])
-        g_rows.append(g_k)
-        e_rows.append(e_k)
-        wr = w_run if k + 1 < n else w_end
-        jr_k = jr[:, k * NX : (k + 1) * NX]
-        jg = jr_k @ g_k
-        h_mat += 2 * jg.T @ (wr * jg)
-        f_vec += 2 * jg.T @ (wr * (r[:, k] + jr_k @ e_k))
-        cj = inv_scale * jc[:, k * NX : (k + 1) * NX]
-        c_rows.append(cj @ g_k)
-        c_const = inv_scale * c[:, k] + cj @ e_k
-        lbc.append(lower - c_const)
-        ubc.append(upper - c_const)
-    h_mat = 0.5 * (h_mat + h_mat.T)
+    h_mat, f_vec, c_rows, lbc, ubc, g_rows, e_rows = _condense(
+        w, xbar, abar, a_ref, (f_next, phis, gams), node
+    )
     lb = cs.vec(-1 - abar)
     ub = cs.vec(1 - abar)
     dense = cs.densify
@@ -263,6 +243,51 @@ def build_qp_builder(
         ["xbar", "abar", "theta", "xd", "vd", "w", "d"],
         ["h", "f", "c_t", "lb", "ub", "lbc", "ubc", "g_t", "e", "a_ref"],
     )
+
+
+def _condense(
+    w: cs.MX,
+    xbar: cs.MX,
+    abar: cs.MX,
+    a_ref: cs.MX,
+    dynamics: tuple[cs.MX, cs.MX, cs.MX],
+    node: list[cs.MX],
+) -> tuple[cs.MX, cs.MX, list[cs.MX], list[cs.MX], list[cs.MX], list[cs.MX], list[cs.MX]]:
+    """``build_qp_builder``'s condensing (symbolic): H, f, the soft rows C with their
+    bounds, and G, e of dx_k = G_k da + e_k, from the weights ``w``, the plan, the input
+    reference, each interval's (F + d, Phi, Gamma) and each node's (r, Jr, c, Jc)."""
+    f_next, phis, gams = dynamics
+    r, jr, c, jc = node
+    n = abar.shape[1]
+    nz = n * NU
+    part = {name: w[s] for name, s in WEIGHT_LAYOUT.items() if name != "steady_state"}
+    inv_scale = 1 / part["scale"]
+    r_all = cs.repmat(part["r_u"], n, 1)
+    h_mat = cs.diag(2 * r_all)
+    f_vec = 2 * r_all * cs.vec(abar - a_ref)
+    g_k, e_k = cs.MX(NX, nz), cs.MX(NX, 1)
+    c_rows, lbc, ubc, g_rows, e_rows = [], [], [], [], []
+    w_run = cs.vertcat(part["q_x"], part["q_v"])
+    w_end = cs.vertcat(part["p_x"], cs.MX.zeros(6))  # terminal: pose only (paper's E)
+    for k in range(n):
+        phi_k, gam_k = phis[:, k * NX : (k + 1) * NX], gams[:, k * NU : (k + 1) * NU]
+        # dx_{k+1} = Phi_k dx_k + Gamma_k da_k + defect_k
+        g_k = phi_k @ g_k + cs.horzcat(cs.MX(NX, k * NU), gam_k, cs.MX(NX, nz - (k + 1) * NU))
+        e_k = phi_k @ e_k + (f_next[:, k] - xbar[:, k + 1])
+        g_rows.append(g_k)
+        e_rows.append(e_k)
+        wr = w_run if k + 1 < n else w_end
+        jr_k = jr[:, k * NX : (k + 1) * NX]
+        jg = jr_k @ g_k
+        h_mat += 2 * jg.T @ (wr * jg)
+        f_vec += 2 * jg.T @ (wr * (r[:, k] + jr_k @ e_k))
+        cj = inv_scale * jc[:, k * NX : (k + 1) * NX]
+        c_rows.append(cj @ g_k)
+        c_const = inv_scale * c[:, k] + cj @ e_k
+        lbc.append(part["lower"] - c_const)
+        ubc.append(part["upper"] - c_const)
+    h_mat = 0.5 * (h_mat + h_mat.T)
+    return h_mat, f_vec, c_rows, lbc, ubc, g_rows, e_rows
 
 
 @cache

@@ -5,13 +5,10 @@
     action = policy.act(obs_i)    # (8,) normalized inputs in [-1, 1]
     policy.stats                  # solve_time_ms, iterations, status, fallbacks, ...
 
-``LocalController`` holds what the expert shares with the safety filter
-(``safety_filter``): the local model, the constraints with the rate-offset estimator, the
-solver and the ``executed`` hook.
+``LocalController``: what the expert shares with the safety filter (see there).
 
-Built only from what robot i knows before the task (its ``AgentSpec``: grasp, load
-share, object shape, waypoints, obstacles, workspace, team radius) and fed only its own
-observation; nothing is shared between instances except read-only compiled functions.
+Built only from robot i's ``AgentSpec`` and fed only its own observation; nothing is
+shared between instances except read-only compiled functions.
 
 May import: numpy, casadi, ``uvms_env`` (dynamics, navigation, policy, env.observation)
 and this package. Never ``baselines``.
@@ -26,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from nmpc_expert.observation import OBSERVATION_STRUCTURE, check_observation
-from nmpc_expert.ocp import NC, WEIGHT_OFFSETS, ocp_functions, weight_vector
+from nmpc_expert.ocp import NC, WEIGHT_LAYOUT, ocp_functions, weight_vector
 from nmpc_expert.reference import GoalIntegral, HorizonReference
 from nmpc_expert.rti import ExtraRows, RTISolver
 from nmpc_expert.settings import NMPCSettings, controller_settings
@@ -38,6 +35,7 @@ from uvms_env.navigation import WaypointNavigator, task_navigator
 from uvms_env.policy import AgentSpec
 
 SOLVERS = ("rti", "ipopt")
+_BOUNDS = ("lower", "upper", "scale")  # the constraint bounds' parts of the weight vector
 
 
 def navigator_for(spec: AgentSpec) -> WaypointNavigator:
@@ -79,6 +77,38 @@ def constraint_bounds(settings: NMPCSettings) -> tuple[np.ndarray, np.ndarray, n
     return lower, upper, scale
 
 
+def controller_weights(settings: NMPCSettings) -> np.ndarray:
+    """The OCP's weight vector (``ocp.weight_vector``) of ``settings``: its tracking and
+    input weights, slack penalties and constraint bounds (``constraint_bounds``)."""
+    s = settings
+    lower, upper, scale = constraint_bounds(s)
+    return weight_vector(
+        s.q_x * np.ones(6),
+        s.q_v * np.ones(6),
+        s.p_x * np.ones(6),
+        s.r_u * np.ones(NU),
+        s.slack_l1 * np.ones(NC),
+        s.slack_l2 * np.ones(NC),
+        lower,
+        upper,
+        scale,
+        s.input_reference == "steady_state",
+    )
+
+
+def waypoint_index(waypoints: np.ndarray, waypoint: np.ndarray, source: str) -> int:
+    """Which of the mission's ``waypoints`` the active ``waypoint`` read from ``source`` (an
+    observation, the team state) is: float32 values, so matched to 1e-3."""
+    d = np.max(np.abs(waypoints - waypoint), axis=1)
+    k = int(np.argmin(d))
+    if d[k] > 1e-3:
+        raise ValueError(
+            f"{source} waypoint {np.round(waypoint, 3).tolist()} is not one of the "
+            "mission's waypoints"
+        )
+    return k
+
+
 class LocalController:
     """What the expert and the safety filter (``safety_filter``) share: one robot's local
     prediction model, its soft constraints with the rate-offset estimator, a solver over
@@ -104,19 +134,7 @@ class LocalController:
             spec.object_shape, spec.object_ring_radius, s.horizon, s.period, s.substeps
         )
         self.theta = local_parameters(spec)
-        lower, upper, scale = constraint_bounds(s)
-        self.weights = weight_vector(
-            s.q_x * np.ones(6),
-            s.q_v * np.ones(6),
-            s.p_x * np.ones(6),
-            s.r_u * np.ones(NU),
-            s.slack_l1 * np.ones(NC),
-            s.slack_l2 * np.ones(NC),
-            lower,
-            upper,
-            scale,
-            s.input_reference == "steady_state",
-        )
+        self.weights = controller_weights(s)
         self._steady = BufferCall(self.funcs.steady_input)
         if solver == "rti":
             self.solver = RTISolver(
@@ -136,10 +154,9 @@ class LocalController:
             )
         # rate-offset estimator (settings.offset_gain): the speed bounds, shifted in place
         # in the solver's weight vector by the estimated prediction error
+        lower, upper, scale = (self.solver.weights[WEIGHT_LAYOUT[k]] for k in _BOUNDS)
         self._bounds = (lower.copy(), upper.copy(), scale.copy())
-        o = WEIGHT_OFFSETS
-        self._lower = self.solver.weights[o["lower"] : o["lower"] + NC]
-        self._upper = self.solver.weights[o["upper"] : o["upper"] + NC]
+        self._lower, self._upper = lower, upper  # views, shifted in place
         self.rate_offset = np.zeros(NX // 2)  # e, filtered one-step error of zeta
         # disturbance observer (settings.disturbance_observer): d, the velocity part of
         # the solver's additive disturbance (a view, updated in place), and sigma^2, the
@@ -321,7 +338,7 @@ class NMPCPolicy(LocalController):
     def act(self, obs: np.ndarray) -> np.ndarray:
         start = time.perf_counter()
         o = self._measure(obs)
-        index = self._waypoint_index(o[OBSERVATION_STRUCTURE["waypoint"]])
+        index = waypoint_index(self._wp, o[OBSERVATION_STRUCTURE["waypoint"]], "observation")
         x_o, _ = self._object_state(self._x0, self.theta)
         xd, vd = self.reference(x_o, index)
         self.solver.xd[:] = xd + self.goal.shift(x_o, index)
@@ -361,19 +378,6 @@ class NMPCPolicy(LocalController):
         super().executed(action)
         if self.settings.input_step is not None:  # the input applied anchors the step bound
             self.solver.a_prev = np.clip(np.asarray(action, dtype=np.float64).reshape(-1), -1, 1)
-
-    # -- helpers ----------------------------------------------------------------------------
-    def _waypoint_index(self, waypoint: np.ndarray) -> int:
-        """Which of the mission's waypoints the observation's active waypoint is (float32
-        observations: match to 1e-3)."""
-        d = np.max(np.abs(self._wp - waypoint), axis=1)
-        k = int(np.argmin(d))
-        if d[k] > 1e-3:
-            raise ValueError(
-                f"observation waypoint {np.round(waypoint, 3).tolist()} is not one of the "
-                "mission's waypoints"
-            )
-        return k
 
 
 def make_policy(

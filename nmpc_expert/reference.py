@@ -4,20 +4,14 @@ Each robot propagates the desired object motion from its *own* estimate of the o
 pose (paper: consensus without communication, since every estimate agrees under a rigid
 grasp): x^d_0 = x_O estimate, x^d_{k+1} = x^d_k + h [v_d(x^d_k); Theta_dot_d(x^d_k)]
 (explicit Euler, h = the sampling time), and v^d_k = [v_d; omega_d] with omega_d the
-inertial angular velocity of the desired Euler-angle rates. The navigation twist is
-``uvms_env.navigation.WaypointNavigator``'s, for the waypoint the robot is heading to.
+inertial angular velocity of the desired Euler-angle rates.
 
 Attitude (default ``attitude_from_waypoint``): the pose reference's Euler angles are the
-active waypoint's, not the propagated ones. Anchored at the estimate, a propagated
-attitude moves with the estimate and an attitude error never enters the cost (the
-navigation law turns at most 0.05 rad/s); the drag on the arms and the object, which sit
-below the vehicles, then pitched the bar by 0.8 rad near waypoint 1 of the paper
-scenario. The twist reference keeps the navigation law's rates.
+active waypoint's, not the propagated ones (why: docs/expert.md, "OCP"). The twist
+reference keeps the navigation law's rates.
 
-The propagation is one small CasADi function per waypoint, evaluated by the virtual
-machine through the zero-copy buffer interface (a few microseconds; no compilation, so a
-new scenario costs nothing).
-
+The propagation is one small CasADi function per waypoint, evaluated through the
+zero-copy buffer interface (no compilation, so a new scenario costs nothing).
 ``GoalIntegral``: the integral action near the last waypoint that both the distributed
 expert and the centralized NMPC apply to this reference.
 

@@ -1,22 +1,22 @@
 """The fast default solver: a real-time iteration (one Gauss-Newton SQP step per sample).
 
 Per decision: shift the previous plan (warm start), build the condensed QP around it
-with one compiled call (``ocp.qp_builder``: RK4 defects and sensitivities, residuals,
-soft constraints, condensing), solve it with DAQP (a dual active-set solver for small
-dense QPs), check the solution yourself (finite, status, feasibility of the hard bounds),
-take the full step and apply the first input.
+with one compiled call (``ocp.qp_builder``), solve it with DAQP, check the solution
+yourself (finite, status, feasibility of the hard bounds), take the full step and apply
+the first input. Why condensed and DAQP: docs/expert.md, "Solvers".
 
 The soft constraints carry the same exact L1 + quadratic slack penalty as the IPOPT
 reference (``l1 s + l2 s^2`` per constraint), expressed as DAQP's per-row soft weights
 (linear weight l1, reciprocal quadratic weight 1 / (2 l2)); a constraint is violated in
 the plan only where satisfying it is impossible or its multiplier exceeds l1.
 
-The condensed QP has 40 variables (the inputs of the 5 nodes); the sparse stage-wise QP
-would also carry every node's state and one slack per soft constraint and node
-(``ocp.NC``), and costs far more (docs/expert.md, "Solvers").
-
 A failed QP never stalls the loop: the controller applies the shifted previous plan (or,
 with no plan yet, the nominal holding input) and counts a fallback.
+
+``RealTimeIteration`` and ``solve_daqp`` (the DAQP call with its own checks and status)
+are shared by this robot's ``RTISolver`` and the team's ``central_rti.CentralRTI``, each
+saying only how it condenses its QP; the IPOPT reference (``ipopt_solver``) shares the
+plan, its shift and the fallback.
 
 May import: numpy, daqp, ``uvms_env`` and this package's ``ocp``/``local_model``.
 """
@@ -28,7 +28,7 @@ from typing import Any, Protocol
 import daqp
 import numpy as np
 
-from nmpc_expert.ocp import NC, WEIGHT_OFFSETS, OCPFunctions
+from nmpc_expert.ocp import NC, WEIGHT_LAYOUT, OCPFunctions
 from uvms_env.dynamics import NU
 from uvms_env.dynamics.compiled import BufferCall
 from uvms_env.dynamics.local_model import NX
@@ -41,6 +41,11 @@ _SOLVED = {1: "optimal", 2: "soft_optimal"}
 _G_T, _E, _A_REF = 7, 8, 9  # ``qp_builder`` outputs g_t and e (see ``ocp.build_qp_builder``)
 
 
+def violation(values: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> float:
+    """How far ``values`` leave [lower, upper] at most (0 inside)."""
+    return max(float(np.max(lower - values)), float(np.max(values - upper)), 0.0)
+
+
 def solve_daqp(
     qp: daqp.Model | None,
     h: np.ndarray,
@@ -50,12 +55,15 @@ def solve_daqp(
     lower: np.ndarray,
     sense: np.ndarray,
     soft: tuple[np.ndarray, np.ndarray],
-) -> tuple[daqp.Model, np.ndarray, int, dict[str, Any]]:
+) -> tuple[daqp.Model, np.ndarray, np.ndarray, dict[str, Any]]:
     """Load the dense QP min 0.5 x'Hx + f'x s.t. lower <= [x; C x] <= upper (DAQP's
-    layout: the first len(x) entries are bounds on x) into ``qp`` (a new model when None)
-    and solve it: (model, x, exit flag, info). ``soft``: (1 / (2 l2), l1) per entry, the
-    rows flagged SOFT in ``sense`` carry them. Raises RuntimeError on a setup failure or
-    an unsolved QP; the caller checks the solution's feasibility itself."""
+    layout: the first len(x) entries are bounds on x) into ``qp`` (a new model when None),
+    solve it and check the solution here, since a solver may stop early and still return
+    numbers: finite, and within its hard bounds (the entries not flagged SOFT: the box on
+    x and any hard rows) to ``FEASIBILITY_TOL``. ``soft``: (1 / (2 l2), l1) per entry, the
+    rows flagged SOFT in ``sense`` carry them. Returns (model, x, C x, info: status,
+    iterations, qp_violation); raises RuntimeError on a setup failure, an unsolved QP or
+    a failed check."""
     if qp is None:
         qp = daqp.Model()
         flag, _ = qp.setup(h, f, c, upper, lower, sense)
@@ -72,7 +80,29 @@ def solve_daqp(
     x, _, flag, info = qp.solve()
     if flag not in _SOLVED:
         raise RuntimeError(f"DAQP failed (exit flag {flag})")
-    return qp, x, flag, info
+    if not np.all(np.isfinite(x)):
+        raise RuntimeError("QP solution is not finite")
+    cx = c @ x
+    hard = sense != SOFT
+    values = np.concatenate([x, cx])
+    viol = violation(values[hard], lower[hard], upper[hard])
+    if viol > FEASIBILITY_TOL:
+        raise RuntimeError(f"QP solution violates the input bounds by {viol:.2e}")
+    status = {"status": _SOLVED[flag], "iterations": int(info["iterations"]), "qp_violation": viol}
+    return qp, x, cx, status
+
+
+def soft_penalties(
+    l1: np.ndarray, l2: np.ndarray, n_box: int, n_hard: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """DAQP's per-entry soft weights (1 / (2 l2), l1) of a QP whose ``n_box`` box entries
+    come first and ``n_hard`` hard rows last (their entries unused), the soft rows' L1 and
+    L2 slack penalties between."""
+    l1, l2 = np.asarray(l1, dtype=float), np.asarray(l2, dtype=float)
+    if np.any(l2 <= 0):
+        raise ValueError("slack_l2 must be > 0 (the soft rows need a quadratic penalty)")
+    pad, hard = np.zeros(n_box), np.zeros(n_hard)
+    return np.concatenate([pad, 1.0 / (2.0 * l2), hard]), np.concatenate([pad, l1, hard])
 
 
 class ExtraRows(Protocol):
@@ -89,8 +119,79 @@ class ExtraRows(Protocol):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 
 
-class RTISolver:
-    """Real-time iteration for one robot. ``solve(x0, xd, vd)`` -> first input (8,)."""
+class RealTimeIteration:
+    """A real-time iteration over a horizon of ``n`` intervals: the plan (``xbar``: the
+    n + 1 nodes' states, ``abar``: the n inputs, normalized), its warm-start ``shift``, the
+    full step along the QP's input steps (``iterate``) and the ``fallback``. A subclass
+    builds and solves its condensed QP (``solve_qp``) and says what the input steps do to
+    the plan's states (``state_steps``), around the model parameters ``theta``, the OCP's
+    ``weights`` and the object references ``xd``, ``vd`` set before each step."""
+
+    def __init__(
+        self, horizon: int, nx: int, input_shape: tuple[int, ...], theta: Any, weights: Any
+    ) -> None:
+        self.n = horizon
+        self.theta = np.ascontiguousarray(theta, dtype=float)
+        self.weights = np.ascontiguousarray(weights, dtype=float)
+        self.xd = np.zeros((horizon + 1, 6))
+        self.vd = np.zeros((horizon + 1, 6))
+        self.xbar = np.zeros((horizon + 1, nx))  # row k = node k
+        self.abar = np.zeros((horizon, *input_shape))
+        self.has_plan = False
+
+    def reset(self) -> None:
+        self.has_plan = False
+        self.xbar[:] = 0.0
+        self.abar[:] = 0.0
+
+    def shift(self, x0: np.ndarray, a_init: np.ndarray | None) -> None:
+        """Warm start: the previous plan moved one interval forward (last node repeated);
+        with no plan, x0 everywhere and ``a_init`` as every input (None only with a plan)."""
+        if self.has_plan:
+            self.xbar[:-1] = self.xbar[1:].copy()
+            self.abar[:-1] = self.abar[1:].copy()
+        elif a_init is None:
+            raise ValueError("a_init is needed while there is no plan")
+        else:
+            self.xbar[:] = x0
+            self.abar[:] = a_init
+        self.xbar[0] = x0
+
+    def step(self, x0: np.ndarray, a_init: np.ndarray | None) -> tuple[np.ndarray, dict[str, Any]]:
+        """One real-time iteration from the measured state x0; returns (a_0, info)."""
+        self.shift(x0, a_init)
+        return self.iterate()
+
+    def iterate(self) -> tuple[np.ndarray, dict[str, Any]]:
+        """Solve the QP around the current (xbar, abar) (already shifted), take the full
+        step and return (a_0, info); raises RuntimeError if the QP failed."""
+        da, info = self.solve_qp()
+        self.xbar[1:] += self.state_steps(da)
+        self.abar += da.reshape(self.abar.shape)
+        np.clip(self.abar, -1.0, 1.0, out=self.abar)
+        self.has_plan = True
+        return self.abar[0].copy(), info
+
+    def solve_qp(self) -> tuple[np.ndarray, dict[str, Any]]:
+        """The input steps da (all inputs of the horizon, flat) and solver info."""
+        raise NotImplementedError
+
+    def state_steps(self, da: np.ndarray) -> np.ndarray:
+        """dx_1..dx_n (n x nx): the plan's state steps under the input steps ``da`` of the
+        last ``solve_qp`` (its linearization and defects)."""
+        raise NotImplementedError
+
+    def fallback(self, x0: np.ndarray, a_hold: np.ndarray) -> np.ndarray:
+        """The shifted previous plan's first input (already shifted by ``step``), or the
+        holding input when there is no plan."""
+        if self.has_plan:
+            return self.abar[0].copy()
+        return np.clip(a_hold, -1.0, 1.0)
+
+
+class RTISolver(RealTimeIteration):
+    """Real-time iteration for one robot: ``step(x0, a_init)`` -> (first input (8,), info),
+    around the references ``xd``, ``vd`` set beforehand."""
 
     name = "rti"
 
@@ -110,23 +211,17 @@ class RTISolver:
         |a_k - a_{k-1}| <= max_step along the plan (k >= 1, hard rows after the soft
         ones), and, while ``a_prev`` (the input applied last period) is set, on the first
         input |a_0 - a_prev| <= max_step (its box, intersected with [-1, 1]); None: none."""
-        self.funcs = funcs
         n = funcs.horizon
-        self.n = n
+        # xbar's row k = node k: CasADi's column-major NX x N+1, as the builder reads it
+        super().__init__(n, NX, (NU,), theta, weights)
+        self.funcs = funcs
         self._build = BufferCall(funcs.qp_builder)
-        self.theta = np.ascontiguousarray(theta, dtype=float)
-        self.weights = np.ascontiguousarray(weights, dtype=float)
-        self.xbar = np.zeros((n + 1, NX))  # row k = node k (CasADi column-major NX x N+1)
-        self.abar = np.zeros((n, NU))
-        self.xd = np.zeros((n + 1, 6))
-        self.vd = np.zeros((n + 1, 6))
         # d: added to every interval's predicted end state (the disturbance observer's
         # estimate, written in place by the controller; zeros: the paper's model)
         self.disturbance = np.zeros(NX)
         # a shift of the steady-state input reference a_ss of every interval (written in
         # place by the controller: the input that cancels d; zeros: the paper's cost)
         self.input_offset = np.zeros(NU)
-        self.has_plan = False
         self.stats: dict[str, Any] = {}
         nz, nc = n * NU, n * NC
         self._nz = nz
@@ -148,20 +243,12 @@ class RTISolver:
         self._sense = np.concatenate([np.zeros(nz), np.full(nc, SOFT), np.zeros(n_step)]).astype(
             np.intc
         )
-        o1, o2 = WEIGHT_OFFSETS["slack_l1"], WEIGHT_OFFSETS["slack_l2"]
-        l1 = np.tile(self.weights[o1 : o1 + NC], n)
-        l2 = np.tile(self.weights[o2 : o2 + NC], n)
+        l1 = np.tile(self.weights[WEIGHT_LAYOUT["slack_l1"]], n)
+        l2 = np.tile(self.weights[WEIGHT_LAYOUT["slack_l2"]], n)
         if extra is not None:
             l1 = np.concatenate([l1, extra.l1])
             l2 = np.concatenate([l2, extra.l2])
-        if np.any(l2 <= 0):
-            raise ValueError("slack_l2 must be > 0 (the soft rows need a quadratic penalty)")
-        # one entry per DAQP constraint, the box rows included (hard: their entries unused)
-        pad, hard = np.zeros(nz), np.zeros(n_step)
-        self._soft = (
-            np.concatenate([pad, 1.0 / (2.0 * l2), hard]),
-            np.concatenate([pad, l1, hard]),
-        )
+        self._soft = soft_penalties(l1, l2, nz, n_step)
         self._qp: daqp.Model | None = None
         self.cost = cost
         self._loaded = False  # the builder's outputs were set by ``load_build``
@@ -180,22 +267,10 @@ class RTISolver:
         self._loaded = True
 
     def reset(self) -> None:
-        self.has_plan = False
+        super().reset()
         self._loaded = False
         self.a_prev = None
         self._qp = None
-        self.xbar[:] = 0.0
-        self.abar[:] = 0.0
-
-    def shift(self, x0: np.ndarray, a_init: np.ndarray) -> None:
-        """Warm start: the previous plan moved one interval forward (last node repeated)."""
-        if self.has_plan:
-            self.xbar[:-1] = self.xbar[1:].copy()
-            self.abar[:-1] = self.abar[1:].copy()
-        else:
-            self.xbar[:] = x0
-            self.abar[:] = a_init
-        self.xbar[0] = x0
 
     def solve_qp(self) -> tuple[np.ndarray, dict[str, Any]]:
         """Build and solve the condensed QP around (xbar, abar); returns the input steps
@@ -212,8 +287,7 @@ class RTISolver:
             # a_ref -> clip(a_ref + offset): f = 2 R (abar - a_ref) moves by -2 R (shift)
             a_ref = built[_A_REF].reshape(-1)
             shift = np.clip(a_ref + np.tile(self.input_offset, self.n), -1.0, 1.0) - a_ref
-            o = WEIGHT_OFFSETS["r_u"]
-            f = f - 2.0 * np.tile(self.weights[o : o + NU], self.n) * shift
+            f = f - 2.0 * np.tile(self.weights[WEIGHT_LAYOUT["r_u"]], self.n) * shift
         if self.extra is not None:
             out = self._build.outputs
             c_x, lo_x, up_x = self.extra.rows(self.xbar, out[_G_T], out[_E].reshape(-1))
@@ -233,57 +307,24 @@ class RTISolver:
             diff = (self.abar[1:] - self.abar[:-1]).reshape(-1)
             self._lower[ns:], self._upper[ns:] = -d - diff, d - diff
             c = np.vstack([c, self._step_c])
-        self._qp, da, flag, info = solve_daqp(
+        self._qp, da, cda, info = solve_daqp(
             self._qp, h, f, c, self._upper, self._lower, self._sense, self._soft
         )
-        if not np.all(np.isfinite(da)):
-            raise RuntimeError("QP solution is not finite")
-        # own check of the hard bounds (a solver may stop early and still return numbers)
-        lo, up = self._lower[:nz], self._upper[:nz]
-        viol = max(float(np.max(lo - da)), float(np.max(da - up)), 0.0)
-        cda = c @ da
-        if self.max_step is not None:
-            step = cda[ns - nz :]
-            viol = max(viol, float(np.max(self._lower[ns:] - step)), 0.0)
-            viol = max(viol, float(np.max(step - self._upper[ns:])))
-            cda = cda[: ns - nz]
-        if viol > FEASIBILITY_TOL:
-            raise RuntimeError(f"QP solution violates the input bounds by {viol:.2e}")
-        slack = max(float(np.max(lbc - cda)), float(np.max(cda - ubc)), 0.0)
         return da, {
-            "status": _SOLVED[flag],
-            "slack_max": slack,  # largest planned soft-constraint violation (normalized)
-            "iterations": int(info["iterations"]),  # active-set iterations
-            "qp_violation": viol,
+            "status": info["status"],
+            # largest planned soft-constraint violation (normalized)
+            "slack_max": violation(cda[: ns - nz], lbc, ubc),
+            "iterations": info["iterations"],  # active-set iterations
+            "qp_violation": info["qp_violation"],
         }
 
-    def step(self, x0: np.ndarray, a_init: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
-        """One real-time iteration from the measured state x0; returns (a_0, info)."""
-        self.shift(x0, a_init)
-        return self.iterate()
-
-    def iterate(self) -> tuple[np.ndarray, dict[str, Any]]:
-        """Solve the QP around the current (xbar, abar) (already shifted), take the full
-        step and return (a_0, info); raises RuntimeError if the QP failed."""
-        da, info = self.solve_qp()
+    def state_steps(self, da: np.ndarray) -> np.ndarray:
         out = self._build.outputs
         g_t, e = out[_G_T], out[_E]  # dx_1..dx_N = G da + e (G read row-major from G')
-        dx = (g_t @ da + e.reshape(-1)).reshape(self.n, NX)
-        self.xbar[1:] += dx
-        self.abar += da.reshape(self.n, NU)
-        np.clip(self.abar, -1.0, 1.0, out=self.abar)
-        self.has_plan = True
-        return self.abar[0].copy(), info
+        return (g_t @ da + e.reshape(-1)).reshape(self.n, NX)
 
     def input_sensitivity(self) -> np.ndarray | None:
         """Gamma_0 = d x_1 / d a_0 (NX x NU) of the last linearization, None before any."""
         if not self.has_plan:
             return None
         return self._build.outputs[_G_T][:NX, :NU]
-
-    def fallback(self, x0: np.ndarray, a_hold: np.ndarray) -> np.ndarray:
-        """The shifted previous plan's first input (already shifted by ``step``), or the
-        holding input when there is no plan."""
-        if self.has_plan:
-            return self.abar[0].copy()
-        return np.clip(a_hold, -1.0, 1.0)

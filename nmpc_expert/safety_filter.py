@@ -5,19 +5,12 @@
                                          # robot's local model predicts to be safe
     policy.stats["intervened"]           # |a_out - a_prop| > tolerance this period
 
-Each period the inner policy proposes a_prop; the filter returns the first input of
-
-    min  ||u_0 - a_prop||^2_W + eps sum_{k>=1} ||u_k - ubar_k||^2
-    s.t. the local model's prediction x_1..x_N keeps the expert's constraints (soft, exact
-         L1 + L2 penalties: always feasible), -1 <= u_k <= 1 (hard)
-
-with ubar_k its previous plan shifted by one period (the backup plan), N =
-``FILTER_HORIZON``. It is the expert's real-time iteration (``rti``) with the tracking
-cost replaced (``RTISolver(cost=...)``) and u_0 linearized at a_prop (or, with
-``max_input_step``, at the allowed input nearest it), so a proposal predicted safe with
-the backup tail passes unchanged; a failed QP falls back like the expert. Beyond the
-expert's rows it keeps the workspace (``workspace``: a barrier at the plan's node 1).
-Design, input-step bound and what it does not cover: docs/safety-filter.md.
+It is the expert's real-time iteration (``rti``) with the tracking cost replaced
+(``RTISolver(cost=...)``) and u_0 linearized at a_prop (or, with ``max_input_step``, at
+the allowed input nearest it), so a proposal predicted safe with the backup tail passes
+unchanged; a failed QP falls back like the expert. Beyond the expert's rows it keeps the
+workspace (``workspace``: a barrier at the plan's node 1). The problem, design,
+input-step bound and what it does not cover: docs/safety-filter.md.
 
 Built only from the robot's ``AgentSpec`` and fed only its own observation, like the
 expert. May import: numpy, ``uvms_env`` and this package. Never ``baselines``.
@@ -32,9 +25,9 @@ from typing import Any
 
 import numpy as np
 
+from nmpc_expert.filter_workspace_rows import WorkspaceRows
 from nmpc_expert.policy import LocalController, local_parameters
 from nmpc_expert.settings import NMPCSettings
-from nmpc_expert.workspace import WorkspaceRows
 from uvms_env.dynamics import NU
 from uvms_env.dynamics.local_model import NX
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory

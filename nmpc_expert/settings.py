@@ -8,8 +8,6 @@ how much tighter the expert keeps them, as fractions of (or margins beyond) thos
 ``vehicle_speed``, ``joint_speed``, ``joint_position``, ``pitch_margin`` and
 ``manipulability_eps`` are derived properties.
 
-The default period is the scenarios' control period (``uvms_env.scenarios.Scenario``).
-
 May import: numpy, the standard library, ``uvms_env.models``, ``uvms_env.scenarios``
 (the default control period) and ``uvms_env.env.constraints``.
 """
@@ -64,27 +62,19 @@ class NMPCSettings:
     model ignores the internal wrench, whose effect on these rates shows within one period
     (tuning: docs/expert.md, "Tuning record")."""
     offset_gain: float = 0.5
-    """Gain L of the rate-offset estimator (0 disables it). Each period the robot compares
-    its measured zeta with the one-step prediction of its previous plan and filters the
-    error, e <- e + L (zeta_meas - zeta_pred - e); the speed constraints of the whole
-    horizon then apply to zeta_pred + e. The error is what the local model misses, mostly
-    the internal wrench of the other robots, and it is persistent, so the last error
-    predicts the next one. Own data only."""
+    """Gain L of the rate-offset estimator (0 disables it): each period the robot filters
+    its own one-step error, e <- e + L (zeta_meas - zeta_pred - e), and the speed
+    constraints of the whole horizon apply to zeta_pred + e (why: docs/expert.md)."""
     offset_limit: float = 1.0
     """|e| clip as a fraction of each speed limit: one bad measurement cannot move a bound
     by more than this (why 1.0: docs/expert.md, "Tuning record")."""
     disturbance_observer: bool = True
     """Offset-free local prediction (False: the paper's controller, with the rate-offset
-    estimator above on the speed bounds only). Each period the robot compares its
-    measured zeta with the one-step prediction of its previous plan, which already holds
-    the estimate d, and integrates the error (the innovation), d <- d + L_d (zeta_meas -
-    zeta_pred); the prediction model of the whole horizon then adds d to every
-    interval's end velocity, F(x_k, a_k) + [0; d]: a constant generalized force on the
-    robot, mapped through its local model to what it does in one period. It is what the
-    local model misses: the other robots' pull beyond the modelled load share, the
-    current, parameter mismatch. The rate-offset bound shift is then off (the prediction
-    carries the offset); the speed bounds are tightened instead by ``margin_gain`` times
-    the innovation's recent spread. Own data only."""
+    estimator above on the speed bounds only): the innovation is integrated, d <- d + L_d
+    (zeta_meas - zeta_pred), and the prediction adds d to every interval's end velocity,
+    F(x_k, a_k) + [0; d]; the rate-offset bound shift is then off, the speed bounds are
+    tightened by ``margin_gain`` times the innovation's recent spread instead (docs/expert.md,
+    the observer controller)."""
     observer_gain: float = 0.5
     """L_d, the observer's integral gain per period (0 < L_d <= 1)."""
     observer_limit: float = 5.0
@@ -94,19 +84,13 @@ class NMPCSettings:
     observer_input_gain: float = 0.5
     """g: the steady-state input reference a_ss (``input_reference``: what R pulls the
     inputs towards) moves by the input that cancels g * d on the vehicle's linear rates,
-    through the last linearization's input gain (0: off). a_ss is the nominal model's:
-    with d in the prediction, R pulls every input away from what counters d, so against
-    a current the team moves slower than its reference and stops short of the goal until
-    the goal integral winds up. Only the linear rates (a current acts there; on the joints
-    d mostly holds the teammates' pull against a model input gain that is off) and only
-    part of d: g = 1 made the estimate and the reference feed each other."""
+    through the last linearization's input gain (0: off; why only those rates and only
+    part of d: docs/expert.md, the observer controller)."""
     observer_input_limit: float = 0.3
     """|a_ss shift| clip per input (normalized), the same anti-runaway as ``observer_limit``."""
     observer_anti_windup: bool = False
     """Freeze the estimate of a rate whose input was saturated in the direction the
-    innovation asks for (conditional integration). Off: where the teammates drag a
-    joint against its saturated input, integrating on lets the plan see the drag and move
-    the vehicle instead."""
+    innovation asks for (conditional integration; why off: docs/expert.md)."""
     margin_gain: float = 4.0
     """k: the speed bounds move inwards by k * sigma, sigma the innovation's RMS (an
     exponential moving average of its square, weight ``margin_forgetting``)."""
@@ -120,23 +104,19 @@ class NMPCSettings:
     accelerates at once and the observer knows nothing yet."""
     input_step: float | None = 0.15
     """delta: hard bound on the normalized input's change per period, |a_0 - a_prev| <=
-    delta and along the plan (None: none, the paper's). The other robots' pull changes as
-    fast as their inputs do; when every robot jumps at once (a step of the navigation
-    reference) no estimate from the past predicts it. A full reversal takes 2 / delta
-    periods (1.6 s at 0.15)."""
+    delta and along the plan (None: none, the paper's); why: docs/expert.md. A full
+    reversal takes 2 / delta periods (1.6 s at 0.15)."""
     goal_integral_gain: float = 0.5
-    """k_i [1/s] of the integral action at the goal (0 disables it). The controller has no
-    disturbance model, so a steady current or buoyancy error leaves a position offset
-    (above the 0.15 m tolerance under a mild current). Near the last waypoint the
-    robot integrates its own object position error, I <- I + h (p_O - p_goal), and the
-    position reference moves by -k_i I. Every robot integrates the same quantity (its
-    estimate of the shared object), so the robots agree without communicating."""
+    """k_i [1/s] of the integral action at the goal (``reference.GoalIntegral``; 0 disables
+    it): a steady current or buoyancy error the model lacks leaves no position offset. Every
+    robot integrates its estimate of the shared object, so the robots agree silently."""
     goal_integral_radius: float = 0.5
     """The integral runs only while the object is this close to the last waypoint [m]."""
     goal_integral_limit: float = 2.0
     """|k_i I| clip per position axis [m] (anti-windup)."""
-    goal_integral_angle_limit: float = 0.3
-    """|k_i I| clip per Euler angle [rad] (anti-windup)."""
+    goal_integral_angle_limit: float = 0.8
+    """|k_i I| clip per Euler angle [rad] (anti-windup; why 0.8: docs/expert.md, "Tuning
+    record")."""
     slack_l1: float = 100.0
     """Exact-penalty weight (per unit of normalized violation) of the soft state constraints."""
     slack_l2: float = 10.0

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 import uvms_env
-from baselines.evaluate import episode_seed
+from baselines.evaluation.runner import case_episode_seed
 from baselines.policies import PolicySource
 from uvms_env.episode import Step, play
 
@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> None:
     from nmpc_expert import NMPCSettings
 
     overrides = {"n_agents": args.n_agents} if args.scenario == "random" else {}
-    seed = episode_seed(args.seed, args.scenario, args.episode)
+    seed = case_episode_seed(args.seed, args.scenario, args.episode)
     s = NMPCSettings()
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(6.4, 4.2), sharex=True)
     for k, policy in enumerate((args.policy, args.policy + "+filter")):

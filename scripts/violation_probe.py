@@ -3,8 +3,8 @@
     python scripts/violation_probe.py --policy nmpc --policy nmpc:central \\
         --scenario random --n-agents 6 --episodes 3 --seed 202
 
-Plays the evaluator's episodes (``baselines.evaluate.episode_seed``: the same seeds as
-``python -m baselines.evaluate`` with the same arguments) and prints one line per robot
+Plays the evaluator's episodes (``baselines.evaluation.runner.case_episode_seed``: the same
+seeds as ``python -m baselines.evaluate`` with the same arguments) and prints one line per robot
 and period with a violated constraint: the period, the waypoint the team heads to, the
 kind, by how much, for ``joint_speed`` which joint and its rate, and the robot's decision
 (the expert's status, its margin ``margin_max`` and predicted rate offset) and in how
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 import uvms_env
-from baselines.evaluate import episode_seed
+from baselines.evaluation.runner import case_episode_seed
 from baselines.policies import PolicySource
 from uvms_env.episode import Step, play, play_team
 
@@ -102,7 +102,7 @@ def main() -> None:
         if v is not None
     }
     for k in range(args.first, args.first + args.episodes):
-        seed = episode_seed(args.seed, args.scenario, k)
+        seed = case_episode_seed(args.seed, args.scenario, k)
         for policy in args.policy:
             rows = probe(policy, args.scenario, seed, overrides)
             end = rows.pop()

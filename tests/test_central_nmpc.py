@@ -1,7 +1,8 @@
 """The centralized NMPC (``nmpc_expert.central``) and the team-policy interface
 (``uvms_env.team_policy``, ``uvms_env.episode.play_team``): its prediction model is the
 simulator's team dynamics, team and per-robot policies cannot be mixed up, the evaluator
-marks its rows as full-information bounds, and it carries the object to the goal."""
+marks its rows as full-information bounds, it predicts with the model it is handed, its
+soft rows are the expert's, and it carries the object to the goal."""
 
 from __future__ import annotations
 
@@ -11,10 +12,17 @@ import numpy as np
 import pytest
 
 import uvms_env
-from baselines.evaluate import aggregate, evaluate, markdown_table
+from baselines.evaluation.report import markdown_table
+from baselines.evaluation.runner import evaluate
+from baselines.evaluation.summary import aggregate
 from baselines.policies import PolicySource
 from nmpc_expert import central as central_module
-from nmpc_expert.central import CentralNMPC, make_central_policy
+from nmpc_expert.central import CentralNMPC, central_settings, make_central_policy
+from nmpc_expert.ocp import CONSTRAINT_NAMES, build_outputs
+from nmpc_expert.team_model import TeamModel
+from uvms_env.dynamics import ObjectModel
+from uvms_env.dynamics.local_model import build_local_model
+from uvms_env.dynamics.uvms import default_model
 from uvms_env.episode import TEAM, build_policies, play, play_team
 from uvms_env.policy import AgentSpec
 from uvms_env.scenarios import make
@@ -72,9 +80,9 @@ def test_the_prediction_model_is_the_simulators_team_dynamics(short_scenario, co
     for _ in range(12):
         a = rng.uniform(-1, 1, (sim.n, 8))
         x = sim.flat_state.copy()
-        predicted = controller.predict(x, a)
+        predicted = controller.model.predict(x, a)
         before = sim.refinements
-        sim.step(a * controller.tau_max)
+        sim.step(a * controller.model.tau_max)
         if sim.refinements == before:  # a refined period is integrated in parts
             assert np.abs(predicted - sim.flat_state).max() <= 1e-9
             compared += 1
@@ -89,21 +97,64 @@ def test_the_input_reference_is_each_robots_steady_input_of_the_expert(controlle
     x = sim.flat_state.copy()
     n, hz = controller.n, controller.horizon
     twists = np.tile([0.1, -0.05, 0.0, 0.0, 0.0, 0.02], (hz, 1))
-    a_ss = controller._steady_inputs(np.tile(x, (hz, 1)), twists)
+    solver = controller.solver
+    a_ss = solver.steady_inputs(np.tile(x, (hz, 1)), twists)
     for i in range(n):
         x_i = np.r_[x[10 * i : 10 * i + 10], x[10 * n + 10 * i : 10 * n + 10 * i + 10]]
-        own = np.array(controller._steady_fn(x_i, controller._theta[i], twists[0])).ravel()
+        own = np.array(solver._steady_fn(x_i, solver.theta[i], twists[0])).ravel()
         assert np.allclose(a_ss[:, i], own, atol=1e-12)
     assert not np.allclose(a_ss[0, 0], a_ss[0, 1])  # the robots' grasps differ
 
 
-def test_the_model_has_nominal_parameters_whatever_the_truth_draws():
+def test_the_team_rows_are_every_robots_expert_constraints(controller):
+    """At a node of the plan the team QP's soft rows are, robot by robot, the expert's
+    soft constraint values of that robot's local model (``ocp.CONSTRAINT_NAMES``), and
+    the object's pitch once."""
+    sim = Simulator(controller.scenario)
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        sim.step(rng.uniform(-1, 1, (sim.n, 8)) * controller.model.tau_max)
+    x = sim.flat_state.copy()
+    n, nx, solver = controller.n, controller.nx, controller.solver
+    solver.reset()
+    solver.shift(x, np.zeros((n, 8)))
+    lin = controller.model.linearize(solver.xbar, solver.abar)
+    gk, ek = np.zeros((nx, solver.n * controller.nu)), np.zeros(nx)
+    values = solver._node_rows(1, gk, ek, lin)[1] * solver._scale
+    solver.reset()
+    scenario = controller.scenario
+    obj = ObjectModel(scenario.object_shape, scenario.object_ring_radius)
+    outputs = build_outputs(build_local_model(default_model(), obj))
+    pitch = CONSTRAINT_NAMES.index("object_pitch")
+    own = [k for k in range(len(CONSTRAINT_NAMES)) if k != pitch]
+    rows = len(own)
+    for i in range(n):
+        x_i = np.r_[x[10 * i : 10 * i + 10], x[10 * n + 10 * i : 10 * n + 10 * i + 10]]
+        c = np.array(outputs(x_i, solver.theta[i], np.zeros(6), np.zeros(6))[2]).ravel()
+        np.testing.assert_allclose(values[rows * i : rows * (i + 1)], c[own], rtol=1e-9)
+        assert abs(values[-1] - c[pitch]) < 1e-5  # the grasps hold to the simulator's 1e-6
+    assert len(values) == rows * n + 1
+
+
+def test_the_controller_predicts_with_the_model_it_is_handed():
+    """By default the nominal model, whatever the truth draws; a ``TeamModel`` at other
+    parameters (here the mismatched truth's) is what the controller then predicts with;
+    one of another horizon is refused."""
     scenario = make("short", seed=202, mismatch=0.2)
     team = CentralNMPC(scenario)
     sim = Simulator(scenario)
     assert np.array_equal(team.model.parameters, sim.nominal_parameters)
     assert np.array_equal(team.model.object_parameters, sim.nominal_object_parameters)
     assert not np.array_equal(sim.parameters, sim.nominal_parameters)  # the truth differs
+    horizon = central_settings().horizon
+    truth = TeamModel(scenario, horizon, sim.parameters, sim.object_parameters)
+    team = CentralNMPC(scenario, model=truth)
+    a = np.full((sim.n, 8), 0.3)
+    predicted = team.model.predict(sim.flat_state.copy(), a)
+    sim.step(a * truth.tau_max)
+    assert sim.refinements == 0 and np.abs(predicted - sim.flat_state).max() <= 1e-9
+    with pytest.raises(ValueError, match="the controller needs"):
+        CentralNMPC(scenario, central_settings(horizon=horizon - 1), model=truth)
 
 
 def test_team_and_per_robot_policies_cannot_be_mixed_up():
@@ -158,14 +209,14 @@ def test_bad_state_is_a_clear_error_and_a_failed_solve_falls_back(monkeypatch):
     def broken(*args, **kwargs):
         raise RuntimeError("solver down")
 
-    monkeypatch.setattr(central_module, "solve_daqp", broken)
+    monkeypatch.setattr(controller.solver, "solve_qp", broken)
     first = controller.act(state)  # no plan yet: the steady inputs at rest
     assert first.shape == (2, 8) and np.all(np.abs(first) <= 1)
     assert controller.stats["status"].startswith("fallback") and controller.fallbacks == 1
     monkeypatch.undo()
     controller.act(state)
-    plan = controller.abar[1].copy()
-    monkeypatch.setattr(central_module, "solve_daqp", broken)
+    plan = controller.solver.abar[1].copy()
+    monkeypatch.setattr(controller.solver, "solve_qp", broken)
     shifted = controller.act(state)  # the previous plan, shifted
     assert np.allclose(shifted, plan) and controller.fallbacks == 2
 
@@ -227,7 +278,7 @@ def test_the_disturbance_estimate_is_the_prediction_error_it_filters():
         team = episode.policies[TEAM]
         expected = np.zeros(team.nx)
         for (x0, a0), (x1, _) in zip(team.seen, team.seen[1:], strict=False):
-            error = x1 - team.predict(x0, a0)
+            error = x1 - team.model.predict(x0, a0)
             error[team._angles] = (error[team._angles] + np.pi) % (2 * np.pi) - np.pi
             expected += central_module.DISTURBANCE_GAIN * (error - expected)
         assert np.allclose(team.disturbance, expected, atol=1e-12)

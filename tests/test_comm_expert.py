@@ -167,7 +167,7 @@ def test_refuses_without_a_channel() -> None:
     with pytest.raises(ValueError, match="observer"):
         PolicySource.parse("nmpc:comm,paper").factory(0)
     # in an evaluation the episode fails with that error recorded, not the run
-    from baselines.evaluate import evaluate
+    from baselines.evaluation.runner import evaluate
 
     rows = evaluate(["nmpc:comm"], ["paper"], 1, 0, 1, max_cycles=2, progress=False)
     assert "has none" in rows[0]["error"]

@@ -1,4 +1,4 @@
-"""Scale-out: marl-eval JSON, the engine switch, the Ray evaluation backend and RLlib
+"""Scale-out: marl-eval JSON, the library switch, the Ray evaluation backend and RLlib
 training evaluated through ``--policy rllib:PATH``.
 
 The Ray tests need Ray (in the test extra; they skip where it is missing); the fast
@@ -15,8 +15,9 @@ from pathlib import Path
 import pytest
 
 from baselines.distributed import marl_eval
-from baselines.evaluate import evaluate, write_outputs
 from baselines.evaluate import main as evaluate_main
+from baselines.evaluation.outputs import write_outputs
+from baselines.evaluation.runner import evaluate
 from baselines.policies import PolicySource
 
 TIMING = ("policy_time_ms_median", "policy_time_ms_p95", "policy_time_ms_max")
@@ -72,11 +73,11 @@ def test_task_names_carry_the_team_size_and_algorithm_names_no_commas():
     assert marl_eval.algo_name("pkg.mod:f,x") == "pkg.mod:f;x"
 
 
-def test_engine_switch_reaches_rllib_without_importing_ray(capsys):
+def test_library_switch_reaches_rllib_without_importing_ray(capsys):
     from baselines.train import main as train_main
 
     with pytest.raises(SystemExit):
-        train_main(["--engine", "rllib", "--help"])
+        train_main(["--library", "rllib", "--help"])
     assert "--num-env-runners" in capsys.readouterr().out
 
 
@@ -112,15 +113,15 @@ def _train_and_evaluate(tmp_path: Path, runners: int, iterations: int) -> list[d
 
     run = tmp_path / "rllib_ppo"
     train_main(
-        "--engine rllib --algo ppo --scenario random --env-option n_agents=2"
+        "--library rllib --algo ppo --scenario random --env-option n_agents=2"
         f" --num-env-runners {runners} --iterations {iterations} --robot-steps 100000"
         " --hp train_batch_size_per_learner=64 --hp minibatch_size=32 --hp num_epochs=1"
         " --env-option max_cycles=16 --geometry-pool 2 --num-envs 2 --checkpoint-every 128"
         f" --no-progress --out {run}".split()
     )
     config = json.loads((run / "config.json").read_text())
-    engine = config["engine_settings"]
-    assert engine["iterations_done"] == iterations and engine["num_env_runners"] == runners
+    own = config["library_settings"]
+    assert own["iterations_done"] == iterations and own["num_env_runners"] == runners
     assert config["env_options"]["max_cycles"] == 16 and config["num_envs"] == 2
     progress = list(csv.DictReader(open(run / "progress.csv")))
     assert [int(r["iteration"]) for r in progress] == list(range(1, iterations + 1))
@@ -139,7 +140,7 @@ def test_rllib_sub_envs_cycle_through_their_own_geometries(local_ray):
     from ray.rllib.env.env_context import EnvContext
 
     from baselines.distributed.rllib_env import make_env
-    from uvms_env.vector.seeding import episode_seed
+    from uvms_env.vector.seeding import copy_reset_seed
 
     config = {"scenario": "short", "seed": 10, "geometry_pool": 7, "envs_per_runner": 2}
     config["num_env_runners"] = 2
@@ -149,7 +150,7 @@ def test_rllib_sub_envs_cycle_through_their_own_geometries(local_ray):
     # runner 2 of 2 holds copies 2 and 3 of K = 4: seed (10 + k + 4 e) mod 7, whatever
     # order RLlib resets in; the rule's function agrees with the written-out numbers
     assert {tuple(s) for s in seeds} == {(5, 2, 6), (6, 3, 0)}
-    assert [episode_seed(10, 2, e, 4, 7) for e in range(3)] == [5, 2, 6]
+    assert [copy_reset_seed(10, 2, e, 4, 7) for e in range(3)] == [5, 2, 6]
 
 
 def test_rllib_ppo_smoke_on_the_local_runner(local_ray, tmp_path):

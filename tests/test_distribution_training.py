@@ -1,6 +1,6 @@
 """Training on a distribution of team sizes and conditions, with memory: the shared
 condition flags, ``ConcatVecEnv`` (one VecEnv per team size), MAPPO's padded state, the
-SB3 engine (PPO on the memory observation, RecurrentPPO) and the TorchRL engine over
+SB3 trainer (PPO on the memory observation, RecurrentPPO) and the TorchRL trainer over
 several team sizes, their evaluations under the run's conditions, the imitation CLI's
 parallel rollouts over the distribution and the aggregate over training seeds. Tiny
 budgets: these check the paths, not the learning."""
@@ -128,11 +128,11 @@ def test_mappo_state_padded_to_the_largest_team():
         CentralStateVecEnv(VectorVecEnv(inner, seed=0), max_agents=1)
 
 
-# -- the engines over several team sizes --------------------------------------------------------
+# -- the trainers over several team sizes -------------------------------------------------------
 @pytest.fixture(scope="module")
 def memory_run(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("dist") / "ppo_memory"
-    main(["--engine", "sb3", "--robot-steps", "100", "--eval-every", "50", "--eval-episodes", "1",
+    main(["--library", "sb3", "--robot-steps", "100", "--eval-every", "50", "--eval-episodes", "1",
           "--eval-seed", "7", "--out", str(out), "--cost", "magnitude", *TINY, *SB3_TINY,
           *MEMORY])  # fmt: skip
     return out
@@ -141,7 +141,7 @@ def memory_run(tmp_path_factory) -> Path:
 def test_sb3_trains_over_team_sizes_and_evaluates_under_the_runs_conditions(memory_run):
     config = json.loads((memory_run / "config.json").read_text())
     assert config["team_sizes"] == [2, 3] and config["eval_seed"] == 7
-    assert config["engine_settings"]["robot_sub_envs"] == 2 * (2 + 3)
+    assert config["library_settings"]["robot_sub_envs"] == 2 * (2 + 3)
     assert config["overrides"]["randomize"] == {"current": ["none", "mild"], "mismatch": [0, 0.1]}
     rows = _rows(memory_run / "evaluations.csv")
     assert [r["rung"] for r in rows[:2]] == ["random_n2", "random_n3"]
@@ -174,7 +174,7 @@ def test_memory_policy_decides_compiled_as_with_predict(memory_run):
         a, b = fast.act(obs["uvms_1"]), slow.act(obs["uvms_1"])
         np.testing.assert_allclose(a, b, rtol=0, atol=2e-5)
         obs, *_ = env.step({x: a if x == "uvms_1" else np.zeros(8) for x in env.agents})
-    assert fast._io.memory.observe(obs["uvms_1"])[:8].any()  # it remembers what it sent
+    assert fast.inputs.memory.observe(obs["uvms_1"])[:8].any()  # it remembers what it sent
 
 
 def test_recurrent_ppo_trains_and_its_state_restarts_each_episode(tmp_path):
@@ -184,7 +184,7 @@ def test_recurrent_ppo_trains_and_its_state_restarts_each_episode(tmp_path):
     from uvms_env.policy import AgentSpec
 
     out = tmp_path / "rppo"
-    main(["--engine", "sb3", "--algo", "recurrent_ppo", "--robot-steps", "80", "--out", str(out),
+    main(["--library", "sb3", "--algo", "recurrent_ppo", "--robot-steps", "80", "--out", str(out),
           *TINY, *SB3_TINY, "--hp", 'policy_kwargs={"lstm_hidden_size": 8}'])  # fmt: skip
     env = uvms_env.parallel_env("random", n_agents=2)
     obs, _ = env.reset(seed=2)
@@ -204,16 +204,16 @@ def test_recurrent_ppo_trains_and_its_state_restarts_each_episode(tmp_path):
 def test_torchrl_trains_over_team_sizes(tmp_path):
     pytest.importorskip("torchrl", minversion="0.14")
     out = tmp_path / "torchrl"
-    main(["--engine", "torchrl", "--robot-steps", "100", "--out", str(out), *TINY,
+    main(["--library", "torchrl", "--robot-steps", "100", "--out", str(out), *TINY,
           "--hp", "rollout_steps=4", "--hp", "minibatches=2", "--hp", "epochs=1",
           "--hp", "hidden=[8]"])  # fmt: skip
     config = json.loads((out / "config.json").read_text())
-    assert config["engine_settings"]["team_sizes"] == [2, 3]
+    assert config["library_settings"]["team_sizes"] == [2, 3]
     # 2 copies x 4 steps x (2 + 3) robots per iteration
-    assert config["engine_settings"]["robot_steps_per_iteration"] == 40
+    assert config["library_settings"]["robot_steps_per_iteration"] == 40
     assert config["robot_steps"] == 120
     with pytest.raises(ValueError, match="--cost with several team sizes"):
-        main(["--engine", "torchrl", "--robot-steps", "40", "--out", str(tmp_path / "c"),
+        main(["--library", "torchrl", "--robot-steps", "40", "--out", str(tmp_path / "c"),
               *TINY, "--cost", "count"])  # fmt: skip
 
 
@@ -314,7 +314,7 @@ def test_seed_aggregate_is_rliables_iqm_of_the_seed_by_case_scores(tmp_path):
 def test_dagger_warm_starts_and_evaluates_each_iteration_per_team_size(tmp_path):
     """``--warm-start E``: iterations fine-tune the previous network for E epochs;
     ``--eval-episodes``: each iteration's network on every team size under the run's
-    conditions, at the labelled robot-steps so far (evaluations.csv, the engines' schema)."""
+    conditions, at the labelled robot-steps so far (evaluations.csv, the trainers' schema)."""
     pytest.importorskip("minari")
     from baselines.imitation.cli import main as imitate
     from baselines.runs import EVAL_COLUMNS

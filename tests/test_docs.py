@@ -78,8 +78,8 @@ def command_target(args: list[str]) -> tuple[list[str], list[str]]:
             break
         lead.append(word)
     options = sorted({w.split("=")[0] for w in rest if re.fullmatch(r"--[a-z][\w-]*(=.*)?", w)})
-    # an option that picks the parser (the trainer's engine) is part of the command
-    selector = [w for i, w in enumerate(rest[:-1]) if w == "--engine" for w in (w, rest[i + 1])]
+    # an option that picks the parser (the trainer's RL library) is part of the command
+    selector = [w for i, w in enumerate(rest[:-1]) if w == "--library" for w in (w, rest[i + 1])]
     return head + lead + selector, options
 
 

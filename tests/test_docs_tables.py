@@ -112,11 +112,11 @@ def test_environment_option_defaults_are_what_an_env_built_without_them_uses(env
 # ---------------------------------------------------------------- trainer flags
 
 
-def parser_flags(engine: str) -> dict[str, argparse.Action]:
-    """The flags ``python -m baselines.train --engine ENGINE --help`` shows."""
+def parser_flags(library: str) -> dict[str, argparse.Action]:
+    """The flags ``python -m baselines.train --library LIBRARY --help`` shows."""
     from baselines.train import build_parser
 
-    actions = build_parser(engine)._actions
+    actions = build_parser(library)._actions
     return {
         a.option_strings[0]: a
         for a in actions
@@ -132,29 +132,29 @@ def flag_rows() -> dict[str, dict[str, str]]:
     return dict(zip(names, rows, strict=True))
 
 
-def engines_of(row: dict[str, str]) -> list[str]:
-    from baselines.train import ENGINES
+def libraries_of(row: dict[str, str]) -> list[str]:
+    from baselines.registry import LIBRARIES
 
-    cell = row["engines"]
-    return list(ENGINES) if cell == "all" else [e.strip() for e in cell.split(",")]
+    cell = row["libraries"]
+    return list(LIBRARIES) if cell == "all" else [e.strip() for e in cell.split(",")]
 
 
-def test_every_trainer_flag_has_one_row_per_engine_and_no_row_is_stale(flag_rows):
-    from baselines.train import ENGINES
+def test_every_trainer_flag_has_one_row_per_library_and_no_row_is_stale(flag_rows):
+    from baselines.registry import LIBRARIES
 
-    for engine in ENGINES:
-        documented = {f for f, row in flag_rows.items() if engine in engines_of(row)}
-        shown = set(parser_flags(engine))
-        assert documented - shown == set(), f"{engine}: rows for flags it does not take"
-        assert shown - documented == set(), f"{engine}: flags the docs table does not list"
+    for library in LIBRARIES:
+        documented = {f for f, row in flag_rows.items() if library in libraries_of(row)}
+        shown = set(parser_flags(library))
+        assert documented - shown == set(), f"{library}: rows for flags it does not take"
+        assert shown - documented == set(), f"{library}: flags the docs table does not list"
 
 
 def test_trainer_flag_defaults_are_the_parsers(flag_rows):
     for flag, row in flag_rows.items():
-        for engine in engines_of(row):
-            action = parser_flags(engine)[flag]
-            expected = "sb3" if flag == "--engine" else action.default  # main's default engine
-            assert default_literal(row["default"]) == expected, (flag, engine)
+        for library in libraries_of(row):
+            action = parser_flags(library)[flag]
+            expected = "sb3" if flag == "--library" else action.default  # main's default library
+            assert default_literal(row["default"]) == expected, (flag, library)
         assert row["meaning"], flag
 
 

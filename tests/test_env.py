@@ -462,6 +462,32 @@ def test_divergence_ends_the_episode_gracefully(env, monkeypatch):
     assert infos["uvms_0"]["metrics"]["success"] is False
 
 
+def test_both_engines_implement_the_engine_protocol(env):
+    """``EnvCore``'s engine interface is a ``typing.Protocol``: the scalar and the batched
+    engine define every method of it with its parameters (none left to the stubs) and
+    carry its attributes."""
+    import inspect
+
+    from uvms_env.env.core import Engine
+    from uvms_env.env.engine import ScalarEngine
+    from uvms_env.vector import VectorEnv
+    from uvms_env.vector.engine import BatchedEngine
+
+    inherited = ("steady", "features")  # host calls, unless an engine has device kernels
+    methods = [m for m, f in vars(Engine).items() if inspect.isfunction(f) and m[0] != "_"]
+    assert "step" in methods and set(inherited) <= set(methods)
+    batched = VectorEnv("short", 2, threads=1)._core.engine
+    for cls, engine in ((ScalarEngine, env._core.engine), (BatchedEngine, batched)):
+        assert isinstance(engine, cls)
+        for name in methods:
+            method, stub = getattr(cls, name), getattr(Engine, name)
+            assert method is not stub or name in inherited, (cls.__name__, name)
+            params = list(inspect.signature(method).parameters)
+            assert params == list(inspect.signature(stub).parameters), (cls.__name__, name)
+        for attribute in Engine.__annotations__:
+            assert hasattr(engine, attribute), (cls.__name__, attribute)
+
+
 def test_internal_wrench_matches_the_simulator(env):
     env.reset(seed=0)
     probe = InternalWrench(env.sim)

@@ -8,7 +8,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from baselines.evaluate import evaluate, write_outputs
+from baselines.evaluation.outputs import write_outputs
+from baselines.evaluation.runner import evaluate
 
 
 class _Raises:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from baselines.evaluate import episode_seed
+from baselines.evaluation.runner import case_episode_seed
 from baselines.policies import PolicySource
 from baselines.stats import bootstrap_mean_interval, wilson_interval
 
@@ -27,10 +27,10 @@ def test_bootstrap_interval_brackets_the_mean_and_is_reproducible():
 
 
 def test_episode_seeds_are_shared_across_policies_and_distinct_across_episodes():
-    seeds = {episode_seed(0, "paper", k) for k in range(100)}
+    seeds = {case_episode_seed(0, "paper", k) for k in range(100)}
     assert len(seeds) == 100
-    assert episode_seed(0, "paper", 3) == episode_seed(0, "paper", 3)
-    assert episode_seed(0, "paper", 3) != episode_seed(1, "paper", 3)
+    assert case_episode_seed(0, "paper", 3) == case_episode_seed(0, "paper", 3)
+    assert case_episode_seed(0, "paper", 3) != case_episode_seed(1, "paper", 3)
 
 
 def test_policy_parsing():
@@ -41,24 +41,28 @@ def test_policy_parsing():
         PolicySource.parse("rnadom")
 
 
+def _row(k: int, success: bool, **more) -> dict:
+    """Episode ``k`` of ``nmpc`` on ``paper``, a clean success or a failure."""
+    return {
+        "policy": "nmpc",
+        "scenario": "paper",
+        "episode": k,
+        "error": "",
+        "success": success,
+        "clean_success": success,
+        "_decision_ms": [1.0],
+        **more,
+    }
+
+
 def test_episodes_beyond_the_currents_reach_are_left_out_of_the_rates():
     """An episode whose current the team cannot overcome is counted apart
     (``out_of_reach``), not as the policy's failure."""
-    from baselines.evaluate import aggregate, markdown_table
+    from baselines.evaluation.report import markdown_table
+    from baselines.evaluation.summary import aggregate
 
-    def row(k: int, success: bool, reach: bool) -> dict:
-        return {
-            "policy": "nmpc",
-            "scenario": "paper",
-            "episode": k,
-            "error": "",
-            "success": success,
-            "clean_success": success,
-            "current_within_reach": reach,
-            "_decision_ms": [1.0],
-        }
-
-    rows = [row(0, True, True), row(1, False, True), row(2, False, False), row(3, True, True)]
+    reach = [True, True, False, True]
+    rows = [_row(k, k in (0, 3), current_within_reach=r) for k, r in enumerate(reach)]
     (s,) = aggregate(rows, seed=0)
     assert s["episodes"] == 4 and s["out_of_reach"] == 1
     assert s["success_rate"] == pytest.approx(2 / 3)
@@ -72,12 +76,55 @@ def test_nmpc_policy_options():
     assert PolicySource.parse("nmpc:paper").arg == "paper"
     with pytest.raises(ValueError, match="unknown nmpc option"):
         PolicySource.parse("nmpc:bogus").factory(0)
+    with pytest.raises(ValueError, match="unknown NMPC setting"):
+        PolicySource.parse("nmpc:no_such_setting=1").factory(0)
+
+
+def test_nmpc_settings_from_the_policy_name():
+    """``nmpc:NAME=VALUE`` reaches the controller's settings; the rest stay the defaults."""
+    from baselines.policies import PolicySource
+    from nmpc_expert import NMPCSettings
+    from uvms_env.policy import AgentSpec
+    from uvms_env.scenarios import make
+
+    spec = AgentSpec.from_scenario(make("short"), 0)
+    policy = PolicySource.parse("nmpc:paper,goal_integral_angle_limit=0.3,q_v=0.5").factory(0)(spec)
+    expected = NMPCSettings.paper(goal_integral_angle_limit=0.3, q_v=0.5)
+    assert policy.settings == expected
+    assert PolicySource.parse("nmpc").factory(0)(spec).settings == NMPCSettings()
 
 
 def test_within_reach_follows_the_current_preset():
-    from baselines.evaluate import within_reach
+    from baselines.evaluation.episode import within_reach
     from uvms_env.scenarios import make
 
     assert within_reach(make("paper"))  # no current
     assert within_reach(make("paper", current="mild"))  # 0.1 m/s < 0.287 m/s
     assert not within_reach(make("paper", current="strong"))  # 0.3 m/s
+
+
+def test_the_evaluator_and_the_ladder_read_one_summary():
+    """``aggregate`` (results.json) and the ladder's rungs are views of one
+    ``summarize``: the same numbers where they report the same thing, and rows read back
+    from episodes.csv (no per-decision times) fall back on the episodes' own medians."""
+    from baselines.evaluation.summary import aggregate, decision_times
+    from baselines.ladder import rung_summary
+
+    rows = [
+        _row(k, k != 2, internal_wrench_rms=1.0 + k, control_effort=10.0 * k,
+             violation_periods=k, _decision_ms=[1.0 + k, 2.0])
+        for k in range(5)
+    ]  # fmt: skip
+    (table,) = aggregate(rows, seed=0)
+    rung = rung_summary(rows, seed=0)
+    for key in ("episodes", "out_of_reach", "errors", "success_rate", "success_ci95",
+                "clean_success_rate", "clean_success_ci95", "internal_wrench_rms",
+                "internal_wrench_rms_ci95", "control_effort", "control_effort_ci95"):  # fmt: skip
+        assert table[key] == rung[key], key
+    assert rung["decision_ms_median"] == table["policy_time_ms"]["median"] == 2.0
+    assert rung["completion_periods"] is None  # no episode_steps: nothing to average
+    csv_rows = [
+        {"policy_time_ms_median": m, "policy_time_ms_p95": 2 * m, "policy_time_ms_max": 3 * m}
+        for m in (1.0, 2.0, 4.0)
+    ]
+    assert decision_times(csv_rows) == {"median": 2.0, "p95": 4.0, "max": 12.0}

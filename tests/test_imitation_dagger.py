@@ -135,7 +135,7 @@ def test_noise_perturbs_the_executed_action_but_not_the_label():
 
 
 def test_cli_collect_bc_dagger_evaluate(tmp_path):
-    from baselines.evaluate import evaluate
+    from baselines.evaluation.runner import evaluate
 
     expert = "experts.scripted:expert"
     data = tmp_path / "data" / "tiny"
@@ -196,7 +196,6 @@ def test_safe_distillation_labels_are_the_filters_correction_of_the_network(tmp_
     pytest.importorskip("daqp")
     from baselines.imitation.network import MLPPolicyNet
     from baselines.imitation.policy import ClonedPolicy
-    from baselines.policies import cloned_path
     from nmpc_expert import make_filter
     from uvms_env.policy import AgentSpec
 
@@ -207,7 +206,7 @@ def test_safe_distillation_labels_are_the_filters_correction_of_the_network(tmp_
     info = json.loads((out / "train.json").read_text())
     assert info["init"] == "dagger:pretrained" and info["expert"] == "self+filter"
     assert info["samples"] == 2 * STEPS  # no demonstrations: the rollout alone
-    start = MLPPolicyNet.load(cloned_path("dagger", None))
+    start = MLPPolicyNet.load(ClonedPolicy.locate("dagger", None))
     tuned = MLPPolicyNet.load(out / "policy.pt")
     assert np.array_equal(tuned.obs_mean.numpy(), start.obs_mean.numpy())
     assert not np.allclose(tuned.numpy_weights()[0][0], start.numpy_weights()[0][0])
@@ -250,3 +249,72 @@ def test_history_probe_aligns_each_stream_with_its_own_past(tmp_path):
         assert np.array_equal(prev[1:], labels[rows][:-1])
         assert np.array_equal(prev[0], np.clip(current[start, -8:], -1, 1))
     assert held[: 2 * STEPS].all() and not held[2 * STEPS :].any()  # held out by episode
+
+
+class _RecordingTeam:
+    """A team policy that pushes each robot by its index and records what it is told."""
+
+    information = "full"
+
+    def __init__(self, scenario) -> None:
+        self.n = scenario.n_agents
+        self.stats: dict = {}
+        self.states: list[np.ndarray] = []
+        self.applied: list[np.ndarray] = []
+
+    def reset(self) -> None:
+        self.states.clear()
+
+    def act(self, state: np.ndarray) -> np.ndarray:
+        self.states.append(np.array(state))
+        return self.decision(state)
+
+    def decision(self, state: np.ndarray) -> np.ndarray:
+        return np.tile(0.1 * (1 + np.arange(self.n))[:, None], (1, 8)) * np.sign(state[0] + 0.5)
+
+    def executed(self, actions: np.ndarray) -> None:
+        self.applied.append(np.array(actions))
+
+
+def test_team_teacher_labels_each_robot_with_its_row_and_hears_the_students():
+    """A team teacher decides once per period from the global state; robot i's label is
+    row i; where the students acted, the team hears their applied inputs before its next
+    decision."""
+    from uvms_env.team_policy import TeamPolicyFactory
+
+    built: list[_RecordingTeam] = []
+
+    def build(scenario) -> _RecordingTeam:
+        built.append(_RecordingTeam(scenario))
+        return built[-1]
+
+    streams, _ = rollouts(
+        _env, TeamPolicyFactory(build, "recording"), 1, 5, learner=Constant, beta=0.0,
+        progress=False,
+    )  # fmt: skip
+    (team,) = built
+    assert len(team.states) == STEPS  # one team decision per period, not one per robot
+    for i, s in enumerate(streams):
+        for label, state in zip(s.actions, team.states, strict=True):
+            assert np.allclose(label, team.decision(state)[i])
+    # every period after the first, the students' (Constant's) inputs, one row per robot
+    assert len(team.applied) == STEPS - 1
+    assert all(np.allclose(a, np.tile(Constant().act(None), (2, 1))) for a in team.applied)
+
+
+def test_the_centralized_bound_teaches_the_team_it_would_drive():
+    """``nmpc:central`` as the DAgger teacher with beta = 1: the labels are the bound's own
+    episode, row by row (the same team decisions ``play_team`` makes)."""
+    pytest.importorskip("daqp")
+    from baselines.policies import PolicySource
+    from uvms_env.episode import play_team
+
+    seed = 3
+    source = PolicySource.parse("nmpc:central")
+    streams, _ = rollouts(_env, source.team_factory(seed), 1, seed, progress=False)
+    decisions: list[dict[str, np.ndarray]] = []
+    play_team(_env(seed), source.team_factory(seed), seed,
+              on_step=lambda step: decisions.append(dict(step.actions)))  # fmt: skip
+    assert len(decisions) == STEPS
+    for i, s in enumerate(streams):
+        assert np.allclose(np.stack(s.actions), [d[f"uvms_{i}"] for d in decisions], atol=1e-6)

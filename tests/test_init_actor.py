@@ -10,7 +10,6 @@ import pytest
 
 import uvms_env
 from baselines.imitation.policy import ClonedPolicy
-from baselines.policies import cloned_path
 from baselines.rl.policy import SB3Policy
 from baselines.train import build_parser, settings_from
 from uvms_env.policy import AgentSpec
@@ -22,21 +21,21 @@ PRIORS = [
 
 
 def _built(tmp_path, extra: list[str]) -> tuple[argparse.Namespace, object]:
-    """An initialized model saved before any training step (the engine's build and save)."""
-    from baselines.rl.train import Engine
+    """An initialized model saved before any training step (the trainer's build and save)."""
+    from baselines.rl.sb3_trainer import Trainer
     from baselines.runs import Run
 
     argv = [
-        "--engine", "sb3", "--scenario", "random", "--env-option", "n_agents=2",
+        "--library", "sb3", "--scenario", "random", "--env-option", "n_agents=2",
         "--num-envs", "1", "--out", str(tmp_path / "run"), *extra,
     ]  # fmt: skip
     args = build_parser("sb3").parse_args(argv)
     settings = settings_from(args, {"num_envs": 1, "geometry_pool": 16})
     run = Run.start(settings, "sb3", "ppo", argv)
-    engine = Engine(run, "ppo", args)
-    run.write_config(**engine.build())
-    engine.save(run.folder)
-    engine.close()
+    trainer = Trainer(run, "ppo", args)
+    run.write_config(**trainer.build())
+    trainer.save(run.folder)
+    trainer.close()
     return args, run.folder
 
 
@@ -45,7 +44,7 @@ def test_the_initialized_actor_acts_as_the_clone(tmp_path):
     env = uvms_env.parallel_env(scenario="random", n_agents=2, seed=31)
     obs, _ = env.reset(seed=31)
     specs = [AgentSpec.from_scenario(env.scenario, i) for i in range(2)]
-    clone = [ClonedPolicy(s, cloned_path("dagger", None)) for s in specs]
+    clone = [ClonedPolicy(s, ClonedPolicy.locate("dagger", None)) for s in specs]
     ppo = [SB3Policy(s, "ppo", folder) for s in specs]
     gaps = []
     for _ in range(60):  # held states: the clone's own rollout
@@ -79,7 +78,7 @@ def test_the_critic_warmup_keeps_the_actor_and_trains_the_critic(tmp_path):
         out = tmp_path / name
         main(
             [
-                "--engine", "sb3", "--scenario", "random", "--env-option", "n_agents=2",
+                "--library", "sb3", "--scenario", "random", "--env-option", "n_agents=2",
                 *PRIORS, "--init-actor", "dagger:pretrained", "--num-envs", "1",
                 "--hp", "n_steps=64", "--robot-steps", "256", "--checkpoint-every", "0",
                 "--critic-warmup", str(warmup), "--no-progress", "--out", str(out),

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from baselines.evaluate import Case, episode_seed, evaluate
+from baselines.evaluation.runner import Case, case_episode_seed, evaluate
 from baselines.ladder import PRICED, cases, ladder, main, price
 
 
@@ -65,7 +65,7 @@ def test_a_case_plays_the_episodes_of_the_plain_evaluator_command():
     labelled = evaluate(["zero"], [case], 1, 5, overrides={"current": "mild"}, **kw)
     plain = evaluate(["zero"], ["random"], 1, 5, overrides={"current": "mild", "n_agents": 3}, **kw)
     assert labelled[0]["scenario"] == "random N=3" and plain[0]["scenario"] == "random"
-    assert labelled[0]["seed"] == plain[0]["seed"] == episode_seed(5, "random", 0)
+    assert labelled[0]["seed"] == plain[0]["seed"] == case_episode_seed(5, "random", 0)
     for key in ("control_effort", "internal_wrench_rms", "final_pos_error_m"):
         assert labelled[0][key] == plain[0][key]
     with pytest.raises(ValueError, match="label"):

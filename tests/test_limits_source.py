@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from nmpc_expert import NMPCPolicy, NMPCSettings, SafetyFilter
-from nmpc_expert.ocp import NC, WEIGHT_OFFSETS
+from nmpc_expert.ocp import CONSTRAINT_NAMES, NC, WEIGHT_OFFSETS
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.env import constraints
 from uvms_env.env.constraints import CONSTRAINTS
@@ -31,16 +31,6 @@ from uvms_env.env.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT
 from uvms_env.models import Limits, load_parameters, parameters
 from uvms_env.policy import AgentSpec
 from uvms_env.scenarios import make
-
-# The OCP's soft rows per node, in order (``nmpc_expert.ocp``, NC of them).
-CONSTRAINT_NAMES = (
-    *(f"vehicle_speed_{a}" for a in ("u", "v", "w", "p", "q", "r")),
-    *(f"joint_speed_{k}" for k in range(1, 5)),
-    *(f"joint_position_{k}" for k in range(1, 5)),
-    "object_pitch",
-    "vehicle_pitch",
-    "manipulability",
-)
 
 # (the limit, where it is defined, its tightened value from the current one, the env's
 # constraint kind, the OCP rows bounded by it, the state entry put at the current limit

@@ -13,7 +13,11 @@ import pytest
 import uvms_env
 from nmpc_expert import NMPCPolicy, NMPCSettings, make_policy
 from nmpc_expert.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
-from nmpc_expert.ocp import NC, WEIGHT_OFFSETS
+from nmpc_expert.ocp import CONSTRAINT_NAMES, CONSTRAINT_STATE, NC, WEIGHT_LAYOUT, build_outputs
+from nmpc_expert.policy import local_parameters
+from uvms_env.dynamics import ObjectModel
+from uvms_env.dynamics.local_model import NX, build_local_model
+from uvms_env.dynamics.uvms import default_model
 from uvms_env.policy import AgentSpec, Policy
 
 
@@ -101,11 +105,13 @@ def test_rti_agrees_with_ipopt_on_recorded_problems(env, short_run):
     """Same warm start, same problem: the first input of one RTI step and of IPOPT's
     converged solution. Tolerance 0.01 of the saturation: the RTI is one Gauss-Newton
     step with the approximate Jacobian (``ocp``), measured ~2e-3 in steady transport;
-    a 1% input difference is far below what the closed loop notices."""
+    a 1% input difference is far below what the closed loop notices. IPOPT runs the
+    paper's controller only, so the RTI runs it too (the same problem)."""
     *_, stream, _ = short_run
     spec = AgentSpec.from_scenario(env.scenario, 0)
-    rti = NMPCPolicy(spec)
+    rti = NMPCPolicy(spec, settings=NMPCSettings.paper())
     ref = NMPCPolicy(spec, solver="ipopt")
+    assert ref.settings == rti.settings
     agent = env.possible_agents[0]
     checked = 0
     for k, o in enumerate(stream[agent][:31]):
@@ -243,8 +249,8 @@ def test_soft_rows_carry_the_l1_l2_slack_penalty(env, short_run):
     solver = pol.solver
     h, f, c, lb, ub, lbc, ubc, *_ = (np.array(v) for v in solver._build.outputs)
     f, lb, ub, lbc, ubc = (v.ravel() for v in (f, lb, ub, lbc, ubc))
-    ncol = lbc.size // solver.n
-    rows = np.concatenate([np.arange(6, 10) + k * ncol for k in range(solver.n)])
+    joint_rates = [k for k, name in enumerate(CONSTRAINT_NAMES) if name.startswith("joint_speed")]
+    rows = np.concatenate([np.array(joint_rates) + k * NC for k in range(solver.n)])
     # force violations: joint rates of 5x their limit, beyond what the saturated
     # inputs can reach within the horizon
     lbc[rows] += 5.0
@@ -256,9 +262,8 @@ def test_soft_rows_carry_the_l1_l2_slack_penalty(env, short_run):
     solver.input_offset[:] = 0.0  # the builder's own cost, as the reference QP below
     da, info = solver.solve_qp()
     assert info["slack_max"] > 1e-3  # the tightened rows are violated
-    o1, o2 = WEIGHT_OFFSETS["slack_l1"], WEIGHT_OFFSETS["slack_l2"]
-    l1 = np.tile(pol.weights[o1 : o1 + NC], solver.n)
-    l2 = np.tile(pol.weights[o2 : o2 + NC], solver.n)
+    l1 = np.tile(pol.weights[WEIGHT_LAYOUT["slack_l1"]], solver.n)
+    l2 = np.tile(pol.weights[WEIGHT_LAYOUT["slack_l2"]], solver.n)
     z, s = cs.SX.sym("z", da.size), cs.SX.sym("s", lbc.size)
     cost = 0.5 * cs.dot(z, cs.mtimes(cs.DM(h), z)) + cs.dot(cs.DM(f), z)
     cost += cs.dot(cs.DM(l1), s) + cs.dot(cs.DM(l2), s * s)
@@ -304,3 +309,22 @@ def test_goal_integral_moves_the_reference_against_a_steady_offset(env):
     far[:3] += 1.0
     assert not pol.goal.shift(far, last).any()  # beyond the radius: no integration
     assert not pol.goal.integral.any()
+
+
+def test_constraint_names_are_the_rows_of_a_node(env):
+    """``ocp.CONSTRAINT_NAMES`` names the NC soft rows of a node in the order the OCP
+    stacks them: every row that is one entry of the local state (``CONSTRAINT_STATE``)
+    has its unit Jacobian there, and the others (object pitch, manipulability) depend on
+    the configuration q only."""
+    spec = AgentSpec.from_scenario(env.scenario, 0)
+    obj = ObjectModel(spec.object_shape, spec.object_ring_radius)
+    outputs = build_outputs(build_local_model(default_model(), obj))
+    x = np.random.default_rng(0).uniform(-0.3, 0.3, NX)
+    jc = np.array(outputs(x, local_parameters(spec), np.zeros(6), np.zeros(6))[3])
+    assert jc.shape == (NC, NX) and len(CONSTRAINT_NAMES) == len(CONSTRAINT_STATE) == NC
+    for k, j in enumerate(CONSTRAINT_STATE):
+        if j is None:
+            assert CONSTRAINT_NAMES[k] in ("object_pitch", "manipulability")
+            assert not jc[k, NX // 2 :].any() and jc[k, : NX // 2].any()
+        else:
+            assert np.array_equal(jc[k], np.eye(NX)[j]), CONSTRAINT_NAMES[k]

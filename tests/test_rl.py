@@ -1,4 +1,4 @@
-"""RL baselines: the SB3 engine's VecEnv stack, training end to end, and the committed
+"""RL baselines: the SB3 trainer's VecEnv stack, training end to end, and the committed
 pretrained models reproducing their recorded evaluation."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from baselines.evaluate import evaluate
-from baselines.rl.policy import PRETRAINED_DIR
-from baselines.rl.train import find_resume, make_vec_env
+from baselines.evaluation.runner import evaluate
+from baselines.loaded_policy import PRETRAINED
+from baselines.rl.sb3_trainer import find_resume, make_vec_env
 from baselines.runs import RunSettings
 from baselines.train import main, train
 
@@ -85,15 +85,15 @@ def test_cli_records_the_env_settings(tmp_path):
     argv += ["--hp", 'policy_kwargs={"log_std_init": -2.0}']
     main(argv)
     config = json.loads((out / "config.json").read_text())
-    engine = config["engine_settings"]
-    assert engine["policy_kwargs"] == {"log_std_init": -2.0}  # added to, not replacing, NET
+    own = config["library_settings"]
+    assert own["policy_kwargs"] == {"log_std_init": -2.0}  # added to, not replacing, NET
     from stable_baselines3 import PPO
 
     log_std = PPO.load(out / "model.zip", device="cpu").policy.log_std.detach().numpy()
     assert log_std.shape == (8,) and np.all(np.abs(log_std + 2.0) < 0.05)  # moved little
     expected = {"dtype": "float64", "geometry_pool": 8, "env_threads": 1}
-    assert {key: engine[key] for key in expected} == expected
-    assert config["robot_steps"] == 64 and engine["robot_sub_envs"] == 4
+    assert {key: own[key] for key in expected} == expected
+    assert config["robot_steps"] == 64 and own["robot_sub_envs"] == 4
     assert len(config["eval"]["episodes"]) == 2  # evaluated on single envs after training
 
 
@@ -104,7 +104,7 @@ COMMITTED = [
 
 def test_every_committed_sb3_model_is_replayed():
     """A model committed without a replay below would go unchecked."""
-    folders = {p.name for p in PRETRAINED_DIR.iterdir() if (p / "model.zip").is_file()}
+    folders = {p.name for p in PRETRAINED.iterdir() if (p / "model.zip").is_file()}
     assert folders == {name for _, name in COMMITTED}
 
 
@@ -112,7 +112,7 @@ def test_every_committed_sb3_model_is_replayed():
 def test_pretrained_reproduces_recorded_evaluation(algo, name):
     """Every committed SB3 model loads and replays the evaluation its config.json
     recorded (written by the trainer of its day: the loaders read that layout)."""
-    folder = PRETRAINED_DIR / name
+    folder = PRETRAINED / name
     source = f"{algo}:pretrained" if name == algo else f"{algo}:{folder}"
     for file in ("model.zip", "vecnormalize.pkl", "config.json"):
         assert (folder / file).stat().st_size < 1_000_000, file

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 import uvms_env
-from baselines.evaluate import evaluate, markdown_table, write_outputs
+from baselines.evaluation.outputs import write_outputs
+from baselines.evaluation.report import markdown_table
+from baselines.evaluation.runner import evaluate
 from baselines.policies import PolicySource, RandomPolicy
 from nmpc_expert import NMPCPolicy, NMPCSettings, SafetyFilter
 from uvms_env.dynamics.local_model import NX

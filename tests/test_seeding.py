@@ -8,17 +8,17 @@ import numpy as np
 import pytest
 
 import uvms_env
-from uvms_env.vector.seeding import episode_seed
+from uvms_env.vector.seeding import copy_reset_seed
 
 pytest.importorskip("stable_baselines3")
 
 
 def test_the_rule_gives_every_copy_and_episode_its_own_seed():
-    seeds = {episode_seed(100, k, e, 3) for k in range(3) for e in range(50)}
+    seeds = {copy_reset_seed(100, k, e, 3) for k in range(3) for e in range(50)}
     assert len(seeds) == 150 and min(seeds) == 100
-    assert [episode_seed(5, 1, e, 3, pool=4) for e in range(4)] == [2, 1, 0, 3]
+    assert [copy_reset_seed(5, 1, e, 3, pool=4) for e in range(4)] == [2, 1, 0, 3]
     with pytest.raises(ValueError, match="copy"):
-        episode_seed(0, 3, 0, 3)
+        copy_reset_seed(0, 3, 0, 3)
 
 
 def _first_observations(seed: int) -> dict[str, np.ndarray]:
@@ -37,13 +37,13 @@ def test_the_sb3_adapter_starts_the_second_episode_on_the_rules_seed():
     venv = VectorVecEnv(inner, seed=3)
     obs = venv.reset()
     for k in range(2):
-        first = _first_observations(episode_seed(3, k, 0, 2, pool))
+        first = _first_observations(copy_reset_seed(3, k, 0, 2, pool))
         np.testing.assert_allclose(obs[2 * k], first["uvms_0"], atol=1e-5)
     zero = np.zeros((4, 8), np.float32)
     for _ in range(2):
         obs, _, done, _ = venv.step(zero)
     assert done.all()
     for k in range(2):
-        second = _first_observations(episode_seed(3, k, 1, 2, pool))
+        second = _first_observations(copy_reset_seed(3, k, 1, 2, pool))
         np.testing.assert_allclose(obs[2 * k + 1], second["uvms_1"], atol=1e-5)
     venv.close()

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from baselines.imitation.policy import ClonedPolicy
-from baselines.policies import cloned_path
 from baselines.rl.shield import SHIELD_COLUMNS, Shield, ShieldPenalty
 from nmpc_expert import make_filter
 from uvms_env.env.priors import steady_inputs
@@ -63,7 +62,9 @@ def test_the_training_filter_decides_as_the_evaluation_filter():
         for f in row:
             f.reset()
     clones = [
-        ClonedPolicy(AgentSpec.from_scenario(env.scenarios[0], i), cloned_path("dagger", None))
+        ClonedPolicy(
+            AgentSpec.from_scenario(env.scenarios[0], i), ClonedPolicy.locate("dagger", None)
+        )
         for i in range(N)
     ]
     rng = np.random.default_rng(0)
@@ -173,14 +174,14 @@ def test_a_filtered_training_run_writes_the_run_records(tmp_path):
     out = tmp_path / "run"
     main(
         [
-            "--engine", "sb3", "--algo", "ppo", "--scenario", "random",
+            "--library", "sb3", "--algo", "ppo", "--scenario", "random",
             "--env-option", "n_agents=2", "--num-envs", "2", "--hp", "n_steps=64",
             "--robot-steps", "512", "--checkpoint-every", "0", "--no-progress",
             "--filter", "--filter-penalty", "0.5", "--out", str(out),
         ]
     )  # fmt: skip
     config = json.loads((out / "config.json").read_text())
-    assert config["engine_settings"]["filter"] == {"penalty": 0.5}
+    assert config["library_settings"]["filter"] == {"penalty": 0.5}
     assert config["robot_steps"] == 512
     with open(out / "progress.csv") as fh:
         progress = list(csv.DictReader(fh))

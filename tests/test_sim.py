@@ -7,6 +7,7 @@ import pytest
 
 from uvms_env.scenarios import make
 from uvms_env.sim import Simulator
+from uvms_env.sim.period import ENVELOPE, INACCURATE, OK, SPEED_LIMITS, PeriodControl
 
 MIRROR_Q = np.array([1, -1, 1, -1, 1, -1, -1, 1, 1, -1], dtype=float)  # y -> -y reflection
 MIRROR_TAU = np.array([1, -1, 1, -1, -1, 1, 1, -1], dtype=float)
@@ -147,3 +148,42 @@ def test_internal_wrench_cancels_on_the_object(paper):
     )
     assert np.abs(sim.grasp_matrix_t() @ squeeze.ravel()).max() < 1e-9
     assert np.abs(squeeze).max() > 0.1  # pushing the two vehicles together squeezes the bar
+
+
+def test_the_period_routine_halves_refused_parts_in_order_and_stops_where_one_fails():
+    """``uvms_env.sim.period`` on a stand-in step (x advances by h; a part is accurate when
+    h is at most what its environment resolves): accepted at once, refined in halves (each
+    half in order), refused at 1/16 where it stopped; each environment of a batch as alone."""
+    period, n = 0.12, 2
+    resolves = np.array([period, period / 4, period / 32, period / 2])
+    calls: list[tuple[int, float]] = []
+
+    def evaluate(ids, x0, h):
+        cols = np.arange(len(resolves)) if ids is None else np.asarray(ids)
+        calls.extend((int(c), h) for c in cols)
+        inaccurate = (h > resolves[cols] * (1 + 1e-12)).astype(float)
+        return x0 + h, np.tile(inaccurate, (12 * n, 1)), np.zeros((6 * n, len(cols)))
+
+    control = PeriodControl(n)
+    x0 = np.zeros((20 * n + 12, len(resolves)))
+    x_end, ok, refined = control.integrate(evaluate, x0, period, len(resolves))
+    assert ok.tolist() == [True, True, False, True] and refined == 3
+    everyone = x_end.copy()
+    np.testing.assert_allclose(x_end[:, [0, 1, 3]], period, rtol=1e-12)  # all of it, in parts
+    assert not x_end[:, 2].any()  # stopped at its first 1/16, which started at x0
+    parts = [h / period for env, h in calls if env == 1]
+    assert parts == [1, 1 / 2, 1 / 4, 1 / 4, 1 / 2, 1 / 4, 1 / 4]
+    assert [h / period for env, h in calls if env == 2] == [1, 1 / 2, 1 / 4, 1 / 8, 1 / 16]
+    assert control.verdict(ok, x_end).tolist() == [OK, OK, INACCURATE, OK]
+    x_end[20, 3] = 1.5 * SPEED_LIMITS["linear"]  # vehicle 0's surge, past the envelope
+    assert control.verdict(ok, x_end).tolist() == [OK, OK, INACCURATE, ENVELOPE]
+    for env in range(len(resolves)):  # K = 1: the same routine on one environment
+        alone = resolves[[env]]
+
+        def evaluate_alone(ids, x, h, alone=alone):
+            inaccurate = float(h > alone[0] * (1 + 1e-12))
+            return x + h, np.full((12 * n, 1), inaccurate), np.zeros((6 * n, 1))
+
+        x_one, ok_one, _ = control.integrate(evaluate_alone, x0[:, [env]], period, 1)
+        assert ok_one[0] == ok[env]
+        assert np.array_equal(x_one[:, 0], everyone[:, env])

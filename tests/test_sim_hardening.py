@@ -14,7 +14,8 @@ import pytest
 import uvms_env
 from uvms_env.scenarios import make
 from uvms_env.sim import Simulator
-from uvms_env.sim.simulator import GRASP_TOL, SPEED_LIMITS, SimulationDiverged
+from uvms_env.sim.period import GRASP_TOL, SPEED_LIMITS
+from uvms_env.sim.simulator import SimulationDiverged
 
 BANG_BANG = [-1.0, 1.0]
 

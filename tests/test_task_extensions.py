@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import uvms_env
-from baselines.evaluate import episode_seed, evaluate
+from baselines.evaluation.runner import case_episode_seed, evaluate
 from uvms_env.vector import VectorEnv
 
 TOL = 1e-9
@@ -139,7 +139,7 @@ def test_evaluator_passes_them_to_its_environments():
     plain = evaluate(["zero"], ["short"], 1, 0, 1, None, max_cycles=12, progress=False)
     row = rows[0]
     assert row["error"] == "" and "violations_slow_joints" in row
-    seed = episode_seed(0, "short", 0)
+    seed = case_episode_seed(0, "short", 0)
     env = uvms_env.parallel_env("short", seed=seed, max_cycles=12, **EXTENSIONS)
     env.reset(seed=seed)
     total, info = 0.0, {}

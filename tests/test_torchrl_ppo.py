@@ -1,4 +1,4 @@
-"""TorchRL's PPO over the TorchRL view of ``VectorEnv`` (``--engine torchrl``): a couple of
+"""TorchRL's PPO over the TorchRL view of ``VectorEnv`` (``--library torchrl``): a couple of
 iterations write the run folder and the saved actor acts through the evaluator; over the
 CUDA backend (its kernels compiled for the host, ``device="cpu"``) the rollout stays in
 tensors on the env's device; on a GPU, where there is one, the whole loop does."""
@@ -18,7 +18,7 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 import uvms_env
-from baselines.evaluate import evaluate
+from baselines.evaluation.runner import evaluate
 from baselines.policies import PolicySource
 from baselines.rl import torchrl_ppo
 from baselines.runs import RunSettings
@@ -40,16 +40,16 @@ def test_two_iterations_write_the_run_folder_and_the_actor_acts(tmp_path):
     out = tmp_path / "run"
     main(
         [
-            *("--engine", "torchrl", "--algo", "ppo", "--scenario", "short", "--num-envs", "4"),
+            *("--library", "torchrl", "--algo", "ppo", "--scenario", "short", "--num-envs", "4"),
             *("--robot-steps", "100", "--seed", "3", "--out", str(out), "--no-progress", *TINY),
             *("--env-option", "max_cycles=6"),  # episodes end inside the rollouts
         ]
     )
     config = json.loads((out / "config.json").read_text())
-    assert config["command"].startswith("python -m baselines.train --engine torchrl --algo ppo")
-    engine = config["engine_settings"]
-    assert config["robot_steps"] == 128 and engine["robot_steps_per_iteration"] == 64
-    assert config["seed"] == 3 and engine["backend"] == "cpu" and engine["device"] == "cpu"
+    assert config["command"].startswith("python -m baselines.train --library torchrl --algo ppo")
+    own = config["library_settings"]
+    assert config["robot_steps"] == 128 and own["robot_steps_per_iteration"] == 64
+    assert config["seed"] == 3 and own["backend"] == "cpu" and own["device"] == "cpu"
     assert config["robot_steps_per_s"] > 0 and config["wall_time_s"] > 0
     assert config["hardware"]["cores"] >= 1 and config["overrides"] == {"max_cycles": 6}
     rows = _rows(out / "progress.csv")
@@ -127,8 +127,8 @@ def test_the_cuda_backend_keeps_the_rollout_in_tensors_on_the_env_device(tmp_pat
     )
     out = train("torchrl", "ppo", settings, backend="cuda", device="cpu")
     config = json.loads((out / "config.json").read_text())
-    engine = config["engine_settings"]
-    assert engine["backend"] == "cuda" and engine["device"] == "cpu"
+    own = config["library_settings"]
+    assert own["backend"] == "cuda" and own["device"] == "cpu"
     assert config["robot_steps"] == 128 and (out / torchrl_ppo.ACTOR_FILE).exists()
 
 
@@ -139,4 +139,4 @@ def test_on_a_gpu_everything_stays_there(tmp_path):
     settings = RunSettings("short", {}, 10_000, 64, 0, tmp_path / "gpu", progress=False)
     out = train("torchrl", "ppo", settings, backend="cuda", device=0)
     config = json.loads((out / "config.json").read_text())
-    assert config["engine_settings"]["device"] == "cuda:0" and "gpu" in config["hardware"]
+    assert config["library_settings"]["device"] == "cuda:0" and "gpu" in config["hardware"]

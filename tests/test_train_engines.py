@@ -1,7 +1,7 @@
-"""One training layer under three engines (``baselines.train --engine {sb3,torchrl,rllib}``):
+"""One training layer under three libraries (``baselines.train --library {sb3,torchrl,rllib}``):
 each trains for a tiny budget and writes the same progress.csv and evaluations.csv
-columns and the same config.json keys; every engine's ``--help`` lists the same shared
-options; the learning-curve figure draws runs of all three; every PPO engine takes
+columns and the same config.json keys; every library's ``--help`` lists the same shared
+options; the learning-curve figure draws runs of all three; every PPO trainer takes
 PPO-Lagrangian's dual step the same way (and RLlib's env runners apply each new
 multiplier)."""
 
@@ -15,13 +15,14 @@ import numpy as np
 import pytest
 
 from baselines import runs
-from baselines.train import ENGINES, SHARED_GROUP, build_parser, main
+from baselines.registry import LIBRARIES
+from baselines.train import SHARED_GROUP, build_parser, main
 
 # Tiny: one or two iterations of a few dozen robot-steps, small networks, 2 env copies of
 # 2 robots, 6-step episodes; one evaluation episode (its length: the plain scenario's).
-# The keys every engine's config.json has, in order (the engine adds ``engine_settings``).
+# The keys every library's config.json has, in order (the trainer adds ``library_settings``).
 CONFIG_KEYS = (
-    "engine",
+    "library",
     "algo",
     "command",
     "scenario",
@@ -41,7 +42,7 @@ CONFIG_KEYS = (
     "cost",
     "resumes",
     "hardware",
-    "engine_settings",
+    "library_settings",
     "robot_steps",
     "wall_time_s",
     "robot_steps_per_s",
@@ -54,7 +55,7 @@ TINY = [
     *("--env-option", "max_cycles=6", "--checkpoint-every", "0"),
 ]
 COMMON = [*TINY, "--eval-every", "64", "--eval-episodes", "1", "--eval-max-cycles", "30"]
-ENGINE_ARGS = {
+LIBRARY_ARGS = {
     "sb3": [
         "--hp",
         "n_steps=16",
@@ -102,7 +103,7 @@ def _rows(path: Path) -> list[dict[str, str]]:
 
 @pytest.fixture(scope="module")
 def local_ray():
-    """A local Ray for this module's RLlib runs, shut down after them (the engine leaves
+    """A local Ray for this module's RLlib runs, shut down after them (the RLlib trainer leaves
     the one it starts running, which another module's ``ray.init`` would meet)."""
     ray = pytest.importorskip("ray")
     pytest.importorskip("ray.rllib")
@@ -116,58 +117,58 @@ def local_ray():
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory, request) -> dict[str, Path]:
-    """A run folder per available engine, 64 robot-steps each."""
+    """A run folder per available library, 64 robot-steps each."""
     folders: dict[str, Path] = {}
-    base = tmp_path_factory.mktemp("engines")
-    for engine in ENGINES:
-        if engine == "rllib":
+    base = tmp_path_factory.mktemp("libraries")
+    for library in LIBRARIES:
+        if library == "rllib":
             request.getfixturevalue("local_ray")
-        if engine == "torchrl":
+        if library == "torchrl":
             pytest.importorskip("torchrl", minversion="0.14")
-        out = base / engine
+        out = base / library
         main(
             [
-                "--engine",
-                engine,
+                "--library",
+                library,
                 "--robot-steps",
                 "64",
                 "--out",
                 str(out),
                 *COMMON,
-                *ENGINE_ARGS[engine],
+                *LIBRARY_ARGS[library],
             ]
         )
-        folders[engine] = out
+        folders[library] = out
     return folders
 
 
-def test_every_engine_writes_the_same_records(trained):
-    assert set(trained) == set(ENGINES)
-    for engine, run in trained.items():
-        assert _header(run / "progress.csv") == list(runs.PROGRESS_COLUMNS), engine
-        assert _header(run / "evaluations.csv") == list(runs.EVAL_COLUMNS), engine
+def test_every_library_writes_the_same_records(trained):
+    assert set(trained) == set(LIBRARIES)
+    for library, run in trained.items():
+        assert _header(run / "progress.csv") == list(runs.PROGRESS_COLUMNS), library
+        assert _header(run / "evaluations.csv") == list(runs.EVAL_COLUMNS), library
         config = json.loads((run / "config.json").read_text())
-        assert list(config) == list(CONFIG_KEYS), engine
-        assert config["engine"] == engine and config["algo"] == "ppo"
-        assert config["command"].startswith(f"python -m baselines.train --engine {engine}")
+        assert list(config) == list(CONFIG_KEYS), library
+        assert config["library"] == library and config["algo"] == "ppo"
+        assert config["command"].startswith(f"python -m baselines.train --library {library}")
         assert config["num_envs"] == 2 and config["seed"] == 1
         assert config["overrides"] == {"max_cycles": 6}
         assert config["robot_steps"] >= 64 and config["wall_time_s"] > 0
         progress = _rows(run / "progress.csv")
         steps = [int(r["robot_steps"]) for r in progress]
-        assert steps == sorted(steps) and steps[-1] == config["robot_steps"], engine
+        assert steps == sorted(steps) and steps[-1] == config["robot_steps"], library
         # each 6-step team episode of each copy ends inside the budget
         ended = sum(int(r["episodes"]) for r in progress)
-        assert ended >= 2 * (config["robot_steps"] // (2 * 2 * 6)) - 2, (engine, ended)
+        assert ended >= 2 * (config["robot_steps"] // (2 * 2 * 6)) - 2, (library, ended)
         lengths = {float(r["episode_len_mean"]) for r in progress if r["episode_len_mean"]}
-        assert lengths == {6.0}, engine
+        assert lengths == {6.0}, library
         evaluations = _rows(run / "evaluations.csv")
         assert [r["rung"] for r in evaluations] == ["short"] and evaluations[0]["errors"] == "0"
         assert int(evaluations[0]["robot_steps"]) == 64
         assert len(config["eval"]["episodes"]) == runs.RECORD_EPISODES
 
 
-def test_the_plot_draws_the_three_engines_runs(trained, tmp_path):
+def test_the_plot_draws_the_three_libraries_runs(trained, tmp_path):
     from baselines.rl import plot
 
     out = tmp_path / "curves.png"
@@ -177,19 +178,19 @@ def test_the_plot_draws_the_three_engines_runs(trained, tmp_path):
     assert [label.split()[0] for label in labels] == list(trained)
 
 
-@pytest.mark.parametrize("engine", ["sb3", "torchrl"])
+@pytest.mark.parametrize("library", ["sb3", "torchrl"])
 def test_a_resumed_run_goes_on_where_it_stopped_and_appends_to_its_records(
-    engine, trained, tmp_path
+    library, trained, tmp_path
 ):
     import shutil
 
-    run = tmp_path / engine
-    shutil.copytree(trained[engine], run)
+    run = tmp_path / library
+    shutil.copytree(trained[library], run)
     before = json.loads((run / "config.json").read_text())
     main(
         [
-            "--engine",
-            engine,
+            "--library",
+            library,
             "--robot-steps",
             "128",
             "--out",
@@ -197,7 +198,7 @@ def test_a_resumed_run_goes_on_where_it_stopped_and_appends_to_its_records(
             "--resume",
             str(run),
             *TINY,
-            *ENGINE_ARGS[engine],
+            *LIBRARY_ARGS[library],
         ]
     )
     config = json.loads((run / "config.json").read_text())
@@ -208,38 +209,46 @@ def test_a_resumed_run_goes_on_where_it_stopped_and_appends_to_its_records(
     assert [int(r["robot_steps"]) for r in progress] == [64, 128]
 
 
-def _shared_options(engine: str) -> list[list[str]]:
-    ap = build_parser(engine)
+def _shared_options(library: str) -> list[list[str]]:
+    ap = build_parser(library)
     (group,) = [g for g in ap._action_groups if g.title == SHARED_GROUP]
     return [a.option_strings for a in group._group_actions if a.help != "==SUPPRESS=="]
 
 
-def test_every_engine_lists_the_same_shared_options(capsys):
-    listed = {engine: _shared_options(engine) for engine in ENGINES}
+def test_every_library_lists_the_same_shared_options(capsys):
+    listed = {library: _shared_options(library) for library in LIBRARIES}
     assert listed["sb3"] == listed["torchrl"] == listed["rllib"]
     flags = [f for options in listed["sb3"] for f in options]
     for name in ("--robot-steps", "--num-envs", "--env-option", "--eval-every", "--resume"):
         assert name in flags
-    for engine in ENGINES:
+    for library in LIBRARIES:
         with pytest.raises(SystemExit):
-            main(["--engine", engine, "--help"])
+            main(["--library", library, "--help"])
         text = capsys.readouterr().out
-        shared = text[text.index(SHARED_GROUP) :].split(f"{engine} engine:")[0]
-        assert all(f in shared for f in flags), engine
+        shared = text[text.index(SHARED_GROUP) :].split(f"{library} library:")[0]
+        assert all(f in shared for f in flags), library
 
 
-def _cost_run(engine: str, out: Path, robot_steps: int, cost: list[str], *extra: str) -> None:
+def test_the_earlier_engine_flag_still_picks_the_library(capsys):
+    assert build_parser("torchrl").parse_args(["--engine", "torchrl"]).library == "torchrl"
+    with pytest.raises(SystemExit):
+        main(["--engine", "torchrl", "--help"])
+    text = capsys.readouterr().out
+    assert "torchrl library:" in text and "--engine {" not in text  # accepted, not listed
+
+
+def _cost_run(library: str, out: Path, robot_steps: int, cost: list[str], *extra: str) -> None:
     main(
         [
-            "--engine",
-            engine,
+            "--library",
+            library,
             "--robot-steps",
             str(robot_steps),
             "--out",
             str(out),
             *COMMON[:-4],
             *cost,
-            *ENGINE_ARGS[engine],
+            *LIBRARY_ARGS[library],
             *extra,
         ]
     )
@@ -261,22 +270,22 @@ DUAL = ["--cost", "magnitude", "--cost-weight", "0.5", "--multiplier-lr", "0.1"]
 DUAL += ["--cost-limit", "0.2"]
 
 
-@pytest.mark.parametrize("engine", ["sb3", "torchrl", "rllib"])
+@pytest.mark.parametrize("library", ["sb3", "torchrl", "rllib"])
 def test_ppo_lagrangian_takes_the_dual_step_from_each_rollouts_episode_cost(
-    engine, tmp_path, monkeypatch, request
+    library, tmp_path, monkeypatch, request
 ):
-    """Every PPO engine: after each rollout the multiplier moves by lr (mean episode cost -
+    """Every PPO trainer: after each rollout the multiplier moves by lr (mean episode cost -
     limit), clipped at 0, from 0.5; config.json keeps the last. RLlib's env runners hold
     each new multiplier before the next iteration samples."""
-    if engine == "torchrl":
+    if library == "torchrl":
         pytest.importorskip("torchrl", minversion="0.14")
     held: list[list[float]] = []
-    if engine == "rllib":
+    if library == "rllib":
         request.getfixturevalue("local_ray")
         from baselines.distributed import rllib_train
         from baselines.distributed.rllib_env import runner_envs
 
-        step = rllib_train.Engine.dual_step
+        step = rllib_train.Trainer.dual_step
 
         def recording(self):
             stats = step(self)
@@ -287,15 +296,15 @@ def test_ppo_lagrangian_takes_the_dual_step_from_each_rollouts_episode_cost(
             )
             return stats
 
-        monkeypatch.setattr(rllib_train.Engine, "dual_step", recording)
-    out = tmp_path / engine
-    _cost_run(engine, out, 192, DUAL)
+        monkeypatch.setattr(rllib_train.Trainer, "dual_step", recording)
+    out = tmp_path / library
+    _cost_run(library, out, 192, DUAL)
     rows = _rows(out / "progress.csv")
     assert len(rows) == 3
     multiplier = _check_dual_steps(rows, 0.5, 0.1, 0.2)
     config = json.loads((out / "config.json").read_text())
     assert config["cost"]["final_multiplier"] == pytest.approx(multiplier, rel=1e-5)
-    if engine == "rllib":
+    if library == "rllib":
         # the local runner's 2 env copies, each with the row's multiplier
         assert held == [pytest.approx([float(r["multiplier"])] * 2, rel=1e-5) for r in rows]
 
@@ -317,7 +326,7 @@ def test_rllib_resumes_with_the_last_multiplier(local_ray, tmp_path):
 def test_rllib_subtracts_the_weighted_cost_from_every_robots_reward(trained, tmp_path):
     """A fixed penalty (lr 0) of weight 2: the first iteration samples the same episodes
     as the plain run (same seeds, same initial policy), and its progress row records the
-    environment's team return, as every engine does: the plain run's. What RLlib learns
+    environment's team return, as every trainer does: the plain run's. What RLlib learns
     from is lower, for every robot, by 2 times that robot's step cost."""
     out = tmp_path / "rllib"
     fixed = ["--cost", "magnitude", "--cost-weight", "2", "--multiplier-lr", "0"]
@@ -367,18 +376,18 @@ def test_sac_writes_the_same_records_and_a_last_row_at_the_budget(tmp_path):
     assert (out / "replay_buffer.pkl").exists()
 
 
-@pytest.mark.parametrize("engine", ENGINES)
-def test_every_engine_learns_with_the_channel_and_its_policy_sends(engine, tmp_path, request):
+@pytest.mark.parametrize("library", tuple(LIBRARIES))
+def test_every_library_learns_with_the_channel_and_its_policy_sends(library, tmp_path, request):
     """``--comm``: the shared policy's action is the inputs, the send flag and the
     message; the run's evaluation plays under the same channel, and the saved policy
     reads the inbox and returns the full action."""
-    if engine == "rllib":
+    if library == "rllib":
         request.getfixturevalue("local_ray")
-    if engine == "torchrl":
+    if library == "torchrl":
         pytest.importorskip("torchrl", minversion="0.14")
-    out = tmp_path / engine
-    args = ["--engine", engine, "--robot-steps", "64", "--out", str(out), "--comm", "atm900"]
-    main([*args, *COMMON, *ENGINE_ARGS[engine]])
+    out = tmp_path / library
+    args = ["--library", library, "--robot-steps", "64", "--out", str(out), "--comm", "atm900"]
+    main([*args, *COMMON, *LIBRARY_ARGS[library]])
     config = json.loads((out / "config.json").read_text())
     assert config["overrides"]["comm"] == "atm900"
     evaluations = _rows(out / "evaluations.csv")
@@ -390,7 +399,7 @@ def test_every_engine_learns_with_the_channel_and_its_policy_sends(engine, tmp_p
 
     env = uvms_env.parallel_env("short", comm="atm900")
     obs, _ = env.reset(seed=0)
-    name = {"sb3": "ppo", "torchrl": "torchrl", "rllib": "rllib"}[engine]
+    name = {"sb3": "ppo", "torchrl": "torchrl", "rllib": "rllib"}[library]
     policies = build_policies(env, PolicySource.parse(f"{name}:{out}").factory(0))
     policy = policies["uvms_0"]
     assert policy.reads_messages

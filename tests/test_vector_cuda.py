@@ -15,6 +15,7 @@ import pytest
 from uvms_env.dynamics import NQ
 from uvms_env.env.observation import OBSERVATION_STRUCTURE
 from uvms_env.scenarios import Scenario, make, replace
+from uvms_env.sim.period import ENVELOPE, INACCURATE, OK, SPEED_LIMITS
 from uvms_env.vector import VectorEnv
 from uvms_env.vector.simulator import BatchedSimulator
 
@@ -48,8 +49,10 @@ def _agree(what: str, reference, candidate) -> None:
 
 def test_kernel_source_on_the_host_steps_as_the_cpu_backend_with_its_error_control(emulated_xp):
     """The GPU's period kernel (error control inside, one thread per environment) against
-    the CPU backend (lanes, error control on the host), saturating inputs that make both
-    refine some periods."""
+    the CPU backend (lanes, ``uvms_env.sim.period``'s routine on the host), saturating
+    inputs that make both refine some periods; then a period that one environment cannot
+    integrate (off the grasp manifold: refused at 1/16) and one that ends beyond the
+    envelope, refused alike and kept."""
     geometries = [make("short", seed=i) for i in range(3)]
     k = 7
     cpu = BatchedSimulator(geometries[0], k, threads=2)
@@ -67,6 +70,24 @@ def test_kernel_source_on_the_host_steps_as_the_cpu_backend_with_its_error_contr
         assert np.array_equal(code, _host(emulated.step(u * cpu.tau_max, current))), t
     assert emulated.refinements == cpu.refinements > 0  # the in-kernel control was used
     _agree("state after 100 periods", cpu.state(), emulated.state())
+    x, n = cpu.state(), cpu.n
+    x[2, 0] += 1e-3  # vehicle 0 of environment 2 moved off its grasp
+    # environment 4 undamped, its joints beyond the envelope (the grasps' velocity
+    # constraints are linear: scaled velocities still satisfy them)
+    scale = 1.5 * SPEED_LIMITS["joint"] / np.abs(x[4, NQ * n : 2 * NQ * n]).max()
+    x[4, NQ * n : 2 * NQ * n] *= scale
+    x[4, 2 * NQ * n + 6 :] *= scale
+    for sim in (cpu, emulated):
+        sim.set_scenario([4], make("short", seed=1, damping_scale=0.0))
+        sim.reset([4], [104])
+        sim.set_state(x)
+    refinements = cpu.refinements
+    code = cpu.step(np.zeros((k, 2, 8)))
+    assert code.tolist() == [OK, OK, INACCURATE, OK, ENVELOPE, OK, OK]
+    assert np.array_equal(code, _host(emulated.step(np.zeros((k, 2, 8)))))
+    assert emulated.refinements == cpu.refinements > refinements
+    _agree("state after the refusals", cpu.state(), emulated.state())
+    assert np.array_equal(cpu.state()[[2, 4]], x[[2, 4]])  # refused: kept
 
 
 def _compare(

@@ -3,10 +3,9 @@
     episode = play(env, factory, seed=3, on_step=record)
     episode.metrics            # the env's metrics, ``policy_time_ms`` filled here
 
-Every caller that plays a policy on the environment (the evaluator, the expert's main job,
-the imitation rollouts, the analysis scripts) plays it here, so an episode is the same
-episode everywhere and the decision time is measured in one place: around each agent's
-``act``, summarized as ``policy_time_ms`` (median, p95, max over agent decisions).
+Every caller that plays a policy on the environment plays it here, so an episode is the
+same episode everywhere and the decision time is measured in one place: around each
+agent's ``act``, summarized as ``policy_time_ms`` (median, p95, max over decisions).
 
 Callers attach what they need without another loop:
 
@@ -17,14 +16,11 @@ Callers attach what they need without another loop:
 * ``on_step(step)`` after each ``env.step``: trajectories, frames, dataset records;
 * ``replay=PATH``: the episode's 3D replay page written there (``uvms_env.replay``).
 
-``play_team`` plays a team policy (``uvms_env.team_policy``: one full-information
-controller for every robot, from ``env.state()``) through the same loop; its decision
-time is per team decision. Each driver refuses the other's kind of factory.
+``play_team`` plays a team policy (``uvms_env.team_policy``) through the same loop; its
+decision time is per team decision. Each driver refuses the other's kind of factory.
 
-Under an acoustic channel (the env's ``comm``, ``uvms_env.env.channel``) every policy that
-does not declare ``reads_messages = True`` plays as before, silent: ``SilentPolicy`` hands
-it its observation without the inbox and pads its 8 numbers with a silent message part;
-a team policy's actions are padded the same way.
+Under an acoustic channel a policy that does not declare ``reads_messages = True`` plays
+silent through ``SilentPolicy`` (docs/channel.md, "Policies, evaluation and training").
 
 Only the public env API is used (``reset(seed=)``, ``step``, ``agents``,
 ``possible_agents``, ``scenario``, ``infos[agent]["metrics"]``, and ``comm`` and

@@ -9,9 +9,8 @@ One controller per agent, built only from what that agent knows before the task 
     policy.stats                      # dict of the last decision's statistics (may be empty)
 
 A policy never sees another agent's observation, the global state or contact forces.
-Under an acoustic channel (``uvms_env.env.channel``) the spec's ``comm`` holds the
-channel's settings (message size, inbox size, ...), which the robot knows before the task
-like its modem; a policy that reads messages sizes its inbox and its messages from it.
+Under an acoustic channel the spec's ``comm`` holds the channel's settings, known before
+the task like the robot's modem (docs/channel.md, "Policies, evaluation and training").
 May import: numpy, ``uvms_env.scenarios`` and ``uvms_env.navigation`` (the map's types);
 ``uvms_env.env.channel`` for type checking only (the env package imports this module).
 """

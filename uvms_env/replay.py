@@ -1,25 +1,15 @@
 """3D replays of an episode: one self-contained HTML file (three.js, the episode's data inline).
 
-``ReplayRecorder`` records an episode from any loop over a ``parallel_env`` (the state after
-each step, each robot's constraint values from the step's infos, the metrics at the end) and
-writes the page; ``replay_from_trajectory`` builds one from the main job's
-``trajectory.npz`` (``python -m nmpc_expert``), recomputing the constraint values from the
-recorded states and inputs, since that file does not hold them:
+``ReplayRecorder`` records an episode from any loop over a ``parallel_env`` and writes the
+page; ``replay_from_trajectory`` builds one from the main job's ``trajectory.npz``,
+recomputing the constraint values from the recorded states and inputs, since that file
+does not hold them:
 
     python -m uvms_env.replay runs/paper/trajectory.npz [--out replay.html] [--full-rate]
 
-The poses are computed here, once, so the page does no kinematics: per frame, each robot's
-body points (vehicle origin, joints 1..4, end effector, from ``UVMSModel.body_points``), its
-vehicle's attitude as a quaternion, the object's position and attitude, and the constraint
-values. They are float32, base64, in a JSON block; the coordinates are NED turned into a
-y-up display frame, (x, y, z)_NED -> (x, -z, y), a proper rotation, so depth reads as down.
-Episodes longer than ``MAX_FRAMES`` frames are decimated (``full_rate`` keeps every period);
-a kept frame carries the largest constraint values of the periods it stands for, so no
-violation disappears from the page.
-
-The viewer (``replay_assets/viewer.html``) and a subset of three.js 0.187.0
-(``replay_assets/three-0.187.0.min.js``, how it was built in ``three-entry.js``) are package
-data. Rendering stays optional: nothing here is imported by the environment's step.
+The poses are computed here, once, so the page does no kinematics. Rendering stays
+optional: nothing here is imported by the environment's step. Reference: docs/replay.md
+(what the page shows, the display frame, decimation, the three.js subset).
 
 May import: numpy, casadi, ``uvms_env.dynamics``, ``uvms_env.navigation``,
 ``uvms_env.scenarios`` and, to rebuild a recorded episode's geometry and constraints, the
@@ -87,14 +77,7 @@ class ReplayRecorder:
     """Records an episode of a ``parallel_env`` from any loop; writes its replay page.
 
     Create it after ``env.reset()`` (it records the start state), call ``record(infos)``
-    after every ``env.step``, then ``write(path)``::
-
-        recorder = ReplayRecorder(env)
-        while env.agents:
-            obs, rewards, terms, truncs, infos = env.step(actions)
-            recorder.record(infos)
-        recorder.write("replay.html")
-    """
+    after every ``env.step``, then ``write(path)`` (example: docs/replay.md)."""
 
     def __init__(self, env: Any, title: str = "") -> None:
         self.env = env.unwrapped

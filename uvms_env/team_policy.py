@@ -1,11 +1,11 @@
 """The team-policy interface: one controller for the whole team, from the global state.
 
 The sanctioned exception to the per-robot rule (ARCHITECTURE: "a team policy"): a
-full-information controller that sees ``env.state()`` (every robot's q and zeta, the
-object's pose and twist, the team's waypoint, the time fraction; ``uvms_env.env.options.
-state_structure``) and returns every robot's normalized inputs at once. It exists to
-measure the price of decentralization, so it is kept apart from the per-robot ``Policy``
-(``uvms_env.policy``), whose contract stays: a robot sees only its own observation.
+full-information controller that sees ``env.state()`` (``uvms_env.env.options.
+state_structure``) and returns every robot's normalized inputs at once, to measure the
+price of decentralization (docs/evaluation.md, "Full-information rows"). It is kept apart
+from the per-robot ``Policy`` (``uvms_env.policy``), whose contract stays: a robot sees
+only its own observation.
 
     factory = TeamPolicyFactory(build, "nmpc:central")   # build(scenario) -> TeamPolicy
     team = factory(scenario)          # may know the whole scenario
@@ -14,9 +14,8 @@ measure the price of decentralization, so it is kept apart from the per-robot ``
     team.stats                        # the last decision's statistics
 
 A team factory is a ``TeamPolicyFactory`` (not a bare callable), so a driver tells the two
-kinds apart before building anything: ``uvms_env.episode.play`` refuses a team factory and
-``play_team`` refuses anything else, each with a message saying which to use. A built team
-policy carries ``information = "full"`` (what evaluation rows report).
+kinds apart before building anything (``uvms_env.episode.play`` and ``play_team`` each
+refuse the other's kind). A built team policy carries ``information = "full"``.
 
 May import: numpy and ``uvms_env.scenarios`` (the type of what a factory is given).
 """

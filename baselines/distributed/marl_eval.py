@@ -13,7 +13,7 @@ the per-episode values of each metric, and ``absolute_metrics`` repeats the late
 merges, so several policies, seeds or training evaluations land in one file, as the
 tools expect.
 
-May import: the standard library and numpy only (no ray, no torch).
+May import: the standard library, numpy and its package's ``ENV_NAME`` (no ray, no torch).
 """
 
 from __future__ import annotations
@@ -24,7 +24,8 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-ENV_NAME = "uvms_coop"
+from baselines.distributed import ENV_NAME
+
 # marl-eval averages every list it finds, so only numeric per-episode values; booleans as
 # 0/1 so success rates aggregate like returns.
 METRICS: tuple[str, ...] = (

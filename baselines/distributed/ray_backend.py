@@ -1,12 +1,12 @@
 """Episodes of ``baselines.evaluate`` as Ray tasks: ``--backend ray [--address ADDR]``.
 
-Each episode job runs ``baselines.evaluate.run_episode`` in a Ray worker, one CPU each,
+Each episode job runs ``baselines.evaluation.episode.run_episode`` in a Ray worker, one CPU each,
 on a local Ray (``num_cpus`` = the evaluator's ``--workers``) or on the cluster at
 ``address``. A row depends only on its job, so the rows equal the process pool's; the
 caller sorts them. Every node needs the project installed (same Python, same checkout):
 the tasks import it by name.
 
-May import: ray (inside functions), and ``baselines.evaluate``'s job and episode function
+May import: ray (inside functions), and ``baselines.evaluation``'s job and episode function
 (passed in, so this module does not import the evaluator).
 """
 

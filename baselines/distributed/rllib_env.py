@@ -2,21 +2,16 @@
 ``ParallelPettingZooEnv``, with the episode seeds chosen here.
 
 RLlib resets an environment with ``seed=None`` after its first episode, and the single
-env then keeps its geometry: a runner of a seeded family (``random``, ``short``) would
-train on one geometry forever. So every reset passes the episode seed of the adapters'
-one rule (``uvms_env.vector.seeding``): the K = W V sub-envs of W env runners (V each)
-are copies k = (w - 1) V + v (the local runner, w = 0, counts as the first when there
-are no remote ones), and episode e of copy k has seed ``seed + k + K e``, mod P with a
-geometry pool of P. The single env builds each of its geometries once (an IPOPT solve)
-and keeps them in memory (it keeps 32). RLlib builds a runner's V sub-envs with
-one and the same context (``vector_index`` 0), so v is the order in which this process
-built them.
+env then keeps its geometry: a runner of a seeded family would train on one geometry
+forever. So every reset passes the episode seed of the adapters' one rule
+(``uvms_env.vector.seeding``): copy k = (w - 1) V + v of the K = W V sub-envs (the local
+runner, w = 0, counts as the first when there are no remote ones), episode e seeded
+``seed + k + K e``. RLlib builds a runner's V sub-envs with one context (``vector_index``
+0), so v is the order in which this process built them.
 
-With ``cost`` in the config (``baselines.lagrangian.CostSettings`` as a dict), each step
-subtracts the multiplier times each robot's constraint cost from that robot's reward
-(PPO-Lagrangian) and keeps the ended episodes' per-robot costs; the driver takes them from
-every env runner after an iteration (``take_episode_costs``), steps the multiplier and sets
-it on every env (``set_multiplier``).
+With ``cost`` in the config, each step penalizes each robot's reward (PPO-Lagrangian);
+the driver collects the ended episodes' costs (``take_episode_costs``) and sets the new
+multiplier on every env (``set_multiplier``).
 
 May import: gymnasium, ray.rllib, numpy, ``baselines.lagrangian`` and ``uvms_env``; imported
 only where Ray is.
@@ -32,9 +27,8 @@ from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
 from baselines.lagrangian import CostSettings, Lagrangian
 from uvms_env.env.constraints import CONSTRAINTS
-from uvms_env.vector.seeding import episode_seed
+from uvms_env.vector.seeding import copy_reset_seed
 
-ENV_NAME = "uvms_coop"
 _BUILT = itertools.count()  # sub-envs built in this process (see module docstring)
 
 
@@ -67,13 +61,13 @@ class UVMSMultiAgentEnv(ParallelPettingZooEnv):
         )
         # the team's return (the shared reward, unpenalized) and length of the running
         # episode, and those of the episodes ended since the driver last took them: what
-        # every engine records, where RLlib's own means sum the robots' penalized rewards
+        # every trainer records, where RLlib's own means sum the robots' penalized rewards
         self._return, self._length = 0.0, 0
         self._finished: list[tuple[float, int]] = []
 
     def _draw(self) -> int:
         self._episodes += 1
-        return episode_seed(self._seed, self._copy, self._episodes - 1, self._copies, self._pool)
+        return copy_reset_seed(self._seed, self._copy, self._episodes - 1, self._copies, self._pool)
 
     def _next_seed(self) -> int:
         seed, self._upcoming = self._upcoming, self._draw()

@@ -1,23 +1,15 @@
-"""The Ray RLlib engine of ``python -m baselines.train`` (new API stack): PPO, one policy
+"""The Ray RLlib trainer of ``python -m baselines.train`` (new API stack): PPO, one policy
 shared by all robots.
 
-    python -m baselines.train --engine rllib --algo ppo --scenario random \\
+    python -m baselines.train --library rllib --algo ppo --scenario random \\
         --env-option n_agents=2 --num-env-runners 2 [--address HEAD:6379] --out runs/rllib_ppo
 
-RLlib is the distributed engine: ``--num-env-runners`` actors collect episodes, each
-stepping ``--num-envs`` copies of ``uvms_env.parallel_env``
-(``baselines.distributed.rllib_env``) together; the learner updates the shared module.
-Without ``--address`` a local Ray starts; with it, the run joins that cluster. The run
-layer (``baselines.runs``) writes the records and evaluations; the run folder also gets
-``checkpoints/robot_steps_S`` and the final ``checkpoint/``, which ``--resume`` restores.
-
-Differences from the SB3 engine (no normalization, RLlib's learned log-std) and the
-``--cost`` dual step across env runners: docs/scale-out.md and ``rllib_env``. The
-progress rows' returns are the environment's team returns of the episodes ended in the
-iteration (unpenalized), as every engine records them.
+``--num-env-runners`` actors collect episodes (``baselines.distributed.rllib_env``); without
+``--address`` a local Ray starts. The run folder also gets ``checkpoints/robot_steps_S`` and
+the final ``checkpoint/``, which ``--resume`` restores. Reference: docs/scale-out.md.
 
 May import: ray (inside functions), torch, ``baselines.runs``, ``baselines.lagrangian``,
-``baselines.distributed`` and ``uvms_env``.
+``baselines.registry``, ``baselines.distributed`` and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -30,11 +22,12 @@ from typing import Any
 
 from baselines.distributed.rllib_policy import POLICY_ID
 from baselines.lagrangian import Lagrangian
+from baselines.registry import LIBRARIES
 from baselines.runs import Run, seeded_pool
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-ALGOS = ("ppo",)
+ALGOS = LIBRARIES["rllib"].algos
 # SB3 PPO's defaults where RLlib has the same knob (gamma, lambda, lr, clip, epochs,
 # minibatch), the SB3 trainer's 256-step rollout per robot sub-env times 4 copies x 2
 # robots = 2,048 robot-steps, which with N = 2 is 1,024 env steps (RLlib counts env steps).
@@ -55,7 +48,7 @@ MODEL = {"fcnet_hiddens": [64, 64], "fcnet_activation": "tanh", "vf_share_layers
 # (``uvms_env.vector.seeding``): a copy meets P / K of them (K dividing P). The single
 # env builds a geometry with an IPOPT solve and keeps 32 in memory: the default pool is
 # 32 K (None below), 32 per copy; a larger one rebuilds a geometry every episode (the
-# batched env of the other engines copies its 1,024 from the disk bank instead).
+# batched env of the other trainers copies its 1,024 from the disk bank instead).
 GEOMETRIES_PER_COPY = 32
 # Env copies per runner (``--num-envs``), stepped together with one forward pass: 4
 # beat 1 and matched 8, which builds twice the geometries (figures in the docs).
@@ -81,7 +74,8 @@ def build_config(
     from ray.rllib.core.rl_module.rl_module import RLModuleSpec
     from ray.tune.registry import register_env
 
-    from baselines.distributed.rllib_env import ENV_NAME, make_env
+    from baselines.distributed import ENV_NAME
+    from baselines.distributed.rllib_env import make_env
 
     register_env(ENV_NAME, make_env)
     env_config = {
@@ -126,7 +120,7 @@ OPTIONS_NOTE = (
 
 
 def add_arguments(g: Any) -> None:
-    """The RLlib engine's own options (``--num-envs``: env copies per runner)."""
+    """The RLlib trainer's own options (``--num-envs``: env copies per runner)."""
     g.add_argument("--num-env-runners", type=int, default=2, help="RLlib env runner actors")
     g.add_argument("--address", default=None, help="Ray cluster to join (default: local Ray)")
     g.add_argument("--num-cpus", type=int, default=None, help="local Ray only")
@@ -143,8 +137,8 @@ def iteration_robot_steps(result: dict[str, Any]) -> int:
     return int(agent_steps)
 
 
-class Engine:
-    """RLlib's PPO under a ``baselines.runs.Run`` (``baselines.runs.Engine``)."""
+class Trainer:
+    """RLlib's PPO under a ``baselines.runs.Run`` (``baselines.runs.Trainer``)."""
 
     def __init__(self, run: Run, algo: str, args: argparse.Namespace) -> None:
         if algo not in ALGOS:
@@ -175,7 +169,7 @@ class Engine:
         config = build_config(
             s.scenario,
             s.env_options(),
-            self.run.episode_seed,
+            self.run.env_seed,
             a.num_env_runners,
             pool,
             hp,
@@ -185,9 +179,9 @@ class Engine:
         )
         self.algorithm = config.build_algo()
         if s.resume is not None:
-            from baselines.distributed.rllib_policy import resolve_checkpoint
+            from baselines.distributed.rllib_policy import RLlibPolicy
 
-            checkpoint = resolve_checkpoint(str(s.resume))
+            checkpoint = RLlibPolicy.find(s.resume)
             self.algorithm.restore_from_path(str(checkpoint.resolve()))
             self.robot_steps = int(self.run.previous.get("robot_steps", 0))
             print(f"resuming {checkpoint} at {self.robot_steps} robot-steps")
@@ -221,7 +215,7 @@ class Engine:
 
     def episodes(self) -> tuple[list[float], list[float]]:
         """The team returns (unpenalized) and lengths of the training episodes every env
-        runner ended in the iteration, as the other engines record them (RLlib's own
+        runner ended in the iteration, as the other trainers record them (RLlib's own
         means are smoothed over recent episodes and sum the robots' penalized rewards)."""
         from baselines.distributed.rllib_env import take_episodes
 
@@ -263,9 +257,6 @@ class Engine:
     def checkpoint(self, robot_steps: int) -> None:
         folder = self.run.folder / "checkpoints" / f"robot_steps_{robot_steps}"
         self.algorithm.save_to_path(str(folder.resolve()))
-
-    def policy(self, folder: Path) -> str:
-        return f"rllib:{folder}"
 
     def results(self) -> dict[str, Any]:
         return {"iterations_done": getattr(self, "iterations_done", 0)}

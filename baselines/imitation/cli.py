@@ -5,12 +5,8 @@
     python -m baselines.imitate dagger --data data/short --data data/paper \\
         --scenario short --scenario paper --iterations 4 --out runs/dagger
 
-``collect`` writes one Minari dataset per ``--out`` (one episode per robot; see
-``baselines.imitation.dataset``); ``bc`` and ``dagger`` read any number of them
-(``--data`` repeats) and write ``policy.pt``, the loss log and ``train.json``. DAgger
-(Ross et al. 2011) with a mixing schedule beta_k = ``--beta`` ** k, an optional gate
-(``--gate``) and safe distillation (``--init SOURCE --expert self+filter``). Every
-option, the schedule and the outputs: docs/imitation.md; ``--help`` lists the options.
+Every option, the schedule and the outputs: docs/imitation.md; ``--help`` lists the
+options.
 """
 
 from __future__ import annotations
@@ -33,8 +29,14 @@ from baselines.imitation.dataset import AgentStream
 from baselines.imitation.features import FEATURES
 from baselines.imitation.network import MLPPolicyNet
 from baselines.imitation.rollout import RolloutJob, parallel_rollouts
-from baselines.options import add_condition_arguments, condition_overrides, team_sizes
-from baselines.policies import PolicySource, cloned_path
+from baselines.options import (
+    add_condition_arguments,
+    add_evaluation_arguments,
+    command_parser,
+    condition_overrides,
+    team_sizes,
+)
+from baselines.policies import PolicySource
 from baselines.runs import EVAL_KEEP, TRAIN_ENV_DEFAULTS, evaluate_rungs, hardware, write_json
 
 
@@ -107,26 +109,30 @@ def collect(args: argparse.Namespace) -> None:
     )
     summary = _summary(metrics)
     steps = sum(len(s.actions) for s in streams)
-    solve = np.concatenate([s.solve_ms for s in streams]) if streams else np.zeros(0)
     print(
         f"wrote Minari dataset {dataset_id} under {args.out}: {len(streams)} robot streams, "
         f"{steps} steps, expert success {summary['success']}/{summary['episodes']}, "
-        f"expert decision median {np.median(solve):.3f} ms, {time.time() - start:.0f} s"
+        f"expert time per period (all robots) median {np.median(_period_ms(streams)):.3f} ms, "
+        f"{time.time() - start:.0f} s"
     )
 
 
-def _write_json(path: Path, payload: dict[str, Any]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_json(path, payload)
+def _period_ms(streams: list[AgentStream]) -> np.ndarray:
+    """The teacher's time per control period, its robots together: a team teacher's whole
+    decision is timed on its first robot, a per-robot expert's on each."""
+    episodes: dict[int, np.ndarray] = {}
+    for s in streams:
+        episodes[s.seed] = episodes.get(s.seed, 0.0) + np.asarray(s.solve_ms)
+    return np.concatenate(list(episodes.values())) if episodes else np.zeros(0)
 
 
 def _common(args: argparse.Namespace) -> dict[str, Any]:
+    fit = _fit_arguments(args)
+    del fit["val_fraction"]
     return {
         "data": [str(p) for p in args.data or []],
-        "epochs": args.epochs,
+        **fit,
         "hidden": list(args.hidden),
-        "lr": args.lr,
-        **_fit_options(args),
         "features": args.features,
         "seed": args.seed,
         "python": platform.python_version(),
@@ -140,23 +146,17 @@ def _scenario_episodes(entry: str, default: int) -> tuple[str, int]:
     return name, int(count) if count else default
 
 
-def _fit_options(args: argparse.Namespace) -> dict[str, Any]:
-    return {
-        "batch_size": args.batch_size,
-        "loss_scale": args.loss_scale,
-        "lr_schedule": args.lr_schedule,
-        "margin_weight": args.margin_weight,
-    }
-
-
 def _fit_arguments(args: argparse.Namespace) -> dict[str, Any]:
     """What every fit of the command line shares (``bc.fit``'s keywords)."""
     return {
         "epochs": args.epochs,
-        "lr": args.lr,
         "hidden": tuple(args.hidden),
+        "lr": args.lr,
+        "batch_size": args.batch_size,
+        "loss_scale": args.loss_scale,
+        "lr_schedule": args.lr_schedule,
+        "margin_weight": args.margin_weight,
         "val_fraction": 0.05,
-        **_fit_options(args),
     }
 
 
@@ -190,7 +190,7 @@ def train_bc(args: argparse.Namespace) -> None:
         "train_wall_s": round(time.time() - start, 1),
     }
     net.save(args.out / "policy.pt", info)
-    _write_json(args.out / "train.json", info)
+    write_json(args.out / "train.json", info)  # net.save made the folder
     print(f"bc: {len(obs)} samples, final loss {losses[-1]:.4g}; saved {args.out / 'policy.pt'}")
 
 
@@ -203,7 +203,9 @@ def _init_network(source: str) -> MLPPolicyNet:
     parsed = PolicySource.parse(source)
     if parsed.name not in ("bc", "dagger") or parsed.filtered:
         raise SystemExit(f"--init takes bc:PATH or dagger:PATH (or :pretrained), got {source!r}")
-    return MLPPolicyNet.load(cloned_path(parsed.name, parsed.arg))
+    from baselines.imitation.policy import ClonedPolicy
+
+    return MLPPolicyNet.load(ClonedPolicy.locate(parsed.name, parsed.arg))
 
 
 def train_dagger(args: argparse.Namespace) -> None:
@@ -301,7 +303,7 @@ def _save_dagger(
         "train_wall_s": round(time.time() - start, 1),
     }
     net.save(args.out / "policy.pt", info)
-    _write_json(args.out / "train.json", info)
+    write_json(args.out / "train.json", info)  # net.save made the folder
     return info
 
 
@@ -493,6 +495,9 @@ def _add_env_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-cycles", type=int, default=None, help="cap on the episode length")
     p.add_argument("--constraint-mode", default=None, choices=["penalize", "terminate"])
     p.add_argument(
+        "--noise", type=float, default=0.0, help="std of Gaussian noise on executed actions (DART)"
+    )
+    p.add_argument(
         "--expert",
         default="nmpc",
         help=f"any baselines.evaluate --policy source; dagger: also {SELF_FILTER}",
@@ -520,20 +525,13 @@ def _add_train_args(p: argparse.ArgumentParser, epochs: int, data_required: bool
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(
-        prog="python -m baselines.imitate",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = command_parser("baselines.imitate", __doc__)
     sub = ap.add_subparsers(dest="command", required=True)
     c = sub.add_parser("collect", help="expert demonstrations to a Minari dataset")
     c.add_argument("--scenario", default="paper")
     c.add_argument("--episodes", type=int, default=4)
     c.add_argument("--seed", type=int, default=0)
     c.add_argument("--out", type=Path, required=True, help="data/NAME")
-    c.add_argument(
-        "--noise", type=float, default=0.0, help="std of Gaussian noise on executed actions (DART)"
-    )
     _add_env_args(c)
     b = sub.add_parser("bc", help="behaviour cloning")
     _add_train_args(b, epochs=50)
@@ -569,23 +567,10 @@ def main(argv: list[str] | None = None) -> None:
         help="continue a run saved with --save-data up to --iterations (its folder is --out)",
     )
     d.add_argument(
-        "--noise", type=float, default=0.0, help="std of Gaussian noise on executed actions"
-    )
-    d.add_argument(
         "--gate", type=float, default=None, help="learner acts only within this of the label"
     )
-    d.add_argument(
-        "--eval-episodes",
-        type=int,
-        default=0,
-        help="after each fit, evaluate the network on every rung this many episodes (0: none)",
-    )
-    d.add_argument("--eval-seed", type=int, default=None, help="their seed (default --seed)")
-    d.add_argument(
-        "--eval-max-cycles",
-        type=int,
-        default=None,
-        help="cap on the evaluation episodes (default: the scenarios' own length)",
+    add_evaluation_arguments(
+        d, 0, "after each fit, evaluate the network on every rung this many episodes (0: none)"
     )
     d.add_argument("--out", type=Path, default=Path("runs/dagger"))
     _add_env_args(d)

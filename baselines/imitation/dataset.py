@@ -1,14 +1,10 @@
 """Expert demonstrations as Minari datasets: each robot's stream is one single-agent episode.
 
-Minari has no multi-agent support, so an episode of N robots becomes N episodes (its
-observations, the expert's actions, the shared reward, terminations, and per-step expert
-statistics in ``infos``: ``solve_ms``, ``expert_iterations``, ``expert_fallbacks``,
-``learner_acted`` (DAgger), ``object_ring_radius`` (the object the robot carries, which it
-knows before the task: the ring's radius, 0 for the bar) and ``memory`` (the robot's memory
-block, ``uvms_env.env.memory``); entry 0 belongs to the reset observation). Dataset
-``data/NAME`` is a Minari root of its own (``MINARI_DATASETS_PATH`` = ``data/NAME``,
-holding only this dataset, id ``uvms/NAME-v0``), so other folders next to it never reach
-Minari's scan of its root.
+Minari has no multi-agent support, so an episode of N robots becomes N episodes (entry 0
+of the per-step ``infos`` belongs to the reset observation). Dataset ``data/NAME`` is a
+Minari root of its own (``MINARI_DATASETS_PATH`` = ``data/NAME``, id ``uvms/NAME-v0``), so
+other folders next to it never reach Minari's scan of its root. What an episode holds:
+docs/imitation.md.
 
 Each dataset records the environment it came from as a Gymnasium ``EnvSpec`` of
 ``uvms_env/CoopTransport-v0`` with the scenario and its overrides as kwargs, so

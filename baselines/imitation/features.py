@@ -2,26 +2,16 @@
 numpy for training batches and as one compiled CasADi function for decisions.
 
 ``features`` (84 numbers) and ``memory`` (100) are the environment's
-``observation_mode="features"`` and ``"memory"``, by the same names everywhere:
-``uvms_env.env.priors.featurize`` (76 numbers in the robot's own heading frame,
-``time_fraction`` dropped) and the steady input a_ss (``uvms_env.env.priors``); ``memory``
-puts the robot's memory block (``uvms_env.env.memory``: its last command and its
-disturbance estimate, 16) between them, and its input is the raw observation with the
-memory block after it (95 numbers: data and decisions carry the block the robot built
-along its own stream). ``uvms-v1`` is the 76 numbers alone. Saved policies that say
-``uvms-v2`` are read as ``features`` (``canonical_features``). Networks on ``features``
-and ``memory`` learn the residual a - a_ss (``network.MLPPolicyNet``): the holding forces
-depend on the grasp geometry and the load share through the arm's kinematics (why:
-docs/imitation.md).
-
-``raw`` feeds the observation unchanged (any dimension).
+``observation_mode="features"`` and ``"memory"``, by the same names everywhere; a
+``memory`` network's input is the raw observation with the memory block after it (95
+numbers). ``uvms-v1`` is the 76 heading-frame numbers alone; saved policies that say
+``uvms-v2`` are read as ``features`` (``canonical_features``); ``raw`` feeds the
+observation unchanged. What each holds and why a_ss: docs/imitation.md.
 
 Decisions: ``CompiledInputs`` evaluates features, normalization and clipping as one
-generated-C function through preallocated buffers. ``decision`` builds the same function
-with the network's layers and output in it, so that a decision is one call.
-
-The numpy ``featurize`` is the independent twin of ``featurize_sx``, and the expert's
-compiled a_ss that of ``steady_sx``; the tests check that they agree.
+generated-C function through preallocated buffers. The numpy ``featurize`` is the
+independent twin of ``featurize_sx``, and the expert's compiled a_ss that of
+``steady_sx``; the tests check that they agree.
 
 May import: numpy, casadi, ``uvms_env.dynamics`` and ``uvms_env.env.priors``.
 """

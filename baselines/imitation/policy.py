@@ -1,47 +1,54 @@
 """A saved ``policy.pt`` as a per-agent policy for the evaluator and DAgger rollouts.
 
-One decision is one call of a compiled function, observation to action: features,
-normalization, clipping, the layers and the output (``decision``). Where nothing is
-compiled (``UVMS_ENV_NO_COMPILE``, no C compiler), or with ``compiled=False``, a network
-with hidden layers runs its layers in numpy float32 after the compiled input function
-instead. The torch network (``MLPPolicyNet.predict``) is the reference both are tested
-against. The same network serves every robot; on ``memory`` features each robot's policy
-keeps its own ``RobotMemory`` (``uvms_env.env.memory``), cleared by ``reset`` and told
-by ``executed`` what another controller sent instead; on the others it is stateless. The
-object (for ``features`` and ``memory``) comes from the robot's ``AgentSpec``.
+One decision is one call of a compiled function, observation to action (``decision``).
+Where nothing is compiled (``UVMS_ENV_NO_COMPILE``, no C compiler), or with
+``compiled=False``, a network with hidden layers runs its layers in numpy float32 after
+the compiled input function instead. The torch network (``MLPPolicyNet.predict``) is the
+reference both are tested against. The same network serves every robot; on ``memory``
+features each robot's policy keeps its own ``RobotMemory``. Finding, caching and the
+memory: ``baselines.loaded_policy``.
 
-May import: numpy, torch, ``uvms_env.policy``, ``uvms_env.env.memory`` and this package's
+May import: numpy, torch, ``uvms_env``, ``baselines.loaded_policy`` and this package's
 network, features and decision.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
-import torch
 
 from baselines.imitation.decision import decision_function
-from baselines.imitation.features import CompiledInputs, input_dim, object_ring
+from baselines.imitation.features import INPUT_CLIP, CompiledInputs, input_dim, object_ring
 from baselines.imitation.network import MLPPolicyNet
-from uvms_env.env.memory import RobotMemory
+from baselines.loaded_policy import LoadedPolicy, ObservationStats, load_once
 from uvms_env.env.observation import OBSERVATION_SIZE
-from uvms_env.env.priors import MEMORY_BLOCK
+from uvms_env.env.priors import MEMORY_BLOCK, Priors
 from uvms_env.policy import AgentSpec
 
 
-class ClonedPolicy:
+class ClonedPolicy(LoadedPolicy):
     """``act(obs)``: the network's action for one robot's observation, in [-1, 1];
     ``compiled``: the whole decision as one compiled call (the default), or the numpy
-    layers (see the module docstring)."""
+    layers (see the module docstring). The features, the statistics and a_ss are inside
+    the decision: the base's priors only say whether the robot keeps its memory (the
+    memory mode for ``memory`` features, else plain)."""
+
+    SAVED = "policy.pt"
+    KIND = "cloned policy"
 
     def __init__(self, spec: AgentSpec | None, path: Path, compiled: bool = True) -> None:
-        torch.set_num_threads(1)
-        self.spec, self.path = spec, Path(path)
-        self.net = MLPPolicyNet.load(path)
+        """``path``: a folder with policy.pt, or the file."""
+        self.path = self.find(path)
+        self.net = load_once(MLPPolicyNet.load, self.path)
         self.features = self.net.features
-        mean, inv_std = self.net.obs_mean.numpy(), 1.0 / self.net.obs_std.numpy()
+        if self.features == "memory" and spec is None:
+            raise ValueError("a clone on memory features needs the robot's AgentSpec")
+        std = self.net.obs_std.numpy()
+        stats = ObservationStats(self.net.obs_mean.numpy(), std, INPUT_CLIP)
+        memory = Priors(observation_mode="memory" if self.features == "memory" else "raw")
+        super().__init__(spec, memory, obs_stats=stats)
+        mean, inv_std = stats.mean, 1.0 / std
         ring = spec.object_ring_radius if spec is not None else None
         # Each layer's bias rides as the last row of its weights, against a constant 1 at
         # the end of its input (see ``input_function``).
@@ -57,16 +64,11 @@ class ClonedPolicy:
                 input_dim(self.features, len(mean)),
             )
         self.compiled = fn is not None
-        self._inputs = CompiledInputs(self.features, mean, inv_std, ring_radius=ring, fn=fn)
-        self._memory = None
-        if self.features == "memory":
-            if spec is None:
-                raise ValueError("a clone on memory features needs the robot's AgentSpec")
-            self._memory = RobotMemory(spec.period, spec.object_ring_radius)
+        self._network_inputs = CompiledInputs(self.features, mean, inv_std, ring_radius=ring, fn=fn)
+        if self.inputs.memory is not None:
             self._with_memory = np.zeros(OBSERVATION_SIZE + MEMORY_BLOCK, np.float32)
         if not self.compiled:
             self._numpy_layers(layers)
-        self.stats: dict[str, Any] = {}
 
     def _numpy_layers(self, layers: list[np.ndarray]) -> None:
         # ~2 numpy calls per layer; the first input, [z; 1; a_ss], comes whole from the
@@ -78,20 +80,10 @@ class ClonedPolicy:
         self._x, self._steady = self._first[:n_in], self._first[n_in:]
         self._buffers = [np.ones(len(w), dtype=np.float32) for w in layers[1:]]
 
-    def reset(self) -> None:
-        if self._memory is not None:
-            self._memory.reset()
-
-    def executed(self, action: np.ndarray) -> None:
-        """Another controller (a safety filter, DAgger's mixing) applied ``action``: the
-        memory follows what was sent."""
-        if self._memory is not None:
-            self._memory.executed(action)
-
     def act(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs)
-        if self._memory is None:
-            return self._decide(obs)
+        if self.inputs.memory is None:
+            return self.decide(obs)
         # one preallocated input: the decision is tens of microseconds, numpy's
         # allocations were a third of it
         if obs.shape != (OBSERVATION_SIZE,):
@@ -100,15 +92,14 @@ class ClonedPolicy:
             )
         x = self._with_memory
         x[:OBSERVATION_SIZE] = obs
-        x[OBSERVATION_SIZE:] = self._memory.observe(obs)
-        action = self._decide(x)
-        self._memory.issued(action)
-        return action
+        x[OBSERVATION_SIZE:] = self.inputs.block(obs)
+        return self.inputs.sent(self.decide(x))
 
-    def _decide(self, obs: np.ndarray) -> np.ndarray:
+    def decide(self, obs: np.ndarray) -> np.ndarray:
+        """The action of the raw observation (with the memory block on ``memory``)."""
         if self.compiled:
-            return self._inputs(obs).astype(np.float32)
-        np.copyto(self._first, self._inputs(obs), casting="same_kind")
+            return self._network_inputs(obs).astype(np.float32)
+        np.copyto(self._first, self._network_inputs(obs), casting="same_kind")
         h = self._x
         for w, nxt in zip(self._hidden, self._buffers, strict=True):
             np.tanh(h @ w, out=nxt[:-1])

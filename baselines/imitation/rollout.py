@@ -49,16 +49,18 @@ import numpy as np
 from tqdm import tqdm
 
 from baselines.imitation.dataset import AgentStream
+from baselines.imitation.teacher import TeamTeacher
 from uvms_env.env.memory import RobotMemory
 from uvms_env.episode import Step, play
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
+from uvms_env.team_policy import TeamPolicyFactory
 
 _LABELLING_STREAM = 0xDA66E2  # mixed into each episode's seed: its labelling draws
 
 
 def rollouts(
     env_factory: Callable[[int], object],
-    expert: PolicyFactory,
+    expert: PolicyFactory | TeamPolicyFactory,
     episodes: int,
     seed: int,
     learner: PolicyFactory | None = None,
@@ -70,7 +72,9 @@ def rollouts(
 ) -> tuple[list[AgentStream], list[dict]]:
     """Per-robot streams (obs, expert label, reward, memory, ...) and each episode's end
     metrics. Episode ``ep`` uses ``env_factory(seed + ep)`` reset with ``seed + ep``; its
-    mixing and noise draws come from a generator of its own, keyed by that seed."""
+    mixing and noise draws come from a generator of its own, keyed by that seed. A team
+    ``expert`` (``nmpc:central``) labels each robot with its row of the team's decision
+    (``baselines.imitation.teacher``)."""
     if not 0.0 <= beta <= 1.0:
         raise ValueError(f"beta must be in [0, 1], got {beta}")
     if not noise >= 0.0:
@@ -89,7 +93,8 @@ def rollouts(
                 bar.set_postfix(ep=ep, step=step.index + 1)
 
         env = env_factory(seed + ep)
-        episode = play(env, expert, seed + ep, labelled.execute, record, labelled.start)
+        labels = TeamTeacher(expert, env) if isinstance(expert, TeamPolicyFactory) else expert
+        episode = play(env, labels, seed + ep, labelled.execute, record, labelled.start)
         env.close()
         streams.extend(labelled.streams.values())
         metrics.append(episode.metrics)
@@ -185,7 +190,7 @@ class RolloutJob:
     ``scenario`` with environment ``overrides`` (``randomize`` included), each episode's
     team size drawn from ``n_agents`` (random family; cycled: episode e plays
     ``n_agents[e % len]``; empty: the overrides'), episodes capped at ``cap`` periods,
-    labelled by ``expert`` (a ``baselines.evaluate`` policy source), the ``learner`` a
+    labelled by ``expert`` (an evaluator policy source, a team one included), the ``learner`` a
     clone's ``policy.pt`` (None: demonstrations) with ``beta``, ``noise`` and ``gate`` as
     in ``rollouts``."""
 
@@ -221,7 +226,8 @@ def _play_block(
     from baselines.policies import PolicySource
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    expert = PolicySource.parse(job.expert).factory(seed + first)
+    source = PolicySource.parse(job.expert)
+    expert = (source.team_factory if source.team else source.factory)(seed + first)
     learner = None
     if job.learner is not None:
         path = job.learner

@@ -1,6 +1,8 @@
-"""RL on one machine: the SB3 engine (``train``) and the TorchRL engine (``torchrl_ppo``) of
-``baselines.train``, the parameter-sharing VecEnv adapter, the SB3 side of the constraint
-cost (``cost``), learning curves (``plot``), and trained models as per-agent policies
-(PPO's decision compiled whole, ``actor``). May import: uvms_env, stable-baselines3, torch,
-torchrl, ``baselines.runs``, ``baselines.lagrangian`` and ``baselines.imitation``'s
-compiled-network code."""
+"""RL on one machine: the SB3 trainer (``sb3_trainer``) and the TorchRL trainer
+(``torchrl_ppo``) of ``baselines.train``, the parameter-sharing VecEnv adapter, the SB3 side
+of the constraint cost (``cost``), learning curves (``plot``), and trained models as
+per-agent policies (``policy``, ``torchrl_policy``; PPO's decision compiled whole,
+``actor``). May import: uvms_env, stable-baselines3, torch, torchrl, ``baselines.runs``,
+``baselines.lagrangian``, ``baselines.loaded_policy``, ``baselines.registry``,
+``baselines.options``, ``baselines.evaluation.report`` (the figures) and
+``baselines.imitation``'s compiled-network code."""

@@ -1,4 +1,4 @@
-"""The SB3 engine's side of ``baselines.lagrangian``: a VecEnv wrapper that subtracts the
+"""The SB3 trainer's side of ``baselines.lagrangian``: a VecEnv wrapper that subtracts the
 multiplier times each robot sub-environment's constraint cost from its reward.
 
 May import: numpy, stable-baselines3 and ``baselines.lagrangian``.

@@ -36,12 +36,12 @@ INIT_LOG_STD = float(np.log(0.05))
 
 def clone_path(source: str) -> Any:
     """``dagger:pretrained`` / ``bc:PATH`` -> the clone's ``policy.pt``."""
-    from baselines.policies import cloned_path
+    from baselines.imitation.policy import ClonedPolicy
 
     method, _, arg = source.partition(":")
     if method not in SOURCES:
         raise ValueError(f"--init-actor must be one of {SOURCES} with :pretrained or :PATH")
-    return cloned_path(method, arg or None)
+    return ClonedPolicy.locate(method, arg or None)
 
 
 def load_clone(source: str) -> MLPPolicyNet:

@@ -1,18 +1,11 @@
 """MAPPO with SB3's PPO: a centralized critic during training, a local actor always.
 
-The robots share one policy (parameter sharing, as in IPPO). For MAPPO each robot's
-sub-environment observation is extended by the global state of its environment copy
-(``VectorEnv.state()``: true states, object, team waypoint, time): the critic reads the
-whole vector, the actor only its first ``local_dim`` numbers, the robot's own
-observation. Execution is therefore local: a trained actor acts on the robot's own
-observation with the state part set to anything (``SB3Policy`` passes zeros; a test
-checks that the actions do not depend on it). This is the "agent-specific global state"
-critic input of Yu et al. 2022 ("The surprising effectiveness of PPO in cooperative
-multi-agent games").
-
-Written on SB3 because SB3 has no centralized critic and the MARL libraries that do
-(RLlib, BenchMARL) train elsewhere; two small pieces suffice: ``CentralStateVecEnv``
-(appends the state) and ``CentralCriticPolicy`` (slices it off for the actor).
+Each robot's sub-environment observation is extended by its copy's global state
+(``VectorEnv.state()``): the critic reads the whole vector, the actor only its first
+``local_dim`` numbers, so execution stays local (``SB3Policy`` passes zeros for the state;
+a test checks that the actions do not depend on it). The "agent-specific global state" of
+Yu et al. 2022. Written on SB3 because SB3 has no centralized critic and the MARL
+libraries that do (RLlib, BenchMARL) train elsewhere. Reference: docs/rl.md.
 
 May import: numpy, torch, gymnasium, stable-baselines3, ``uvms_env.dynamics`` (sizes) and
 ``uvms_env.vector``.

@@ -1,33 +1,27 @@
-"""Learning curves of training runs (any engine) from their ``evaluations.csv`` and
+"""Learning curves of training runs (any library) from their ``evaluations.csv`` and
 ``progress.csv`` (the schemas of ``baselines.runs``).
 
     python -m baselines.rl.plot runs/ppo runs/torchrl_ppo runs/rllib_ppo \
         --out docs/figures/learning_curves.png
-
-Top: success rate and mean return of the periodic evaluations (``baselines.evaluate``,
-fixed seeds, deterministic policy); bottom: the final position error of those
-evaluations and the training episodes' mean return.
-
     python -m baselines.rl.plot --group "PPO-Lag=runs/a0,runs/a1,runs/a2" --group ... \
         --out docs/figures/learning_curves_seeds.png
 
-``--group NAME=RUN,RUN,...``: runs of one variant over training seeds, drawn as the mean
-and its 95% confidence band (Student t over the seeds) of the training episodes' return,
-their constraint cost per robot (``episode_cost_mean``) and the evaluations'
-success and clean success on the training rung; with ``--per-seed``, every seed's
-evaluations on every rung (success, clean success, median violation periods). DAgger runs
-(``baselines.imitate dagger --eval-episodes``) write the same evaluations.csv.
+``--group``: runs of one variant over training seeds, drawn as the mean and its 95% band
+(Student t over the seeds); ``--per-seed``: every seed's evaluations on every rung.
+Reference: docs/rl.md.
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from baselines.evaluation.report import pyplot, save
+from baselines.options import command_parser
 
 
 def read_csv(path: Path) -> dict[str, np.ndarray]:
@@ -64,8 +58,8 @@ def label(run: Path) -> str:
         c = json.loads(cfg.read_text())
         minutes = (c.get("wall_time_s") or float("nan")) / 60
         steps = c.get("robot_steps", 0)
-        engine = c.get("engine", "sb3")
-        return f"{engine} {c['algo'].upper()} ({steps:,} steps, {minutes:.1f} min)"
+        library = c.get("library", c.get("engine", "sb3"))  # "engine": the earlier key
+        return f"{library} {c['algo'].upper()} ({steps:,} steps, {minutes:.1f} min)"
     return run.name
 
 
@@ -78,17 +72,12 @@ def _label(axes: Any, titles: list[tuple[str, str]]) -> None:
 
 
 def plot(runs: list[Path], out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(2, 2, figsize=(9, 5.5), sharex=False)
+    fig, axes = pyplot().subplots(2, 2, figsize=(9, 5.5), sharex=False)
     for k, run in enumerate(runs):
         color, name = f"C{k}", label(run)
-        ev = run / "evaluations.csv"
-        if ev.exists():
-            e = _first_rung(ev)
+        # the first rung's rows (all rows where evaluations.csv has no rung)
+        e = next(iter(rung_table(run).values()), None)
+        if e is not None:
             t = e["robot_steps"]
             axes[0, 0].plot(t, e["success_rate"], "o-", color=color, ms=3, label=name)
             axes[0, 1].plot(t, e["mean_return"], "o-", color=color, ms=3, label=name)
@@ -109,10 +98,7 @@ def plot(runs: list[Path], out: Path) -> None:
     _label(axes, titles)
     axes[0, 0].set_ylim(-0.05, 1.05)
     axes[0, 0].legend(fontsize=8)
-    fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=80)
-    plt.close(fig)
+    save(fig, out, dpi=80)
 
 
 def mean_band(xs: list[np.ndarray], ys: list[np.ndarray], grid: np.ndarray):
@@ -130,18 +116,13 @@ def mean_band(xs: list[np.ndarray], ys: list[np.ndarray], grid: np.ndarray):
 
 
 def plot_groups(groups: dict[str, list[Path]], out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     panels = [
         ("training episodes: mean return", "return"),
         ("training episodes: constraint cost per robot", "cost"),
         ("evaluation: success (training rung)", "rate"),
         ("evaluation: clean success (training rung)", "rate"),
     ]
-    fig, axes = plt.subplots(2, 2, figsize=(9, 5.5))
+    fig, axes = pyplot().subplots(2, 2, figsize=(9, 5.5))
     for k, (name, runs) in enumerate(groups.items()):
         color = f"C{k}"
         series: list[list[tuple[np.ndarray, np.ndarray]]] = [[], [], [], []]
@@ -168,10 +149,7 @@ def plot_groups(groups: dict[str, list[Path]], out: Path) -> None:
     axes[1, 0].set_ylim(-0.05, 1.05)
     axes[1, 1].set_ylim(-0.05, 1.05)
     axes[0, 0].legend(fontsize=8, loc="lower right")
-    fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=80)
-    plt.close(fig)
+    save(fig, out, dpi=80)
 
 
 SEED_PANELS = (
@@ -199,16 +177,11 @@ def plot_seed_curves(groups: dict[str, list[Path]], out: Path) -> None:
     """Every seed's evaluations, one column per rung, one row per ``SEED_PANELS`` metric:
     a line per run (its group's color), robot-steps on x (violation periods on a
     symmetric log scale: they span 0 to thousands)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     tables = {(name, run): rung_table(run) for name, runs in groups.items() for run in runs}
     rungs = list(dict.fromkeys(r for t in tables.values() for r in t))
     if not rungs:
         raise SystemExit("no evaluations.csv with rows in the runs")
-    fig, axes = plt.subplots(
+    fig, axes = pyplot().subplots(
         len(SEED_PANELS), len(rungs), figsize=(2.6 * len(rungs) + 1, 6.5), squeeze=False
     )
     names = list(groups)
@@ -240,10 +213,7 @@ def plot_seed_curves(groups: dict[str, list[Path]], out: Path) -> None:
             if i == len(SEED_PANELS) - 1:
                 ax.set_xlabel("robot-steps", fontsize=8)
     axes[0, 0].legend(fontsize=7)
-    fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=80)
-    plt.close(fig)
+    save(fig, out, dpi=80)
 
 
 def _rung_evaluations(run: Path) -> dict[str, np.ndarray] | None:
@@ -267,17 +237,6 @@ def _rung_evaluations(run: Path) -> dict[str, np.ndarray] | None:
     return {k: np.array([_num(r[k]) for r in rows]) for k in keys}
 
 
-def _first_rung(path: Path) -> dict[str, np.ndarray]:
-    """evaluations.csv's rows of its first rung (all rows where it has no rung)."""
-    table = read_csv(path)
-    with open(path, newline="") as fh:
-        rungs = [r.get("rung") for r in csv.DictReader(fh)]
-    if not rungs or rungs[0] is None:
-        return table
-    keep = np.array([r == rungs[0] for r in rungs])
-    return {k: v[keep] for k, v in table.items()}
-
-
 def _training_rung(config: dict, first: str | None) -> str | None:
     """The rung of evaluations.csv that is the run's own training scenario: on the ladder
     (``--eval-ladder``) the random rung of its team size or paper, else the first rung."""
@@ -289,11 +248,7 @@ def _training_rung(config: dict, first: str | None) -> str | None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(
-        prog="python -m baselines.rl.plot",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = command_parser("baselines.rl.plot", __doc__)
     ap.add_argument("runs", type=Path, nargs="*", help="run folders")
     ap.add_argument(
         "--group", action="append", default=[], metavar="NAME=RUN,RUN", help="seeds of a variant"

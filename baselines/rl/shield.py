@@ -5,25 +5,11 @@ at evaluation, and the reward carries a penalty on the filter's correction.
     shield = Shield(vector_env, penalty=1.0)   # installs itself as the env's command filter
     venv = ShieldPenalty(VectorVecEnv(vector_env), shield)   # SB3: reward -= W |a_safe - a_prop|^2
 
-* ``Shield`` (engine-agnostic, on a ``uvms_env.vector.VectorEnv``): one ``SafetyFilter``
-  per (env copy, robot), built from that robot's ``AgentSpec`` of the copy's current
-  scenario (rebuilt when a copy's episode starts on a new geometry, else reset), fed only
-  that robot's raw observation, with no communication: exactly the evaluation's
-  ``SafetyFilter(spec, policy)``, whose inner policy here returns the command the
-  environment made of the learner's action (``Proposal``). The filter acts on that
-  normalized command (with ``action_mode=residual``: clip(a_ss + h + s r, -1, 1)), so
-  the correction and its penalty are in command space. The environment applies the
-  filtered command; the learner keeps what it proposed (the rollout stores its own
-  action), and the effort term of the reward stays on the proposal.
-* ``ShieldPenalty`` (SB3 ``VecEnvWrapper``): subtracts ``penalty * |a_safe - a_prop|^2``
-  (per robot, summed over its 8 inputs) from each robot sub-environment's reward and
-  puts the step's ``filter_penalty`` in its info.
-
-Each period, the K N robots' QP builders (the linearization of the local model and its
-condensing, most of a filter's time) run in one lane-parallel call
-(``nmpc_expert.filter_batch``, SIMD lanes as the batched environment's kernels; the same
-actions as the filters one by one, to 1e-9 in the tests); the QPs are then solved one
-after another. ``batched=False`` (or no C++ compiler) runs each filter's ``act`` instead.
+``Shield`` keeps one filter per (env copy, robot), fed only that robot's raw observation,
+and filters the normalized command the environment made of the learner's action; the
+learner keeps what it proposed. The QP builders of all robots run in one lane-parallel
+call (``nmpc_expert.filter_batch``; ``batched=False`` or no C++ compiler: each filter's
+``act``). Reference: docs/rl.md, docs/safety-filter.md.
 
 May import: numpy, stable-baselines3 (``ShieldPenalty``), ``nmpc_expert`` and ``uvms_env``.
 """

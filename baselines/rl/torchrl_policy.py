@@ -1,16 +1,15 @@
 """A TorchRL run's actor as a per-agent policy (``--policy torchrl:RUN``), in plain torch.
 
-The trainer (``baselines.rl.torchrl_ppo``) saves its actor here as ``actor.pt``; the
-evaluator loads it without TorchRL or the trainer: the deterministic action is tanh of
-the Gaussian's mean (TanhNormal's deterministic sample), with the priors the run trained
-with applied as ``SB3Policy`` does (``baselines.rl.policy.run_priors``).
+The evaluator loads the trainer's ``actor.pt`` without TorchRL or the trainer: the
+deterministic action is tanh of the Gaussian's mean (TanhNormal's deterministic sample);
+the observation statistics are the actor's own (``RunningNorm``); the run's priors:
+``baselines.loaded_policy``.
 
-May import: numpy, torch, ``baselines.rl.policy`` and ``uvms_env``.
+May import: numpy, torch, ``baselines.loaded_policy`` and ``uvms_env``.
 """
 
 from __future__ import annotations
 
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from baselines.rl.policy import RobotInputs, run_comm, run_priors
+from baselines.loaded_policy import LoadedPolicy, load_once, run_record
 from uvms_env.policy import AgentSpec
 
 ACTOR_FILE = "actor.pt"
@@ -86,18 +85,6 @@ class ActorNet(nn.Module):
         return loc, self.log_std.exp().expand_as(loc)
 
 
-def resolve_actor(path: str | None) -> Path:
-    """The ``actor.pt`` of ``torchrl:PATH`` (a run folder or the file)."""
-    if not path:
-        raise ValueError("torchrl:PATH needs a run folder of --engine torchrl")
-    file = Path(path)
-    if file.is_dir():
-        file = file / ACTOR_FILE
-    if not file.is_file():
-        raise ValueError(f"no TorchRL actor at {path} (expected {ACTOR_FILE})")
-    return file
-
-
 def save_actor(net: ActorNet, settings: dict[str, Any], path: Path) -> None:
     """The actor's weights and what rebuilds it, on the host."""
     state = {k: v.detach().cpu() for k, v in net.state_dict().items()}
@@ -118,47 +105,20 @@ def load_actor(path: Path) -> ActorNet:
     return net.eval()
 
 
-def _load_cached(path: Path) -> ActorNet:
-    """Cached until the file changes (a later run may write the same folder)."""
-    st = path.stat()
-    return _load_stamped(str(path.resolve()), (st.st_mtime_ns, st.st_size))
-
-
-@lru_cache(maxsize=8)
-def _load_stamped(path: str, stamp: tuple[int, int]) -> ActorNet:
-    del stamp  # part of the cache key only
-    torch.set_num_threads(1)  # one episode per process; two threads collapse when shared
-    return load_actor(Path(path))
-
-
-class TorchRLPolicy:
+class TorchRLPolicy(LoadedPolicy):
     """The shared actor acting for one robot: deterministic (tanh of the Gaussian's mean,
     TanhNormal's deterministic sample), with the priors the run trained with."""
 
-    def __init__(self, spec: AgentSpec, path: str | None) -> None:
-        file = resolve_actor(path)
-        self.spec = spec
-        self.net = _load_cached(file)
-        self.priors = run_priors(file.parent)
-        self.comm = run_comm(file.parent)
-        self.reads_messages = self.comm is not None  # it sees the inbox, it may send
-        self._io = RobotInputs(self.priors, spec, self.comm)
-        self.stats: dict[str, Any] = {}
+    SAVED = ACTOR_FILE
+    KIND = "TorchRL actor"
 
-    def reset(self) -> None:
-        self._io.reset()
+    def __init__(self, spec: AgentSpec, path: Path) -> None:
+        """``path``: the run folder (or its actor.pt)."""
+        saved = self.find(path)
+        self.net = load_once(load_actor, saved)
+        super().__init__(spec, *run_record(saved))
 
-    def executed(self, action: np.ndarray) -> None:
-        self._io.executed(action)
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        raw, x = self._io.inputs(obs)
+    def decide(self, x: np.ndarray) -> np.ndarray:
         with torch.no_grad():
             loc, _ = self.net(torch.as_tensor(np.asarray(x, np.float32)))
-        return self._io.action(raw, np.clip(torch.tanh(loc).numpy(), -1.0, 1.0))
-
-
-def factory(path: str | None):
-    """``torchrl:PATH`` for ``baselines.policies``: fails before the episode starts."""
-    resolve_actor(path)
-    return lambda spec: TorchRLPolicy(spec, path)
+        return torch.tanh(loc).numpy()

@@ -1,24 +1,15 @@
 """PPO with TorchRL over the TorchRL view of ``VectorEnv``, every tensor on one device.
 
-    python -m baselines.train --engine torchrl --algo ppo --scenario short --num-envs 4096 \\
+    python -m baselines.train --library torchrl --algo ppo --scenario short --num-envs 4096 \\
         --backend cuda --device 0 --robot-steps 50000000 --out runs/torchrl_ppo
 
-Training where the environment runs (``VectorEnv(backend="cuda")``), so that rollouts,
-advantages and updates never copy through the host (``--backend cpu``: the same code on
-the host). TorchRL's pieces: the ``Collector`` steps ``CoopTransportTorchRLEnv``, ``GAE``,
-``ClipPPOLoss``, a ``ReplayBuffer`` on the device; one ``ProbabilisticActor``
-(``TanhNormal``) and one ``ValueOperator`` for all robots, applied over the robot
-dimension of the group ``uvms``. Settings follow the SB3 trainer (``HYPERPARAMETERS``,
-``--hp KEY=JSON``); observations are normalized by running statistics kept in the actor
-(so the saved actor normalizes itself) and rewards scaled by the running spread of the
-discounted return, as ``VecNormalize`` does. ``--cost`` (``baselines.lagrangian``)
-subtracts the multiplier times each robot's constraint cost from its reward before the
-advantages (``StepCosts``). The run folder (``baselines.runs``) also gets ``actor.pt``
-(``--policy torchrl:RUN``, ``baselines.rl.torchrl_policy``) and ``trainer.pt`` (critic,
-optimizer, return statistics; ``--resume RUN``). Guide: docs/rl.md, "The torchrl engine".
+Rollouts, advantages and updates never copy through the host. Settings follow the SB3
+trainer (``HYPERPARAMETERS``); the actor keeps the observation statistics, so the saved
+``actor.pt`` normalizes itself; ``trainer.pt`` holds what ``--resume`` needs.
+Reference: docs/rl.md, "The torchrl trainer".
 
 May import: numpy, torch, tensordict and torchrl (inside the training functions),
-``baselines.runs``, ``baselines.lagrangian``,
+``baselines.runs``, ``baselines.lagrangian``, ``baselines.registry``,
 ``baselines.rl.torchrl_policy`` (the actor's network) and ``uvms_env``.
 """
 
@@ -39,6 +30,7 @@ import torch
 from torch import nn
 
 from baselines.lagrangian import Lagrangian
+from baselines.registry import LIBRARIES
 from baselines.rl.torchrl_policy import (
     ACTOR_FILE,
     CLIP_OBSERVATION,
@@ -47,19 +39,12 @@ from baselines.rl.torchrl_policy import (
     mlp,
     save_actor,
 )
-from baselines.runs import (
-    DEFAULT_DTYPE,
-    DEFAULT_ENV_THREADS,
-    DTYPES,
-    TRAIN_ENV_DEFAULTS,
-    Run,
-    seeded_pool,
-)
+from baselines.runs import DTYPES, TRAIN_ENV_DEFAULTS, Run, add_step_arguments, seeded_pool
+from uvms_env.vector.simulator import BACKENDS
 
-ALGOS = ("ppo",)
-BACKENDS = ("cpu", "cuda")
+ALGOS = LIBRARIES["torchrl"].algos
 HYPERPARAMETERS: dict[str, Any] = {
-    # the sb3 engine's regime: short rollouts of many copies, few epochs, large minibatches
+    # the sb3 trainer's regime: short rollouts of many copies, few epochs, large minibatches
     "rollout_steps": 32,  # per env copy and iteration (SB3's n_steps)
     "minibatches": 4,  # per epoch, over the rollout's robot samples
     "epochs": 4,
@@ -76,7 +61,7 @@ HYPERPARAMETERS: dict[str, Any] = {
     "scale_reward": True,
 }
 TRAINER_FILE = "trainer.pt"
-# As the SB3 engine: a seeded family's episodes take the bank's first 1,024 geometries.
+# As the SB3 trainer: a seeded family's episodes take the bank's first 1,024 geometries.
 DEFAULTS: dict[str, Any] = {"num_envs": 64, "geometry_pool": 1024}
 
 
@@ -84,7 +69,7 @@ OPTIONS_NOTE = f"--hp KEY=JSON sets one of {', '.join(HYPERPARAMETERS)}"
 
 
 def add_arguments(g: Any) -> None:
-    """The TorchRL engine's own options."""
+    """The TorchRL trainer's own options."""
     g.add_argument("--backend", choices=BACKENDS, default="cpu", help="the VectorEnv backend")
     g.add_argument(
         "--device",
@@ -92,10 +77,7 @@ def add_arguments(g: Any) -> None:
         help="GPU index (default 0 with --backend cuda) or cpu: where the env's tensors, "
         "the networks and the updates live",
     )
-    g.add_argument("--dtype", choices=DTYPES, default=DEFAULT_DTYPE, help="the step's precision")
-    g.add_argument(
-        "--env-threads", type=int, default=DEFAULT_ENV_THREADS, help="host threads of the step"
-    )
+    add_step_arguments(g)
     g.add_argument("--torch-threads", type=int, default=1)
 
 
@@ -262,7 +244,7 @@ class EpisodeTracker:
 
 class StepCosts:
     """Each ``VectorEnv.step``'s constraint values (K, N, 8) and violation counts (K, N),
-    on the host, in step order: the TorchRL env does not pass its infos on, so the engine
+    on the host, in step order: the TorchRL env does not pass its infos on, so the trainer
     reads them where the step returns them."""
 
     def __init__(self, vector_env: Any) -> None:
@@ -286,12 +268,12 @@ def _host(x: Any) -> np.ndarray:
     return np.asarray(x.get() if hasattr(x, "get") and not isinstance(x, np.ndarray) else x)
 
 
-class Engine:
-    """TorchRL's PPO under a ``baselines.runs.Run`` (``baselines.runs.Engine``)."""
+class Trainer:
+    """TorchRL's PPO under a ``baselines.runs.Run`` (``baselines.runs.Trainer``)."""
 
     def __init__(self, run: Run, algo: str, args: argparse.Namespace) -> None:
         if algo not in ALGOS:
-            raise ValueError(f"the torchrl engine trains {ALGOS}, not {algo!r}")
+            raise ValueError(f"torchrl trains {ALGOS}, not {algo!r}")
         if args.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {args.backend!r}")
         if args.dtype not in DTYPES:
@@ -313,30 +295,19 @@ class Engine:
         from torchrl.data import LazyTensorStorage, ReplayBuffer
         from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
 
-        from uvms_env.vector.sb3 import PART_SEED_STRIDE
-
         s, a, hp = self.run.settings, self.args, self.hp
         sizes: tuple[int | None, ...] = tuple(s.team_sizes) or (None,)
         if s.cost is not None and len(sizes) > 1:
             raise ValueError(
-                "--cost with several team sizes: train it with the sb3 engine (one multiplier "
-                "over every robot), or give the torchrl engine one team size"
+                "--cost with several team sizes: train it with --library sb3 (one multiplier "
+                "over every robot), or give torchrl one team size"
             )
         device = parse_device(a.device, a.backend)
         pool = seeded_pool(s.scenario, s.overrides, s.geometry_pool)
         torch.set_num_threads(a.torch_threads)
         torch.manual_seed(s.seed + self.run.config["resumes"])
         setup_start = time.perf_counter()
-        envs = []
-        for j, n_agents in enumerate(sizes):
-            overrides = dict(s.overrides)
-            if n_agents is not None:
-                overrides["n_agents"] = n_agents
-            env = make_env(
-                s.scenario, s.num_envs, a.backend, device, a.dtype, pool, a.env_threads, overrides
-            )
-            env.set_seed(self.run.episode_seed + j * PART_SEED_STRIDE)
-            envs.append(env)
+        envs = [self._group_env(j, n, device, pool) for j, n in enumerate(sizes)]
         dev = self.dev = envs[0].device
         if s.cost is not None:
             self.costs = StepCosts(envs[0].vector_env)
@@ -392,6 +363,20 @@ class Engine:
             "setup_s": round(time.perf_counter() - setup_start, 1),
         }
 
+    def _group_env(self, j: int, n_agents: int | None, device: str | int, pool: int | None):
+        """The TorchRL env of team-size group ``j`` (``n_agents`` robots, None: the run's)."""
+        from uvms_env.vector.sb3 import PART_SEED_STRIDE
+
+        s, a = self.run.settings, self.args
+        overrides = dict(s.overrides)
+        if n_agents is not None:
+            overrides["n_agents"] = n_agents
+        env = make_env(
+            s.scenario, s.num_envs, a.backend, device, a.dtype, pool, a.env_threads, overrides
+        )
+        env.set_seed(self.run.env_seed + j * PART_SEED_STRIDE)
+        return env
+
     def learn(self) -> int:
         from tensordict import TensorDict
 
@@ -415,7 +400,7 @@ class Engine:
                 if self.lagrangian is not None:
                     reward = reward - self._penalties(done)
                     batch["next", GROUP, "reward"] = reward
-                # the team's return as robot 0 receives it (the SB3 engine's monitor, too)
+                # the team's return as robot 0 receives it (the SB3 trainer's monitor, too)
                 ended_returns, ended_lengths = tracker.observe(reward[:, :, 0, 0], done)
                 returns += ended_returns
                 lengths += ended_lengths
@@ -491,20 +476,15 @@ class Engine:
         cost = cost.reshape(k, n, steps).transpose(0, 2, 1)[..., None]
         return torch.as_tensor(multiplier * cost, dtype=torch.float32, device=self.dev)
 
-    def save(self, folder: Path) -> None:
+    def save(self, folder: Path, resumable: bool = False) -> None:
+        """The actor; in the run folder (or ``resumable``) also what a resume reads."""
         folder.mkdir(parents=True, exist_ok=True)
         save_actor(self.actor_net, self._actor_settings(), folder / ACTOR_FILE)
-        if folder == self.run.folder:
+        if resumable or folder == self.run.folder:
             torch.save(self._trainer_state(), folder / TRAINER_FILE)
 
     def checkpoint(self, robot_steps: int) -> None:
-        folder = self.run.folder / "checkpoints" / f"robot_steps_{robot_steps}"
-        folder.mkdir(parents=True, exist_ok=True)
-        save_actor(self.actor_net, self._actor_settings(), folder / ACTOR_FILE)
-        torch.save(self._trainer_state(), folder / TRAINER_FILE)
-
-    def policy(self, folder: Path) -> str:
-        return f"torchrl:{folder}"
+        self.save(self.run.folder / "checkpoints" / f"robot_steps_{robot_steps}", True)
 
     def results(self) -> dict[str, Any]:
         return {k: round(v, 1) if isinstance(v, float) else v for k, v in self.totals.items()}

@@ -14,6 +14,7 @@ from __future__ import annotations
 import copy
 import functools
 import hashlib
+import importlib
 import os
 import platform
 import shutil
@@ -22,6 +23,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import casadi as cs
 import numpy as np
@@ -129,6 +131,19 @@ class BufferCall:
         rewritten in place since); results in ``outputs``. Saves the argument loop on
         hot paths that refill one input buffer per call."""
         self._eval()
+
+
+class NamespacePickled:
+    """Pickling for array code over a namespace ``xp`` (numpy, or CuPy): the pickle names
+    the namespace (a module is no state) and unpickling imports it again."""
+
+    xp: Any
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "xp": self.xp.__name__}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update({**state, "xp": importlib.import_module(state["xp"])})
 
 
 class RebuiltOnUnpickle:

@@ -1,18 +1,15 @@
 """The local (distributed) prediction model of one UVMS and its object estimate.
 
 Used by the NMPC expert (its prediction model) and by the environment's priors (the
-steady input a_ss, ``uvms_env.env.priors``), so both read the same functions.
+steady input a_ss, ``uvms_env.env.priors``), so both read the same functions. MODEL
+section 5: UVMS i carries the share c_i of the object's dynamics (the equation:
+docs/expert.md, "Prediction model").
 
-MODEL section 5 (paper dec_dynamics, nominal_system): UVMS i assumes it carries the
-share c_i of the object's dynamics, with v_O = A_i zeta_i and A_i = J_Oi^-1 J_i:
-
-    (M_i + c_i A_i^T M_O A_i) zeta_dot_i = B_i tau_i - h_i - c_i A_i^T (M_O Adot_i zeta_i + h_O)
-
-Everything is built from the same CasADi functions as the truth simulator
-(``uvms_env.dynamics``), at the nominal parameters and zero current: the controller
-knows no more than its own model. The grasp (l_i, R_Oi), the load share c_i and the
-object's nominal parameters are *inputs* of the functions, not constants, so one compiled
-library serves every robot that carries the same object shape.
+Everything is built from the same CasADi functions as the truth simulator, at the
+nominal parameters and zero current: the controller knows no more than its own model.
+The grasp (l_i, R_Oi), the load share c_i and the object's nominal parameters are
+*inputs* of the functions, not constants, so one compiled library serves every robot
+that carries the same object shape.
 
 State x = [q (10); zeta (10)]; input a (8) normalized by the saturation tau_max.
 Parameter vector ``theta`` (see ``ModelParams``): [l_i (3); R_Oi (9, column-major); c_i;

@@ -2,17 +2,11 @@
 
     M(q, p) zeta_dot + h(q, zeta, v_c, p) = B tau  (- J(q)^T lambda, added by the simulator)
 
-* q = [x y z phi theta psi, q_1..q_4] (NED, ZYX Euler), zeta = [u v w p q r, qdot_1..4]
-  (Fossen's body-fixed vehicle twist and joint rates), tau = [X Y Z N, tau_1..4].
-* Rigid body: mass matrix and Coriolis/centrifugal terms by adam-robotics (CRBA/RNEA on
-  the URDF, body-fixed base velocity, gravity off), plus the joint armature.
-* Hydrodynamics (``hydro``): vehicle added mass, Kirchhoff Coriolis and Fossen damping
-  on the velocity relative to the current; arm links by strip theory.
-* Restoring terms from one potential (weight at each centre of gravity, buoyancy at each
-  centre of buoyancy): g(q) = T(q)^T dV/dq with q_dot = T(q) zeta, so the potential in
-  ``energy`` and the forces cannot disagree.
-* End-effector kinematics in the inertial frame: pose, J with [p_dot; omega] = J zeta,
-  and Jdot zeta (for the grasp constraint at acceleration level).
+q = [x y z phi theta psi, q_1..q_4] (NED, ZYX Euler), zeta = [u v w p q r, qdot_1..4],
+tau = [X Y Z N, tau_1..4]. Rigid body by adam-robotics, hydrodynamics in ``hydro``,
+restoring terms from one potential (g(q) = T(q)^T dV/dq, so the potential in ``energy``
+and the forces cannot disagree), end-effector kinematics in the inertial frame.
+Reference: docs/model.md, "One UVMS (paper eq6)".
 
 ``p`` holds the physical numbers that a scenario may perturb (parameter mismatch,
 damping scale); ``nominal_parameters()`` gives the parameter file's values.

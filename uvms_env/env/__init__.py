@@ -7,15 +7,9 @@
         {agent: env.action_space(agent).sample() for agent in env.agents}
     )
 
-Modules, one job each: ``parallel`` (the PettingZoo env and its documentation: a dict
-adapter), ``core`` (the episode's flow, written once for one environment and for K),
-``engine`` (the physics of one environment), ``options`` (keywords, the scenario, seeded
-geometries), ``task`` (the task's rules over K environments: reward, termination,
-sequencing, metrics), ``observation`` (the local observation's layout and noise),
-``kinematics`` (the one compiled per-step call), ``constraints``, ``reward`` (weights),
-``metrics`` (names, the ended episode's dict), ``wrench`` (internal wrench), ``priors``
-(action and observation modes), ``render`` (frames, videos), ``gym_wrapper``,
-``registration``.
+One job per module, each said in its docstring (the environment: ``parallel``; the
+episode's flow: ``core`` on an ``engine``; the task's rules: ``task``). Reference:
+docs/environment.md.
 
 May import everything in ``uvms_env`` below it (models, dynamics, sim, navigation,
 scenarios), plus pettingzoo, gymnasium and (lazily) matplotlib.

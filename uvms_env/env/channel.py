@@ -7,54 +7,16 @@ message, and its observation a fixed-size inbox of what it received. ``EnvCore``
 ``Channel`` for its batch (B = () or (K,)): ``parallel_env`` and ``VectorEnv`` (cpu and
 cuda) run this same array code.
 
-**Action** (per robot, ``8 + 1 + message_dim`` numbers): the 8 normalized inputs, then the
-send flag (> 0: send; <= 0: silent: silence is not a zero message), then the message,
-``message_dim`` numbers in [-1, 1] (clipped). ``silent(actions, settings)`` pads 8-number
-actions with a silent message part.
-
-**The model**, per control period h (the scenario's ``period``):
-
-* quantization: each number to ``bits_per_value`` bits, uniform levels on [-1, 1]
-  (error <= 1 / (2^b - 1));
-* a packet is ``message_dim * bits_per_value + HEADER_BITS`` bits (the header stands for the
-  sender's address, a sequence number and a checksum);
-* shared medium, TDMA round-robin by robot index: per period the medium carries
-  ``bit_rate_bps * h`` bits. If that is at least one packet, ``s = floor(bits / packet)``
-  robots speak per period (all N when s >= N); otherwise a slot lasts
-  ``P = ceil(packet / (bit_rate_bps h))`` periods. Robot j speaks at step t when
-  ``t % P == 0`` and ``(j - s t / P) mod N < s`` (t: the episode's step index);
-* outbox: a send flag > 0 writes the robot's outbox (the latest message wins); in its
-  slot the outbox goes out and empties; a silent robot's slot goes unused;
-* broadcast to every other robot; per receiver, the delay in periods is
-  ``d = modem_latency_periods + floor((packet / bit_rate_bps + r / c) / h)`` with r the
-  range between the two vehicles at sending and c the speed of sound
-  (``channel.toml``; without ``propagation_delay`` the r / c term is left out). A message
-  sent with the action of step t is in the observation returned by step t + d;
-* loss: each delivery independently, with probability
-  ``p(r) = p0 + (1 - p0) / (1 + exp(-(r - loss_range_m) / loss_width_m))``
-  (p0: ``loss_probability``; ``loss_range_m = inf``: the fixed probability p0); beyond
-  ``max_range_m`` every delivery is lost (this bounds the messages in flight);
-* two messages of one sender reaching a receiver in the same period: the later one sent wins.
-
-**Observation** (appended to the robot's observation; its size does not depend on N): the
-inbox, the last ``inbox_size`` = M messages received, newest delivery first (simultaneous
-deliveries in sender order), each ``message_dim`` values, its age (periods since the step
-whose action wrote it, divided by ``max_age_periods``) and a valid flag (1: a message,
-0: an empty slot, all zeros). Messages older than ``max_age_periods`` leave the inbox.
-Senders are not named: a policy that needs it puts it in its message.
-
-**Randomness.** Losses are a counter-based hash (splitmix64) of a key per episode, the step,
-the receiver and the sender, so the single and the batched environment draw the same
-losses without a per-environment loop; each episode's key comes from the channel's own
-generator, seeded from ``reset(seed=s)``, apart from the environment's generators:
-switching the channel on changes no physics draw.
+The action and observation layouts and the model, per control period (quantization,
+packets, the shared medium's TDMA slots, the outbox, delays, losses and their
+counter-based randomness), are written once, in docs/channel.md.
+``silent(actions, settings)`` pads 8-number actions with a silent message part.
 
 May import: numpy and ``uvms_env.dynamics`` (sizes).
 """
 
 from __future__ import annotations
 
-import importlib
 import math
 import tomllib
 from collections.abc import Mapping, Sequence
@@ -65,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from uvms_env.dynamics import NU
+from uvms_env.dynamics.compiled import NamespacePickled
 
 CHANNEL_FILE = Path(__file__).resolve().parent.parent / "models" / "channel.toml"
 HEADER_BITS = 16  # address, sequence number, checksum (per packet)
@@ -88,7 +51,7 @@ SOUND_SPEED, _PRESET_TABLES = _load()
 
 @dataclass(frozen=True)
 class ChannelSettings:
-    """The acoustic channel's parameters (module docstring); checked on construction."""
+    """The acoustic channel's parameters (docs/channel.md); checked on construction."""
 
     message_dim: int = 4  # numbers per message, each in [-1, 1]
     bits_per_value: int = 8  # quantization of each number (1..32)
@@ -247,8 +210,8 @@ def _mix(x: Any) -> Any:
     return x ^ (x >> np.uint64(31))
 
 
-class Channel:
-    """The channel's state over a batch of k environments of n robots (module docstring).
+class Channel(NamespacePickled):
+    """The channel's state over a batch of k environments of n robots (docs/channel.md).
 
     Arrays have the environment index first (k = 1 for one environment); ``ids`` are the
     core's (``...`` for one environment)."""
@@ -296,13 +259,6 @@ class Channel:
         # the first of each (env, robot)'s n + M merge candidates, as a flat row
         self._candidate = xp.asarray((np.arange(k * n) * (n + m)).reshape(k, n, 1))
         self._slots = xp.asarray(np.arange(1, m + 1)[:, None])  # inbox slot q holds valid no. q + 1
-
-    def __getstate__(self) -> dict:
-        """Pickles name the array namespace (a module is no state)."""
-        return {**self.__dict__, "xp": self.xp.__name__}
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update({**state, "xp": importlib.import_module(state["xp"])})
 
     @staticmethod
     def _generator(seed: int | None) -> np.random.Generator:
@@ -383,7 +339,7 @@ class Channel:
         self.in_ok = rank[..., -1:] >= self._slots[:, 0]
 
     def block(self, ids: Any) -> Any:
-        """(k', n, M (D + 2)) float32 inbox observations of ``ids`` (module docstring)."""
+        """(k', n, M (D + 2)) float32 inbox observations of ``ids`` (docs/channel.md)."""
         xp, s = self.xp, self.settings
         ids = slice(None) if ids is Ellipsis else ids
         vals = self.in_msg[ids]

@@ -4,12 +4,9 @@ mismatch (domain randomization, for training on a distribution of conditions).
     env = uvms_env.parallel_env("random", randomize={"current": ["none", "mild"],
                                                      "mismatch": [0.0, 0.15]})
 
-Each episode draws its current preset uniformly from ``current`` and its mismatch
-uniformly from the ``mismatch`` range; a key left out keeps the scenario's value. The
-draws come from a generator of their own, keyed by the episode's truth-model seed, so
-that every other draw of the episode (truth model, current, sensor noise) is what it is
-without ``randomize``, and the same seed plays the same conditions in ``parallel_env`` and
-``VectorEnv``. Each environment's current draw: ``EnvCore.conditions``.
+A key left out keeps the scenario's value. The draws come from a generator of their own,
+keyed by the episode's truth-model seed, so every other draw of the episode is what it is
+without ``randomize`` (docs/environment.md, "Conditions drawn per episode").
 
 May import: numpy and ``uvms_env.scenarios`` (the presets and the mismatch range).
 """

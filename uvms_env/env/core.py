@@ -1,17 +1,9 @@
 """The code that drives the task, written once for one environment and for K.
 
 ``EnvCore`` runs the flow of an episode around the task's rules (``uvms_env.env.task``) on
-a physics engine: seeding and resets, the check of the actions, the action mode, the step
-(simulator, time, evaluation, rules), each robot's observation (the engine's kernel, the
-robot's own waypoint sequencing and navigation twist, the observation mode), ``state()``,
-the constraint values of a state and what an ended episode reports.
-
-``parallel_env`` runs it for one environment, batch shape B = (), on ``ScalarEngine``
-(``uvms_env.env.engine``: the scalar compiled functions); ``VectorEnv`` for K environments,
-B = (K,), on ``BatchedEngine`` (``uvms_env.vector.engine``: SIMD lanes, or a GPU). The
-environments only turn their APIs (dicts of agents; arrays, automatic resets, tensors)
-into calls here. An engine owns the truth simulator and the compiled per-step calls of its
-batch and exposes them through the methods ``EnvCore`` calls (``Engine``).
+a physics engine (the ``Engine`` protocol: ``ScalarEngine`` for ``parallel_env``, batch
+shape B = (); ``BatchedEngine`` for ``VectorEnv``, B = (K,)). The environments only turn
+their APIs into calls here. Reference: docs/environment.md, "The task and its driver".
 
 Indices: ``ids`` index the engine's and the task's arrays (``...`` for one environment; a
 slice or an index array of ``xp`` for K), ``rows`` are the same environments as host
@@ -27,13 +19,13 @@ observation's layout and the channel.
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from uvms_env.dynamics import NQ, NU
+from uvms_env.dynamics.compiled import NamespacePickled
 from uvms_env.env.channel import Channel
 from uvms_env.env.conditions import Conditions
 from uvms_env.env.memory import Memory
@@ -56,33 +48,60 @@ _WAYPOINT = OBSERVATION_STRUCTURE["waypoint"]
 _NAV = OBSERVATION_STRUCTURE["nav_velocity"]
 
 
-class Engine:
-    """The physics and per-step kernels of one batch, B = () or (K,), float64 results
-    (``uvms_env.env.engine.ScalarEngine``, ``uvms_env.vector.engine.BatchedEngine``).
-    What ``EnvCore`` calls:
-
-    | call | does |
-    |---|---|
-    | `set_geometry(rows, scenarios)` | kernel inputs (and simulators) of new geometries |
-    | `reset(rows, sim_seeds)` | start state, truth-model and current draws of `rows` |
-    | `step(tau)` | one period of inputs B + (N, 8); returns the refused steps, B bool |
-    | `diverged_reasons(rows)` | why the last step of `rows` was refused |
-    | `measure(ids, q_noise, zeta_noise)` | the sensors read the true state plus noise |
-    | `evaluate(ids, action, time_fraction, measured)` | the kinematics kernel (below) |
-    | `set_waypoints(ids, waypoints)` | each robot's active waypoint B' + (N, 6) |
-    | `nav_twist(ids, index, pose)` | B' + (N, 6) navigation twists towards waypoints `index` |
-    | `wrench_sq(sampled)` | B: the internal wrench's squared norm where sampled |
-    | `object_pose(ids)`, `robots()`, `flat_state()` | the true state |
-
-    ``evaluate`` runs the kernel on the requested actions B' + (N, 8) (None: zeros) and
-    the sensors' readings (``measured=False``: the true state); it returns observations
-    B' + (N, 79), own object estimates B' + (N, 6), team rows (T,) + B', constraint values
-    B' + (N, 8) and costs B' + (N,). The priors' a_ss and features run on the host here;
-    an engine with device kernels for them overrides ``steady`` and ``features``."""
+class Engine(Protocol):
+    """The physics and per-step kernels of one batch, B = () or (K,), float64 results: what
+    ``EnvCore`` calls. ``uvms_env.env.engine.ScalarEngine`` and
+    ``uvms_env.vector.engine.BatchedEngine`` implement it (and inherit ``steady`` and
+    ``features``, host calls, unless they have device kernels for them). B' is the batch
+    shape of ``ids``."""
 
     xp: Any  # the array namespace of the step: numpy, or CuPy on a GPU
     tau_max: Any  # (8,) saturations, on the step's device
     noisy: bool  # the scenario has sensor noise
+
+    def set_geometry(self, rows: list[int], scenarios: list[Scenario]) -> None:
+        """Kernel inputs (and simulators) of new geometries for host ``rows``."""
+
+    def reset(
+        self, rows: list[int], sim_seeds: list[int], conditions: list[Conditions] | None = None
+    ) -> None:
+        """Start state, truth-model and current draws of ``rows`` from ``sim_seeds``, under
+        each one's episode ``conditions`` (None: the scenarios')."""
+
+    def step(self, tau: Any) -> Any:
+        """One period of inputs ``tau`` B + (N, 8) in physical units; the refused steps,
+        B bool (a refused environment keeps its state)."""
+
+    def diverged_reasons(self, rows: list[int]) -> list[str]:
+        """Why the last step of each of ``rows`` was refused."""
+
+    def measure(self, ids: Any, q_noise: Any, zeta_noise: Any) -> None:
+        """The sensors of ``ids`` read the true state plus this noise, B' + (N, 10) each."""
+
+    def evaluate(self, ids: Any, action: Any, time_fraction: Any, measured: bool = True) -> tuple:
+        """The kinematics kernel on the actions B' + (N, 8) (None: zeros) and the sensors'
+        readings (``measured=False``: the true state): observations B' + (N, 79), own
+        object estimates B' + (N, 6), team rows (T,) + B', constraint values B' + (N, 8) and
+        costs B' + (N,)."""
+
+    def set_waypoints(self, ids: Any, waypoints: Any) -> None:
+        """Each robot's active waypoint B' + (N, 6), as the kinematics kernel reads it."""
+
+    def nav_twist(self, ids: Any, index: Any, pose: Any) -> Any:
+        """B' + (N, 6) navigation twists towards waypoints ``index`` B' + (N,) from the
+        object estimates ``pose`` B' + (N, 6)."""
+
+    def wrench_sq(self, sampled: Any) -> Any:
+        """B: the internal wrench's squared norm after the step where ``sampled``."""
+
+    def object_pose(self, ids: Any) -> Any:
+        """B' + (6,): the object's true pose."""
+
+    def robots(self) -> tuple[Any, Any]:
+        """B + (N, 10) each: the robots' true q and zeta."""
+
+    def flat_state(self) -> Any:
+        """B + (20 N + 12,): the true flat state (``Simulator.flat_state``)."""
 
     def steady(self, raw: Any, ring: float) -> Any:
         """a_ss of raw observations (..., 79) -> (..., 8) float64."""
@@ -96,7 +115,7 @@ class Engine:
         return priors.observe(raw, ring, steady, memory)
 
 
-class EnvCore:
+class EnvCore(NamespacePickled):
     """The task driven over one environment (``num_envs=None``) or K (module docstring).
 
     ``first_seeds``: each environment's seed before any seeded reset (None: entropy)."""
@@ -166,13 +185,6 @@ class EnvCore:
         if self.comm is not None:
             self.channel = Channel(self.comm, xp, k, n, s.period, first_seeds)
             self.action_size = self.comm.action_size
-
-    def __getstate__(self) -> dict:
-        """Pickles name the array namespace (a module is no state)."""
-        return {**self.__dict__, "xp": self.xp.__name__}
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update({**state, "xp": importlib.import_module(state["xp"])})
 
     # -- indices ------------------------------------------------------------------------
     def ids_of(self, rows: list[int]) -> Any:

@@ -1,9 +1,7 @@
-"""The centralized Gymnasium view of the environment, for single-agent algorithms.
-
-One observation is the agents' local observations concatenated (uvms_0 first), one
-action is their actions concatenated; the reward is the shared team reward; the episode
-ends when the agents' episode ends. This view is centralized by construction (a policy
-on it sees every robot): use the PettingZoo environment for decentralized policies.
+"""The centralized Gymnasium view of the environment, for single-agent algorithms: the
+agents' observations and actions concatenated, the shared team reward. Centralized by
+construction (a policy on it sees every robot): use the PettingZoo environment for
+decentralized policies.
 
 May import: numpy, gymnasium and ``uvms_env.env.parallel``.
 """

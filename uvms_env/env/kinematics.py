@@ -1,28 +1,19 @@
 """Every per-step kinematic quantity of the whole team in ONE compiled CasADi call.
 
-The environment needs, per robot and per step: the object pose and twist estimated from
-the robot's own (measured) kinematics, the nearest obstacles relative to that estimate,
-the manipulability, the grasp error and the constraint values of the true state, a
-few team-wide reductions of them, and the observation rows themselves: one compiled
-function (``compile_function``) called through the zero-copy ``BufferCall``. Python
-then only adds the navigation twist.
+Per robot and per step: the object pose and twist estimated from the robot's own
+(measured) kinematics, the nearest obstacles relative to that estimate, the
+manipulability, the grasp error and the constraint values of the true state, a few
+team-wide reductions of them, and the observation rows themselves, called through the
+zero-copy ``BufferCall``. Python then only adds the navigation twist.
 
-The compiled function depends only on the number of robots, of object segments, of
-(padded) obstacles, on the observation layout and on whether there is sensor noise;
-the scenario geometry (grasps, obstacles, workspace, object segments, waypoints) enters
-as inputs, so a new random scenario with the same team size reuses it.
-
-Padding and branch-free code (docs/batched.md, "One kernel for every geometry"): an
-obstacle row with ``present == 0`` (exactly 0 or 1) changes nothing (its clearance is
-+inf, its radius -inf, see ``_clearance_geometry``), nor does a repeated object segment,
-so every scenario of a team size and sensing fits one function with ``BATCH_CYLINDERS``
-/ ``BATCH_SPHERES`` slots (``obstacle_inputs``, ``segment_inputs``; the single
-environment pads less, ``_padded``). The symbolic kernel (``team_function``) has no
-``if_else``, so it also compiles for SIMD lanes or as a CUDA kernel
-(``uvms_env.vector.kernels``).
+The scenario geometry enters as inputs, so a new random scenario with the same team size
+reuses the compiled function. Padding and branch-free code (docs/batched.md, "One kernel
+for every geometry"): an obstacle row with ``present == 0`` changes nothing (see
+``_clearance_geometry``), nor does a repeated object segment; the kernel has no
+``if_else``, so it also compiles for SIMD lanes or CUDA (``uvms_env.vector.kernels``).
 
 May import: numpy, casadi, ``uvms_env.dynamics``, ``uvms_env.navigation`` (obstacle
-types), ``uvms_env.scenarios`` (types) and ``uvms_env.env.constraints``.
+types), ``uvms_env.scenarios`` (types), ``uvms_env.sim`` and ``uvms_env.env.constraints``.
 """
 
 from __future__ import annotations
@@ -36,6 +27,7 @@ import numpy as np
 
 from uvms_env.dynamics import NQ, NU, UVMSModel
 from uvms_env.dynamics.compiled import BufferCall, RebuiltOnUnpickle, compile_function
+from uvms_env.dynamics.local_model import euler_zyx
 from uvms_env.dynamics.spatial import rot_zyx
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.env.constraints import (
@@ -48,6 +40,7 @@ from uvms_env.env.constraints import (
 )
 from uvms_env.navigation import Cylinder
 from uvms_env.sim.chain import NG  # grasp per robot: offset l_i (3), R_Oi column-major (9)
+from uvms_env.sim.simulator import grasp_parameters
 
 if TYPE_CHECKING:
     from uvms_env.scenarios import Scenario
@@ -64,15 +57,6 @@ BATCH_SPHERES = 5
 NS = 13  # per robot, known a priori: load share, grasp offset, R_Oi row-major
 NK = len(CONSTRAINTS)
 Layout = tuple[tuple[str, int], ...]  # the observation's (name, size) blocks, in order
-
-
-def _euler_zyx(r: cs.SX) -> cs.SX:
-    """ZYX Euler angles of a rotation matrix (``spatial.rot_zyx``'s inverse for |theta| < pi/2)."""
-    return cs.vertcat(
-        cs.atan2(r[2, 1], r[2, 2]),
-        -cs.asin(cs.fmin(cs.fmax(r[2, 0], -1.0), 1.0)),
-        cs.atan2(r[1, 0], r[0, 0]),
-    )
 
 
 def _nearest(
@@ -185,7 +169,7 @@ def robot_function(
     p_ee, r_ee = uvms.ee_pose(q_est)
     r_o = r_ee @ r_oi.T
     arm = r_o @ offset
-    pose = cs.vertcat(p_ee - arm, _euler_zyx(r_o))
+    pose = cs.vertcat(p_ee - arm, euler_zyx(r_o))
     v_ee = uvms.ee_jacobian(q_est) @ z_est
     twist = cs.vertcat(v_ee[:3] + cs.cross(arm, v_ee[3:]), v_ee[3:])
     observed = dict(layout)["obstacles"] // len(far)
@@ -350,13 +334,6 @@ def segment_inputs(segments: Sequence[tuple[np.ndarray, np.ndarray]], n_seg: int
     return np.ascontiguousarray(rows + [rows[-1]] * (n_seg - len(rows)), dtype=float)
 
 
-def grasp_matrix(scenario: Scenario) -> np.ndarray:
-    """(N, 12): offsets and R_Oi column-major, the layout of the simulator's grasp input."""
-    n = scenario.n_agents
-    rot = np.asarray(scenario.grasp_rotations).transpose(0, 2, 1).reshape(n, 9)
-    return np.ascontiguousarray(np.hstack([scenario.grasp_offsets, rot]), dtype=float)
-
-
 class TeamKinematics(RebuiltOnUnpickle):
     """Evaluates the kernel for one scenario; outputs are views overwritten by each call.
 
@@ -397,7 +374,7 @@ class TeamKinematics(RebuiltOnUnpickle):
         self._call = BufferCall(kernel)
         self.segments = segment_inputs(segments, len(segments))
         self.workspace = np.array([*scenario.workspace.center, scenario.workspace.radius])
-        self.grasp = grasp_matrix(scenario)
+        self.grasp = grasp_parameters(scenario)
         self.static = np.ascontiguousarray(
             np.hstack(
                 [

@@ -1,24 +1,13 @@
 """What a robot remembers from its own measurements, for ``observation_mode="memory"``: the
-last command it sent and its estimate of the disturbance its model misses.
+last command it sent (8, clipped) and its estimate of the disturbance its model misses (8,
+in input units, low-pass filtered with ``DISTURBANCE_GAIN`` and clipped to
++-``DISTURBANCE_LIMIT``; the formula: docs/environment.md, "Memory"; ``disturbance_sx``).
 
-The NMPC expert decides from more than the current observation: its warm-started plan
-(its last input), a disturbance observer and a goal integral. A policy of the current
-observation alone cannot reproduce that (docs/notes/2026-11-24-expert-initialized-and-
-shielded-ppo.md: the expert's action is predicted 30x better with the previous action
-added). This memory gives a policy the first two, built only from what the robot measures
-and what it sent:
-
-* **command** (8): the normalized input the robot sent last period, clipped to [-1, 1]
-  (zeros at the start of an episode);
-* **disturbance** (8): the generalized force its local model misses, in input units. From
-  the previous measured state x = (q, zeta), the command u and the measured twist
-  zeta' one period h later, w = M(x) (zeta' - zeta) / h - B tau_max u - r(x), with M and r
-  the local model's mass matrix and forces (``uvms_env.dynamics.local_model.local_terms``,
-  the expert's own model, nominal parameters, no current); d_raw = B^T w / tau_max is the
-  input that would produce w (surge, sway, heave, yaw and the four joints; roll and pitch
-  are passive). The estimate is low-pass filtered, d <- d + ``DISTURBANCE_GAIN`` (d_raw - d),
-  and clipped to +-``DISTURBANCE_LIMIT``. A current, a mismatched mass or drag and a
-  teammate's pull all show up in d; minus d is the input that cancels them.
+Why: the NMPC expert decides from more than the current observation (its warm-started
+plan, a disturbance observer, a goal integral); its action is predicted 30x better with
+the previous action added (docs/notes/2026-11-24-expert-initialized-and-shielded-ppo.md).
+This memory gives a policy the first two, built only from what the robot measures and
+what it sent.
 
 ``Memory`` holds the arrays of any batch of robots (the environments' ``EnvCore``, one
 robot's policy) and updates them from each period's measurements; ``RobotMemory`` is one
@@ -45,7 +34,6 @@ from uvms_env.dynamics.uvms import default_model
 from uvms_env.env.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
 from uvms_env.env.priors import object_model, own_model_inputs
 
-MEMORY_SIZE = 2 * NU  # the command, then the disturbance estimate
 # A time constant of ~3 periods (0.36 s): it follows a current's slow changes and a
 # teammate's pull within a second, and averages the one-period estimate's noise
 # (differentiated twists), the centralized NMPC's estimate uses the same gain.
@@ -59,7 +47,7 @@ _ZETA = OBSERVATION_STRUCTURE["zeta"]
 def disturbance_sx(o: cs.SX, zeta_next: cs.SX, command: cs.SX, period: cs.SX, ring: float):
     """d_raw (8): the input that equals the generalized force the local model misses between
     observation ``o`` and the measured twist ``zeta_next`` one ``period`` later under
-    ``command`` (module docstring)."""
+    ``command``: w = M(x) (zeta' - zeta) / h - B tau_max u - r(x), d_raw = B^T w / tau_max."""
     uvms = default_model()
     x, theta = own_model_inputs(o, ring)
     q, zeta = x[:NQ], x[NQ:]

@@ -5,33 +5,8 @@ env) and ends in ``episode_result``, whose dict is ``infos[agent]["metrics"]`` w
 episode ends. The expert's main job and the evaluator reuse it (and ``goal_errors``)
 instead of recomputing.
 
-=========================  ==============================================================
-metric                     meaning
-=========================  ==============================================================
-success                    the true object reached the final waypoint within the
-                           scenario's success_pos_tol and success_att_tol
-clean_success              success with no violation period
-episode_steps              control periods played
-sim_time_s                 simulated time (s)
-final_pos_error_m          |p_O - p_goal| of the true object at the end (m)
-final_att_error_rad        largest wrapped ZYX Euler-angle error to the goal at the end
-min_obstacle_clearance_m   smallest clearance of any physical body (vehicles, arms,
-                           object) to any obstacle over the episode, start included (m);
-                           None when the scenario has no obstacle
-min_manipulability         smallest det(Jbar Jbar^T) of any robot, start included
-violations                 per constraint kind (and extra constraint): control periods
-                           in which at least one robot violated it (g > 0)
-violation_periods          the violation periods of all kinds: the sum of ``violations``
-                           (a period with two violated kinds counts twice)
-internal_wrench_rms        RMS over the sampled periods of the Frobenius norm of the
-                           internal (squeeze) wrenches (N, 6), in N and N m; the env
-                           samples every period by default; None if never sampled
-control_effort             sum over periods and robots of |a|^2 h, a the normalized
-                           inputs after clipping to [-1, 1] (s)
-policy_time_ms             None here; the episode driver (``uvms_env.episode``) fills it
-                           with the median, p95 and max time of one agent's decision (ms)
-grasp_drift_max_m          largest end-effector position error to its grasp point (m)
-=========================  ==============================================================
+The metrics' meanings are tabled once, in docs/options.md, "Episode metrics" (a test
+keeps that table and ``METRICS`` in step).
 
 May import: numpy and ``uvms_env.env.constraints``.
 """

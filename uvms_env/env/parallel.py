@@ -90,15 +90,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     | 69-77 | `grasp_rotation`: R_Oi, row-major | object frame | 1 |
     | 78 | `time_fraction`: t / (max_cycles h) | - | 1 |
 
-    (1) From the robot's own measured q and its known grasp: p_O = p_ee - R_O l_i,
-    R_O = R_ee R_Oi^T, as ZYX Euler angles. (2) [p_dot_O; omega_O] = J_Oi^-1 J_i zeta_i
-    with J_Oi^-1 = [[I, S(R_O l_i)], [0, I]]. (3) Each robot's own waypoint sequencing
-    passes a waypoint when its own estimate is within `WAYPOINT_TOLERANCE` (0.3 m);
-    `nav_velocity` is its
-    `WaypointNavigator` twist (`uvms_env.env.observation.make_navigator(scenario)`) at
-    its own estimate. (4) dx dy dz = obstacle centre minus the own object estimate
-    (dz = 0 for the vertical cylinders, infinite in z), nearest first by surface
-    distance, padded with [100, 100, 0, 0, 0].
+    Notes (1)-(4): docs/options.md, "Observations".
 
     **Sensor noise** (scenario `sensor_noise` = s > 0): Gaussian on q and zeta before
     any estimate is derived, std per component times s: position 0.02 m, Euler angles
@@ -109,24 +101,14 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     object pose (6) and twist (6), the team's active waypoint (6) and the time fraction.
 
     **Reward** (shared: computed once per step, the same for every agent; every term in
-    `infos[agent]["reward_terms"]`, and the reward is their sum):
+    `infos[agent]["reward_terms"]`, and the reward is their sum): the formulas and
+    weights are `uvms_env.env.reward`'s; change them with `reward_weights`.
 
-        r = progress + waypoint + success + violation + effort
-        progress  = 10 (Phi_prev - Phi),  Phi = |p_O - p_wp| + 0.5 |wrap(Theta_O - Theta_wp)|
-        waypoint  = 5 when the true object passes an intermediate waypoint
-        success   = 50 when the episode succeeds
-        violation = -0.5 (violated constraints summed over robots) / N - 50 [failure]
-        effort    = -0.05 mean(a^2)
-
-    on the true object and the team's waypoint (details and weights:
-    `uvms_env.env.reward`; change them with `reward_weights`).
-
-    **Constraints** (`infos[agent]["constraint_values"]`, g <= 0 holds; the true state):
-    input, joint_limit, joint_speed, vehicle_speed, manipulability (eps = 0.5; ~4.2 at
-    the paper's start), representation, collision, workspace; definitions in
-    `uvms_env.env.constraints`. `infos[agent]["cost"]` is the number of the robot's
-    violated constraints. Collisions always end the episode; the others end it in
-    `constraint_mode="terminate"` and only cost reward in `"penalize"` (default).
+    **Constraints** (`infos[agent]["constraint_values"]`, g <= 0 holds, on the true state;
+    the kinds and their definitions: `uvms_env.env.constraints`). `infos[agent]["cost"]`
+    is the number of the robot's violated constraints. Collisions always end the episode;
+    the others end it in `constraint_mode="terminate"` and only cost reward in
+    `"penalize"` (default).
 
     **Starting state.** The scenario's start, at rest: a static equilibrium that holds
     the grasps exactly, kept by the normalized actions `env.sim.holding_inputs() /
@@ -148,9 +130,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     step); `internal_wrench_every=0` drops it (e.g. for training).
 
     **Rendering.** `render_mode="rgb_array"`: `render()` returns a 720 x 360 x 3 uint8
-    top and side view (vehicles, arms, object, obstacles, waypoints, the object's path);
-    "human" shows it in a window when a display exists and otherwise warns once.
-    `uvms_env.env.save_video(frames, "episode.gif")` writes GIF (or MP4 with imageio).
+    top and side view (`uvms_env.env.render`); "human" and videos: docs/environment.md.
 
     **Beyond the API.** `env.sim` and `env.scenario` (global: never feed them to a
     policy), `env.observe()` (observations of the current state, e.g. after
@@ -160,67 +140,31 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     each step's normalized inputs before the simulator, e.g. a safety filter:
     `uvms_env.env.core.EnvCore`).
 
-    **Extensions** (no change to the package): `extra_reward_terms={"name": fn}` adds
-    `fn(s, xp)` (K,) to the reward, reported as `reward_terms["name"]`;
-    `extra_constraints={"name": fn}` adds a constraint g = `fn(s, xp)` (K, N), g <= 0
-    holds, to `constraint_values`, `cost`, the violation term, `metrics["violations"]` and
-    `constraint_mode="terminate"`. `fn` is a callable or a `"module:function"` string;
-    `s` is a `uvms_env.env.task.TaskArrays` (true object pose, q, zeta, actions,
-    waypoints, steps over K environments, here K = 1) and `xp` numpy or CuPy: the same
-    function serves `VectorEnv` on both backends.
+    **Extensions** (no change to the package): `extra_reward_terms={"name": fn}` and
+    `extra_constraints={"name": fn}`, `fn(s, xp)` with `s` a
+    `uvms_env.env.task.TaskArrays` (here K = 1): docs/environment.md, "Extension points".
 
     **Communication** (`comm=`; default None: the silent team, nothing changes). With an
     acoustic channel (`uvms_env.env.channel`: a preset `ideal`, `micromodem_fsk`, `atm900`,
     `s2c_48_78`, a `ChannelSettings` or `{"preset": name, field: value}`) each action is
-    `Box(-1, 1, (8 + 1 + D,))`: the inputs, a send flag (> 0: send; <= 0: silent) and a
-    message of D = `message_dim` numbers; each observation gains `messages`
-    (`env.observation_structure`): the last M messages received, each its D values, its
-    age and a valid flag, M (D + 2) numbers whatever N. The channel quantizes, shares one
-    medium by TDMA, delays by the modem's latency and the range over 1500 m/s and loses
-    deliveries, seeded by `reset(seed=...)` apart from the physics' draws; an 8-number
-    action raises ValueError (`uvms_env.env.channel.silent` pads one with silence).
+    `Box(-1, 1, (8 + 1 + D,))` (inputs, send flag, message) and each observation gains the
+    inbox `messages`; an 8-number action raises ValueError. The layouts and the channel's
+    model: docs/channel.md.
 
-    **Arguments**
+    **Arguments**: `scenario` (a family, "paper", "random" or "short", or a `Scenario`),
+    `render_mode` and the keywords tabled with their types, defaults and meanings in
+    docs/options.md, "Environment options" (a test keeps that table and the code in step):
+    the scenario overrides (`uvms_env.scenarios.overrides.SCENARIO_OVERRIDES`) and
+    `uvms_env.env.options.ENV_OPTIONS`. A wrong type raises TypeError (no bools or strings
+    for numbers, no floats for integers), a value out of range (NaN and inf included) or an
+    unknown keyword ValueError; the message names the keyword and lists what is allowed.
 
-    | name | type | default | meaning |
-    |---|---|---|---|
-    | scenario | str or Scenario | "paper" | family ("paper", "random", "short") or a Scenario |
-    | render_mode | None, "rgb_array", "human" | None | "human" is headless-safe |
-    | n_agents | int | 2 | random family: 2..6; paper and short: 2 |
-    | current | str | "none" | ocean current preset: none, mild, strong |
-    | damping_scale | float >= 0 | 1.0 | multiplies all damping |
-    | mismatch | float in [0, 0.5) | 0.0 | relative truth-model perturbation, per episode |
-    | sensor_noise | float >= 0 | 0.0 | scale of the sensor noise above |
-    | seed | None or int >= 0 | None | scenario seed: random geometry, default episode seed |
-    | max_steps, substeps | int >= 1 | scenario's | scenario fields |
-    | success_pos_tol, success_att_tol | float > 0 | scenario's | scenario fields |
-    | constraint_mode | str | "penalize" | "penalize" or "terminate" |
-    | max_cycles | None or int >= 1 | scenario max_steps | truncation (also an attribute) |
-    | reward_weights | dict str -> float | {} | overrides of `RewardWeights` |
-    | reseed_geometry | bool | True | seeded families: `reset(seed=s)` uses geometry seed s |
-    | internal_wrench_every | int >= 0 | 1 | internal wrench metric every k periods (0: never) |
-    | extra_reward_terms | dict str -> fn | None | extra reward terms (Extensions) |
-    | extra_constraints | dict str -> fn | None | extra constraints (Extensions) |
-    | comm | None, str, ChannelSettings, dict | None | acoustic channel (Communication) |
-
-    Every keyword is checked against one typed table (`SCENARIO_OVERRIDES` in
-    `uvms_env.scenarios.overrides`, `ENV_OPTIONS` here): a wrong type raises TypeError
-    (no bools or strings for numbers, no floats for integers), a value out of range
-    (NaN and inf included) or an unknown keyword ValueError; the message names the
-    keyword and lists what is allowed.
-
-    **Seeding.** `seed`: None or an int >= 0 (Python or numpy, not bool; else TypeError
-    or ValueError). `reset(seed=s)` reseeds everything random in an episode: the truth
-    model's mismatch draws, the current and the sensor noise; `reset()` continues the
-    sequence, so a seeded reset followed by the same actions replays an episode step
-    for step. For the families whose geometry is seeded ("random", "short"; not
-    "paper") and `reseed_geometry=True`, `reset(seed=s)` also sets the geometry to
-    `make(family, seed=s, n_agents=N, ...)` (the last 32 are cached; the first build of
-    a seed costs an IPOPT solve, ~0.2-1 s); `reset()` keeps the current geometry. With
-    `reseed_geometry=False` the geometry stays the one built at construction (from the
-    `seed` override; without one it is a fresh draw). The number of agents never
-    changes and never depends on a seed: two environments built with the same
-    arguments and reset with the same seed are identical.
+    **Seeding** (docs/environment.md, "Seeding"). `seed`: None or an int >= 0 (Python or
+    numpy, not bool; else TypeError or ValueError); `reset()` continues the sequence and
+    keeps the current geometry. With `reseed_geometry=False` the geometry stays the one
+    built at construction (from the `seed` override; without one it is a fresh draw).
+    The number of agents never changes and never depends on a seed: two environments
+    built with the same arguments and reset with the same seed are identical.
 
     **Version history.** v0 (2026-11): first version; the `comm` option added later in
     2026-11 (default off: observations, actions and episodes unchanged, a test replays
@@ -312,11 +256,8 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
             self._path.append(self._engine.object_pose(...)[:3].copy())
         agents = self.possible_agents
         terms = {name: float(v) for name, v in out.terms.items()}
-        g_rows, costs, names = (
-            out.constraint_values.tolist(),
-            out.cost.tolist(),
-            core.task.constraints,
-        )
+        g_rows, costs = out.constraint_values.tolist(), out.cost.tolist()
+        names = core.task.constraints
         infos = {
             agent: {
                 "constraint_values": dict(zip(names, g_rows[i], strict=True)),

@@ -1,39 +1,18 @@
 """Priors a user may switch on: what each robot can compute from its own observation and
 what it knows before the task, offered to learning as an action or observation option.
 
-* ``steady_inputs(obs, ring_radius)``: a_ss, the normalized input that holds the robot,
-  with its load share of the object, moving rigidly at the observed navigation twist
-  against weight, buoyancy and drag: the NMPC expert's own input reference, from the same
-  model function (``uvms_env.dynamics.local_model.build_steady_input``), evaluated at the
-  robot's own measured q and zeta, its grasp and load share (in the observation; its
-  Euler-angle rates stand in for the angular velocity) and the object's nominal
-  parameters (known before the task).
-* ``featurize(obs)`` (76 numbers from the 79-number observation): the dynamics and the
-  task are invariant to horizontal translation and to a rotation about the vertical, so
-  absolute north/east positions and headings become differences in the robot's own
-  heading frame (yaw psi): the active waypoint and the goal relative to the own object
-  estimate, attitude errors (wrapped), the navigation twist, the object twist, the
-  vehicle's position relative to the object and the three nearest obstacles (absent
-  ones zeroed, distances clamped to 5 m). Depths, roll, pitch, joint angles, the body
-  twist, load share and grasp stay as they are; ``time_fraction`` is dropped.
-* ``Priors``: the environment options ``action_mode`` ("torque": the action is the
-  normalized input; "residual": the input is clip(a_ss + h + s r, -1, 1) around the
-  robot's own a_ss, r the action in [-1, 1], s = ``residual_scale``) and ``observation_mode``
-  ("raw": the 79 numbers; "features": ``featurize`` and a_ss, 84 numbers; "memory":
-  ``featurize``, the robot's memory (``uvms_env.env.memory``, 16) and a_ss, 100). The single
-  and the batched environment and the policies trained with them all call this class,
-  so an option means the same everywhere.
-* ``hold_stiffness`` kp and ``hold_damping`` kd (residual mode; default 0: h = 0): a
-  joint-space hold about the scenarios' nominal arm pose (``NOMINAL_ARM``, known before
-  the task) on the arm's torque inputs, h_j = -kp (q_j - q_nom,j) - kd qdot_j (normalized
-  torque per rad and per rad/s), from the robot's own measured joints: a_ss holds the
-  robot moving with the object but nothing in it holds the vehicle's attitude relative
-  to its grasp (docs/environment.md).
+``steady_inputs`` (a_ss, the expert's own input reference from
+``uvms_env.dynamics.local_model.build_steady_input``), ``featurize`` (76 numbers in the
+robot's own heading frame) and ``Priors`` (the options ``action_mode``,
+``observation_mode``, ``hold_stiffness``, ``hold_damping``). The single and the batched
+environment and the trained policies all call this class, so an option means the same
+everywhere.
 
 Why priors: a policy starting at zero torque drifts under weight and buoyancy, and the
 holding forces depend on the grasp geometry and load share through the arm's kinematics,
 which a network must otherwise learn from the geometries it happens to see. They are
 priors, not the task: the plain setting (torque, raw) stays the default.
+Reference: docs/environment.md ("Priors", "Memory"), docs/options.md.
 
 May import: numpy, casadi, ``uvms_env.dynamics`` and ``uvms_env.scenarios`` (the nominal
 arm pose).

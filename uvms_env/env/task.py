@@ -2,32 +2,13 @@
 
 ``Task`` holds the episode bookkeeping of K environments as arrays of the namespace
 ``xp`` it is given (numpy, or CuPy on a GPU) and applies the rules of the task to them:
+waypoint sequencing, constraint bookkeeping, success and episode ends, the shared reward
+(``uvms_env.env.reward``), the metrics (``uvms_env.env.metrics``) and the resets.
+Reference: docs/environment.md, "The task and its driver" and "Extension points".
 
-* each robot's waypoint sequencing on its own object estimate and the team's on the
-  true object (``WAYPOINT_TOLERANCE``, in order, one waypoint per step at most);
-* the constraint bookkeeping: the kinematics kernel's values plus the user's extra
-  constraints, costs, violated kinds;
-* success, termination, truncation and how an episode ended (``episode_end``);
-* the shared reward and its terms (``uvms_env.env.reward``) plus the user's extra terms;
-* the metrics (``uvms_env.env.metrics``): accumulated per step, the dict of an ended
-  episode from ``results``;
-* the resets of all of it.
-
-``VectorEnv`` (both backends) runs one ``Task`` over its K environments; ``parallel_env``
-runs one for a single environment on numpy, without the batch axis (``num_envs=None``:
-the same code, on numpy scalars rather than 1-element arrays, which cost several times
-more per operation). Nothing here is per-environment Python: what is (rendering, random
-generators, the PettingZoo dicts) stays in the environments.
-
-**Extension points** (environment keywords, accepted by ``parallel_env``, ``VectorEnv``
-and therefore the evaluator): ``extra_reward_terms={"name": fn}`` and
-``extra_constraints={"name": fn}``; ``fn`` a callable or a ``"module:function"`` string,
-called as ``fn(s, xp)`` with ``s`` a ``TaskArrays`` of the K environments and ``xp`` their
-array namespace (write it with ``xp.`` functions and it runs on numpy and CuPy alike).
-A reward term returns (K,) added to the reward and reported under its name in
-``reward_terms``. A constraint returns g (K, N), g <= 0 holds: it is reported in
-``constraint_values`` under its name and counted like the built-in soft ones (``cost``,
-the violation term, ``metrics["violations"]``, ``constraint_mode="terminate"``).
+``parallel_env`` runs one for a single environment without the batch axis
+(``num_envs=None``: the same code, on numpy scalars rather than 1-element arrays, which
+cost several times more per operation). Nothing here is per-environment Python.
 
 May import: numpy, ``uvms_env.dynamics.spatial`` and the ``env`` modules of constants and
 formulas it applies (constraints, metrics, reward, observation).
@@ -43,11 +24,12 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from uvms_env.dynamics import NU
+from uvms_env.dynamics.compiled import NamespacePickled
 from uvms_env.dynamics.spatial import wrap_angle
 from uvms_env.env.constraints import CONSTRAINTS, HARD_CONSTRAINTS
 from uvms_env.env.metrics import episode_result
 from uvms_env.env.reward import REWARD_TERMS, RewardWeights
-from uvms_env.navigation.task_rules import WAYPOINT_TOLERANCE
+from uvms_env.navigation.task_navigator import WAYPOINT_TOLERANCE
 
 NK = len(CONSTRAINTS)
 HARD_KINDS = [CONSTRAINTS.index(c) for c in HARD_CONSTRAINTS]  # indices of HARD_CONSTRAINTS
@@ -124,13 +106,12 @@ def episode_end(success: bool, diverged: bool, collision: bool, failed: bool) ->
     return "constraint" if failed else "max_cycles"
 
 
-class Task:
+class Task(NamespacePickled):
     """The task's state and rules over K environments of N robots (module docstring).
 
     ``xp``: numpy or CuPy. ``num_envs``: K, or None for one environment without a batch
     axis: the batch shape B is (K,) or (), and every array and result has it in front
-    (B = (): numpy scalars, so the single env pays a scalar's cost, not an array's, for
-    each operation; the code is the same). ``w_max``: room for waypoints per environment.
+    (B = (): numpy scalars). ``w_max``: room for waypoints per environment.
     Arrays: ``waypoints`` B + (W, 6), ``team_waypoint`` and ``goal`` B + (6,),
     ``robot_index`` B + (N,), ``robot_waypoint`` B + (N, 6), ``steps`` B and the metrics'
     accumulators. Inputs are in the same shapes: ``team`` (T,) + B, ``x_o`` B + (6,).
@@ -203,13 +184,6 @@ class Task:
         self.effort = xp.zeros(b)
         self.wrench_sq = xp.zeros(b)
         self.wrench_samples = xp.zeros(b, np.int64)
-
-    def __getstate__(self) -> dict:
-        """Pickles name the array namespace (a module is no state)."""
-        return {**self.__dict__, "xp": self.xp.__name__}
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update({**state, "xp": importlib.import_module(state["xp"])})
 
     def _any(self, mask: Any) -> bool:
         """A host test of a mask of shape B (B = (): a numpy scalar, tested as one)."""

@@ -6,7 +6,7 @@
   ``-grad phi``; CasADi version for MPC; empirical choice of ``k``.
 * :mod:`.waypoints`: waypoint sequencing and the desired object twist
   ``[v_d; ZYX Euler-angle rates]``.
-* :mod:`.task_rules`: the task's sequencing tolerance and its rule for ``k``, one source
+* :mod:`.task_navigator`: the task's sequencing tolerance and its rule for ``k``, one source
   for the environment and the expert.
 * :mod:`.parametric`: the same twist with the scene as inputs, branch-free, so that
   environments of different geometries share one compiled (batched) function.
@@ -33,7 +33,7 @@ from .parametric import (
     parametric_velocity,
     twist_parameters,
 )
-from .task_rules import (
+from .task_navigator import (
     NAV_K_MAX,
     NAV_K_MIN,
     WAYPOINT_TOLERANCE,

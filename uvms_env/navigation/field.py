@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -87,15 +88,8 @@ def _as_points(name: str, value: ArrayLike) -> FloatArray:
 
 @dataclass(frozen=True)
 class Cylinder:
-    """Vertical cylinder obstacle, infinite in z.
-
-    Parameters
-    ----------
-    x, y : float
-        Position of the axis in the horizontal plane [m].
-    radius : float
-        Radius [m], non-negative.
-    """
+    """Vertical cylinder obstacle, infinite in z: its axis at (``x``, ``y``) in the
+    horizontal plane [m], ``radius`` >= 0 [m]."""
 
     x: float
     y: float
@@ -110,15 +104,7 @@ class Cylinder:
 
 @dataclass(frozen=True)
 class Sphere:
-    """Spherical obstacle.
-
-    Parameters
-    ----------
-    center : tuple of 3 floats
-        Centre [m].
-    radius : float
-        Radius [m], non-negative.
-    """
+    """Spherical obstacle: ``center`` [m], ``radius`` >= 0 [m]."""
 
     center: tuple[float, float, float]
     radius: float
@@ -131,15 +117,7 @@ class Sphere:
 
 @dataclass(frozen=True)
 class Workspace:
-    """Ball that bounds the workspace.
-
-    Parameters
-    ----------
-    center : tuple of 3 floats
-        Centre [m].
-    radius : float
-        Radius [m], positive.
-    """
+    """Ball that bounds the workspace: ``center`` [m], ``radius`` > 0 [m]."""
 
     center: tuple[float, float, float]
     radius: float
@@ -156,38 +134,22 @@ class Workspace:
 Obstacle = Cylinder | Sphere
 
 
-def _attitude_rate_ca(attitude: ca.SX, goal: FloatArray, gain: float, max_rate: float) -> ca.SX:
-    """Attitude law: ZYX Euler-angle rates ``clip(-gain wrap(attitude - goal), +-max_rate)``."""
-    raw = -gain * wrap_angle_sx(attitude - ca.DM(goal))
+def _attitude_rate_ca(attitude: ca.SX, goal: Any, gain: Any, max_rate: Any) -> ca.SX:
+    """Attitude law: ZYX Euler-angle rates ``clip(-gain wrap(attitude - goal), +-max_rate)``
+    (goal, gain and saturation numbers or symbols)."""
+    raw = -gain * wrap_angle_sx(attitude - goal)
     return ca.fmin(ca.fmax(raw, -max_rate), max_rate)
 
 
 class NavigationField:
     """Rimon-Koditschek navigation function for the object position (docs/model.md).
 
-    Parameters
-    ----------
-    goal : array_like, shape (3,)
-        Goal position ``p_d`` [m]; must lie in the free space.
-    workspace : Workspace
-        Bounding ball; it is deflated by ``team_radius``.
-    obstacles : sequence of Cylinder or Sphere
-        Obstacles; each is inflated by ``team_radius``.
-    team_radius : float
-        Radius ``R`` of the ball that encloses the object and the robots [m].
-    k : float
-        Navigation-function exponent, ``k >= 1``.
-    gain : float
-        ``K_NF`` [1/s] of the speed law ``min(max_speed, gain * |p - p_d|)``.
-    max_speed : float
-        Speed saturation [m/s].
-
-    Raises
-    ------
-    ValueError
-        On negative radii, ``k < 1``, non-positive gain or speed, NaN/inf entries, a
-        workspace not larger than the team, or a goal outside the free space.
-    """
+    ``goal`` (3,): ``p_d`` [m], in the free space; the ``workspace`` ball is deflated and
+    the ``obstacles`` inflated by ``team_radius``, the radius ``R`` [m] of the ball that
+    encloses the object and the robots; ``k`` >= 1: the exponent; ``gain``: ``K_NF`` [1/s]
+    of the speed law ``min(max_speed, gain * |p - p_d|)``, ``max_speed`` [m/s]. ValueError
+    on negative radii, ``k < 1``, non-positive gain or speed, NaN/inf entries, a workspace
+    not larger than the team, or a goal outside the free space."""
 
     def __init__(
         self,
@@ -342,18 +304,8 @@ class NavigationField:
 
     # ------------------------------------------------------------------ CasADi
     def casadi_velocity(self, p: ca.SX) -> ca.SX:
-        """Symbolic velocity reference for a 3x1 ``SX`` position (``scene_velocity``).
-
-        Parameters
-        ----------
-        p : casadi.SX, 3x1
-            Object position.
-
-        Returns
-        -------
-        casadi.SX, 3x1
-            Desired object velocity.
-        """
+        """Symbolic desired object velocity (3x1) at the object position ``p``, a 3x1
+        ``SX`` (``scene_velocity``)."""
         cylinders = ca.DM(np.c_[self._cyl_xy, self._cyl_r, np.ones(self._cyl_r.size)])
         spheres = ca.DM(np.c_[self._sph_c, self._sph_r, np.ones(self._sph_r.size)])
         return scene_velocity(
@@ -368,12 +320,7 @@ class NavigationField:
         )
 
     def casadi_function(self) -> ca.Function:
-        """CasADi function ``nav_velocity``: ``p`` (3x1) -> ``v_d`` (3x1), SX-built.
-
-        Returns
-        -------
-        casadi.Function
-        """
+        """CasADi function ``nav_velocity``: ``p`` (3x1) -> ``v_d`` (3x1), SX-built."""
         p = ca.SX.sym("p", 3, 1)
         return ca.Function("nav_velocity", [p], [self.casadi_velocity(p)], ["p"], ["v_d"])
 
@@ -397,28 +344,8 @@ def descend(
     descending one moves about ``step`` per iteration (the field repels it from the
     boundary, so the clearance cap does not keep it slow for long).
 
-    Parameters
-    ----------
-    field : NavigationField
-        Field to descend.
-    starts : array_like, shape (M, 3)
-        Start points in the free space.
-    step : float
-        Maximum step length [m].
-    goal_tol : float
-        Success radius around the goal [m].
-    max_iter : int
-        Iteration budget.
-    stall_window : int
-        Number of iterations over which a net displacement below ``step`` means stuck.
-
-    Returns
-    -------
-    reached : numpy.ndarray of bool, shape (M,)
-        Whether each start reached the goal.
-    final : numpy.ndarray, shape (M, 3)
-        Last iterates.
-    """
+    ``starts`` (M, 3): in the free space; ``step`` and ``goal_tol`` in m. Returns (reached:
+    (M,) bool, whether each start reached the goal; the last iterates (M, 3))."""
     pts = _as_points("starts", starts).copy()
     if not step > 0.0 or not goal_tol > 0.0:
         raise ValueError("step and goal_tol must be positive")
@@ -451,23 +378,8 @@ def sample_free_points(
     rng: np.random.Generator,
     min_clearance: float = 1e-3,
 ) -> FloatArray:
-    """Uniform samples of the free space (rejection sampling in the workspace ball).
-
-    Parameters
-    ----------
-    field : NavigationField
-        Field whose free space is sampled.
-    count : int
-        Number of points.
-    rng : numpy.random.Generator
-        Random source.
-    min_clearance : float
-        Points closer than this to the boundary are rejected [m].
-
-    Returns
-    -------
-    numpy.ndarray, shape (count, 3)
-    """
+    """``count`` uniform samples (count, 3) of ``field``'s free space (rejection sampling
+    in the workspace ball), none within ``min_clearance`` [m] of its boundary."""
     center = np.asarray(field.workspace.center, dtype=float)
     radius = field.workspace.radius - field.team_radius
     out: list[FloatArray] = []
@@ -503,33 +415,9 @@ def choose_k(
     Rule: for each candidate ``k`` (increasing, capped at ``k_max``), run :func:`descend`
     from ``samples`` uniform free points (fixed ``seed``); return the first ``k`` for
     which every start reaches the goal.  This is an empirical stand-in for the
-    conservative Rimon-Koditschek bound.
-
-    Parameters
-    ----------
-    goal, workspace, obstacles, team_radius
-        Scene, as for :class:`NavigationField`.
-    k_start : float
-        First candidate, ``>= 1``.
-    factor : float
-        Growth factor, ``> 1``.
-    k_max : float
-        Largest candidate.
-    samples : int
-        Number of random starts.
-    seed : int
-        Seed of the start points.
-
-    Returns
-    -------
-    float
-        The chosen ``k``.
-
-    Raises
-    ------
-    ValueError
-        If no candidate up to ``k_max`` passes, or on invalid arguments.
-    """
+    conservative Rimon-Koditschek bound. The scene is as for :class:`NavigationField`;
+    ``k_start`` >= 1, ``factor`` > 1. ValueError if no candidate up to ``k_max`` passes,
+    or on invalid arguments."""
     if not factor > 1.0:
         raise ValueError(f"factor must be > 1, got {factor}")
     k = _check_finite("k_start", k_start)
@@ -570,24 +458,10 @@ def scene_velocity(
     symbols for a function shared by every scene, or numbers), branch-free: the one
     symbolic form of the formulas, which ``casadi_velocity`` calls with its own scene.
 
-    Parameters
-    ----------
-    p, goal : casadi.SX, 3x1
-        Object position and goal position.
-    workspace : casadi.SX, 4x1
-        ``[c_ws; r_ws - R]``.
-    cylinders : casadi.SX, n_cyl x 4
-        Rows ``[x, y, r + R, present]``.
-    spheres : casadi.SX, n_sph x 5
-        Rows ``[cx, cy, cz, r + R, present]``.
-    k, gain, max_speed : casadi.SX, scalars
-        Exponent, ``K_NF`` and ``v_max``.
-
-    Returns
-    -------
-    casadi.SX, 3x1
-        Desired object velocity.
-    """
+    ``p``, ``goal``: 3x1 object and goal positions; ``workspace`` 4x1 ``[c_ws; r_ws - R]``;
+    ``cylinders`` n_cyl x 4, rows ``[x, y, r + R, present]``; ``spheres`` n_sph x 5, rows
+    ``[cx, cy, cz, r + R, present]``; ``k``, ``gain``, ``max_speed``: the exponent,
+    ``K_NF`` and ``v_max``. Returns the desired object velocity (3x1)."""
     e = p - goal
     gamma = ca.dot(e, e)
     d0 = p - workspace[0:3]

@@ -22,11 +22,8 @@ output ``twist_d`` (6, 1) = ``[v_d; Euler-angle rates]``, as ``nav_twist``. Matr
 are column-major in CasADi's nonzeros (all x, then all y, ...): ``a.ravel(order="F")``.
 :func:`twist_parameters` packs a navigator's waypoint into these arrays.
 
-Padding and branch-free code (docs/batched.md, "One kernel for every geometry"): a row
-with ``present == 0`` (exactly 0 or 1; padding rows finite, zeros) is replaced by the
-neutral factor ``beta = 1``, ``grad beta = 0``, so the result is the same bit for bit as
-without it; every selection is ``c * a + (1 - c) * b`` (``field._select``), never
-``if_else``, so the generated C runs on SIMD lanes.
+Padding and branch-free code: docs/batched.md, "One kernel for every geometry" (a row
+with ``present == 0`` is the neutral factor ``beta = 1``; selections are ``field._select``).
 
 Dependencies: this package may import numpy and casadi only.
 """
@@ -37,9 +34,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
-from uvms_env.dynamics.spatial import wrap_angle_sx
-
-from .field import NavigationField, scene_velocity
+from .field import NavigationField, _attitude_rate_ca, scene_velocity
 from .waypoints import WaypointNavigator
 
 parametric_velocity = scene_velocity  # the name this module exports
@@ -79,9 +74,7 @@ def parametric_twist_function(n_cyl: int = N_CYLINDERS, n_sph: int = N_SPHERES) 
     v = scene_velocity(
         x[0:3], goal[0:3], workspace, cylinders, spheres, gains[0], gains[1], gains[2]
     )
-    # _attitude_rate_ca with symbolic goal, gain and saturation
-    raw = -gains[3] * wrap_angle_sx(x[3:6] - goal[3:6])
-    w = ca.fmin(ca.fmax(raw, -gains[4]), gains[4])
+    w = _attitude_rate_ca(x[3:6], goal[3:6], gains[3], gains[4])
     return ca.Function(
         "nav_twist_param",
         [x, goal, workspace, cylinders, spheres, gains],
@@ -95,13 +88,8 @@ def field_parameters(
     field: NavigationField, n_cyl: int = N_CYLINDERS, n_sph: int = N_SPHERES
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """``workspace`` (4,), ``cylinders`` (n_cyl, 4) and ``spheres`` (n_sph, 5) of a field,
-    obstacles inflated and the workspace deflated by its team radius, zero padded.
-
-    Raises
-    ------
-    ValueError
-        If the field has more cylinders or spheres than slots.
-    """
+    obstacles inflated and the workspace deflated by its team radius, zero padded
+    (ValueError if the field has more cylinders or spheres than slots)."""
     cyl_xy, cyl_r = field._cyl_xy, field._cyl_r
     sph_c, sph_r = field._sph_c, field._sph_r
     if cyl_r.size > n_cyl or sph_r.size > n_sph:

@@ -52,13 +52,8 @@ def _as_waypoints(waypoints: ArrayLike) -> FloatArray:
 
 
 class WaypointSequencer:
-    """The mission's 6-D waypoints, in order; the last one is the goal.
-
-    Parameters
-    ----------
-    waypoints : array_like, shape (N, 6)
-        Poses ``[x, y, z, phi, theta, psi]``.
-    """
+    """The mission's 6-D waypoints (N, 6), poses ``[x, y, z, phi, theta, psi]`` in order;
+    the last one is the goal."""
 
     def __init__(self, waypoints: ArrayLike) -> None:
         self._waypoints = _as_waypoints(waypoints)
@@ -75,17 +70,9 @@ class WaypointSequencer:
 class WaypointNavigator:
     """Desired object twist along a waypoint sequence, one navigation field per waypoint.
 
-    Parameters
-    ----------
-    waypoints : array_like, shape (N, 6)
-        Poses ``[x, y, z, phi, theta, psi]``; positions must be in the free space.
-    workspace, obstacles, team_radius, k, gain, max_speed
-        Passed to every :class:`NavigationField`.
-    att_gain : float
-        ``K_att`` [1/s] of the attitude law.
-    max_att_rate : float
-        Saturation of each Euler-angle rate [rad/s].
-    """
+    ``waypoints`` (N, 6): their positions in the free space; ``workspace`` ...
+    ``max_speed``: every :class:`NavigationField`'s; ``att_gain``: ``K_att`` [1/s] of the
+    attitude law; ``max_att_rate``: the saturation of each Euler-angle rate [rad/s]."""
 
     def __init__(
         self,
@@ -122,22 +109,13 @@ class WaypointNavigator:
         return self._max_att_rate
 
     def casadi_function(self, index: int) -> ca.Function:
-        """CasADi function ``nav_twist``: ``x`` (6x1) -> ``twist_d`` (6x1) for waypoint ``index``.
-
-        Parameters
-        ----------
-        index : int
-            Waypoint index (the switching logic stays outside the symbolic graph).
-
-        Returns
-        -------
-        casadi.Function
-        """
+        """CasADi function ``nav_twist``: ``x`` (6x1) -> ``twist_d`` (6x1) for waypoint
+        ``index`` (the switching logic stays outside the symbolic graph)."""
         i = self._check_index(index)
         x = ca.SX.sym("x", 6, 1)
         v = self.fields[i].casadi_velocity(x[0:3])
         goal_att = self.sequencer.waypoints[i][3:]
-        w = _attitude_rate_ca(x[3:6], goal_att, self._att_gain, self._max_att_rate)
+        w = _attitude_rate_ca(x[3:6], ca.DM(goal_att), self._att_gain, self._max_att_rate)
         return ca.Function("nav_twist", [x], [ca.vertcat(v, w)], ["x"], ["twist_d"])
 
     def _check_index(self, index: int) -> int:

@@ -1,11 +1,6 @@
 """Pre-built geometries of the seeded scenario families, kept on disk, so that resetting a
-batched environment copies a start instead of solving for one.
-
-Building a geometry of the ``random`` family solves an inverse-kinematics and a
-static-equilibrium NLP and searches the navigation gain (``navigation.task_navigator``;
-costs: docs/simulator.md, "Measured"). A ``VectorEnv`` that auto-resets thousands of
-environments cannot pay that in a step, so each geometry is built once per (family,
-team size, seed), stored here and read back:
+batched environment copies a start instead of solving for one (docs/batched.md,
+"Geometry bank"; build costs: docs/simulator.md, "Measured"):
 
     bank = GeometryBank("random", n_agents=4)
     g = bank.get(17)              # Geometry(scenario, navigation), built on first use
@@ -13,15 +8,11 @@ team size, seed), stored here and read back:
     python -m uvms_env.vector.build_bank random --n-agents 4 --seeds 0:1024 --workers 2
 
 A geometry depends on the family, the team size and the seed only; every other scenario
-override (current, mismatch, noise, tolerances, ...) is a field laid over it with
-``scenarios.replace``, so one bank serves every such setting (``Geometry.scenario_with``
-gives the same scenario as ``make(family, seed=s, n_agents=N, **overrides)``). Entries
-are keyed by a hash of the code that builds them (the scenario and navigation modules
-and the model parameters): a change there starts a new bank instead of serving stale
-geometries.
-
-It is also where the environments get the geometry of a seed (``geometry_of_seed``): the
-single and the batched environment take the same scenario from here.
+override is laid over it with ``scenarios.replace`` (``Geometry.scenario_with``), so one
+bank serves every such setting. Entries are keyed by a hash of the code that builds them
+(the scenario and navigation modules and the model parameters): a change there starts a
+new bank instead of serving stale geometries. ``geometry_of_seed`` gives the single and
+the batched environment the same scenario of a seed.
 
 May import: numpy, ``uvms_env.scenarios``, ``uvms_env.navigation`` and
 ``uvms_env.dynamics.compiled`` (the cache folder).
@@ -44,7 +35,7 @@ import numpy as np
 
 from uvms_env.dynamics.compiled import cache_dir
 from uvms_env.navigation.parametric import N_CYLINDERS, N_SPHERES, twist_parameters
-from uvms_env.navigation.task_rules import task_navigator
+from uvms_env.navigation.task_navigator import task_navigator
 from uvms_env.scenarios.config import Scenario
 from uvms_env.scenarios.families import SEEDED_FAMILIES, make, replace
 

@@ -264,16 +264,10 @@ def max_waypoints(family: str | None, scenario: Scenario) -> int:
 
 
 def make(name: str = "paper", **overrides) -> Scenario:
-    """Build a scenario of family ``name`` with keyword overrides (validated).
-
-    Common overrides: ``current`` ("none", "mild", "strong"), ``damping_scale`` (>= 0),
-    ``mismatch`` (relative truth-parameter perturbation, [0, 0.5)), ``sensor_noise``
-    (>= 0), ``seed`` (None or int >= 0), ``max_steps``, ``substeps`` (ints >= 1),
-    ``success_pos_tol``, ``success_att_tol`` (> 0); ``n_agents`` where the family allows
-    it (random: 2..6, default 2; paper and short: 2). Types and ranges: the table in
-    ``uvms_env.scenarios.overrides``; a wrong type raises TypeError, a value out of range
-    or an unknown key ValueError, naming the key and what is allowed.
-    """
+    """Build a scenario of family ``name`` with keyword overrides, validated against the
+    table ``uvms_env.scenarios.overrides.SCENARIO_OVERRIDES`` (types, ranges, meanings:
+    docs/options.md, "Environment options"); a wrong type raises TypeError, a value out of
+    range or an unknown key ValueError, naming the key and what is allowed."""
     if not isinstance(name, str) or name not in FAMILIES:
         raise ValueError(f"unknown scenario {name!r}; known: {sorted(FAMILIES)}")
     return FAMILIES[name](**validate_overrides(overrides))

@@ -1,26 +1,15 @@
 """Is a scenario's ocean current within the team's reach? The team's top speed in still
 water, from the model's own damping.
 
-To hold its ground against a current of speed c, a team must push through the water at
-c: it can only if its top speed in still water exceeds c (necessary, not sufficient: it
-must also manoeuvre). ``team_top_speed`` is that speed for the scenario's start
-configuration: the team translates rigidly (no rotation, arms still) at speed V along a
-horizontal direction d, every vehicle pushes along d with its surge and sway at full
-saturation (the best a box-saturated thruster set gives along d: f_max (|x_i . d| +
-|y_i . d|), x_i and y_i its body axes; heave stays busy with the weight and yaw with the
-heading), and V solves
+``team_top_speed``: the team translates rigidly at speed V along a horizontal direction
+d, every vehicle pushes along d with surge and sway at full saturation, and V solves
 
     sum_i f_max (|x_i . d| + |y_i . d|) = P(V) / V,
 
-where P(V) is the power the water takes from the team: sum_i zeta_i . h_i(q_i, zeta_i) +
-v_O . h_O(x_O, v_O), with the project's own CasADi dynamics functions (``UVMSModel.bias``
-and ``ObjectModel.dynamics``), so drag of vehicles, arms and object have one source. The
-other terms of h do no work in this motion (Coriolis and Kirchhoff terms are power-free,
-a horizontal translation changes no potential). Nominal model with the scenario's
-``damping_scale``; ``mismatch`` is ignored.
-
-The rigid translation slightly overestimates the truth simulator's speed; the paper
-team's figures are in docs/model.md, "Ocean current and mismatch".
+P(V) the power the water takes from the team, from ``UVMSModel.bias`` and
+``ObjectModel.dynamics`` so that drag has one source. Nominal model with the scenario's
+``damping_scale``; ``mismatch`` is ignored. Reference (the argument and the paper team's
+figures): docs/model.md, "Ocean current and mismatch".
 
 May import: numpy, scipy (when called), ``uvms_env.models``, ``uvms_env.dynamics``.
 """

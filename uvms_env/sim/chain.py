@@ -1,11 +1,7 @@
 """The closed kinematic chain of N UVMSs rigidly grasping one object, as CasADi functions.
 
-Unknowns per stage: zeta_dot_i, v_O_dot, lambda_i. Each UVMS is reduced to its
-end-effector inertia Lambda_i = (J_i M_i^-1 J_i^T)^-1, so the coupled system is 6x6 in
-v_O_dot and lambda_i = Lambda_i (a_i - c_i - J_Oi v_O_dot), with a_i the free
-end-effector acceleration and c_i the object and Baumgarte terms (the equations and
-their reduction: docs/model.md, "The closed chain").
-
+Each UVMS is reduced to its end-effector inertia, so the coupled system is 6x6 in
+v_O_dot (the equations and their reduction: docs/model.md, "The closed chain").
 State layout (flat): [q_1..q_N (10N), zeta_1..zeta_N (10N), x_O (6), v_O (6)].
 
 One control period is one compiled function call: the RK4 substeps, then the projection

@@ -6,7 +6,9 @@
     sim.state.q, sim.state.zeta, sim.state.x_O, sim.state.v_O, sim.state.t
 
 The whole control period (RK4 substeps, KKT solves) is one compiled CasADi call made
-through the zero-copy buffer interface; the compiled library is cached on disk.
+through the zero-copy buffer interface; the compiled library is cached on disk. Its error
+control, envelope and current are the batched simulator's, on one environment:
+``uvms_env.sim.period`` and ``uvms_env.sim.current``.
 """
 
 from __future__ import annotations
@@ -24,27 +26,21 @@ from uvms_env.dynamics.payload import NPO, OBJECT_PARAMETER_LAYOUT
 from uvms_env.dynamics.spatial import SINGULARITY_MARGIN, rot_zyx
 from uvms_env.dynamics.uvms import PARAMETER_LAYOUT, default_model, scale_damping
 from uvms_env.sim.chain import ChainFunctions, build_chain, state_size
-from uvms_env.sim.current import OceanCurrent
+from uvms_env.sim.current import Currents
+from uvms_env.sim.period import (
+    ENVELOPE,
+    MAX_REFINEMENTS,
+    OK,
+    SPEED_LIMITS,
+    PeriodControl,
+    envelope_excess,
+)
 
 if TYPE_CHECKING:  # the simulator reads a scenario's fields; it does not import the layer
     from uvms_env.scenarios import Scenario
 
 # Grasp stabilization rate w [1/s] (Baumgarte; why 10: docs/model.md, "The closed chain").
 STABILIZATION = 10.0
-# Error control (docs/model.md). Every period ends with a projection onto the grasp
-# manifold inside the compiled step; how far the integrated state had drifted from it
-# before (pose and twist residuals) is the accuracy check. A period whose drift exceeds
-# these bounds is integrated again as two halves, recursively.
-DRIFT_TOL_POSE = 1e-5  # m and rad
-DRIFT_TOL_TWIST = 1e-4  # m/s and rad/s
-MAX_REFINEMENTS = 4  # halvings: down to 1/16 of a period (128 substeps at the default 8)
-# What the simulator promises at the end of every period (README): the grasp pose error
-# after the projection. One Newton step from an accepted drift lands at ~1e-9 or below.
-GRASP_TOL = 1e-6  # m and rad
-# The physical envelope: no input the saturations admit drives a UVMS or the object near
-# these speeds with the model's damping (docs/model.md, "Divergence"). A state beyond them
-# means the model was driven out of its validity (e.g. damping_scale=0): refused as diverged.
-SPEED_LIMITS = {"linear": 5.0, "angular": 10.0, "joint": 20.0}  # m/s, rad/s, rad/s
 # Fraction of ``mismatch`` applied to weighed quantities (masses, displaced volumes).
 WEIGHED_FRACTION = 0.1
 
@@ -150,10 +146,10 @@ class Simulator(RebuiltOnUnpickle):
         "object",
         "chain",
         "_step",
-        "_x_next",
         "_drift",
-        "_error",
-        "_drift_abs",
+        "_outputs",
+        "_x_column",
+        "control",
         "_internal",
     )
 
@@ -169,17 +165,16 @@ class Simulator(RebuiltOnUnpickle):
         )
         self._step = BufferCall(step_fn)
         self.tau_max = self.uvms.params.limits.tau_max
+        self._tau_min = -self.tau_max
         self._x = np.zeros(state_size(self.n))
-        self._x_next = self._step.outputs[0].reshape(-1)  # a view
-        self._drift, self._error = self._step.outputs[1:]  # (N, 12), (N, 6)
+        self._x_column = self._x[:, None]  # the period routine's layout, (element, K = 1)
+        # the compiled call's state, drift (N, 12) and error (N, 6) as (element, 1) views
+        self._outputs = tuple(out.reshape(-1, 1) for out in self._step.outputs)
+        self._drift = self._step.outputs[1]
         self._x_part = np.zeros_like(self._x)  # start of a refined part of a period
         self._h = np.array([s.period])
         self.refinements = 0  # periods integrated in parts (diagnostics)
-        self._drift_abs = np.zeros_like(self._drift)
-        lin, ang, joint = (SPEED_LIMITS[k] for k in ("linear", "angular", "joint"))
-        self._zeta_limits = np.tile(np.r_[[lin] * 3, [ang] * 3, [joint] * 4], self.n)
-        self._object_speed_limits = np.r_[[lin] * 3, [ang] * 3]
-        self._drift_tol = np.tile(np.r_[[DRIFT_TOL_POSE] * 6, [DRIFT_TOL_TWIST] * 6], (self.n, 1))
+        self.control = PeriodControl(self.n)
         self._internal: BufferCall | None = None
         self._tau_wrench = np.zeros((self.n, NU))
         self._tau = np.zeros((self.n, NU))
@@ -189,7 +184,7 @@ class Simulator(RebuiltOnUnpickle):
         self.nominal_object_parameters = self.object.nominal_parameters()
         self.parameters = np.zeros((self.n, NP))
         self.object_parameters = np.zeros(NPO)
-        self.current_model = OceanCurrent(self.uvms.params.currents[s.current])
+        self.currents = Currents(self.uvms.params.currents[s.current], 1)
         self.t = 0.0
         self.reset(seed=s.seed)
 
@@ -230,16 +225,14 @@ class Simulator(RebuiltOnUnpickle):
         self.parameters, self.object_parameters = draw_truth_parameters(
             s, self.nominal_parameters, self.nominal_object_parameters, rng, mismatch
         )
-        preset = self.uvms.params.currents[current or s.current]
-        if preset is not self.current_model.preset:
-            self.current_model = OceanCurrent(preset)
-        self.current_model.reset(rng)
+        self.currents.reset([0], [rng], [self.uvms.params.currents[current or s.current]])
         self.set_state(s.initial_q, np.zeros((self.n, NQ)), s.object_start, np.zeros(6))
         self.t = 0.0
         return self.state
 
-    def step(self, tau: np.ndarray) -> StepInfo:
-        """Advance one control period with inputs ``tau`` (N, 8), saturated at the limits."""
+    def step(self, tau: np.ndarray, current: np.ndarray | None = None) -> StepInfo:
+        """Advance one control period with inputs ``tau`` (N, 8), saturated at the limits;
+        ``current`` (3,): this period's current velocity instead of the drawn one (replays)."""
         tau = np.asarray(tau, dtype=float)
         if tau.shape != (self.n, NU):
             raise ValueError(f"tau must have shape ({self.n}, {NU}), got {tau.shape}")
@@ -247,55 +240,54 @@ class Simulator(RebuiltOnUnpickle):
             bad = np.argwhere(~np.isfinite(tau))[0]
             raise ValueError(f"tau contains NaN or inf (robot {bad[0]}, input {bad[1]})")
         saturated = np.abs(tau) > self.tau_max
-        np.clip(tau, -self.tau_max, self.tau_max, out=self._tau)
-        self._vc[:] = self.current_model.step(self.scenario.period)
-        if not self._evaluate(self._x, self.scenario.period):
-            self.refinements += 1
-            self._x_part[:] = self._x
-            reason = self._refine(self._x_part, self.scenario.period, 1)
-            if reason:
-                raise SimulationDiverged(f"the simulation diverged at t = {self.t:.2f} s: {reason}")
-        self._check_envelope()
-        self._x[:] = self._x_next
-        self.t += self.scenario.period
+        # clip(tau) for finite tau, without np.clip's dispatch (a hot path)
+        np.minimum(np.maximum(tau, self._tau_min, out=self._tau), self.tau_max, out=self._tau)
+        period = self.scenario.period
+        if current is None:
+            drawn = self.currents.step(period)
+            self._vc[:] = 0.0 if drawn is None else drawn[0]
+        else:
+            self._vc[:] = current
+        x_next, ok, refined = self.control.integrate(self._evaluate, self._x_column, period, 1)
+        self.refinements += refined
+        code = self.control.verdict(ok, x_next)[0]
+        if code != OK:
+            raise SimulationDiverged(self._refusal(code, x_next[:, 0]))
+        self._x[:] = x_next[:, 0]
+        self.t += period
         return StepInfo(self._tau.copy(), saturated, self._vc.copy())
 
-    def _evaluate(self, x: np.ndarray, h: float) -> bool:
-        """One compiled call: the period part of length ``h`` from ``x`` (results in
-        ``_x_next``, ``_drift``, ``_error``); whether it passed the error control."""
+    def _evaluate(self, ids: object, x0: np.ndarray, h: float) -> tuple[np.ndarray, ...]:
+        """The period routine's compiled call (``uvms_env.sim.period.Evaluate``): part ``h``
+        from ``x0`` (nx, 1), into the call's buffers; a refined part's state is copied out,
+        the next part's call rewrites them."""
         self._h[0] = h
+        if ids is None:  # the period from the state itself: bound once, no re-binding
+            x = self._x
+        else:
+            x = self._x_part
+            x[:] = x0[:, 0]
         self._step(
             x, self._tau, self._vc, self.parameters, self.object_parameters, self._grasp, self._h
         )
-        return self._accurate()
-
-    def _accurate(self) -> bool:
-        """The last compiled call's error control (see DRIFT_TOL_POSE). Few numpy calls:
-        this runs every period. NaN compares False, so a non-finite drift or error is
-        inaccurate; a non-finite state has a non-finite error."""
-        np.abs(self._drift, out=self._drift_abs)
-        ok = bool((self._drift_abs <= self._drift_tol).all())
-        return ok and bool(np.abs(self._error).max() <= GRASP_TOL)
+        x_next, drift, error = self._outputs
+        return (x_next if ids is None else x_next.copy()), drift, error
 
     @property
     def last_drift(self) -> float:
         """Largest pose drift (m, rad) before the projection in the last compiled call."""
         return float(np.abs(self._drift[:, :6]).max())
 
-    def _refine(self, x: np.ndarray, h: float, level: int) -> str:
-        """Integrate ``x`` over ``h`` as two halves (each refined again if needed); the
-        result lands in ``self._x_next`` and ``x`` is overwritten. '' or why it failed."""
-        if level > MAX_REFINEMENTS:
-            return self._failure_reason(x)
-        for _ in range(2):
-            if not self._evaluate(x, h / 2):
-                reason = self._refine(x, h / 2, level + 1)
-                if reason:
-                    return reason
-            x[:] = self._x_next
-        return ""
-
-    def _failure_reason(self, x: np.ndarray) -> str:
+    def _refusal(self, code: int, x: np.ndarray) -> str:
+        """Why the period was refused: ``x`` is where the integration stopped (the start
+        of the part that failed) or, beyond the envelope, the period's end."""
+        where = f"the simulation diverged at t = {self.t:.2f} s: "
+        if code == ENVELOPE:
+            kind, value = envelope_excess(x, self.n)
+            return (
+                where + f"the {kind} speed {value:.3g} is beyond the model's envelope "
+                f"({SPEED_LIMITS[kind]})"
+            )
         n = self.n
         pitches = np.r_[x[2 * NQ * n + 4], x[4 : NQ * n : NQ]]  # object, then vehicles
         worst = int(np.argmax(np.abs(pitches)))
@@ -309,28 +301,7 @@ class Simulator(RebuiltOnUnpickle):
                 f"; {body} is pitched {pitches[worst]:.3f} rad, at the singularity of the "
                 "state's ZYX Euler angles (|theta| = pi/2)"
             )
-        return text
-
-    def _check_envelope(self) -> None:
-        n, x = self.n, self._x_next
-        # every period: two comparisons against per-entry limits; the message only on failure
-        if (np.abs(x[NQ * n : 2 * NQ * n]) <= self._zeta_limits).all() and (
-            np.abs(x[2 * NQ * n + 6 :]) <= self._object_speed_limits
-        ).all():
-            return
-        zeta = x[NQ * n : 2 * NQ * n].reshape(n, NQ)
-        v_o = x[2 * NQ * n + 6 :]
-        speeds = {
-            "linear": max(np.abs(zeta[:, :3]).max(), np.abs(v_o[:3]).max()),
-            "angular": max(np.abs(zeta[:, 3:6]).max(), np.abs(v_o[3:]).max()),
-            "joint": np.abs(zeta[:, 6:]).max(),
-        }
-        for kind, value in speeds.items():
-            if not value <= SPEED_LIMITS[kind]:
-                raise SimulationDiverged(
-                    f"the simulation diverged at t = {self.t:.2f} s: the {kind} speed "
-                    f"{value:.3g} is beyond the model's envelope ({SPEED_LIMITS[kind]})"
-                )
+        return where + text
 
     # -- diagnostics -------------------------------------------------------------------
     def grasp_error(self) -> tuple[np.ndarray, np.ndarray]:
@@ -352,12 +323,9 @@ class Simulator(RebuiltOnUnpickle):
         (null space of the grasp matrix G^T = [J_O1^T ... J_ON^T]), under inputs ``tau``
         (default: the last applied) and the current of the last period. Compiled."""
         if self._internal is None:
+            s = self.scenario
             fn = _internal_wrench_function(
-                self.n,
-                self.scenario.object_shape,
-                float(self.scenario.ring_radius),
-                self.scenario.period,
-                self.scenario.substeps,
+                self.n, s.object_shape, float(s.ring_radius), s.period, s.substeps
             )
             self._internal = BufferCall(fn)
         if tau is not None:  # into a fixed buffer: re-binding a new array costs

@@ -8,8 +8,7 @@ constraint values, team reductions), the navigation twist at each robot's active
 internal wrench (the chain's own function). Each is a ``BatchedFunction`` (SIMD lanes,
 threads over cores) or, on the CUDA backend, a GPU kernel of the same generated source.
 Arrays are laid out (element, K padded), the environment index innermost, as the kernels
-read them. The ocean current's random walk is drawn per environment on the host, from
-each one's own generator, as the single environment's simulator draws it.
+read them; the ocean currents are the batched simulator's.
 
 May import: numpy, ``uvms_env`` below ``vector`` (the ``env`` kernels and constants it
 batches) and the sibling ``vector`` modules.
@@ -37,15 +36,15 @@ from uvms_env.env.options import EnvSetup
 from uvms_env.env.priors import BASE_FEATURES, Priors
 from uvms_env.scenarios import Scenario, max_waypoints
 from uvms_env.scenarios.bank import NAV_PARAMETERS, navigation_table
-from uvms_env.sim.current import OceanCurrent
+from uvms_env.sim.period import ENVELOPE, INACCURATE, MAX_REFINEMENTS, OK
 from uvms_env.vector.kernel_list import kernel_functions
 from uvms_env.vector.kernels import BatchedFunction
-from uvms_env.vector.simulator import ENVELOPE, INACCURATE, OK, BatchedSimulator
+from uvms_env.vector.simulator import BatchedSimulator
 
 DIVERGED_REASONS = {
     INACCURATE: (
-        "a 1/16 part of the period still drifted from the grasps beyond the error "
-        "control's tolerance"
+        f"a 1/{2**MAX_REFINEMENTS} part of the period still drifted from the grasps beyond "
+        "the error control's tolerance"
     ),
     ENVELOPE: "a speed went beyond the model's physical envelope (SPEED_LIMITS)",
 }
@@ -100,9 +99,6 @@ class BatchedEngine(Engine):
                 self._kernel(fns["prior_features"]),
             )
         self._inputs(segments)
-        self._presets = self.sim.uvms.params.currents
-        self._currents = [OceanCurrent(self._presets[base.current]) for _ in range(k)]
-        self._current_on = self._currents[0].preset.max > 0.0
         self._nav_table = xp.zeros((k, max_waypoints(setup.family, base), NAV_PARAMETERS))
         self._nav_tables: dict[int, np.ndarray] = {}  # id(scenario) -> navigation table
         self._scenarios: list[Scenario] = [base] * k  # kept: their ids key the tables
@@ -197,24 +193,15 @@ class BatchedEngine(Engine):
     def reset(
         self, rows: list[int], sim_seeds: list[int], conditions: list[Conditions] | None = None
     ) -> None:
-        mismatch = None if conditions is None else [c.mismatch for c in conditions]
-        generators = self.sim.reset(np.array(rows), sim_seeds, mismatch)
-        for j, (i, gen) in enumerate(zip(rows, generators, strict=True)):
-            if conditions is not None:
-                preset = self._presets[conditions[j].current]
-                if preset is not self._currents[i].preset:
-                    self._currents[i] = OceanCurrent(preset)
-            self._currents[i].reset(gen)
+        mismatch = current = None
         if conditions is not None:
-            self._current_on = any(c.preset.max > 0.0 for c in self._currents)
+            mismatch = [c.mismatch for c in conditions]
+            current = [c.current for c in conditions]
+        self.sim.reset(np.array(rows), sim_seeds, mismatch, current)
         self._a[:, self._on_device(np.array(rows))] = 0.0
 
     def step(self, tau: Any) -> Any:
-        current = None
-        if self._current_on:
-            period = self.setup.scenario.period
-            current = self.xp.asarray(np.array([c.step(period) for c in self._currents]))
-        self._code = self.sim.step(tau, current)
+        self._code = self.sim.step(tau)
         return self._code != OK
 
     def diverged_reasons(self, rows: list[int]) -> list[str]:
@@ -294,7 +281,6 @@ class BatchedEngine(Engine):
         return twist[:, :cols].T.reshape(m, n, 6)
 
     def wrench_sq(self, sampled: Any) -> Any:
-        """(K,) squared Frobenius norm of the internal wrench after the step."""
         assert self._wrench is not None
         s = self.sim
         out = self._call(

@@ -5,33 +5,17 @@
     obs, infos = venv.reset(seed=0)                  # obs (K, N, 79) float32
     obs, reward, terminated, truncated, infos = venv.step(actions)   # actions (K, N, 8)
 
-Environment k is ``parallel_env(scenario, **overrides)`` reset with seed ``seed + k``
-(``reset(seed=[s_0, ...])``: one seed each), stepped with ``actions[k]``: in float64 the
-same observations, rewards, constraint values, terminations and metrics step for step
-(the tests hold it to 1e-9, automatic resets included). The class docstring lists what
-differs and what is returned.
+Environment k is ``parallel_env(scenario, **overrides)`` reset with seed ``seed + k``,
+stepped with ``actions[k]``: in float64 the same episode step for step (docs/batched.md,
+"Same episodes"). The class docstring lists what differs and what is returned.
 
-The episode's flow is the single environment's: ``uvms_env.env.core.EnvCore`` (seeding,
-actions, the step, observations, state, ended episodes) over K environments, on
-``uvms_env.vector.engine.BatchedEngine``: one step is a few compiled calls over all K
-environments, with the environment index innermost (SIMD lanes and threads, or a GPU).
-The task's rules are array code over K (``uvms_env.env.task.Task``). Python runs per
-environment only where an environment's own random generator must be drawn from (sensor
-noise, ocean current: a loop over K when they are switched on, so that every draw is the
-single environment's) and for environments whose episode ended (their metrics dict and
-their reset). This module adds the array API: automatic resets, the geometry pool,
-partial restarts and torch tensors on a GPU.
-
-**GPU** (``backend="cuda"``, ``device=`` a GPU index): the same class with CuPy arrays in
-place of numpy ones and the same CasADi functions compiled as CUDA kernels
-(``kernels_cuda``; a_ss and the features too). States, observations, rewards, constraint
-values and the sequencing stay on the GPU; ``reset``/``step``/``state`` return torch
-tensors there (DLPack, no copy) and ``step`` takes torch CUDA tensors (or CuPy or numpy
-arrays). Per step the host reads a few flags (any refusal, any episode ended); the
-environments that ended come to the host for their metrics dicts and their resets (the
-truth-model draws of each environment's own generator). ``device="cpu"`` compiles the
-same kernel source for the host and runs this path on numpy arrays: how the tests check
-it, to rounding against the CPU backend, on machines without a GPU.
+The episode's flow is the single environment's (``uvms_env.env.core.EnvCore``) on
+``uvms_env.vector.engine.BatchedEngine``. Python runs per environment only where an
+environment's own random generator must be drawn from (sensor noise, ocean current: a
+loop over K when they are switched on, so that every draw is the single environment's)
+and for environments whose episode ended. This module adds the array API: automatic
+resets, the geometry pool, partial restarts and torch tensors on a GPU
+(``backend="cuda"``: docs/batched.md, "On a GPU").
 
 May import: numpy, gymnasium (spaces), torch (only to return tensors on the CUDA
 backend), ``uvms_env`` below ``vector``, the ``env`` core and options, and the sibling
@@ -196,10 +180,6 @@ class VectorEnv(CoreViews):
         """Environment 0's scenario (every environment's: ``scenarios``)."""
         return self._core.scenarios[0]
 
-    def _host(self, a: Any) -> np.ndarray:
-        """A numpy copy of a step array, for Python code and the caller's host data."""
-        return self._core.host(a)
-
     def _export(self, a: Any) -> Any:
         """What ``reset``/``step`` return for a step array: numpy on the CPU backend,
         torch tensors on the CUDA backend's device (zero-copy through DLPack)."""
@@ -291,7 +271,7 @@ class VectorEnv(CoreViews):
             "diverged_reason": np.full(k, "", dtype=object),
         }
         if bool(ended.any()):
-            done = np.flatnonzero(self._host(ended))
+            done = np.flatnonzero(self._core.host(ended))
             on = core.ids_of(done.tolist())
             infos["final_observation"][on] = core.view(on)
             infos["final_state"] = core.state()  # before the reset, for central critics

@@ -3,7 +3,7 @@ the CUDA compile check (``kernels_check``), so that the check compiles exactly w
 would run.
 
 May import: casadi, ``uvms_env`` below ``vector`` (the ``env`` kernels, the navigation
-function, the simulator's error-control constants) and ``uvms_env.vector.kernels``.
+function, the period routine's error-control constants) and ``uvms_env.vector.kernels``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from uvms_env.env.kinematics import BATCH_CYLINDERS, BATCH_SPHERES, team_functio
 from uvms_env.env.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT
 from uvms_env.env.priors import prior_functions
 from uvms_env.navigation.parametric import parametric_twist_function
-from uvms_env.sim import simulator as sim
+from uvms_env.sim import period
 from uvms_env.vector.kernels import Refinement
 
 
@@ -44,7 +44,8 @@ def kernel_functions(
 
 
 def period_refinement(n: int) -> Refinement:
-    """The single simulator's error control, for the period step of ``n`` robots."""
+    """The period routine's error control (``uvms_env.sim.period``) for the CUDA kernel of
+    the period step of ``n`` robots: its constants, from there."""
     return Refinement(
-        n, sim.DRIFT_TOL_POSE, sim.DRIFT_TOL_TWIST, sim.GRASP_TOL, sim.MAX_REFINEMENTS
+        n, period.DRIFT_TOL_POSE, period.DRIFT_TOL_TWIST, period.GRASP_TOL, period.MAX_REFINEMENTS
     )

@@ -4,11 +4,8 @@ and threads or as a GPU kernel, cached on disk.
 The function is generated as C once (``casadi.CodeGenerator``, as for the single
 environment's libraries) and wrapped, not rewritten:
 
-* CPU: compiled as C++ with ``casadi_real`` a bundle of SIMD lanes (``lanes.hpp``), one
-  environment per lane, OpenMP threads over blocks of lanes. ``lanes=1`` is the scalar
-  build for CPUs without wide vectors.
-* CUDA: every generated function marked ``__device__``, one GPU thread per environment,
-  compiled at run time by NVRTC through CuPy (``kernels_cuda``).
+CPU: ``casadi_real`` a bundle of SIMD lanes (``lanes.hpp``), OpenMP threads over blocks of
+lanes; CUDA: ``kernels_cuda`` (both targets: docs/batched.md).
 
 Layout (both targets): input and output ``i`` of the function is a C-contiguous array of
 shape (nnz_i, K): the environment index innermost, so that a SIMD lane block (CPU) or a
@@ -307,13 +304,20 @@ def _build_cpu(source: str, sig: Signature, dtype: str, lanes: int) -> ctypes.CD
     return ctypes.CDLL(str(lib))
 
 
+# The in-kernel error control's status per environment: accepted at once, accepted in
+# parts, refused (the step's last output with ``Refinement``).
+ACCEPTED, REFINED, REFUSED = 0, 1, 2
+
+
 @dataclass(frozen=True)
 class Refinement:
     """In-kernel error control for a period step laid out as the chain's (inputs ...,
-    h last; outputs state, drift 12 x N, error 6 x N): the same test and the same
-    recursive halving as ``Simulator._refine``, run by the thread of each environment
-    that needs it, so that a few refined environments cost no extra launches. The
-    kernel then writes one more output, (1, K): 0 accurate, 1 refined, 2 refused."""
+    h last; outputs state, drift 12 x N, error 6 x N): ``uvms_env.sim.period``'s routine
+    (``PeriodControl.accurate`` and the halving of ``PeriodControl.integrate``) written out
+    in C with its constants (``kernel_list.period_refinement``), run by the thread of each
+    environment that needs it, so that a few refined environments cost no extra launches.
+    The kernel then writes one more output, (1, K): ``ACCEPTED``, ``REFINED`` or
+    ``REFUSED``."""
 
     n_agents: int
     tol_pose: float
@@ -404,10 +408,11 @@ def _refinement_source(r: Refinement, sig: Signature, top: str) -> str:
     if sig.nnz_out[:3] != (nx, 12 * r.n_agents, 6 * r.n_agents) or sig.nnz_in[-1] != 1:
         raise ValueError(f"{sig.name} is not laid out as a period step for Refinement")
     return f"""
+/* PeriodControl.accurate: drift, grasp error and state within their bounds (NaN fails) */
 __device__ static bool uvms_accurate(casadi_real* const* res) {{
   for (int j = 0; j < {12 * r.n_agents}; ++j) {{
     const casadi_real tol = (j % 12) < 6 ? {r.tol_pose!r} : {r.tol_twist!r};
-    if (!(fabs(res[1][j]) <= tol)) return false;  /* NaN fails */
+    if (!(fabs(res[1][j]) <= tol)) return false;
   }}
   for (int j = 0; j < {6 * r.n_agents}; ++j)
     if (!(fabs(res[2][j]) <= {r.grasp_tol!r})) return false;
@@ -422,36 +427,37 @@ __device__ static bool uvms_eval(const casadi_real** arg, casadi_real** res, cas
   {top}(arg, res, iw, w, 0);
   return uvms_accurate(res);
 }}
-/* The period from arg[0] over arg[{h_index}]: 0 accurate at once, 1 refined, 2 refused; the
-   state lands in res[0]. A refused part is halved, down to {r.max_levels} levels: the
-   recursion of Simulator._refine, unrolled into a stack of pending parts (recursion would
-   need a stack depth the compiler cannot bound). */
+/* PeriodControl.integrate for one environment: the period from arg[0] over arg[{h_index}],
+   a refused part halved (its halves in order), down to {r.max_levels} levels, where a part
+   still refused refuses the period. The recursion unrolled into a stack of pending parts
+   (recursion would need a stack depth the compiler cannot bound). The state lands in
+   res[0]; returns {ACCEPTED} accepted at once, {REFINED} accepted in parts, {REFUSED} refused. */
 __device__ static casadi_real uvms_controlled_step(const casadi_real** arg,
     casadi_real** res, casadi_int* iw, casadi_real* w) {{
   casadi_real x[{nx}];
   for (int j = 0; j < {nx}; ++j) x[j] = arg[0][j];
   const casadi_real period = arg[{h_index}][0];
-  if (uvms_eval(arg, res, iw, w, x, period)) return 0;
+  if (uvms_eval(arg, res, iw, w, x, period)) return {ACCEPTED};
   casadi_real part_h[{2 * r.max_levels + 2}];
   int part_level[{2 * r.max_levels + 2}];
   int top = 0;
   part_h[top] = period / 2; part_level[top++] = 1;  /* second half, done last */
   part_h[top] = period / 2; part_level[top++] = 1;  /* first half */
-  bool ok = true;
   while (top > 0) {{
     const casadi_real h = part_h[--top];
     const int level = part_level[top];
-    const bool part_ok = uvms_eval(arg, res, iw, w, x, h);
-    if (part_ok || level >= {r.max_levels}) {{
+    if (uvms_eval(arg, res, iw, w, x, h)) {{
       for (int j = 0; j < {nx}; ++j) x[j] = res[0][j];
-      ok = ok && part_ok;
+    }} else if (level >= {r.max_levels}) {{
+      for (int j = 0; j < {nx}; ++j) res[0][j] = x[j];  /* where it stopped */
+      return {REFUSED};
     }} else {{
       part_h[top] = h / 2; part_level[top++] = level + 1;
       part_h[top] = h / 2; part_level[top++] = level + 1;
     }}
   }}
   for (int j = 0; j < {nx}; ++j) res[0][j] = x[j];
-  return ok ? 1 : 2;
+  return {REFINED};
 }}
 """
 

@@ -3,19 +3,10 @@ NVIDIA's run-time compiler (NVRTC, ``libnvrtc.so.12``) and assembler (``ptxas``)
 the PyPI wheels ``nvidia-cuda-nvrtc-cu12`` and ``nvidia-cuda-nvcc-cu12`` (``pip install
 -e ".[cuda-check]"``), run on the CPU.
 
-Why: the emulated backend (``kernels_emulated``) compiles the same source with the host
-C++ compiler, which accepts code NVRTC refuses, and says nothing of what the GPU needs
-per thread. Here every kernel the backend launches (``backend_kernels``: the period step
-with its in-kernel error control, the kinematics, navigation, internal-wrench and priors'
-kernels, each through ``kernels.cuda_source`` as the backend generates it) is compiled
-by NVRTC with the options CuPy passes for ``kernels_cuda``'s ``RawModule`` (``nvrtc_options``)
-to PTX, then assembled by ``ptxas -v`` as the driver would for the GPU. ``check`` fails on
-a compile error, on a stack the compiler cannot bound (the driver sizes each launch's
-stack from the kernel's own figure only when it is static) and on a kernel whose
-registers times the backend's block size exceed a block's register file.
-
-``python -m uvms_env.vector.kernels_cuda --report --arch 90 80 --n-agents 2 6`` prints
-one line per kernel (``Report.line``); docs/batched.md has the measured table.
+Every kernel the backend launches (``backend_kernels``) is compiled by NVRTC with CuPy's
+options (``nvrtc_options``) and assembled by ``ptxas -v``; ``check`` fails on a compile
+error, an unbounded stack or registers beyond a block's register file. Why, the command
+and the measured table: docs/batched.md, "CUDA kernels: compile check".
 
 May import: numpy, casadi, ``uvms_env`` below ``vector`` (the functions the backend
 batches, as ``engine`` and ``simulator`` make them) and the sibling ``vector`` modules.
@@ -157,13 +148,6 @@ def _nvrtc(path: str) -> ctypes.CDLL:
     lib.nvrtcDestroyProgram.argtypes = [ctypes.POINTER(p)]
     lib.nvrtcGetErrorString.restype = ctypes.c_char_p
     return lib
-
-
-def nvrtc_version(lib_path: Path) -> tuple[int, int]:
-    lib = _nvrtc(str(lib_path))
-    major, minor = ctypes.c_int(), ctypes.c_int()
-    lib.nvrtcVersion(ctypes.byref(major), ctypes.byref(minor))
-    return major.value, minor.value
 
 
 def nvrtc_options(arch: str) -> tuple[str, ...]:

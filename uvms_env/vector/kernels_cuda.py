@@ -1,18 +1,12 @@
 """The GPU target of ``kernels``: the generated function as a CUDA kernel, one thread per
 environment, compiled at run time by NVRTC through CuPy (``pip install -e ".[gpu]"``).
 
-The kernel is compiled once per machine and GPU architecture and cached on disk: with
-``nvcc`` (when on PATH) as a cubin in the project's cache folder under a hash of the
-source, the architecture and the flags, like the CPU libraries; otherwise by NVRTC
-through CuPy, which caches it itself (``~/.cupy/kernel_cache``). Either takes minutes
-for the N = 2 period step; ``python -m uvms_env.vector.kernels_cuda --arch 90`` builds
-the cubins ahead of time, on any machine with nvcc (no GPU needed). The kernel reads and
-writes device arrays in the (nnz_i, K) layout of ``kernels``, so torch tensors on the
-same GPU pass through without a copy (CUDA array interface / DLPack).
-
-``python -m uvms_env.vector.kernels_cuda --report`` compiles every kernel the backend
-launches with NVRTC and ptxas on the CPU and prints each one's registers and stack
-(``kernels_check``; no GPU needed).
+Compiled once per machine and GPU architecture and cached on disk (nvcc's cubin under a
+hash of the source, architecture and flags, or CuPy's own NVRTC cache); ``--arch`` builds
+the cubins ahead of time and ``--report`` prints each kernel's registers and stack, both
+without a GPU (docs/batched.md, "CUDA"). The kernel reads and writes device arrays in the
+(nnz_i, K) layout of ``kernels``, so torch tensors on the same GPU pass through without a
+copy (CUDA array interface / DLPack).
 
 May import: numpy, casadi, cupy (imported here, so that nothing else needs it),
 ``uvms_env.vector.kernels``, ``kernels_emulated`` and, for ``--report``,

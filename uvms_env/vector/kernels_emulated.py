@@ -1,15 +1,11 @@
 """The CUDA kernel source of ``kernels.cuda_source``, compiled for the host CPU.
 
-The GPU backend's kernel (device functions, in-kernel error control, the (nnz_i, K)
-layout, one thread per environment) is compiled unchanged by the host C++ compiler, with
-``__device__``/``__global__`` defined away and a loop over the environments standing in
-for the grid (OpenMP threads over it). It runs the GPU backend's exact source on a
-machine without a GPU, so that the source and everything the backend does around it
-(``VectorEnv(backend="cuda", device="cpu")``) are tested wherever the CPU backend is:
-same numbers as the CPU backend to rounding, in float64.
-
-It is an emulation for tests and debugging, not a fast path: the CPU backend's SIMD lanes
-are several times faster.
+The GPU backend's kernel is compiled unchanged by the host C++ compiler, with
+``__device__``/``__global__`` defined away and a loop over the environments (OpenMP
+threads) standing in for the grid, so that the source and everything the backend does
+around it (``VectorEnv(backend="cuda", device="cpu")``) are tested wherever the CPU
+backend is (docs/batched.md, "Tested without a GPU"). It is an emulation for tests and
+debugging, not a fast path: the CPU backend's SIMD lanes are several times faster.
 
 May import: numpy, casadi, ``uvms_env.dynamics.compiled`` and ``uvms_env.vector.kernels``.
 """

@@ -6,10 +6,10 @@
 
 The K environments of N robots are K N sub-environments, ordered environment-major then
 by robot (environment 0's uvms_0, uvms_1, ..., environment 1's uvms_0, ...): each
-sub-environment is one
-robot acting from its own observation with the team reward, and a team's sub-environments
-end their episode together. The step is the ``VectorEnv``'s, reshaped; Python builds one
-small info dict per sub-environment (SB3 wants a list) and nothing else per robot.
+sub-environment is one robot acting from its own observation with the team reward, and a
+team's sub-environments end their episode together. The step is the ``VectorEnv``'s,
+reshaped; Python builds one small info dict per sub-environment (SB3 wants a list) and
+nothing else per robot.
 
 May import: numpy, gymnasium, stable-baselines3 and ``uvms_env.vector.env``.
 """
@@ -52,10 +52,8 @@ class VectorVecEnv(VecEnv):
 
     **Seeding** (the adapters' one rule, ``uvms_env.vector.seeding``): the first
     ``reset()`` is the ``VectorEnv``'s ``reset(seed=seed)`` (with ``seed=None``: its own
-    first seed); after ``seed(s)`` the next ``reset()`` is ``reset(seed=s)``: episode e of
-    environment k has seed ``s + k + K e`` (mod P with a geometry pool of P); without a
-    pool its later episodes continue the environment's own generator. Any other
-    ``reset()`` continues every environment's sequence.
+    first seed); after ``seed(s)`` the next ``reset()`` is ``reset(seed=s)``, the episodes
+    then seeded by that rule. Any other ``reset()`` continues every environment's sequence.
 
     ``get_attr``, ``set_attr`` and ``env_method`` act on the one ``VectorEnv`` behind
     every sub-environment (``env_method`` calls the method once and repeats its result
@@ -248,9 +246,8 @@ class ConcatVecEnv(VecEnv):
         """(part, its local indices) for each part that holds some of ``indices``."""
         wanted = list(self._get_indices(indices))
         out = []
-        for p, (a, b) in zip(self.parts, zip(self._bounds[:-1], self._bounds[1:], strict=True),
-                             strict=True):  # fmt: skip
-            local = [int(i - a) for i in wanted if a <= i < b]
+        for p, part in zip(self.parts, self._slices(), strict=True):
+            local = [int(i - part.start) for i in wanted if part.start <= i < part.stop]
             if local:
                 out.append((p, local))
         return out

@@ -2,7 +2,7 @@
 RLlib's ``baselines.distributed.rllib_env``).
 
 A training run of base seed ``s`` steps K env copies; episode e of copy k (e = 0 the
-first) is reset with seed
+first) is reset with seed (``copy_reset_seed``)
 
     s + k + K e                 (no geometry pool)
     (s + k + K e) mod P         (a geometry pool of P seeds: a seeded family's episodes
@@ -20,8 +20,12 @@ May import: nothing but the standard library.
 from __future__ import annotations
 
 
-def episode_seed(seed: int, copy: int, episode: int, num_envs: int, pool: int | None = None) -> int:
-    """The reset seed of ``episode`` of env ``copy`` (of ``num_envs``), base ``seed``."""
+def copy_reset_seed(
+    seed: int, copy: int, episode: int, num_envs: int, pool: int | None = None
+) -> int:
+    """The seed that env ``copy`` (of ``num_envs``) is reset with for its ``episode``
+    (0: the first) under base ``seed`` and geometry ``pool``: a reset seed, not an
+    evaluation episode's seed (``baselines``)."""
     if not 0 <= copy < num_envs:
         raise ValueError(f"copy must be in [0, {num_envs}), got {copy}")
     if episode < 0:

@@ -1,26 +1,17 @@
-"""K truth simulators of one team size and object, stepped by one compiled call per period.
-
-    bsim = BatchedSimulator(make("paper"), num_envs=1024, backend="cpu", dtype="float64")
-    bsim.reset(seeds=np.arange(1024))
-    diverged = bsim.step(tau)          # tau (K, N, 8) physical units, saturated inside
-    bsim.state()                       # (K, 20 N + 12) flat states, as Simulator.flat_state
+"""K truth simulators of one team size and object, stepped by one compiled call per period
+(usage: docs/batched.md).
 
 It is the single ``Simulator`` batched, not a second model: the same compiled period
-function (RK4 substeps, projection onto the grasp manifold, residuals before and after),
-generated once and compiled for SIMD lanes and threads (``backend="cpu"``) or as a GPU
-kernel (``backend="cuda"``, arrays stay on GPU ``device``; ``device="cpu"``: that kernel's
-source compiled for the host, for tests without a GPU), the same error control (a period
-whose drift exceeds the tolerances is integrated again in halves, only for the
-environments that need it) and the same physical envelope. Environment k reset with
-seed s_k and stepped with tau_k matches ``Simulator`` reset with s_k and stepped with
-tau_k: to rounding in float64 (the tests hold it to 1e-12 over hundreds of periods);
-float32 is the fast mode, its deviation measured in the tests.
+function for SIMD lanes and threads (``backend="cpu"``) or as a GPU kernel
+(``backend="cuda"``; ``device="cpu"``: that kernel's source compiled for the host), the
+same error control and envelope (``uvms_env.sim.period.PeriodControl`` over K; on the
+CUDA backend in each environment's thread, ``kernels.Refinement``) and the same currents
+(``uvms_env.sim.current.Currents``): environment k reset with seed s_k and stepped with
+tau_k matches ``Simulator`` to rounding in float64 (docs/batched.md: agreement, float32).
 
 Arrays are laid out with the environment index innermost, (element, K), as the kernels
-read them. The ocean current is an input of ``step`` (zero by default) rather than drawn
-here: its per-environment random walk belongs with the environment's other draws.
-Environments may differ in geometry (grasps, starts) as long as they share the team
-size and the object (``set_scenario``).
+read them. Environments may differ in geometry (grasps, starts) as long as they share the
+team size and the object (``set_scenario``).
 
 May import: numpy (cupy for the CUDA backend), ``uvms_env.sim``, ``uvms_env.dynamics``,
 ``uvms_env.vector.kernels``.
@@ -37,23 +28,15 @@ from uvms_env.dynamics import NP, NQ, NU, ObjectModel
 from uvms_env.dynamics.payload import NPO
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.sim.chain import NG, state_size
-from uvms_env.sim.simulator import (
-    DRIFT_TOL_POSE,
-    DRIFT_TOL_TWIST,
-    GRASP_TOL,
-    MAX_REFINEMENTS,
-    SPEED_LIMITS,
-    _chain,
-    draw_truth_parameters,
-)
-from uvms_env.vector.kernels import DTYPES, BatchedFunction, available_cores
+from uvms_env.sim.current import Currents
+from uvms_env.sim.period import OK, PeriodControl
+from uvms_env.sim.simulator import _chain, draw_truth_parameters, grasp_parameters
+from uvms_env.vector.kernels import DTYPES, REFUSED, BatchedFunction, available_cores
 
 if TYPE_CHECKING:
     from uvms_env.scenarios import Scenario
 
 BACKENDS = ("cpu", "cuda")
-# Why an environment's last step was refused (``step``'s return value).
-OK, INACCURATE, ENVELOPE = 0, 1, 2
 
 
 class BatchedSimulator:
@@ -115,6 +98,10 @@ class BatchedSimulator:
         self._out = [xp.zeros((m, kp), real) for m in nnz_out]
         self.scenarios: list[Scenario] = [s] * k
         self.refinements = 0  # environment-periods integrated in parts (diagnostics)
+        self.control = PeriodControl(n, xp, real)
+        self._presets = self.uvms.params.currents
+        self.currents = Currents(self._presets[s.current], k)
+        self._still = True  # the current input _vc is zero
         self.set_scenario(np.arange(k), s)
         self.reset(np.arange(k), [s.seed] * k)
 
@@ -123,20 +110,16 @@ class BatchedSimulator:
         """Environments ``env_ids`` take ``scenario``'s geometry (same team size, object,
         period and substeps); call ``reset`` for them afterwards."""
         s = scenario
-        base = self.scenario
-        same = (s.n_agents, s.object_shape, float(s.ring_radius), s.period, s.substeps)
-        if same != (
-            base.n_agents,
-            base.object_shape,
-            float(base.ring_radius),
-            base.period,
-            base.substeps,
-        ):
+        same, first = (
+            (t.n_agents, t.object_shape, float(t.ring_radius), t.period, t.substeps)
+            for t in (s, self.scenario)
+        )
+        if same != first:
             raise ValueError(
                 "a batched simulator's environments share the team size, the object, the "
                 f"period and the substeps: {same} differs from the first scenario's"
             )
-        grasp = np.hstack([s.grasp_offsets, s.grasp_rotations.transpose(0, 2, 1).reshape(-1, 9)])
+        grasp = grasp_parameters(s)
         ids = np.atleast_1d(np.asarray(env_ids))
         self.grasp[:, self._cols(ids)] = self.xp.asarray(grasp.reshape(-1)[:, None], self._real)
         for i in ids.tolist():
@@ -144,37 +127,42 @@ class BatchedSimulator:
         self._fill_padding()
 
     def reset(
-        self, env_ids: Any, seeds: Any, mismatch: Sequence[float | None] | None = None
-    ) -> list[np.random.Generator]:
+        self,
+        env_ids: Any,
+        seeds: Any,
+        mismatch: Sequence[float | None] | None = None,
+        current: Sequence[str | None] | None = None,
+    ) -> None:
         """Environments ``env_ids`` back to their scenario's start at rest, with the truth
-        model drawn from ``seeds`` (one per environment) exactly as ``Simulator.reset``,
-        under each one's ``mismatch`` (None: the scenario's). Returns each environment's
-        generator after those draws: ``Simulator.reset`` goes on to draw the ocean current
-        from it, and so does a caller that keeps currents."""
+        model and then the ocean current drawn from ``seeds`` (one per environment) exactly
+        as ``Simulator.reset``, under each one's ``mismatch`` and ``current`` preset (None:
+        the scenario's)."""
         ids = np.atleast_1d(np.asarray(env_ids))
         seeds = list(seeds) if np.ndim(seeds) else [seeds] * len(ids)
         if len(seeds) != len(ids):
             raise ValueError(f"{len(ids)} environments but {len(seeds)} seeds")
         mismatches = [None] * len(ids) if mismatch is None else list(mismatch)
+        presets = [None] * len(ids) if current is None else list(current)
         x = np.zeros((state_size(self.n), len(ids)))
         p = np.zeros((NP * self.n, len(ids)))
         po = np.zeros((NPO, len(ids)))
-        generators = []
+        generators, drawn = [], []
         for col, (i, seed, m) in enumerate(zip(ids.tolist(), seeds, mismatches, strict=True)):
             s = self.scenarios[i]
             rng = np.random.default_rng(seed if seed is not None else s.seed)
             pi, poi = draw_truth_parameters(s, *self._nominal, rng, m)
             generators.append(rng)
+            drawn.append(self._presets[presets[col] or s.current])
             p[:, col], po[:, col] = pi.reshape(-1), poi
             x[:, col] = np.concatenate(
                 [s.initial_q.reshape(-1), np.zeros(NQ * self.n), s.object_start, np.zeros(6)]
             )
+        self.currents.reset(ids.tolist(), generators, drawn)
         cols, xp = self._cols(ids), self.xp
         self.x[:, cols] = xp.asarray(x, self._real)
         self.parameters[:, cols] = xp.asarray(p, self._real)
         self.object_parameters[:, cols] = xp.asarray(po, self._real)
         self._fill_padding()
-        return generators
 
     def _fill_padding(self) -> None:
         """The lanes past K (padding to the lane count) mirror environment 0, so that
@@ -194,11 +182,11 @@ class BatchedSimulator:
     # -- stepping ------------------------------------------------------------------------
     def step(self, tau: Any, current: Any = None) -> Any:
         """One control period for every environment: ``tau`` (K, N, 8) physical inputs,
-        saturated at the limits; ``current`` (K, 3) inertial current velocity during the
-        period (default zero). Returns the refusal code per environment, (K,) int8:
-        ``OK``, ``INACCURATE`` (the error control failed at 1/16 of a period) or
-        ``ENVELOPE`` (beyond the physical envelope); a refused environment keeps its
-        state."""
+        saturated at the limits; ``current`` (K, 3): this period's inertial current
+        velocity instead of each environment's own (tests, replays). Returns the verdict
+        per environment, (K,) int8 (``uvms_env.sim.period``): ``OK``, ``INACCURATE`` (the
+        error control failed at 1/16 of a period) or ``ENVELOPE`` (beyond the physical
+        envelope); a refused environment keeps its state."""
         xp, k, n = self.xp, self.num_envs, self.n
         tau = xp.asarray(tau)
         if tau.shape != (k, n, NU):
@@ -208,104 +196,69 @@ class BatchedSimulator:
             raise ValueError(f"tau contains NaN or inf (environment {bad})")
         self._tau[:, :k] = tau.reshape(k, n * NU).T
         xp.clip(self._tau, -self._tau_max, self._tau_max, out=self._tau)
-        if current is not None:
-            current = xp.asarray(current)
-            if current.shape != (k, 3):
-                raise ValueError(f"current must have shape ({k}, 3), got {current.shape}")
-            self._vc[:, :k] = current.T
-        self._h[:] = self.scenario.period
-        outputs = self._fn(
-            [
-                self.x,
-                self._tau,
-                self._vc,
-                self.parameters,
-                self.object_parameters,
-                self.grasp,
-                self._h,
-            ],
-            **self._call_options(),
-            out=self._out,
-        )
-        x_next, drift, error = outputs[:3]
-        code = xp.zeros(self._kp, np.int8)
-        if self.backend == "cuda":  # refined in the kernel; its status says how it went
-            status = outputs[3][0]
-            self.refinements += int((status[:k] > 0).sum())
-            # where, not a boolean-mask assignment: CuPy reads a mask's count (a sync)
-            code = xp.where(status == 2, INACCURATE, OK).astype(np.int8)
+        self._set_current(current)
+        if self.backend == "cuda":
+            x_next, ok = self._controlled_step()
         else:
-            bad = np.flatnonzero(~self._accurate(drift, error, x_next)[:k])
-            if len(bad):
-                self.refinements += len(bad)
-                x_end, ok = self._integrate(bad, self.x[:, bad], self.scenario.period, 1)
-                x_next[:, bad] = x_end
-                code[bad[~ok]] = INACCURATE
-        refused = (code == OK) & ~self._within_envelope(x_next)
-        code = xp.where(refused, ENVELOPE, code).astype(np.int8, copy=False)
-        keep = code[:k] == OK
-        self.x[:, :k] = xp.where(keep[None, :], x_next[:, :k], self.x[:, :k])
-        return code[:k]
+            period = self.scenario.period
+            x_next, ok, refined = self.control.integrate(self._evaluate, self.x, period, k)
+            self.refinements += refined
+        code = self.control.verdict(ok, x_next)
+        self.x[:, :k] = xp.where((code == OK)[None, :], x_next, self.x[:, :k])
+        return code
 
-    def _call_options(self) -> dict:
-        return {"threads": self.threads} if self.backend == "cpu" else {}
+    def _set_current(self, current: Any) -> None:
+        """This period's current input: ``current`` (K, 3), or the environments' own."""
+        xp, k = self.xp, self.num_envs
+        if current is None:
+            current = self.currents.step(self.scenario.period)
+            if current is None:  # still water everywhere: no draws, no transfer
+                if not self._still:
+                    self._vc[:] = 0.0
+                    self._still = True
+                return
+        current = xp.asarray(current)
+        if current.shape != (k, 3):
+            raise ValueError(f"current must have shape ({k}, 3), got {current.shape}")
+        self._vc[:, :k] = current.T
+        self._still = False
 
-    def _accurate(self, drift: Any, error: Any, x_next: Any) -> Any:
-        """Per environment: the error control of ``Simulator._accurate``."""
-        xp, n = self.xp, self.n
-        d = xp.abs(drift).reshape(n, 12, -1)
-        ok = (d[:, :6].max(axis=(0, 1)) <= DRIFT_TOL_POSE) & (
-            d[:, 6:].max(axis=(0, 1)) <= DRIFT_TOL_TWIST
-        )
-        ok &= xp.abs(error).max(axis=0) <= GRASP_TOL
-        return ok & xp.isfinite(x_next).all(axis=0)
+    def _inputs(self) -> list:
+        """The period step's inputs for every environment (h last)."""
+        return [
+            self.x,
+            self._tau,
+            self._vc,
+            self.parameters,
+            self.object_parameters,
+            self.grasp,
+            self._h,
+        ]
 
-    def _within_envelope(self, x: Any) -> Any:
-        xp, n = self.xp, self.n
-        zeta = xp.abs(x[NQ * n : 2 * NQ * n]).reshape(n, NQ, -1)
-        v_o = xp.abs(x[2 * NQ * n + 6 :])
-        linear = xp.maximum(zeta[:, :3].max(axis=(0, 1)), v_o[:3].max(axis=0))
-        angular = xp.maximum(zeta[:, 3:6].max(axis=(0, 1)), v_o[3:].max(axis=0))
-        joint = zeta[:, 6:].max(axis=(0, 1))
-        return (
-            (linear <= SPEED_LIMITS["linear"])
-            & (angular <= SPEED_LIMITS["angular"])
-            & (joint <= SPEED_LIMITS["joint"])
-        )
+    def _controlled_step(self) -> tuple[Any, Any]:
+        """The CUDA kernel's period with its in-thread error control. -> (x_next, ok)."""
+        k = self.num_envs
+        self._h[:] = self.scenario.period
+        outputs = self._fn(self._inputs(), out=self._out)
+        status = outputs[3][0, :k]
+        self.refinements += int((status > 0).sum())
+        return outputs[0][:, :k], status != REFUSED
 
-    def _attempt(self, ids: Any, x0: Any, h: float, level: int) -> tuple[Any, Any]:
-        """One evaluation of period part ``h`` for environments ``ids`` from ``x0``; the
-        inaccurate ones are integrated in halves (recursively). -> (x_end, ok)."""
-        xp = self.xp
+    def _evaluate(self, ids: Any, x0: Any, h: float) -> tuple[Any, ...]:
+        """The period routine's compiled call (``uvms_env.sim.period.Evaluate``) on the CPU
+        lanes: every environment into the step's buffers, or environments ``ids`` from
+        ``x0`` gathered (padded to the lanes) into new arrays."""
+        xp, threads = self.xp, self.threads
+        if ids is None:
+            self._h[:] = h
+            return tuple(self._fn(self._inputs(), threads, out=self._out)[:3])
         m = len(ids)
         mp = self._fn.padded(m)
         cols = xp.concatenate([ids, xp.full(mp - m, ids[0], ids.dtype)]) if mp > m else ids
         x_in = xp.concatenate([x0, x0[:, :1].repeat(mp - m, axis=1)], axis=1) if mp > m else x0
-        ins = [
-            xp.ascontiguousarray(x_in),
-            xp.ascontiguousarray(self._tau[:, cols]),
-            xp.ascontiguousarray(self._vc[:, cols]),
-            xp.ascontiguousarray(self.parameters[:, cols]),
-            xp.ascontiguousarray(self.object_parameters[:, cols]),
-            xp.ascontiguousarray(self.grasp[:, cols]),
-            xp.full((1, mp), h, self._real),
-        ]
-        x_next, drift, error = self._fn(ins, **self._call_options())
-        x_end, ok = x_next[:, :m], self._accurate(drift, error, x_next)[:m]
-        bad = xp.flatnonzero(~ok)
-        if len(bad):
-            if level >= MAX_REFINEMENTS:
-                return x_end, ok
-            x_fix, ok_fix = self._integrate(ids[bad], x0[:, bad], h, level + 1)
-            x_end[:, bad] = x_fix
-            ok[bad] = ok_fix
-        return x_end, ok
-
-    def _integrate(self, ids: Any, x0: Any, h: float, level: int) -> tuple[Any, Any]:
-        """Period part ``h`` as two halves for environments ``ids``. -> (x_end, ok)."""
-        x_mid, ok_first = self._attempt(ids, x0, h / 2, level)
-        x_end, ok_second = self._attempt(ids, x_mid, h / 2, level)
-        return x_end, ok_first & ok_second
+        per_env = [xp.ascontiguousarray(a[:, cols]) for a in self._inputs()[1:-1]]  # x ... h
+        ins = [xp.ascontiguousarray(x_in), *per_env, xp.full((1, mp), h, self._real)]
+        return tuple(self._fn(ins, threads))
 
     def _cols(self, ids: np.ndarray) -> Any:
         return self.xp.asarray(ids) if self.backend == "cuda" else ids

@@ -1,19 +1,13 @@
 """The safety filter's workspace rows: how far the robot's own bodies and the object reach
 outside the workspace ball, and their gradients, at the nodes of the plan.
 
-The environment's ``workspace`` constraint (``uvms_env.env.constraints``) is the largest
-distance by which a ball reaches outside the workspace ball: the vehicle's bounding
-sphere, balls of the arm's tube radius at the joints and the end effector, and balls of
-the object's tube radius at its segments' end points. Here the same balls are computed
-from the robot's own model state: its bodies from its configuration, the object from
-its grasp (``LocalModel.object_state``, the robot's own estimate of the shared object).
-
-Two values per node, each the largest excess of a group of balls (its gradient is the
-largest ball's, re-chosen at every linearization): the robot's own bodies, and the
-object. The object is shared, so every filter of the team keeps it inside on its own.
-
-Only the safety filter uses these rows; the expert's QP does not have them (its
-navigation function keeps the team inside the workspace).
+The same balls as the environment's ``workspace`` constraint (``uvms_env.env.constraints``),
+computed from the robot's own model state: its bodies from its configuration, the object
+from its grasp (``LocalModel.object_state``, its own estimate of the shared object). Two
+values per node, each the largest excess of a group of balls (its gradient is the largest
+ball's, re-chosen at every linearization): the robot's own bodies, and the object. The
+object is shared, so every filter of the team keeps it inside on its own. Only the
+safety filter uses these rows (docs/safety-filter.md, "Workspace").
 
 May import: numpy, casadi, ``uvms_env.dynamics`` and this package.
 """

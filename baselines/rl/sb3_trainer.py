@@ -1,27 +1,15 @@
-"""The stable-baselines3 engine of ``python -m baselines.train``: PPO or SAC, one policy
-shared by all robots.
+"""The stable-baselines3 trainer of ``python -m baselines.train``: PPO or SAC, one policy
+shared by all robots (usage: ``baselines.train``).
 
-    python -m baselines.train --engine sb3 --algo ppo --scenario short --robot-steps 200000 \\
-        --num-envs 4 --seed 0 --out runs/ppo
+Every robot of every env copy is a sub-environment of one batched ``VectorVecEnv``, so
+one policy learns from all robots' local observations; observations and rewards are
+normalized (``VecNormalize``, saved with the model). The run folder also gets
+``model.zip``, ``vecnormalize.pkl`` (SAC: ``replay_buffer.pkl``) and ``checkpoints/``.
+Flags and the modules behind them: docs/rl.md.
 
-Every robot of every env copy is a sub-environment, so one policy learns from all robots'
-local observations. The copies are one batched ``uvms_env.vector.VectorEnv``
-(``VectorVecEnv``, float32, each episode of a seeded family on one of ``--geometry-pool``
-geometries). Observations and rewards are normalized
-(``VecNormalize``, saved with the model). Besides the shared records (``baselines.runs``)
-the run folder gets ``model.zip``, ``vecnormalize.pkl`` (SAC: ``replay_buffer.pkl``),
-``checkpoints/`` and tensorboard logs; ``--resume RUN`` continues from the last save.
-
-The flags map onto modules: ``--cost`` (``baselines.lagrangian``) through the VecEnv
-wrapper ``baselines.rl.cost.CostPenalty``, priors as environment options
-(``--env-option action_mode=residual``), ``--central-critic`` (MAPPO,
-``baselines.rl.mappo``; without it IPPO with parameter sharing), ``--filter`` (shielded
-training, ``baselines.rl.shield``, figures in ``shield.csv``), ``--init-actor`` (the
-DAgger clone as PPO's actor, ``baselines.rl.init_actor``), ``--anchor`` (the reward keeps
-it near that clone, ``baselines.rl.anchor``). Guide: docs/rl.md.
-
-May import: numpy, torch and stable-baselines3 (inside the engine), ``baselines.runs``,
-``baselines.lagrangian``, ``baselines.rl`` and ``uvms_env``.
+May import: numpy, torch and stable-baselines3 (inside the trainer), ``baselines.runs``,
+``baselines.lagrangian``, ``baselines.loaded_policy`` (a run's priors), ``baselines.rl``
+and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -33,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+from baselines.loaded_policy import priors_from_options
 from baselines.rl.policy import ALGOS, algorithm_class
 from baselines.runs import (
     DEFAULT_DTYPE,
@@ -40,6 +29,7 @@ from baselines.runs import (
     DTYPES,
     TRAIN_ENV_DEFAULTS,
     Run,
+    add_step_arguments,
     seeded_pool,
 )
 
@@ -80,7 +70,7 @@ ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
 ALGO_DEFAULTS["recurrent_ppo"] = dict(ALGO_DEFAULTS["ppo"])
 # PPO, batch_size not given: n_steps * sub-envs / 4 (4 minibatches per epoch), at least
 # 256. Small minibatches made the update dominate the wall time (the measured figures:
-# docs/rl.md, "The sb3 engine").
+# docs/rl.md, "The sb3 trainer").
 PPO_MINIBATCHES = 4
 PPO_MIN_BATCH = 256
 NET = [64, 64]
@@ -103,16 +93,8 @@ OPTIONS_NOTE = "--hp KEY=JSON: an argument of SB3's PPO or SAC (policy_kwargs ad
 
 
 def add_arguments(g: Any) -> None:
-    """The SB3 engine's own options."""
-    g.add_argument(
-        "--dtype", choices=DTYPES, default=DEFAULT_DTYPE, help="the batched step's precision"
-    )
-    g.add_argument(
-        "--env-threads",
-        type=int,
-        default=DEFAULT_ENV_THREADS,
-        help="threads of the batched step",
-    )
+    """The SB3 trainer's own options."""
+    add_step_arguments(g)
     g.add_argument(
         "--central-critic",
         action="store_true",
@@ -229,7 +211,7 @@ def make_vec_env(
         inners.append(inner)
     venv: Any = parts[0] if len(parts) == 1 else ConcatVecEnv(parts)
     # VecMonitor below the filter's and the cost's penalties: episodes' returns are the
-    # environment's team reward (neither normalized nor penalized), as every engine records
+    # environment's team reward (neither normalized nor penalized), as every trainer records
     venv = VecMonitor(venv)
     if filter_penalty is not None:
         from baselines.rl.shield import Shield, ShieldPenalty
@@ -292,8 +274,8 @@ def _checkpoint_steps(path: Path) -> int:
     return int(path.stem.split("_")[-2])
 
 
-class Engine:
-    """SB3's PPO or SAC under a ``baselines.runs.Run`` (``baselines.runs.Engine``)."""
+class Trainer:
+    """SB3's PPO or SAC under a ``baselines.runs.Run`` (``baselines.runs.Trainer``)."""
 
     def __init__(self, run: Run, algo: str, args: argparse.Namespace) -> None:
         if algo not in ALGO_DEFAULTS:
@@ -318,22 +300,7 @@ class Engine:
         s, a, algo = self.run.settings, self.args, self.algo
         hyperparameters = dict(s.hyperparameters)
         hp = {**ALGO_DEFAULTS[algo], **hyperparameters}
-        # ``--hp policy_kwargs={...}`` adds to the defaults (e.g. log_std_init) instead of
-        # replacing them; a resumed model keeps its own.
-        policy_extra = hp.pop("policy_kwargs", None) or {}
-        if not isinstance(policy_extra, dict):
-            raise ValueError(f"policy_kwargs must be a JSON object, got {policy_extra!r}")
-        chosen_policy_kwargs = {**POLICY_KWARGS[algo], **policy_extra}
-        clone = None
-        if getattr(a, "init_actor", None) and s.resume is None:
-            from baselines.rl import init_actor
-            from baselines.rl.policy import priors_from_options
-
-            clone = init_actor.load_clone(a.init_actor)
-            init_actor.check_priors(priors_from_options(s.env_options()), clone)
-            if "log_std_init" not in policy_extra:
-                chosen_policy_kwargs.pop("log_std_init", None)
-            chosen_policy_kwargs = init_actor.policy_kwargs(clone, chosen_policy_kwargs)
+        chosen_policy_kwargs, clone = self._policy_kwargs(hp)
         env = {
             "dtype": a.dtype,
             "geometry_pool": s.geometry_pool,
@@ -343,7 +310,7 @@ class Engine:
         venv = make_vec_env(
             s.scenario,
             s.num_envs,
-            self.run.episode_seed,
+            self.run.env_seed,
             s.overrides,
             **env,
             cost=s.cost,
@@ -351,17 +318,7 @@ class Engine:
             filter_penalty=a.filter_penalty if getattr(a, "filter", False) else None,
             team_sizes=s.team_sizes,
         )
-        anchor = getattr(a, "anchor", 0.0)
-        if anchor:
-            if not getattr(a, "init_actor", None):
-                raise ValueError("--anchor keeps PPO near its initial clone: give --init-actor")
-            from baselines.rl import init_actor
-            from baselines.rl.anchor import AnchorPenalty
-            from baselines.rl.policy import priors_from_options
-
-            scale = priors_from_options(s.env_options()).residual_scale
-            reference = clone if clone is not None else init_actor.load_clone(a.init_actor)
-            venv = AnchorPenalty(venv, reference, scale, anchor)
+        venv = self._anchored(venv, clone)
         if s.resume is not None:
             model, venv = self._resumed(venv, hp)
         else:
@@ -392,6 +349,41 @@ class Engine:
             "critic_warmup": getattr(a, "critic_warmup", 0),
             "anchor": getattr(a, "anchor", 0.0),
         }
+
+    def _policy_kwargs(self, hp: dict[str, Any]) -> tuple[dict[str, Any], Any]:
+        """The policy's keyword arguments (taken out of ``hp``) and, with ``--init-actor``
+        on a new run, the clone the actor starts as (else None)."""
+        s, a = self.run.settings, self.args
+        # ``--hp policy_kwargs={...}`` adds to the defaults (e.g. log_std_init) instead of
+        # replacing them; a resumed model keeps its own.
+        policy_extra = hp.pop("policy_kwargs", None) or {}
+        if not isinstance(policy_extra, dict):
+            raise ValueError(f"policy_kwargs must be a JSON object, got {policy_extra!r}")
+        chosen = {**POLICY_KWARGS[self.algo], **policy_extra}
+        if not getattr(a, "init_actor", None) or s.resume is not None:
+            return chosen, None
+        from baselines.rl import init_actor
+
+        clone = init_actor.load_clone(a.init_actor)
+        init_actor.check_priors(priors_from_options(s.env_options()), clone)
+        if "log_std_init" not in policy_extra:
+            chosen.pop("log_std_init", None)
+        return init_actor.policy_kwargs(clone, chosen), clone
+
+    def _anchored(self, venv: Any, clone: Any) -> Any:
+        """``venv`` with ``--anchor``'s penalty (the reward keeps PPO near its clone)."""
+        s, a = self.run.settings, self.args
+        anchor = getattr(a, "anchor", 0.0)
+        if not anchor:
+            return venv
+        if not getattr(a, "init_actor", None):
+            raise ValueError("--anchor keeps PPO near its initial clone: give --init-actor")
+        from baselines.rl import init_actor
+        from baselines.rl.anchor import AnchorPenalty
+
+        scale = priors_from_options(s.env_options()).residual_scale
+        reference = clone if clone is not None else init_actor.load_clone(a.init_actor)
+        return AnchorPenalty(venv, reference, scale, anchor)
 
     def _resumed(self, venv: Any, hp: dict[str, Any]) -> tuple[Any, Any]:
         """The model and normalized env of ``--resume`` (SAC: its replay buffer and its
@@ -431,7 +423,6 @@ class Engine:
         model = cls(policy, venv, seed=s.seed, device="cpu", policy_kwargs=kwargs, verbose=0, **hp)
         if clone is not None:
             from baselines.rl import init_actor
-            from baselines.rl.policy import priors_from_options
 
             scale = priors_from_options(s.env_options()).residual_scale
             init_actor.initialize(model, venv, clone, scale)
@@ -465,9 +456,6 @@ class Engine:
                 folder / f"rl_model_replay_buffer_{robot_steps}_steps.pkl"
             )
 
-    def policy(self, folder: Path) -> str:
-        return f"{self.algo}:{folder}"
-
     def results(self) -> dict[str, Any]:
         return {}
 
@@ -477,13 +465,13 @@ class Engine:
             self.venv = None
 
 
-def _progress_callback(engine: Engine) -> Any:
+def _progress_callback(trainer: Trainer) -> Any:
     """After each PPO rollout (SAC: every ``SAC_ROW_STEPS`` steps of every sub-env): the
     dual step of the cost's multiplier and ``Run.after_iteration`` with the team episodes
     that ended (one per env copy: its first robot's)."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    run, penalty, shield = engine.run, engine.penalty, engine.shield
+    run, penalty, shield = trainer.run, trainer.penalty, trainer.shield
 
     class ProgressCallback(BaseCallback):
         def _init_callback(self) -> None:
@@ -492,8 +480,8 @@ def _progress_callback(engine: Engine) -> Any:
             self.returns: list[float] = []
             self.lengths: list[float] = []
             self.last = self.model.num_timesteps
-            on_policy = engine.algo in ON_POLICY
-            self.warmup = getattr(engine.args, "critic_warmup", 0) if on_policy else 0
+            on_policy = trainer.algo in ON_POLICY
+            self.warmup = getattr(trainer.args, "critic_warmup", 0) if on_policy else 0
             if self.warmup > self.model.num_timesteps:
                 from baselines.rl.init_actor import freeze_actor
 
@@ -513,7 +501,7 @@ def _progress_callback(engine: Engine) -> Any:
 
                 freeze_actor(self.model.policy, False)
                 self.warmup = 0
-            if engine.algo == "sac" and steps - self.last < SAC_ROW_STEPS * self.model.n_envs:
+            if trainer.algo == "sac" and steps - self.last < SAC_ROW_STEPS * self.model.n_envs:
                 return
             self._row(steps)
 
@@ -525,7 +513,7 @@ def _progress_callback(engine: Engine) -> Any:
             self.last = steps
             cost = penalty.update_multiplier() if penalty is not None else None
             run.after_iteration(
-                engine,
+                trainer,
                 steps,
                 returns=self.returns,
                 lengths=self.lengths,

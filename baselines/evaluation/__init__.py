@@ -1,0 +1,13 @@
+"""The evaluator by job, under ``python -m baselines.evaluate`` (its command line), the
+ladder (``baselines.ladder``) and the channel sweep (``baselines.comm_sweep``):
+``episode`` (one episode, one row), ``runner`` (cases, seeded episodes, worker pool,
+``Settings``), ``summary`` (the statistics every table reads), ``report`` (Markdown table
+and plots) and ``outputs`` (the files and the run-and-write sequence every command shares).
+
+Inside the package, ``outputs`` imports the others, ``runner`` imports ``episode``, and
+``report`` imports ``summary``; nothing here imports a command.
+
+May import: the standard library, numpy, tqdm, matplotlib, ``baselines.policies``,
+``baselines.stats``, ``baselines.distributed`` (the Ray backend, on request) and
+``uvms_env``.
+"""

@@ -1,0 +1,158 @@
+"""The evaluator's report: the Markdown table of its summaries and its plots (success by
+scenario, decision times, the paths on the paper scenario), and the figure helpers the
+ladder and the channel sweep draw with.
+
+May import: the standard library, numpy, matplotlib (inside functions: the Agg backend,
+chosen before pyplot loads), ``baselines.evaluation.summary`` and ``uvms_env.scenarios``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from baselines.evaluation.summary import VIOLATION_KINDS
+
+Row = dict[str, Any]
+
+
+def markdown_table(summaries: Sequence[Row]) -> str:
+    """``results.md``: a row per summary (``aggregate``), then the violations per kind, and
+    what ``information`` means when a team policy is among them."""
+
+    def fmt(x: Any, digits: int = 2) -> str:
+        return (
+            "n/a"
+            if x is None or (isinstance(x, float) and not np.isfinite(x))
+            else f"{x:.{digits}f}"
+        )
+
+    lines = [
+        "| policy | information | scenario | episodes | current out of reach | "
+        "success [95% CI] | clean success | final pos. error m | min clearance m | "
+        "internal wrench rms | control effort | violations (total) | violations / episode | "
+        "intervention rate | decision ms median / p95 | errors |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for s in summaries:
+        lo, hi = s["success_ci95"]
+        t = s["policy_time_ms"]
+        lines.append(
+            f"| {s['policy']} | {s.get('information', 'local')} | {s['scenario']} | "
+            f"{s['episodes']} | "
+            f"{s.get('out_of_reach', 0)} | {fmt(s['success_rate'])} [{fmt(lo)}, {fmt(hi)}] | "
+            f"{fmt(s.get('clean_success_rate'))} | "
+            f"{fmt(s.get('final_pos_error_m'))} | {fmt(s.get('min_obstacle_clearance_m'))} | "
+            f"{fmt(s.get('internal_wrench_rms'))} | {fmt(s.get('control_effort'))} | "
+            f"{sum(s['violations'].values())} | "
+            f"{fmt(sum(s['violations'].values()) / s['episodes'], 1)} | "
+            f"{fmt(s.get('intervention_rate'), 3)} | "
+            f"{fmt(t['median'], 3)} / {fmt(t['p95'], 3)} | {s['errors']} |"
+        )
+    kinds = " | ".join(VIOLATION_KINDS)
+    lines += ["", f"| policy | scenario | {kinds} |", "|---|---|" + "---|" * len(VIOLATION_KINDS)]
+    for s in summaries:
+        counts = " | ".join(str(s["violations"][k]) for k in VIOLATION_KINDS)
+        lines.append(f"| {s['policy']} | {s['scenario']} | {counts} |")
+    if any(s.get("information") == "full" for s in summaries):
+        lines += [
+            "",
+            "information `full`: a team policy that sees the global state and decides for "
+            "every robot (a full-information bound, not a decentralized entry); `local`: "
+            "one policy per robot on its own observation. Decision time: per team decision "
+            "for `full`, per agent decision for `local`.",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def pyplot() -> Any:
+    """``matplotlib.pyplot`` on the Agg backend (files only, no display)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save(fig: Any, path: Path, dpi: int = 120) -> None:
+    """Lay the figure out, write it (its folder made where missing) and free it."""
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    pyplot().close(fig)
+
+
+def write_plots(rows: Sequence[Row], summaries: Sequence[Row], out: Path) -> None:
+    """``success_by_scenario.png``, ``decision_time.png`` and, with the object's path on the
+    paper scenario's first episode, ``paths_paper.png`` in ``out``."""
+    policies = list(dict.fromkeys(s["policy"] for s in summaries))
+    success_plot(summaries, policies, out / "success_by_scenario.png")
+    decision_time_plot(rows, policies, out / "decision_time.png")
+    paths = [r for r in rows if r["scenario"] == "paper" and r["episode"] == 0 and r["_path"]]
+    if paths:
+        paths_plot(paths, policies, out / "paths_paper.png")
+
+
+def success_plot(summaries: Sequence[Row], policies: list[str], path: Path) -> None:
+    plt = pyplot()
+    scenarios = sorted({s["scenario"] for s in summaries})
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    width = 0.8 / max(1, len(policies))
+    for k, policy in enumerate(policies):
+        for j, scen in enumerate(scenarios):
+            s = next(
+                (x for x in summaries if x["policy"] == policy and x["scenario"] == scen), None
+            )
+            if s is None:
+                continue
+            lo, hi = s["success_ci95"]
+            rate = s["success_rate"]
+            ax.bar(j + k * width, rate, width, color=f"C{k}", label=policy if j == 0 else None)
+            yerr = [[max(0.0, rate - lo)], [max(0.0, hi - rate)]]  # rounding: never < 0
+            ax.errorbar(j + k * width, rate, yerr=yerr, color="k", capsize=3)
+    ax.set_xticks(np.arange(len(scenarios)) + width * (len(policies) - 1) / 2, scenarios)
+    ax.set_ylabel("success rate (Wilson 95%)")
+    ax.set_ylim(0, 1.05)
+    ax.legend()
+    save(fig, path)
+
+
+def decision_time_plot(rows: Sequence[Row], policies: list[str], path: Path) -> None:
+    fig, ax = pyplot().subplots(figsize=(6, 3.5))
+    data = [
+        np.concatenate([r["_decision_ms"] for r in rows if r["policy"] == p] or [[np.nan]])
+        for p in policies
+    ]
+    ax.boxplot(
+        [d[np.isfinite(d)] if np.isfinite(d).any() else [np.nan] for d in data], showfliers=False
+    )
+    ax.set_xticks(np.arange(1, len(policies) + 1), policies)
+    ax.set_yscale("log")
+    ax.set_ylabel("decision time per agent [ms]")
+    save(fig, path)
+
+
+def paths_plot(paths: Sequence[Row], policies: list[str], path: Path) -> None:
+    """The object's path of each row on the paper scenario, its obstacles (with the team's
+    clearance radius dotted) and waypoints."""
+    from uvms_env.scenarios import make
+
+    plt = pyplot()
+    scen = make("paper")
+    fig, ax = plt.subplots(figsize=(6, 5))
+    for obs in scen.obstacles:
+        ax.add_patch(plt.Circle((obs.y, obs.x), obs.radius, color="0.5"))
+        ax.add_patch(plt.Circle((obs.y, obs.x), obs.radius + scen.team_radius, fill=False, ls=":"))
+    for r in paths:
+        p = np.array(r["_path"])
+        ax.plot(p[:, 1], p[:, 0], color=f"C{policies.index(r['policy'])}", label=r["policy"])
+    ax.plot(scen.waypoints[:, 1], scen.waypoints[:, 0], "k*", ms=12, label="waypoints")
+    ax.set_xlabel("y (east) [m]")
+    ax.set_ylabel("x (north) [m]")
+    ax.set_aspect("equal")
+    ax.legend(fontsize=8)
+    save(fig, path)

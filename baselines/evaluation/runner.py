@@ -1,0 +1,201 @@
+"""Policies on the same seeded episodes: the cases, their episodes' seeds and the workers.
+
+Episode k of a case with scenario S has the seed ``case_episode_seed(seed, S, k)``, which
+fixes the random family's geometry, the truth-model draws, the current and the sensor
+noise: every policy plays the same episodes, and a result depends only on (policy,
+scenario, seed), never on the number of workers or the backend. ``Settings`` holds what a
+command's evaluations share.
+
+May import: the standard library, tqdm, ``baselines.evaluation.episode``,
+``baselines.policies``, ``baselines.distributed.ray_backend`` (``backend="ray"``) and
+``uvms_env.replay``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from baselines.evaluation.episode import EpisodeJob, run_episode
+from baselines.policies import PolicySource
+from uvms_env.replay import replay_path
+
+BACKENDS = ("process", "ray")
+
+
+def case_episode_seed(seed: int, scenario: str, index: int) -> int:
+    """The seed of episode ``index`` of every case with ``scenario`` in the evaluation of
+    seed ``seed``: a stable 32-bit hash of the three."""
+    digest = hashlib.sha256(f"{seed}/{scenario}/{index}".encode()).digest()
+    return int.from_bytes(digest[:4], "little")
+
+
+@dataclass(frozen=True)
+class Case:
+    """A scenario with its own environment keywords, under a label: the rows' ``scenario``
+    (e.g. ``Case("random N=4", "random", (("n_agents", 4),))``). Episode seeds come from
+    the scenario's name, so a case plays the episodes of ``--scenario random --n-agents 4``."""
+
+    label: str
+    scenario: str
+    overrides: tuple[tuple[str, Any], ...] = ()
+
+    @classmethod
+    def of(cls, case: Case | str) -> Case:
+        return case if isinstance(case, Case) else cls(case, case)
+
+
+def evaluate(
+    policies: Sequence[str],
+    scenarios: Sequence[str | Case],
+    episodes: int,
+    seed: int,
+    workers: int,
+    overrides: dict[str, Any] | None = None,
+    max_cycles: int | None = None,
+    progress: bool = True,
+    backend: str = "process",
+    address: str | None = None,
+    replay_dir: Path | None = None,
+) -> list[dict[str, Any]]:
+    """Run every (policy, scenario, episode) and return the per-episode rows, sorted.
+    ``scenarios``: names, or ``Case``s whose keywords go over ``overrides``.
+    ``replay_dir``: write each policy's first episode per scenario there as a 3D replay
+    page (``uvms_env.replay.replay_path``).
+    ``backend``: ``process`` (a process pool of ``workers``; 1: in this process) or
+    ``ray`` (Ray tasks on a local Ray of ``workers`` CPUs, or on the cluster at
+    ``address``); the rows do not depend on it."""
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; expected one of {BACKENDS}")
+    if backend == "ray":
+        from baselines.distributed.ray_backend import require_ray
+
+        require_ray()  # before the warm-up episodes
+    for p in policies:
+        PolicySource.parse(p)  # fail fast on a typo, before any worker starts
+    cases = [Case.of(c) for c in scenarios]
+    labels = [c.label for c in cases]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"two scenarios share a label: {labels}")
+    jobs = [
+        _job(p, c, k, seed, overrides or {}, max_cycles, replay_dir)
+        for p in policies
+        for c in cases
+        for k in range(episodes)
+    ]
+    rows = _play(jobs, workers, backend, address, progress)
+    order = list(policies)
+    rows.sort(key=lambda r: (order.index(r["policy"]), labels.index(r["scenario"]), r["episode"]))
+    return rows
+
+
+def _job(
+    policy: str,
+    case: Case,
+    k: int,
+    seed: int,
+    overrides: dict[str, Any],
+    max_cycles: int | None,
+    replay_dir: Path | None,
+) -> EpisodeJob:
+    replay = (
+        replay_path(replay_dir, policy, case.label) if replay_dir is not None and k == 0 else None
+    )
+    trail = k == 0 and case.label == "paper"  # the object's path, for the paper's plot
+    items = tuple(sorted({**overrides, **dict(case.overrides)}.items()))
+    return EpisodeJob(
+        policy,
+        case.scenario,
+        k,
+        case_episode_seed(seed, case.scenario, k),
+        items,
+        max_cycles,
+        trail,
+        replay and str(replay),
+        case.label,
+    )
+
+
+def _play(
+    jobs: list[EpisodeJob], workers: int, backend: str, address: str | None, progress: bool
+) -> list[dict[str, Any]]:
+    """The jobs' rows, in the order they finish."""
+    rows: list[dict[str, Any]] = []
+    bar = tqdm(total=len(jobs), desc="episodes", disable=not progress, unit="ep")
+    if backend == "process" and workers <= 1:
+        for job in jobs:
+            rows.append(run_episode(job))
+            bar.update()
+        bar.close()
+        return rows
+    # Build each (policy, scenario) once here first: compiled controllers and
+    # simulators land in the disk cache before the workers would race to build them.
+    seen = set()
+    for job in jobs:
+        if (job.policy, job.scenario, job.overrides) not in seen:
+            seen.add((job.policy, job.scenario, job.overrides))
+            run_episode(dataclasses.replace(job, max_cycles=1, record_path=False, replay=None))
+    if backend == "ray":
+        from baselines.distributed.ray_backend import run_jobs
+
+        for row in run_jobs(run_episode, jobs, address, workers):
+            rows.append(row)
+            bar.update()
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            for fut in as_completed([pool.submit(run_episode, j) for j in jobs]):
+                rows.append(fut.result())
+                bar.update()
+    bar.close()
+    return rows
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What a command's evaluations share: the episodes per case, the seed, the workers,
+    the environment keywords of every case (``conditions``, ``evaluate``'s
+    ``overrides``), the cap on periods, the progress bar, the backend and the replays."""
+
+    episodes: int
+    seed: int
+    workers: int
+    conditions: dict[str, Any] = dataclasses.field(default_factory=dict)
+    max_cycles: int | None = None
+    progress: bool = True
+    backend: str = "process"
+    address: str | None = None
+    replay_dir: Path | None = None
+
+    def evaluate(
+        self, policies: Sequence[str], cases: Sequence[str | Case]
+    ) -> list[dict[str, Any]]:
+        """``evaluate`` of the policies on the cases with these settings."""
+        return evaluate(
+            policies,
+            cases,
+            self.episodes,
+            self.seed,
+            self.workers,
+            self.conditions,
+            self.max_cycles,
+            self.progress,
+            self.backend,
+            self.address,
+            self.replay_dir,
+        )
+
+    def record(self) -> dict[str, Any]:
+        """The settings a result records as its ``command``."""
+        return {
+            "episodes": self.episodes,
+            "seed": self.seed,
+            "conditions": self.conditions,
+            "max_cycles": self.max_cycles,
+        }

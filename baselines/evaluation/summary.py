@@ -1,0 +1,158 @@
+"""The statistics of a group of episodes: ``summarize``, the one summary that the
+evaluator's table (``aggregate``), the ladder's rungs and the channel sweep all read.
+
+A group is one policy's episodes on one case: rows of ``baselines.evaluation.episode``,
+fresh or read back from ``episodes.csv``. Rates count the episodes within the current's
+reach, with Wilson 95% intervals; means come with seeded bootstrap 95% intervals
+(``baselines.stats``); decision times pool every decision of the episodes.
+
+May import: the standard library, numpy, ``baselines.stats`` and ``uvms_env`` (the metric
+and constraint names, the decision-time summary).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from baselines.stats import bootstrap_mean_interval, wilson_interval
+from uvms_env.env.constraints import CONSTRAINTS
+from uvms_env.env.metrics import METRICS
+from uvms_env.episode import decision_time_summary
+
+Row = dict[str, Any]
+
+VIOLATION_KINDS = CONSTRAINTS
+# numeric per-episode metrics averaged with bootstrap intervals (same names as the env's);
+# success and clean success are rates, the violations are counted per kind
+NOT_AVERAGED = ("success", "clean_success", "violations", "violation_periods", "policy_time_ms")
+MEAN_METRICS = (*(m for m in METRICS if m not in NOT_AVERAGED), "return")
+TIMING = ("median", "p95", "max")
+# what the evaluator's table leaves out of ``summarize``: the ladder's counts and median
+NOT_TABULATED = ("success", "clean_success", "violation_periods_median")
+
+
+def completion_periods(row: Row) -> float:
+    """Periods to success; NaN for an episode that did not succeed."""
+    return float(row.get("episode_steps", np.nan)) if row.get("success") else float("nan")
+
+
+def metric_values(rows: Sequence[Row], key: str) -> np.ndarray:
+    """``key`` of every row as floats, NaN where a row has none (an episode that did not
+    end, an empty cell of episodes.csv); ``completion_periods`` is derived per row."""
+    if key == "completion_periods":
+        return np.array([completion_periods(r) for r in rows])
+    return np.array([np.nan if r.get(key) in (None, "") else float(r[key]) for r in rows])
+
+
+def mean_interval(values: np.ndarray, seed: int) -> tuple[float | None, list[float] | None]:
+    """The mean (NaN: no value) and its bootstrap 95% interval; (None, None) without a
+    finite value."""
+    if not np.isfinite(values).any():
+        return None, None
+    return float(np.nanmean(values)), list(bootstrap_mean_interval(values, seed=seed))
+
+
+def decision_times(rows: Sequence[Row]) -> dict[str, float | None]:
+    """Median, p95 and max over every decision of the episodes; rows read back from
+    episodes.csv keep only each episode's own summary: then the median of the episodes'
+    medians and p95s, and the largest max. None each without a decision."""
+    ms = np.concatenate([np.asarray(r.get("_decision_ms", []), float) for r in rows] or [[]])
+    pooled = decision_time_summary(ms)
+    if pooled is not None:
+        return pooled
+    medians = metric_values(rows, "policy_time_ms_median")
+    if not np.isfinite(medians).any():
+        return dict.fromkeys(TIMING)
+    maxima = metric_values(rows, "policy_time_ms_max")
+    return {
+        "median": float(np.nanmedian(medians)),
+        "p95": float(np.nanmedian(metric_values(rows, "policy_time_ms_p95"))),
+        "max": float(np.nanmax(maxima)) if np.isfinite(maxima).any() else None,
+    }
+
+
+def interventions(rows: Sequence[Row]) -> dict[str, float | None]:
+    """The safety filter's share of decisions it changed by more than its tolerance, and
+    its mean change, pooled over the episodes' filtered decisions (None: no filter)."""
+    decided = sum(r.get("filtered_decisions") or 0 for r in rows)
+    if not decided:
+        return {"intervention_rate": None, "intervention_mean": None}
+    changed = sum(r.get("interventions") or 0 for r in rows)
+    deviation = sum(
+        (r.get("intervention_mean") or 0.0) * (r.get("filtered_decisions") or 0) for r in rows
+    )
+    return {"intervention_rate": changed / decided, "intervention_mean": deviation / decided}
+
+
+def summarize(
+    rows: Sequence[Row],
+    seed: int,
+    means: Sequence[str] = MEAN_METRICS,
+    *,
+    within_reach_only: bool = False,
+) -> Row:
+    """One policy's episodes on one case (rows of one policy and scenario):
+
+    * ``policy``, ``information``, ``scenario``; ``episodes``, ``out_of_reach`` (episodes
+      whose current is beyond the team's reach: no policy's failure) and ``errors``;
+    * ``success`` and ``clean_success``: the count, ``_rate`` and Wilson ``_ci95`` over
+      the episodes within reach;
+    * each of ``means``: its mean and bootstrap ``_ci95`` (None without a finite value),
+      and ``violation_periods_median``, over every episode or, ``within_reach_only``,
+      those within reach (the ladder compares rungs on the episodes they can win);
+    * ``violations`` (the total per constraint), ``intervention_rate`` and
+      ``intervention_mean`` (``interventions``) and ``policy_time_ms``
+      (``decision_times``), over every episode.
+    """
+    reach = [r for r in rows if r.get("current_within_reach", True)]
+    n = len(reach)
+    out: Row = {
+        "policy": rows[0]["policy"],
+        "information": rows[0].get("information", "local"),
+        "scenario": rows[0]["scenario"],
+        "episodes": len(rows),
+        "out_of_reach": len(rows) - n,
+        "errors": sum(bool(r.get("error")) for r in rows),
+    }
+    for name in ("success", "clean_success"):
+        k = sum(bool(r.get(name)) for r in reach)
+        out[name] = k
+        out[f"{name}_rate"] = k / n if n else float("nan")
+        out[f"{name}_ci95"] = list(wilson_interval(k, n))
+    counted = reach if within_reach_only else rows
+    for key in means:
+        out[key], out[f"{key}_ci95"] = mean_interval(metric_values(counted, key), seed)
+    periods = metric_values(counted, "violation_periods")
+    periods = periods[np.isfinite(periods)]
+    # the typical episode beside the mean, which a few run-aways dominate
+    out["violation_periods_median"] = float(np.median(periods)) if len(periods) else None
+    out["violations"] = {
+        kind: int(sum(r.get(f"violations_{kind}", 0) or 0 for r in rows))
+        for kind in VIOLATION_KINDS
+    }
+    out.update(interventions(rows))
+    out["policy_time_ms"] = decision_times(rows)
+    return out
+
+
+def aggregate(rows: Sequence[Row], seed: int) -> list[Row]:
+    """The evaluator's table: ``summarize`` per (policy, scenario), sorted by both, less
+    ``NOT_TABULATED`` and the metrics without a finite value."""
+    groups: dict[tuple[str, str], list[Row]] = {}
+    for row in rows:
+        groups.setdefault((row["policy"], row["scenario"]), []).append(row)
+    out = []
+    for _, group in sorted(groups.items()):
+        summary = summarize(group, seed)
+        gaps = {k for k in MEAN_METRICS if summary[k] is None}
+        out.append(
+            {
+                k: v
+                for k, v in summary.items()
+                if k not in NOT_TABULATED and k.removesuffix("_ci95") not in gaps
+            }
+        )
+    return out

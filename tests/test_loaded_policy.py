@@ -1,0 +1,83 @@
+"""The loaded-policy base (``baselines.loaded_policy``) and the registry: one rule finds
+every saved policy, one cache loads each once per file stamp, one run record gives the
+priors and the channel, and every ``--policy`` name of a saved network has its loader."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+from baselines import loaded_policy, registry
+from baselines.imitation.policy import ClonedPolicy
+from baselines.loaded_policy import PRETRAINED, LoadedPolicy, load_once, run_record
+from baselines.rl.policy import SB3Policy
+from baselines.rl.torchrl_policy import TorchRLPolicy
+
+
+def test_one_rule_finds_the_committed_models_a_run_folder_and_a_file(tmp_path):
+    assert SB3Policy.locate("ppo", "pretrained") == PRETRAINED / "ppo" / "model.zip"
+    assert ClonedPolicy.locate("dagger", None) == PRETRAINED / "dagger" / "policy.pt"
+    (tmp_path / "actor.pt").write_bytes(b"")
+    assert TorchRLPolicy.locate("torchrl", str(tmp_path)) == tmp_path / "actor.pt"
+    named = tmp_path / "clone_7.pt"
+    named.write_bytes(b"")
+    assert ClonedPolicy.locate("bc", str(named)) == named  # a file of its kind, any name
+    with pytest.raises(ValueError, match=r"no TorchRL actor at .*pretrained/torchrl"):
+        TorchRLPolicy.locate("torchrl", None)  # the one default: a committed model
+    with pytest.raises(ValueError, match="no SB3 model"):
+        SB3Policy.locate("ppo", str(tmp_path))
+
+
+def test_a_network_is_loaded_once_per_file_stamp(tmp_path):
+    calls = []
+
+    def load(path, scale):
+        calls.append(path)
+        return scale * len(path.read_text())
+
+    saved = tmp_path / "net.txt"
+    saved.write_text("ab")
+    assert load_once(load, saved, (), 10) == load_once(load, saved, (), 10) == 20
+    assert len(calls) == 1
+    saved.write_text("abc")  # re-saved (a training run's snapshot): loaded again
+    os.utime(saved, ns=(1, 1))
+    assert load_once(load, saved, (), 10) == 30 and len(calls) == 2
+
+
+def test_the_run_record_is_the_nearest_config(tmp_path):
+    run = tmp_path / "run"
+    (run / "checkpoints" / "robot_steps_64").mkdir(parents=True)
+    options = {"action_mode": "residual", "observation_mode": "features", "comm": "atm900"}
+    (run / "config.json").write_text(json.dumps({"overrides": {}, "env_options": options}))
+    priors, comm = run_record(run / "checkpoints" / "robot_steps_64" / "actor.pt")
+    assert priors.action_mode == "residual" and priors.observation_mode == "features"
+    assert comm is not None
+    priors, comm = run_record(tmp_path / "elsewhere" / "actor.pt")
+    assert priors.plain and comm is None
+
+
+def test_every_saved_policy_name_has_a_loaded_policy_loader():
+    for name in registry.LOADERS:
+        if name == "rllib":
+            pytest.importorskip("ray")
+        assert issubclass(registry.loader(name), LoadedPolicy), name
+    for lib in registry.LIBRARIES.values():  # what each library saves, a loader reads
+        assert all((lib.policy or algo) in registry.LOADERS for algo in lib.algos), lib
+    assert registry.policy_spec("sb3", "sac", PRETRAINED) == f"sac:{PRETRAINED}"
+    assert registry.policy_spec("torchrl", "ppo", PRETRAINED) == f"torchrl:{PRETRAINED}"
+
+
+def test_the_robots_of_a_committed_model_share_one_loaded_network():
+    from baselines.policies import PolicySource
+    from uvms_env.policy import AgentSpec
+    from uvms_env.scenarios import make
+
+    scenario = make("paper")
+    for text in ("ppo:pretrained", "dagger:pretrained"):
+        factory = PolicySource.parse(text).factory(0)
+        first, second = (factory(AgentSpec.from_scenario(scenario, i)) for i in range(2))
+        net = "model" if text.startswith("ppo") else "net"
+        assert getattr(first, net) is getattr(second, net), text
+    assert loaded_policy.PRIOR_OPTIONS[:2] == ("action_mode", "observation_mode")
