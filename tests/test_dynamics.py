@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from uvms_env.dynamics import PARAMETER_LAYOUT
+from uvms_env.dynamics.local_model import euler_zyx
 from uvms_env.dynamics.payload import OBJECT_PARAMETER_LAYOUT
 from uvms_env.dynamics.spatial import homogeneous, rot_zyx
-from uvms_env.env.kinematics import _euler_zyx
 from uvms_env.models import URDF_PATH, render_urdf
 
 
@@ -172,4 +172,4 @@ def test_tilted_vehicle_rights_itself(uvms):
 def test_euler_round_trip(rng):
     for _ in range(20):
         theta = rng.uniform([-3, -1.4, -3], [3, 1.4, 3])
-        assert np.allclose(np.array(_euler_zyx(rot_zyx(cs.DM(theta)))).ravel(), theta)
+        assert np.allclose(np.array(euler_zyx(rot_zyx(cs.DM(theta)))).ravel(), theta)
