@@ -4,7 +4,8 @@
 
 One evaluation of the rungs ``LADDER`` on random N = 2..6 and ``paper``, then per team
 size the price of decentralization (each distributed expert against ``nmpc:central``) and
-the price of learning (each learned rung against ``nmpc``) on the paired episodes.
+the price of learning (each learned rung against ``nmpc``, and against ``nmpc:central``)
+on the paired episodes.
 ``--from EPISODES_CSV`` aggregates earlier runs instead of playing.
 Reference: docs/evaluation.md, docs/results.md.
 
@@ -38,6 +39,10 @@ LADDER = (
     "dagger:pretrained+filter",
     "ppo:pretrained",  # PPO-Lagrangian fine-tuned from the DAgger clone
     "ppo:pretrained+filter",
+    "student:pretrained",  # DAgger from the bound's decisions (a privileged teacher)
+    "student:pretrained+filter",
+    "student:expert",  # the same recipe and budget with the distributed expert as teacher
+    "student:expert+filter",
 )
 TEAM_SIZES = (2, 3, 4, 5, 6)
 CONDITIONS = {"current": "mild", "mismatch": 0.1}
@@ -49,6 +54,8 @@ PRICED = {
 }
 
 
+# the figure's line style per kind of price
+PRICE_STYLES = {"decentralization": "-o", "learning": "--s", "learning against the bound": ":^"}
 # a price's point in the figure needs this many paired successes (fewer: noise)
 MIN_PAIRED = 3
 
@@ -138,6 +145,9 @@ def ladder(
         ],
         "learning": [
             price(rows, p, EXPERT, c, seed) for c in labels for p in learned if EXPERT in policies
+        ],
+        "learning against the bound": [
+            price(rows, p, CENTRAL, c, seed) for c in labels for p in learned if CENTRAL in policies
         ],
     }
     return {"rungs": rungs, "prices": prices}
@@ -251,9 +261,9 @@ def plot_prices(result: dict[str, Any], out: Path) -> None:
     points with fewer than ``MIN_PAIRED`` paired successes are left out."""
     fig, axes = pyplot().subplots(1, len(PRICED), figsize=(4.2 * len(PRICED), 3.4), sharex=True)
     for ax, name in zip(np.atleast_1d(axes), PRICED, strict=True):
-        for kind, style in (("decentralization", "-o"), ("learning", "--s")):
+        for kind, style in PRICE_STYLES.items():
             by_rung: dict[str, list[tuple[int, float]]] = {}
-            for p in result["prices"][kind]:
+            for p in result["prices"].get(kind, ()):
                 if not p["scenario"].startswith("random N=") or p[name] is None:
                     continue
                 if p[name]["ratio"] is None or p["paired_successes"] < MIN_PAIRED:

@@ -3,7 +3,9 @@ TorchRL, RLlib, the clones), the one rule that finds a saved policy, the one cac
 loaded networks (``load_once``) and the run record they read (``run_record``).
 
 * ``LoadedPolicy.locate(name, arg)``, for ``--policy NAME:ARG``: ARG ``pretrained`` (or
-  none) is the committed model ``baselines/pretrained/NAME``; a folder that holds the
+  none) is the committed model ``baselines/pretrained/NAME``; a bare word naming a
+  committed variant ``baselines/pretrained/NAME_ARG`` is that model (``student:expert``,
+  the student taught by the distributed expert); a folder that holds the
   loader's ``SAVED`` item (``model.zip``, ``actor.pt``, ``policy.pt``, ``checkpoint/``) is
   a run folder; anything else must be such an item itself (a file of its kind, an RLlib
   checkpoint folder).
@@ -220,7 +222,12 @@ class LoadedPolicy:
     @classmethod
     def locate(cls, name: str, arg: str | None) -> Path:
         """The saved item of ``NAME:ARG`` (the module docstring's rule)."""
-        return cls.find(PRETRAINED / name if arg in (None, "", "pretrained") else Path(arg))
+        if arg in (None, "", "pretrained"):
+            return cls.find(PRETRAINED / name)
+        variant = PRETRAINED / f"{name}_{arg}"
+        if arg.isidentifier() and variant.is_dir():
+            return cls.find(variant)
+        return cls.find(Path(arg))
 
     @classmethod
     def factory(cls, name: str, arg: str | None) -> PolicyFactory:

@@ -44,6 +44,7 @@ LOADERS: dict[str, str] = {
     "rllib": "baselines.distributed.rllib_policy:RLlibPolicy",
     "bc": _CLONE,
     "dagger": _CLONE,
+    "student": _CLONE,  # DAgger clones named by teacher: student:pretrained (the bound), :expert
 }
 
 

@@ -318,3 +318,24 @@ def test_the_centralized_bound_teaches_the_team_it_would_drive():
     assert len(decisions) == STEPS
     for i, s in enumerate(streams):
         assert np.allclose(np.stack(s.actions), [d[f"uvms_{i}"] for d in decisions], atol=1e-6)
+
+
+def test_a_student_from_the_bound_end_to_end(tmp_path):
+    """The students' recipe at a tiny budget: demonstrations and DAgger labelled by
+    ``nmpc:central`` on memory features, then the run folder evaluated as ``student:PATH``
+    (the clone's loader, the robot's memory inside it)."""
+    pytest.importorskip("daqp")
+    from baselines.evaluation.runner import evaluate
+
+    data, out = tmp_path / "data" / "central", tmp_path / "student"
+    main(["collect", "--scenario", "short", "--episodes", "1", "--max-cycles", str(STEPS),
+          "--expert", "nmpc:central", "--noise", "0.05", "--out", str(data)])  # fmt: skip
+    main(["dagger", "--data", str(data), "--scenario", "short:1", "--iterations", "1",
+          "--max-cycles", str(STEPS), "--epochs", "2", "--hidden", "16", "--features",
+          "memory", "--expert", "nmpc:central", "--out", str(out)])  # fmt: skip
+    info = json.loads((out / "train.json").read_text())
+    assert info["expert"] == "nmpc:central" and info["features"] == "memory"
+    assert info["samples"] == 4 * STEPS  # two robots' demonstrations + one relabelled rollout
+    (row,) = evaluate([f"student:{out}"], ["short"], episodes=1, seed=0, workers=1,
+                      max_cycles=STEPS, progress=False)  # fmt: skip
+    assert row["error"] == "" and row["episode_steps"] == STEPS

@@ -91,6 +91,8 @@ def test_the_ladder_command_runs_end_to_end(tmp_path):
     assert {q["rung"] for q in result["prices"]["decentralization"]} == {"nmpc"}
     assert {q["rung"] for q in result["prices"]["learning"]} == {"zero"}
     assert all(set(PRICED) <= set(q) for q in result["prices"]["learning"])
+    bound = result["prices"]["learning against the bound"]
+    assert {(q["rung"], q["reference"]) for q in bound} == {("zero", "nmpc:central")}
     assert result["command"]["conditions"] == {"current": "mild", "mismatch": 0.1}
     for name in ("ladder.md", "price_vs_n.png", "episodes.csv", "results.md"):
         assert (tmp_path / name).stat().st_size > 0

@@ -30,6 +30,19 @@ def test_one_rule_finds_the_committed_models_a_run_folder_and_a_file(tmp_path):
         SB3Policy.locate("ppo", str(tmp_path))
 
 
+def test_a_committed_variant_is_named_by_a_bare_word(tmp_path, monkeypatch):
+    """``student:expert`` is ``pretrained/student_expert``; a word naming no variant is a
+    path, as before."""
+    assert ClonedPolicy.locate("student", "pretrained") == PRETRAINED / "student" / "policy.pt"
+    assert ClonedPolicy.locate("student", "expert") == PRETRAINED / "student_expert" / "policy.pt"
+    monkeypatch.setattr(loaded_policy, "PRETRAINED", tmp_path)
+    (tmp_path / "clone_teacher").mkdir()
+    (tmp_path / "clone_teacher" / "policy.pt").write_bytes(b"")
+    assert ClonedPolicy.locate("clone", "teacher") == tmp_path / "clone_teacher" / "policy.pt"
+    with pytest.raises(ValueError, match="no cloned policy at other"):
+        ClonedPolicy.locate("clone", "other")
+
+
 def test_a_network_is_loaded_once_per_file_stamp(tmp_path):
     calls = []
 
