@@ -263,7 +263,7 @@ def plot_prices(result: dict[str, Any], out: Path) -> None:
     for ax, name in zip(np.atleast_1d(axes), PRICED, strict=True):
         for kind, style in PRICE_STYLES.items():
             by_rung: dict[str, list[tuple[int, float]]] = {}
-            for p in result["prices"].get(kind, ()):
+            for p in result["prices"][kind]:
                 if not p["scenario"].startswith("random N=") or p[name] is None:
                     continue
                 if p[name]["ratio"] is None or p["paired_successes"] < MIN_PAIRED:
