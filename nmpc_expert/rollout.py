@@ -62,10 +62,14 @@ def run_episode(
     traj = Trajectory()
     order_ok, last_wp = True, None
     desc = f"{scenario} NMPC ({solver})"
-    bar = tqdm(total=env.max_cycles, desc=desc, unit="step", disable=not progress)
+    bar: tqdm | None = None
 
     def record(step: Step) -> None:
-        nonlocal order_ok, last_wp
+        nonlocal order_ok, last_wp, bar
+        if bar is None:
+            # opened after the first period: the compiles of the first decision and step
+            # (announced on their own lines) stay out of its rate and ETA
+            bar = tqdm(total=env.max_cycles, desc=desc, unit="step", disable=not progress)
         agents = list(step.policies)
         wp = np.array([step.policies[a].stats["waypoint_index"] for a in agents])
         last = np.zeros_like(wp) if last_wp is None else last_wp
@@ -88,7 +92,10 @@ def run_episode(
         return NMPCPolicy(spec, solver=solver, settings=settings)
 
     episode = play(env, nmpc, seed, on_step=record, replay=replay)
-    bar.close()
+    if bar is not None:
+        bar.total = bar.n  # the episode's end is the bar's end, not the step cap
+        bar.refresh()
+        bar.close()
     metrics = episode.metrics
     metrics["episode_end"] = episode.end
     metrics["fallbacks"] = int(sum(p.fallbacks for p in episode.policies.values()))

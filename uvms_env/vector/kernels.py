@@ -16,8 +16,8 @@ No hand-written C++ or CUDA library could be used instead: the physics is CasADi
 generated code and must stay the single source of truth (ARCHITECTURE: one graph, three
 targets); this module only adds the loops around it.
 
-May import: numpy, casadi, and ``uvms_env.dynamics.compiled`` (cache folder, CPU
-identity).
+May import: numpy, casadi, ``uvms_env.dynamics.compiled`` (cache folder, CPU identity,
+the announced build) and ``uvms_env.dynamics.split_source`` (the cut into parallel units).
 """
 
 from __future__ import annotations
@@ -27,7 +27,6 @@ import hashlib
 import os
 import platform
 import re
-import subprocess
 import tempfile
 from dataclasses import dataclass
 from functools import cache
@@ -36,7 +35,14 @@ from pathlib import Path
 import casadi as cs
 import numpy as np
 
-from uvms_env.dynamics.compiled import CXX_COMPILERS, _cpu_identity, cache_dir, find_compiler
+from uvms_env.dynamics.compiled import (
+    CXX_COMPILERS,
+    _cpu_identity,
+    build_library,
+    cache_dir,
+    find_compiler,
+)
+from uvms_env.dynamics.split_source import cut_long_functions, default_units, translation_units
 
 HERE = Path(__file__).parent
 CXXFLAGS = ("-O3", "-march=native", "-fno-math-errno", "-fopenmp", "-fPIC", "-shared")
@@ -286,21 +292,28 @@ def _build_cpu(source: str, sig: Signature, dtype: str, lanes: int) -> ctypes.CD
         # the single environment's.
         defines.append("-DUVMS_FLUSH_SUBNORMALS")
     header = (HERE / "lanes.hpp").read_text()
-    code = f'#include "lanes.hpp"\n#define casadi_real vreal\n{source}\n{_cpu_driver(sig, lanes)}'
+    head = '#include "lanes.hpp"\n#define casadi_real vreal\n'
+    cut = cut_long_functions(source)
     flags = [*CXXFLAGS, *defines]
     key = hashlib.sha256(
-        (code + header + " ".join(flags) + cs.__version__).encode() + _cpu_identity()
+        (head + cut + _cpu_driver(sig, lanes) + header + " ".join(flags) + cs.__version__).encode()
+        + _cpu_identity()
     ).hexdigest()[:16]
     lib = cache_dir() / f"{sig.name}_batch_{dtype}x{lanes}_{key}.so"
     if not lib.exists():
-        with tempfile.TemporaryDirectory() as tmp:
-            src = Path(tmp) / "batch.cpp"
-            src.write_text(code)
-            (Path(tmp) / "lanes.hpp").write_text(header)
-            part = lib.with_suffix(f".{os.getpid()}.part")
-            libs = ["-lmvec"] if any("UVMS_SIN" in d for d in defines) else []
-            subprocess.run([cxx, *flags, "-w", str(src), "-o", str(part), *libs, "-lm"], check=True)
-            part.replace(lib)  # atomic: parallel workers never load a half-written library
+        units = [head + u for u in translation_units(cut, default_units(cut))]
+        units[0] += _cpu_driver(sig, lanes)
+        libs = ("-lmvec", "-lm") if any("UVMS_SIN" in d for d in defines) else ("-lm",)
+        build_library(
+            f"{sig.name} ({dtype} x {lanes} lanes)",
+            lib,
+            cxx,
+            [*flags, "-w"],
+            units,
+            ".cpp",
+            libs,
+            {"lanes.hpp": header},
+        )
     return ctypes.CDLL(str(lib))
 
 
