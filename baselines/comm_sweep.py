@@ -14,6 +14,7 @@ May import: the standard library, numpy, ``uvms_env.env.channel``, ``baselines.e
 
 from __future__ import annotations
 
+import argparse
 import csv
 import dataclasses
 import math
@@ -25,7 +26,7 @@ import numpy as np
 
 from baselines.evaluation.outputs import Play, run_and_write, write_result
 from baselines.evaluation.report import pyplot, save
-from baselines.evaluation.runner import Case, Settings
+from baselines.evaluation.runner import Case, Settings, UsageError
 from baselines.ladder import (
     CENTRAL,
     EXPERT,
@@ -38,7 +39,7 @@ from baselines.ladder import (
     rung_summary,
     settings_of,
 )
-from baselines.options import command_parser
+from baselines.options import command_parser, usage_errors
 from uvms_env.env.channel import ChannelSettings, channel_settings
 
 TALKER = "nmpc:comm"
@@ -285,8 +286,21 @@ def run(
     return result
 
 
-def _numbers(text: str, kind: type) -> tuple[Any, ...]:
-    return tuple(kind(float(v)) if kind is int else kind(v) for v in text.split(","))
+def numbers(kind: type) -> Any:
+    """An argparse ``type``: comma-separated numbers of ``kind`` (int: whole numbers)."""
+
+    def parse(text: str) -> tuple[Any, ...]:
+        try:
+            values = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected comma-separated numbers, got {text!r}"
+            ) from None
+        if kind is int and not all(v.is_integer() for v in values):
+            raise argparse.ArgumentTypeError(f"expected comma-separated whole numbers: {text!r}")
+        return tuple(kind(v) for v in values)
+
+    return parse
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -294,28 +308,32 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--preset", default=PRESET, help="the channel the grid varies")
     ap.add_argument(
         "--bit-rates",
+        type=numbers(float),
         default=",".join(f"{r:g}" for r in BIT_RATES),
         help="comma-separated, bit/s (inf: unlimited)",
     )
-    ap.add_argument("--losses", default=",".join(f"{p:g}" for p in LOSSES), help="loss floors p0")
     ap.add_argument(
-        "--latencies", default=",".join(str(n) for n in LATENCIES), help="modem latency, periods"
+        "--losses",
+        type=numbers(float),
+        default=",".join(f"{p:g}" for p in LOSSES),
+        help="loss floors p0",
+    )
+    ap.add_argument(
+        "--latencies",
+        type=numbers(int),
+        default=",".join(str(n) for n in LATENCIES),
+        help="modem latency, periods",
     )
     ap.add_argument("--no-references", action="store_true", help="no silent / central runs")
     add_case_arguments(ap, SWEEP_TEAM_SIZES, "runs/comm_sweep")
     args = ap.parse_args(argv)
-    try:
-        points = grid(
-            args.preset,
-            _numbers(args.bit_rates, float),
-            _numbers(args.losses, float),
-            _numbers(args.latencies, int),
+    with usage_errors(ap, (ValueError,)):  # the grid: an impossible channel, named
+        points = grid(args.preset, args.bit_rates, args.losses, args.latencies)
+    # a case the environment refuses: before any episode
+    with usage_errors(ap, (UsageError,)):
+        result = run(
+            points, cases_of(args), settings_of(args), args.out, references=not args.no_references
         )
-    except ValueError as exc:
-        ap.error(str(exc))
-    result = run(
-        points, cases_of(args), settings_of(args), args.out, references=not args.no_references
-    )
     print(markdown(result))
     print(
         f"wrote {args.out}/sweep.md, sweep.csv, sweep.json, comm_curve.png and the "

@@ -19,8 +19,15 @@ from typing import Any
 
 from baselines.evaluation.outputs import run_and_write
 from baselines.evaluation.report import markdown_table
-from baselines.evaluation.runner import BACKENDS, Settings
-from baselines.options import add_condition_arguments, command_parser
+from baselines.evaluation.runner import BACKENDS, Settings, UsageError
+from baselines.options import (
+    SCENARIOS,
+    add_condition_arguments,
+    command_parser,
+    non_negative_int,
+    positive_int,
+    usage_errors,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -36,11 +43,17 @@ def build_parser() -> argparse.ArgumentParser:
         "NMPC, a team policy with full information (its rows say information full: a bound, "
         "not a decentralized entry)",
     )
-    ap.add_argument("--scenario", action="append", default=None, help="paper, random (repeatable)")
-    ap.add_argument("--episodes", type=int, default=20)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--max-cycles", type=int, default=None)
+    ap.add_argument(
+        "--scenario",
+        action="append",
+        choices=SCENARIOS,
+        default=None,
+        help="paper, random, short (repeatable; default paper)",
+    )
+    ap.add_argument("--episodes", type=positive_int, default=20)
+    ap.add_argument("--seed", type=non_negative_int, default=0)
+    ap.add_argument("--workers", type=positive_int, default=2)
+    ap.add_argument("--max-cycles", type=positive_int, default=None)
     add_condition_arguments(ap, draws=False)  # the trainers' flags, one value each
     ap.add_argument(
         "--comm",
@@ -76,12 +89,13 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         default=None,
         metavar="PATH",
-        help="also write (merge into) marl-eval's JSON: env uvms_coop, task = scenario, "
-        "algorithm = policy, run seed_SEED (baselines.distributed.marl_eval)",
+        help="also write (merge into) marl-eval's JSON: env uvms (BenchMARL's name), task = "
+        "scenario, algorithm and seed_S = what trained the policy (its run's config.json; "
+        "baselines.distributed.marl_eval)",
     )
     ap.add_argument(
         "--marl-eval-step-count",
-        type=int,
+        type=non_negative_int,
         default=0,
         help="the step_count recorded in the marl-eval JSON (e.g. the policy's training steps)",
     )
@@ -126,7 +140,11 @@ def main(argv: list[str] | None = None) -> None:
         address=args.address,
         replay_dir=args.out if args.replay else None,
     )
-    rows, summaries = run_and_write(settings, [(args.policy, args.scenario or ["paper"])], args.out)
+    # a policy that cannot be loaded, a case the environment refuses: before any episode
+    with usage_errors(ap, (UsageError,)):
+        rows, summaries = run_and_write(
+            settings, [(args.policy, args.scenario or ["paper"])], args.out
+        )
     if args.marl_eval_json is not None:
         from baselines.distributed import marl_eval
 

@@ -23,9 +23,18 @@ import numpy as np
 
 from baselines.evaluation.outputs import read_episodes, run_and_write, write_result
 from baselines.evaluation.report import pyplot, save
-from baselines.evaluation.runner import Case, Settings
+from baselines.evaluation.runner import Case, Settings, UsageError
 from baselines.evaluation.summary import metric_values, summarize
-from baselines.options import command_parser
+from baselines.options import (
+    CURRENT_PRESETS,
+    command_parser,
+    existing_path,
+    model_mismatch,
+    non_negative_int,
+    positive_int,
+    team_size,
+    usage_errors,
+)
 from baselines.stats import bootstrap_mean_interval
 
 CENTRAL = "nmpc:central"
@@ -316,18 +325,20 @@ def add_case_arguments(ap: argparse.ArgumentParser, team_sizes: tuple[int, ...],
     """The cases, conditions and run options the ladder and the channel sweep share."""
     ap.add_argument(
         "--n-agents",
-        type=int,
+        type=team_size,
         nargs="+",
         default=list(team_sizes),
         help=f"random team sizes (the ladder's: {' '.join(map(str, TEAM_SIZES))})",
     )
     ap.add_argument("--no-paper", action="store_true", help="leave the paper scenario out")
-    ap.add_argument("--episodes", type=int, default=10)
-    ap.add_argument("--seed", type=int, default=202, help="held out: used by no training")
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--current", default=CONDITIONS["current"], choices=["none", "mild", "strong"])
-    ap.add_argument("--mismatch", type=float, default=CONDITIONS["mismatch"])
-    ap.add_argument("--max-cycles", type=int, default=None)
+    ap.add_argument("--episodes", type=positive_int, default=10)
+    ap.add_argument(
+        "--seed", type=non_negative_int, default=202, help="held out: used by no training"
+    )
+    ap.add_argument("--workers", type=positive_int, default=2)
+    ap.add_argument("--current", default=CONDITIONS["current"], choices=CURRENT_PRESETS)
+    ap.add_argument("--mismatch", type=model_mismatch, default=CONDITIONS["mismatch"])
+    ap.add_argument("--max-cycles", type=positive_int, default=None)
     ap.add_argument("--out", type=Path, default=Path(out))
 
 
@@ -349,7 +360,7 @@ def main(argv: list[str] | None = None) -> None:
         "--from",
         dest="sources",
         action="append",
-        type=Path,
+        type=existing_path,
         default=None,
         metavar="EPISODES_CSV",
         help="no evaluation: the ladder of these runs' episodes.csv together (same seed)",
@@ -362,7 +373,9 @@ def main(argv: list[str] | None = None) -> None:
         print(f"wrote {args.out}/ladder.md, ladder.json and price_vs_n.png")
         return
     policies = args.policy or list(LADDER)
-    result = run(policies, cases_of(args), settings_of(args), args.out)
+    # a rung that cannot be loaded, a case the environment refuses: before any episode
+    with usage_errors(ap, (UsageError,)):
+        result = run(policies, cases_of(args), settings_of(args), args.out)
     print(markdown(result))
     print(f"wrote {args.out}/ladder.md, ladder.json, price_vs_n.png and the evaluator's outputs")
 

@@ -1,7 +1,10 @@
-"""Command-line pieces shared by the trainers, the imitation CLI and the evaluator:
-``KEY=JSON`` options (``--env-option``, ``--hp``) and the conditions of the episodes
-(``--n-agents``, ``--current``, ``--mismatch``), the same flag names in every command;
-the periodic evaluations' flags of the trainers and DAgger (``--eval-*``).
+"""Command-line pieces shared by every command of ``baselines``: the parser (``python -m
+PROG`` in its usage, no prefix abbreviations), the argparse types that check a value as it
+is parsed (counts, budgets, seeds, the conditions in the environment's own words, paths
+that must exist, ``KEY=JSON``), ``usage_errors`` (a refused value is a usage error, exit 2,
+never a traceback), ``KEY=JSON`` options (``--env-option``, ``--hp``) and the conditions of
+the episodes (``--n-agents``, ``--current``, ``--mismatch``), the same flag names in every
+command; the periodic evaluations' flags of the trainers and DAgger (``--eval-*``).
 
 Where training draws from a distribution, the condition flags take several values: team
 sizes (each episode, or each group of environment copies, one of them), current presets
@@ -9,26 +12,95 @@ sizes (each episode, or each group of environment copies, one of them), current 
 one uniformly). They reach the environment as overrides and its ``randomize`` option
 (``uvms_env.env.conditions``).
 
-May import: the standard library and ``uvms_env.scenarios`` (the current presets).
+May import: the standard library and ``uvms_env.scenarios`` (the families, the current
+presets and the overrides' table, whose ranges and wording the types reuse).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
-from uvms_env.scenarios.overrides import CURRENT_PRESETS
+from uvms_env.scenarios.families import FAMILIES
+from uvms_env.scenarios.overrides import CURRENT_PRESETS, SCENARIO_OVERRIDES, Option
+
+SCENARIOS = tuple(FAMILIES)  # ``--scenario``'s choices
 
 
 def command_parser(prog: str, doc: str) -> argparse.ArgumentParser:
     """The parser of ``python -m PROG``: its module docstring ``doc`` as the description,
-    as written, up to its "May import" line."""
+    as written, up to its "May import" line; a flag must be spelt out (``--n-agent`` is
+    no ``--n-agents``)."""
     return argparse.ArgumentParser(
         prog=f"python -m {prog}",
         description=doc.split("May import")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
+        allow_abbrev=False,
     )
+
+
+@contextmanager
+def usage_errors(
+    ap: argparse.ArgumentParser, kinds: tuple[type[Exception], ...] = (ValueError, TypeError)
+) -> Iterator[None]:
+    """An exception of ``kinds`` raised inside (a check of the command line, in the words
+    of the code that refuses the value) becomes ``ap.error``: exit 2, no traceback."""
+    try:
+        yield
+    except kinds as exc:
+        ap.error(str(exc))
+
+
+# -- argparse types: a value is checked as it is parsed ----------------------------------
+def option_type(option: Option) -> Callable[[str], Any]:
+    """An argparse ``type`` that reads a number and checks it against ``option`` (the
+    environment's ``Option`` or one made here): out of range, argparse names the flag and
+    what it accepts (``argument --robot-steps: expected int >= 1 (...), got -5``)."""
+
+    kind = int if option.kind == "int" else float
+
+    def parse(text: str) -> Any:
+        try:
+            value: Any = kind(text)
+        except ValueError:
+            value = text
+        try:
+            return option.check("value", value)
+        except (TypeError, ValueError):
+            doc = f" ({option.doc})" if option.doc else ""
+            raise argparse.ArgumentTypeError(
+                f"expected {option.describe()}{doc}, got {text!r}"
+            ) from None
+
+    return parse
+
+
+positive_int = option_type(Option("int", "", low=1))
+# 0: "none" where a flag says so; seeds too (the environment takes none below 0)
+non_negative_int = option_type(Option("int", "", low=0))
+positive_float = option_type(Option("float", "", low=0, low_open=True))
+non_negative_float = option_type(Option("float", "", low=0))
+fraction = option_type(Option("float", "", low=0, high=1))
+
+
+def existing_path(text: str) -> Path:
+    """An argparse ``type``: a file or folder that exists."""
+    path = Path(text)
+    if not path.exists():
+        raise argparse.ArgumentTypeError(f"no such file or folder: {text}")
+    return path
+
+
+def key_value(text: str) -> str:
+    """An argparse ``type`` for ``KEY=JSON`` (read by ``key_value_pairs``)."""
+    key, sep, _ = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    return text
 
 
 def key_value_pairs(items: list[str]) -> dict[str, Any]:
@@ -38,7 +110,7 @@ def key_value_pairs(items: list[str]) -> dict[str, Any]:
     for item in items:
         key, sep, value = item.partition("=")
         if not sep:
-            raise SystemExit(f"expected KEY=VALUE, got {item!r}")
+            raise ValueError(f"expected KEY=VALUE, got {item!r}")
         try:
             out[key] = json.loads(value)
         except json.JSONDecodeError:
@@ -46,11 +118,15 @@ def key_value_pairs(items: list[str]) -> dict[str, Any]:
     return out
 
 
+# the conditions' values, checked against the environment's own table of overrides
+team_size = option_type(SCENARIO_OVERRIDES["n_agents"])
+model_mismatch = option_type(SCENARIO_OVERRIDES["mismatch"])
+
 # flag -> (type, what one value is, what several values are), shared by every CLI
 CONDITION_FLAGS: dict[str, tuple[Any, str, str]] = {
-    "--n-agents": (int, "team size (random family)", "a set to draw from"),
+    "--n-agents": (team_size, "team size (random family)", "a set to draw from"),
     "--current": (str, "ocean current preset", "each episode draws one"),
-    "--mismatch": (float, "model mismatch", "LOW HIGH: each episode draws one uniformly"),
+    "--mismatch": (model_mismatch, "model mismatch", "LOW HIGH: each episode draws one uniformly"),
 }
 
 
@@ -80,8 +156,8 @@ def team_sizes(args: argparse.Namespace) -> tuple[int, ...]:
 
 def condition_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """Environment keywords of ``--current`` and ``--mismatch``: one value an override,
-    several a ``randomize`` draw (``uvms_env.env.conditions``). SystemExit on a malformed
-    range."""
+    several a ``randomize`` draw (``uvms_env.env.conditions``). ValueError, naming the
+    flag, on a malformed range."""
     out: dict[str, Any] = {}
     draws: dict[str, Any] = {}
     current = getattr(args, "current", None)
@@ -99,7 +175,7 @@ def condition_overrides(args: argparse.Namespace) -> dict[str, Any]:
         elif len(values) == 2 and values[0] <= values[1]:
             draws["mismatch"] = [float(v) for v in values]
         else:
-            raise SystemExit(f"--mismatch takes one value or LOW HIGH, got {values}")
+            raise ValueError(f"--mismatch takes one value or LOW HIGH, got {values}")
     if draws:
         out["randomize"] = draws
     return out
@@ -108,11 +184,13 @@ def condition_overrides(args: argparse.Namespace) -> dict[str, Any]:
 def add_evaluation_arguments(g: Any, episodes: int, episodes_help: str | None = None) -> None:
     """``--eval-episodes`` (default ``episodes``), ``--eval-seed`` and ``--eval-max-cycles``:
     the periodic evaluations of a training run (the RL trainers' and DAgger's)."""
-    g.add_argument("--eval-episodes", type=int, default=episodes, help=episodes_help)
-    g.add_argument("--eval-seed", type=int, default=None, help="their seed (default: --seed)")
+    g.add_argument("--eval-episodes", type=non_negative_int, default=episodes, help=episodes_help)
+    g.add_argument(
+        "--eval-seed", type=non_negative_int, default=None, help="their seed (default: --seed)"
+    )
     g.add_argument(
         "--eval-max-cycles",
-        type=int,
+        type=positive_int,
         default=None,
         help="cap on the evaluation episodes and an RL run's final record (default: the "
         "scenarios' own length)",

@@ -203,6 +203,17 @@ class PolicySource:
 
         return make_filter(inner)
 
+    def build_once(self, env: Any, seed: int) -> None:
+        """Build this source's policy for robot 0 of ``env`` (a team source: its team
+        policy), as an episode on ``env`` would: the saved network found and read, the
+        expert's solver built. A source that cannot be loaded fails here, before any
+        episode, raising what its loader raises."""
+        if self.team:
+            self.team_factory(seed)(env.scenario)
+            return
+        spec = AgentSpec.from_scenario(env.scenario, 0, getattr(env, "comm", None))
+        check_policy(self.factory(seed)(spec))
+
     def team_factory(self, episode_seed: int) -> TeamPolicyFactory:
         """The team policy's factory (``team`` sources only)."""
         if not self.team:

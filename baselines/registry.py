@@ -41,6 +41,7 @@ _CLONE = "baselines.imitation.policy:ClonedPolicy"
 LOADERS: dict[str, str] = {
     **{algo: _SB3 for algo in LIBRARIES["sb3"].algos},
     "torchrl": "baselines.rl.torchrl_policy:TorchRLPolicy",
+    "benchmarl": "baselines.rl.benchmarl_policy:BenchMARLPolicy",
     "rllib": "baselines.distributed.rllib_policy:RLlibPolicy",
     "bc": _CLONE,
     "dagger": _CLONE,
@@ -56,7 +57,10 @@ def library(name: str) -> Library:
 
 def trainer_module(name: str) -> ModuleType:
     """The library's trainer module: ``DEFAULTS`` (num_envs, geometry_pool),
-    ``add_arguments(group)`` and ``Trainer(run, algo, args)`` (``baselines.runs.Trainer``)."""
+    ``SEVERAL_TEAM_SIZES`` (whether one run takes several ``--n-agents``),
+    ``add_arguments(group)``, ``check_options(settings, algo, args)`` (ValueError naming an
+    option it cannot honour, before any work) and ``Trainer(run, algo, args)``
+    (``baselines.runs.Trainer``)."""
     return importlib.import_module(library(name).trainer)
 
 

@@ -5,14 +5,20 @@ evaluation through ``baselines.evaluate`` and resuming.
     run = Run.start(settings, library="sb3", algo="ppo", command=argv)
     trainer = Trainer(run, algo, args)         # the library's trainer (``Trainer``)
     run.write_config(**trainer.build())        # env and model; config.json
-    steps = trainer.learn()                    # calls run.after_iteration(...) each iteration
+    steps = trainer.learn()                    # run.begin(...) once its envs are reset, then
+                                               # run.after_iteration(...) each iteration
+    run.end()                                  # the training time ends here
     trainer.save(run.folder); trainer.close()
-    run.finish(steps)                          # robot-steps, wall time, recorded evaluation
+    run.finish(steps)                          # robot-steps, times, recorded evaluation
 
 ``baselines.train.train`` is that sequence. Every budget and cadence counts robot-steps.
-The run folder's files: docs/rl.md.
+The progress bar, its rate and its ETA, and the robot-steps/s of the records count the
+stepping and the updates only: the build before ``begin`` (env, geometries, compiled
+kernels, model) and the periodic evaluations and checkpoints are timed apart
+(``build_s``, ``eval_s`` beside ``train_s`` in config.json). The run folder's files:
+docs/rl.md.
 
-May import: the standard library, numpy, ``baselines.evaluation``, ``baselines.ladder``,
+May import: the standard library, numpy, tqdm, ``baselines.evaluation``, ``baselines.ladder``,
 ``baselines.distributed.marl_eval``, ``baselines.lagrangian``, ``baselines.loaded_policy``
 (the config file it reads back), ``baselines.registry`` and ``uvms_env``.
 """
@@ -32,6 +38,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
+from tqdm import tqdm
 
 from baselines.lagrangian import CostSettings
 from baselines.loaded_policy import CONFIG_FILE, read_config
@@ -108,8 +115,9 @@ class Trainer(Protocol):
         ...
 
     def learn(self) -> int:
-        """Train until ``run.settings.robot_steps``, calling ``run.after_iteration`` after
-        each iteration; return the robot-steps done in all."""
+        """Train until ``run.settings.robot_steps``: ``run.begin`` once the envs are reset
+        and stepping starts, ``run.after_iteration`` after each iteration; return the
+        robot-steps done in all."""
         ...
 
     def save(self, folder: Path) -> None:
@@ -249,6 +257,9 @@ class Run:
             "library_settings": {},
             "robot_steps": self.previous.get("robot_steps", 0) if self.resumed else 0,
             "wall_time_s": None,
+            "build_s": None,
+            "train_s": None,
+            "eval_s": None,
             "robot_steps_per_s": None,
             "eval": None,
             "best": self.previous.get("best") if self.resumed else None,
@@ -256,6 +267,11 @@ class Run:
         self.multiplier: float | None = None
         self._start = time.perf_counter()
         self._tick = self._start
+        self._stepping: float | None = None  # when ``begin`` was called
+        self._ended: float | None = None  # when ``end`` was called
+        self._eval_s = 0.0  # this session's periodic evaluations and checkpoints
+        self._bar: Any = None
+        self._postfix: dict[str, Any] = {}
         self._steps_at_start = self.config["robot_steps"]
         self._last_steps = self._steps_at_start
         self._iteration = self._last_iteration()
@@ -277,16 +293,9 @@ class Run:
     ) -> Run:
         """A new run, or with ``settings.resume`` the continuation of the run there (its
         config.json: resumes, robot-steps and wall time so far, the last multiplier)."""
-        previous: dict[str, Any] = {}
-        if settings.resume is not None:
-            resume = Path(settings.resume)
-            folder = resume if resume.is_dir() else resume.parent
-            previous = read_config(folder) or read_config(folder.parent)
-            trained_by = previous.get("library", previous.get("engine", library))
-            if trained_by != library:  # "engine": the key's earlier name
-                raise ValueError(f"{resume} was trained with {trained_by}, not {library}")
-            if settings.cost is not None and (previous.get("cost") or {}).get("final_multiplier"):
-                settings.cost.multiplier = previous["cost"]["final_multiplier"]
+        previous = previous_record(settings, library)
+        if settings.cost is not None and (previous.get("cost") or {}).get("final_multiplier"):
+            settings.cost.multiplier = previous["cost"]["final_multiplier"]
         return cls(settings, library, algo, command, previous)
 
     @property
@@ -307,10 +316,59 @@ class Run:
 
     def write_config(self, **library_settings: Any) -> None:
         """Record the library's own settings (``library_settings``) and write config.json;
-        the first iteration's time counts from here (not the trainer's setup)."""
+        without a ``begin``, the first iteration's time and the training count from here."""
         self.config["library_settings"].update(library_settings)
         write_json(self.folder / CONFIG_FILE, self.config)
         self._tick = time.perf_counter()
+        if self._stepping is None:  # a trainer without ``begin``: training starts here
+            self._stepping = self._tick
+
+    def begin(
+        self, rollout: int | None = None, unit: tuple[str, str] = ("rollout", "rollouts")
+    ) -> int:
+        """Stepping starts now (the env, its geometries and compiled kernels and the model
+        are built, the envs reset): the build is timed apart from training from here, and
+        the progress bar opens. ``rollout``: the robot-steps of one iteration (None: not
+        known in advance; ``unit``: what it is called, one and several); a budget that is
+        no whole number of them is announced, rounded up. Returns the robot-steps the run
+        will end at."""
+        s, done = self.settings, self._steps_at_start
+        remaining = max(0, s.robot_steps - done)
+        total = s.robot_steps
+        if rollout and remaining % rollout:
+            k = math.ceil(remaining / rollout)
+            total = done + k * rollout
+            after = f" after the {done} done" if done else ""
+            print(
+                f"--robot-steps {s.robot_steps} rounds up to {total}: {k} "
+                f"{unit[k != 1]} of {rollout} robot-steps{after}",
+                flush=True,
+            )
+        self._stepping = self._tick = time.perf_counter()
+        if s.progress:
+            self._bar = tqdm(
+                total=total,
+                initial=done,
+                desc=f"{self.config['library']} {self.config['algo']}",
+                unit="robot-step",
+                unit_scale=True,
+                dynamic_ncols=True,
+            )
+        return total
+
+    def end(self) -> float:
+        """Training is over (the last update included): the time from ``begin`` to here,
+        less the periodic evaluations and checkpoints, is the session's ``train_s``
+        (without a call, up to ``finish``). Returns the time it ended."""
+        self._ended = time.perf_counter()
+        self.close_bar()
+        return self._ended
+
+    def advance(self, robot_steps: int) -> None:
+        """The bar at ``robot_steps`` done in all, between two iterations' rows (a library
+        that reports each step)."""
+        if self._bar is not None and robot_steps > self._bar.n:
+            self._bar.update(robot_steps - self._bar.n)
 
     # -- the training loop's hooks --------------------------------------------------------
     def iteration(
@@ -346,24 +404,45 @@ class Run:
         with open(self.folder / PROGRESS_FILE, "a", newline="") as fh:
             csv.DictWriter(fh, fieldnames=PROGRESS_COLUMNS).writerow(row)
         self._tick, self._last_steps = now, robot_steps
-        if self.settings.progress:
-            print(
-                f"iter {row['iteration']}: {robot_steps} robot-steps, return "
-                f"{row['episode_return_mean']}, {row['robot_steps_per_s']} robot-steps/s",
-                flush=True,
-            )
+        if row["episode_return_mean"] is not None:
+            self._postfix["return"] = f"{row['episode_return_mean']:.3g}"
+        if self._bar is not None:
+            self._bar.set_postfix(self._postfix, refresh=False)
+            self.advance(robot_steps)
         return row
 
     def after_iteration(self, trainer: Trainer, robot_steps: int, **stats: Any) -> None:
         """The progress row (``iteration``'s arguments), then a checkpoint and an
         evaluation of a fresh snapshot when due."""
         self.iteration(robot_steps, **stats)
+        start = time.perf_counter()
         if self.checkpoint_due(robot_steps):
             trainer.checkpoint(robot_steps)
         if self.evaluation_due(robot_steps):
             trainer.save(self.snapshot)
             policy = self.policy_spec(self.snapshot)
-            self.keep_best(robot_steps, self.evaluate(robot_steps, policy))
+            rows = self.evaluate(robot_steps, policy)
+            self.keep_best(robot_steps, rows)
+            self._show_evaluation(robot_steps, rows)
+        # neither the rate nor the next iteration's time counts the checkpoint or evaluation
+        now = time.perf_counter()
+        self._eval_s += now - start
+        self._tick = now
+        if self._bar is not None:
+            self._bar.unpause()
+
+    def _show_evaluation(self, robot_steps: int, rows: list[dict[str, Any]]) -> None:
+        """The evaluation's success and clean success (means over the rungs) in the bar's
+        postfix, and on a line of its own."""
+        success = float(np.mean([r["success_rate"] for r in rows]))
+        clean = float(np.mean([r["clean_success_rate"] for r in rows]))
+        self._postfix.update(success=f"{success:.2f}", clean=f"{clean:.2f}")
+        if self._bar is not None:
+            self._bar.set_postfix(self._postfix)
+            self._bar.write(
+                f"evaluation at {robot_steps} robot-steps: success {success:.2f}, clean "
+                f"success {clean:.2f} ({', '.join(r['rung'] for r in rows)})"
+            )
 
     def evaluation_due(self, robot_steps: int) -> bool:
         if self.settings.eval_every <= 0 or robot_steps < self._next_eval:
@@ -391,7 +470,8 @@ class Run:
             s.eval_episodes,
             s.evaluation_seed,
             robot_steps,
-            name=f"{self.config['library']}_{self.config['algo']}:{self.folder.name}",
+            algorithm=f"{self.config['library']}_{self.config['algo']}",
+            training_seed=s.seed,
             elapsed=time.perf_counter() - self._start,
             max_cycles=s.eval_max_cycles,
         )
@@ -421,7 +501,15 @@ class Run:
         scenario, overrides = next(iter(self.settings.rungs().values()))
         max_cycles = self.settings.eval_max_cycles
         rows = evaluate(
-            [policy], [scenario], RECORD_EPISODES, 0, 1, overrides, max_cycles, progress=False
+            [policy],
+            [scenario],
+            RECORD_EPISODES,
+            0,
+            1,
+            overrides,
+            max_cycles,
+            progress=False,
+            check=False,  # the run just saved it; a failure is the record's to show
         )
         keys = ("return", "episode_steps", "final_pos_error_m")
         return {
@@ -445,12 +533,21 @@ class Run:
         this session, the last multiplier, the trainer's ``results`` and
         (``settings.record_eval``) the recorded evaluation of the policy saved in the run
         folder; written to config.json."""
+        ended = self._ended if self._ended is not None else self.end()
         wall = time.perf_counter() - self._start
         done = robot_steps - self._steps_at_start
+        stepping = self._stepping if self._stepping is not None else ended
+        train_s = max(0.0, ended - stepping - self._eval_s)
+        before = self.previous if self.resumed else {}
         self.config.update(
             robot_steps=int(robot_steps),
             wall_time_s=round(self._wall_before + wall, 1),
-            robot_steps_per_s=round(done / wall, 1) if wall > 0 else None,
+            # every session's together, as the wall time
+            build_s=round(float(before.get("build_s") or 0.0) + stepping - self._start, 1),
+            train_s=round(float(before.get("train_s") or 0.0) + train_s, 1),
+            eval_s=round(float(before.get("eval_s") or 0.0) + self._eval_s, 1),
+            # this session's, on its stepping and updates alone
+            robot_steps_per_s=round(done / train_s, 1) if train_s > 0 else None,
         )
         self.config["library_settings"].update(results)
         if self.config["cost"] is not None and self.multiplier is not None:
@@ -471,6 +568,11 @@ class Run:
             shutil.rmtree(self.snapshot, ignore_errors=True)
         write_json(self.folder / CONFIG_FILE, self.config)
         return self.config
+
+    def close_bar(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
 
     # -- helpers ----------------------------------------------------------------------------
     @property
@@ -496,6 +598,20 @@ class Run:
             csv.DictWriter(fh, fieldnames=columns).writeheader()
 
 
+def previous_record(settings: RunSettings, library: str) -> dict[str, Any]:
+    """The config.json of the run ``settings.resume`` continues ({} for a new run);
+    ValueError where ``library`` did not train it."""
+    if settings.resume is None:
+        return {}
+    resume = Path(settings.resume)
+    folder = resume if resume.is_dir() else resume.parent
+    previous = read_config(folder) or read_config(folder.parent)
+    trained_by = previous.get("library", previous.get("engine", library))
+    if trained_by != library:  # "engine": the key's earlier name
+        raise ValueError(f"--resume {resume} was trained with {trained_by}, not {library}")
+    return previous
+
+
 def evaluate_rungs(
     folder: Path,
     rungs: dict[str, tuple[str, dict[str, Any]]],
@@ -503,14 +619,16 @@ def evaluate_rungs(
     episodes: int,
     seed: int,
     robot_steps: int,
-    name: str,
+    algorithm: str,
+    training_seed: int,
     elapsed: float = 0.0,
     max_cycles: int | None = None,
 ) -> list[dict[str, Any]]:
     """``policy`` (an evaluator ``--policy`` spec) on every rung, ``episodes`` each from
     ``seed`` (capped at ``max_cycles`` periods, None: the scenarios' own episodes): one row
     per rung appended to ``folder``'s evaluations.csv (``EVAL_COLUMNS``)
-    and the episodes to its marl_eval.json (algorithm ``name``); returns the rows. Every
+    and the episodes to its marl_eval.json (as run ``seed_TRAINING_SEED`` of ``algorithm``,
+    so that every snapshot of a run is one marl-eval run); returns the rows. Every
     training loop that evaluates as it learns (the RL trainers, DAgger) writes here."""
     from baselines.distributed import marl_eval
     from baselines.evaluation.runner import evaluate
@@ -522,7 +640,15 @@ def evaluate_rungs(
     out = []
     for rung, (scenario, overrides) in rungs.items():
         rows = evaluate(
-            [policy], [scenario], episodes, seed, 1, overrides, max_cycles, progress=False
+            [policy],
+            [scenario],
+            episodes,
+            seed,
+            1,
+            overrides,
+            max_cycles,
+            progress=False,
+            check=False,  # a training run goes on: failed episodes are warned of below
         )
         summary = aggregate(rows, seed)[0]
         failed = [r["error"] for r in rows if r["error"]]
@@ -545,12 +671,11 @@ def evaluate_rungs(
         }
         with open(path, "a", newline="") as fh:
             csv.DictWriter(fh, fieldnames=EVAL_COLUMNS).writerow(row)
-        for r in rows:  # one algorithm name per run in marl-eval, not the snapshot's
-            r["policy"] = name
         marl_eval.write(
             Path(folder) / "marl_eval.json",
             rows,
             seed,
+            identity=marl_eval.RunIdentity(algorithm, training_seed),
             step_count=int(robot_steps),
             elapsed_time=elapsed,
             overrides=overrides,

@@ -11,12 +11,13 @@ Several episodes.csv (runs of the same seed played apart) are read as one. A gro
 score matrix is seeds x cases (the rows' ``scenario``); bootstrap intervals resample
 seeds within each case. Reference: docs/rl.md, docs/results.md.
 
-May import: the standard library, numpy, rliable, ``baselines.evaluation.outputs`` (the
-episodes.csv reader) and ``baselines.options``.
+May import: the standard library, numpy, ``baselines.evaluation.outputs`` (the
+episodes.csv reader), ``baselines.options`` and ``baselines.stats`` (rliable's intervals).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 from typing import Any
@@ -24,21 +25,21 @@ from typing import Any
 import numpy as np
 
 from baselines.evaluation.outputs import read_episodes
-from baselines.options import command_parser
+from baselines.options import command_parser, existing_path, usage_errors
+from baselines.stats import iqm_and_mean
 
 METRICS = {
     "success": "success rate",
     "clean_success": "clean success rate",
     "violation_periods": "median violation periods per episode",
 }
-BOOTSTRAP_REPS = 2000
 
 
 def parse_group(text: str) -> tuple[str, list[str]]:
-    """``NAME=POLICY,POLICY,...`` -> (name, policies)."""
+    """``NAME=POLICY,POLICY,...`` -> (name, policies); an argparse ``type``."""
     name, sep, policies = text.partition("=")
     if not sep or not name or not policies:
-        raise SystemExit(f"--group takes NAME=POLICY,POLICY,..., got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected NAME=POLICY,POLICY,..., got {text!r}")
     return name, [p for p in policies.split(",") if p]
 
 
@@ -59,34 +60,8 @@ def score_matrix(
                 table[i, j] = float(np.mean([bool(r[metric]) for r in mine]))
     missing = [policies[i] for i in range(len(policies)) if np.isnan(table[i]).all()]
     if missing:
-        raise ValueError(f"no episodes of {missing} in the rows")
+        raise ValueError(f"--group: no episodes of {missing} in the episodes.csv given")
     return table, cases
-
-
-def interval_estimates(table: np.ndarray, seed: int = 0) -> dict[str, tuple[float, float, float]]:
-    """IQM and mean of a (seeds x cases) table, each (point, low, high) with a 95%
-    stratified bootstrap interval (rliable)."""
-    from rliable import library as rly
-    from rliable import metrics
-
-    def both(scores: np.ndarray) -> np.ndarray:
-        return np.array([metrics.aggregate_iqm(scores), metrics.aggregate_mean(scores)])
-
-    # rliable's stratified resampling draws from numpy's global generator whatever
-    # random_state says (two calls gave two intervals): seed it, then put it back
-    saved = np.random.get_state()  # noqa: NPY002 (the library's global state)
-    np.random.seed(seed)  # noqa: NPY002
-    try:
-        point, interval = rly.get_interval_estimates(
-            {"group": table}, both, reps=BOOTSTRAP_REPS, random_state=np.random.RandomState(seed)
-        )
-    finally:
-        np.random.set_state(saved)  # noqa: NPY002
-    p, ci = point["group"], interval["group"]
-    return {
-        "iqm": (float(p[0]), float(ci[0, 0]), float(ci[1, 0])),
-        "mean": (float(p[1]), float(ci[0, 1]), float(ci[1, 1])),
-    }
 
 
 def report(rows: list[dict[str, Any]], groups: dict[str, list[str]]) -> dict[str, Any]:
@@ -97,7 +72,7 @@ def report(rows: list[dict[str, Any]], groups: dict[str, list[str]]) -> dict[str
             table, cases = score_matrix(rows, policies, metric)
             entry["cases"] = cases
             entry["metrics"][metric] = {
-                **interval_estimates(table),
+                **iqm_and_mean(table),
                 "per_seed": table.tolist(),
             }
         out[name] = entry
@@ -133,11 +108,21 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "episodes", type=Path, nargs="+", help="evaluators' or ladders' episodes.csv (same seed)"
     )
-    ap.add_argument("--group", action="append", required=True, metavar="NAME=POLICY,POLICY")
+    ap.add_argument(
+        "--group", action="append", type=parse_group, required=True, metavar="NAME=POLICY,POLICY"
+    )
     ap.add_argument("--out", type=Path, default=Path("runs/seeds"))
     args = ap.parse_args(argv)
-    groups = dict(parse_group(g) for g in args.group)
-    summary = report([r for p in args.episodes for r in read_episodes(p)], groups)
+    # checked after parsing, not as the positional's type: ``FILE --help`` shows the help
+    with usage_errors(ap, (argparse.ArgumentTypeError,)):
+        for path in args.episodes:
+            existing_path(str(path))
+    groups = dict(args.group)
+    rows = [r for p in args.episodes for r in read_episodes(p)]
+    with usage_errors(ap, (ValueError,)):  # a group's policy without episodes in the files
+        for policies in groups.values():
+            score_matrix(rows, policies, next(iter(METRICS)))
+    summary = report(rows, groups)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "seeds.json").write_text(json.dumps(summary, indent=2) + "\n")
     text = markdown(summary)

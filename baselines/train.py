@@ -5,11 +5,13 @@
 
 Libraries (``baselines.registry``): ``sb3`` (default), ``torchrl``, ``rllib``; each trainer
 only builds, learns and saves, and ``baselines.runs`` keeps the run folder. ``--engine`` is
-the flag's earlier name, still accepted. Reference: docs/rl.md, docs/scale-out.md.
+the flag's earlier name, still accepted. Every option is checked before the run folder,
+the env and the model (the environment's own checks, the library's: ``check_library``);
+a refusal is a usage error. Reference: docs/rl.md, docs/scale-out.md.
 
 May import: ``baselines.runs``, ``baselines.options``, ``baselines.lagrangian``,
 ``baselines.registry`` and the trainer modules it names (imported on demand: a library
-loads only when it is chosen).
+loads only when it is chosen), and ``uvms_env`` (its checks of the environment options).
 """
 
 from __future__ import annotations
@@ -21,14 +23,22 @@ from typing import Any
 
 from baselines.lagrangian import COSTS, CostSettings
 from baselines.options import (
+    SCENARIOS,
     add_condition_arguments,
     add_evaluation_arguments,
     command_parser,
     condition_overrides,
+    existing_path,
+    key_value,
     key_value_pairs,
+    non_negative_float,
+    non_negative_int,
+    positive_int,
     team_sizes,
+    usage_errors,
 )
 from baselines.registry import DEFAULT_LIBRARY, LIBRARIES, library, trainer_module
+from baselines.runs import RunSettings
 
 SHARED_GROUP = "shared options (every library)"
 
@@ -50,10 +60,16 @@ def add_shared_arguments(ap: argparse.ArgumentParser, name: str, algos: tuple[st
     g = ap.add_argument_group(SHARED_GROUP)
     add_library_argument(g, name)
     g.add_argument("--algo", choices=algos, default=algos[0], help="the algorithm")
-    g.add_argument("--scenario", default="short", help="short (learning-sized), paper, random")
+    g.add_argument(
+        "--scenario",
+        choices=SCENARIOS,
+        default="short",
+        help="short (learning-sized), paper, random",
+    )
     g.add_argument(
         "--env-option",
         action="append",
+        type=key_value,
         default=[],
         metavar="KEY=JSON",
         help="environment option, e.g. max_cycles=200, n_agents=3 or "
@@ -70,52 +86,71 @@ def add_shared_arguments(ap: argparse.ArgumentParser, name: str, algos: tuple[st
     g.add_argument(
         "--hp",
         action="append",
+        type=key_value,
         default=[],
         metavar="KEY=JSON",
         help="the library's hyperparameter (see the library's options)",
     )
-    g.add_argument("--robot-steps", type=int, default=200_000, help="training budget")
+    g.add_argument(
+        "--robot-steps",
+        type=positive_int,
+        default=200_000,
+        help="training budget (rounded up to whole rollouts, announced)",
+    )
     g.add_argument(
         "--num-envs",
-        type=int,
+        type=positive_int,
         default=None,
         help="env copies of N robots each (default: the library's)",
     )
-    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--seed", type=non_negative_int, default=0)
     g.add_argument("--out", type=Path, default=None, help="run folder (default runs/LIBRARY_ALGO)")
     _add_evaluation_arguments(g)
-    g.add_argument("--checkpoint-every", type=int, default=50_000, help="robot-steps (0: none)")
+    g.add_argument(
+        "--checkpoint-every", type=non_negative_int, default=50_000, help="robot-steps (0: none)"
+    )
     g.add_argument(
         "--resume",
-        type=Path,
+        type=existing_path,
         default=None,
         help="run folder (or checkpoint) to continue; --robot-steps counts the steps already done",
     )
     g.add_argument(
         "--geometry-pool",
-        type=int,
+        type=non_negative_int,
         default=None,
         help="seeded families: episodes use this many bank geometries "
         "(0: each copy keeps its first; default: the library's)",
     )
     _add_cost_arguments(g)
-    g.add_argument("--no-progress", action="store_true", help="no progress lines")
+    g.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def _add_evaluation_arguments(g: Any) -> None:
     """The periodic evaluations' options."""
     g.add_argument(
         "--eval-every",
-        type=int,
+        type=non_negative_int,
         default=0,
         help="robot-steps between evaluations through baselines.evaluate (0: none)",
     )
-    add_evaluation_arguments(g, episodes=5)
+    # None: not given (a run without --eval-every refuses it); RunSettings has the default
+    add_evaluation_arguments(
+        g, episodes=None, episodes_help=f"(default {RunSettings.eval_episodes})"
+    )
     g.add_argument(
         "--eval-ladder",
         action="store_true",
         help="evaluate on every rung of the task ladder, not the scenario alone",
     )
+
+
+# the cost flags beside --cost: (flag, CostSettings field, meaning)
+COST_FLAGS = (
+    ("--cost-weight", "multiplier", "with --cost: the starting multiplier"),
+    ("--cost-limit", "cost_limit", "with --cost: the target cost per episode and robot"),
+    ("--multiplier-lr", "lr", "with --cost: the dual step size (0: fixed penalty)"),
+)
 
 
 def _add_cost_arguments(g: Any) -> None:
@@ -126,11 +161,12 @@ def _add_cost_arguments(g: Any) -> None:
         default="none",
         help="per-robot constraint cost subtracted from its reward",
     )
-    g.add_argument("--cost-weight", type=float, default=0.1, help="starting multiplier")
-    g.add_argument("--cost-limit", type=float, default=0.0, help="cost per episode and robot")
-    g.add_argument(
-        "--multiplier-lr", type=float, default=0.0, help="dual step size (0: fixed penalty)"
-    )
+    # None: not given; with --cost, CostSettings' defaults (without it, refused)
+    for flag, field, what in COST_FLAGS:
+        default = getattr(CostSettings, field)
+        g.add_argument(
+            flag, type=non_negative_float, default=None, help=f"{what} (default {default})"
+        )
 
 
 def build_parser(name: str) -> argparse.ArgumentParser:
@@ -143,11 +179,14 @@ def build_parser(name: str) -> argparse.ArgumentParser:
 
 
 def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> Any:
-    from baselines.runs import RunSettings
-
-    cost = None
-    if args.cost != "none":
-        cost = CostSettings(args.cost, args.cost_weight, args.cost_limit, args.multiplier_lr)
+    """The run's settings from the parsed command line, checked against the environment
+    (``check_environment``): ValueError or TypeError naming the option otherwise."""
+    cost = _cost_settings(args)
+    evaluation = {"--eval-ladder": args.eval_ladder or None, "--eval-seed": args.eval_seed}
+    evaluation["--eval-episodes"] = args.eval_episodes
+    dropped = [flag for flag, value in evaluation.items() if value is not None]
+    if not args.eval_every and dropped:
+        raise ValueError(f"{', '.join(dropped)} without --eval-every: no periodic evaluation")
     pool = args.geometry_pool if args.geometry_pool is not None else defaults["geometry_pool"]
     overrides = key_value_pairs(args.env_option)
     for key, value in condition_overrides(args).items():
@@ -159,16 +198,13 @@ def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> Any:
         raise ValueError("give the team size once: --n-agents or --env-option n_agents")
     if len(sizes) == 1:
         overrides["n_agents"], sizes = sizes[0], ()
-    if sizes and args.scenario != "random":
-        raise ValueError(
-            f"--n-agents with several sizes needs --scenario random, not {args.scenario}"
-        )
     if args.comm is not None:
         if "comm" in overrides and overrides["comm"] != args.comm:
             raise ValueError(
                 f"--comm {args.comm} contradicts --env-option comm={overrides['comm']!r}"
             )
         overrides["comm"] = args.comm
+    check_environment(args.scenario, overrides, sizes)
     return RunSettings(
         scenario=args.scenario,
         overrides=overrides,
@@ -177,7 +213,9 @@ def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> Any:
         seed=args.seed,
         out=args.out if args.out is not None else Path(f"runs/{args.library}_{args.algo}"),
         eval_every=args.eval_every,
-        eval_episodes=args.eval_episodes,
+        eval_episodes=(
+            args.eval_episodes if args.eval_episodes is not None else RunSettings.eval_episodes
+        ),
         eval_ladder=args.eval_ladder,
         checkpoint_every=args.checkpoint_every,
         resume=args.resume,
@@ -189,6 +227,68 @@ def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> Any:
         eval_seed=args.eval_seed,
         eval_max_cycles=args.eval_max_cycles,
     )
+
+
+def _cost_settings(args: argparse.Namespace) -> CostSettings | None:
+    """``--cost`` and its flags; ValueError where a flag is given without ``--cost``."""
+    given = {
+        field: getattr(args, flag[2:].replace("-", "_"))
+        for flag, field, _ in COST_FLAGS
+        if getattr(args, flag[2:].replace("-", "_")) is not None
+    }
+    if args.cost == "none":
+        if given:
+            flags = [flag for flag, field, _ in COST_FLAGS if field in given]
+            raise ValueError(f"{', '.join(flags)} without --cost: no cost to weigh")
+        return None
+    return CostSettings(args.cost, **given)
+
+
+def check_environment(scenario: str, overrides: dict[str, Any], sizes: tuple[int, ...]) -> None:
+    """ValueError (or TypeError) in the environment's own words where it would refuse
+    ``scenario`` with ``overrides`` (and each of ``sizes`` as its team): its checks
+    (``uvms_env.env.options.resolve``) on the geometry of seed 0, built once, before any
+    run folder, env copy or model."""
+    from uvms_env.env.options import resolve, split_keywords
+
+    try:
+        split_keywords(overrides)  # every key and value as given (the seed's too)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"--env-option: {exc}") from exc
+    probe = {**overrides, "seed": 0, "reseed_geometry": False}
+    for n in sizes or (None,):
+        try:
+            resolve(scenario, probe if n is None else {**probe, "n_agents": n})
+        except (TypeError, ValueError) as exc:
+            team = "" if n is None else f" --n-agents {n}"
+            raise ValueError(f"--scenario {scenario}{team}: {exc}") from exc
+
+
+def check_library(name: str, algo: str, settings: Any, args: argparse.Namespace) -> None:
+    """ValueError naming the option where library ``name`` cannot honour the shared
+    options in ``settings`` or its own in ``args``: an option is honoured or refused,
+    never dropped. A trainer module says whether it trains over several team sizes
+    (``SEVERAL_TEAM_SIZES``; without it, it does not) and checks the rest itself
+    (``check_options(settings, algo, args)``, where it has one)."""
+
+    def several(module: Any) -> bool:
+        return bool(getattr(module, "SEVERAL_TEAM_SIZES", False))
+
+    module = trainer_module(name)
+    if algo not in library(name).algos:
+        raise ValueError(f"{name} trains {library(name).algos}, not {algo!r}")
+    if len(settings.team_sizes) > 1 and not several(module):
+        takers = [n for n in LIBRARIES if several(trainer_module(n))]
+        raise ValueError(
+            f"--n-agents with several team sizes {list(settings.team_sizes)}: the {name} "
+            f"trainer takes one; the libraries that take several: {', '.join(takers)}"
+        )
+    check = getattr(module, "check_options", None)
+    if check is not None:
+        check(settings, algo, args)
+    from baselines.runs import previous_record
+
+    previous_record(settings, name)
 
 
 def train(
@@ -206,8 +306,6 @@ def train(
     from baselines.runs import Run
 
     module = trainer_module(name)
-    if algo not in library(name).algos:
-        raise ValueError(f"{name} trains {library(name).algos}, not {algo!r}")
     if args is None:
         args = build_parser(name).parse_args(["--library", name])
         for key, value in library_options.items():
@@ -217,15 +315,23 @@ def train(
     for key, default in module.DEFAULTS.items():
         if getattr(settings, key) is None:
             setattr(settings, key, default)
+    check_library(name, algo, settings, args)
     run = Run.start(settings, name, algo, command)
     trainer = module.Trainer(run, algo, args)
+    if settings.progress:  # the bar opens once stepping starts (``Run.begin``)
+        print(
+            f"building the {name} {algo} run: env copies, geometries, kernels, model ...",
+            flush=True,
+        )
     try:
         run.write_config(**trainer.build())
         steps = trainer.learn()
+        run.end()
         trainer.save(run.folder)
         trainer.close()
         run.finish(steps, **trainer.results())
     except BaseException:
+        run.close_bar()
         trainer.close()
         raise
     return run.folder
@@ -233,12 +339,14 @@ def train(
 
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else list(argv)
-    pre = argparse.ArgumentParser(add_help=False)
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     add_library_argument(pre, DEFAULT_LIBRARY)
     known, _ = pre.parse_known_args(argv)
     ap = build_parser(known.library)
     args = ap.parse_args(argv)
-    settings = settings_from(args, trainer_module(args.library).DEFAULTS)
+    with usage_errors(ap):  # every check before the run folder, the env and the model
+        settings = settings_from(args, trainer_module(args.library).DEFAULTS)
+        check_library(args.library, args.algo, settings, args)
     command = ["python", "-m", "baselines.train", *argv]
     out = train(args.library, args.algo, settings, args, command)
     print(f"saved the {args.library} {args.algo} run in {out}")

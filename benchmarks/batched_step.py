@@ -23,8 +23,10 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
+from baselines.options import non_negative_int, positive_int, team_size
 from uvms_env.scenarios import make
 from uvms_env.sim import Simulator
+from uvms_env.vector.kernels import DTYPES
 from uvms_env.vector.simulator import BatchedSimulator
 
 
@@ -92,19 +94,26 @@ def to_numpy(a) -> np.ndarray:
 
 def main() -> None:
     ap = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python benchmarks/batched_step.py",
+        allow_abbrev=False,
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument("--backend", nargs="+", default=["cpu"], choices=["cpu", "cuda"])
-    ap.add_argument("--num-envs", type=int, nargs="+", default=[64, 256, 1024])
-    ap.add_argument("--dtype", nargs="+", default=["float64", "float32"])
-    ap.add_argument("--threads", type=int, nargs="+", default=[1, 0], help="CPU; 0: all")
-    ap.add_argument("--lanes", type=int, default=None, help="CPU SIMD lanes (1: scalar)")
-    ap.add_argument("--block", type=int, nargs="+", default=[128], help="CUDA threads/block")
+    ap.add_argument("--num-envs", type=positive_int, nargs="+", default=[64, 256, 1024])
+    ap.add_argument("--dtype", nargs="+", default=["float64", "float32"], choices=DTYPES)
+    ap.add_argument(
+        "--threads", type=non_negative_int, nargs="+", default=[1, 0], help="CPU; 0: all"
+    )
+    ap.add_argument("--lanes", type=positive_int, default=None, help="CPU SIMD lanes (1: scalar)")
+    ap.add_argument(
+        "--block", type=positive_int, nargs="+", default=[128], help="CUDA threads/block"
+    )
     ap.add_argument("--no-check", action="store_true", help="skip the agreement check")
-    ap.add_argument("--n-agents", type=int, nargs="+", default=[2])
-    ap.add_argument("--periods", type=int, default=20)
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--check-periods", type=int, default=100)
+    ap.add_argument("--n-agents", type=team_size, nargs="+", default=[2])
+    ap.add_argument("--periods", type=positive_int, default=20)
+    ap.add_argument("--repeats", type=positive_int, default=3)
+    ap.add_argument("--check-periods", type=positive_int, default=100)
     args = ap.parse_args()
     rng = np.random.default_rng(0)
     for n in args.n_agents:

@@ -24,6 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # BLAS threads collapse on shared
 import numpy as np
 
 import uvms_env
+from baselines.options import positive_int, team_size
 from nmpc_expert import CentralNMPC, make_central_policy
 from uvms_env.episode import play_team
 
@@ -69,10 +70,13 @@ def parts(n: int, repeats: int = 20) -> dict[str, float]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python benchmarks/central_solve.py",
+        allow_abbrev=False,
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ap.add_argument("--steps", type=int, default=150)
-    ap.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 6])
+    ap.add_argument("--steps", type=positive_int, default=150)
+    ap.add_argument("--sizes", type=team_size, nargs="+", default=[2, 4, 6])
     ap.add_argument("--parts", action="store_true", help="also time the compiled parts")
     args = ap.parse_args()
     print(f"{'N':>3} {'decisions':>9} {'median ms':>10} {'p95 ms':>8} {'max ms':>8}")

@@ -25,6 +25,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
+from baselines.options import non_negative_int, positive_int
 from baselines.policies import PolicySource
 from uvms_env.policy import AgentSpec, PolicyFactory
 
@@ -66,13 +67,17 @@ def factories(policy: str, numpy_layers: bool, seed: int) -> dict[str, PolicyFac
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(
+        prog="python benchmarks/cloned_decision.py",
+        allow_abbrev=False,
+        description=__doc__.split("\n\n")[0],
+    )
     ap.add_argument("--policy", default="dagger:pretrained")
     ap.add_argument("--scenario", default="paper", choices=["paper", "random"])
-    ap.add_argument("--steps", type=int, default=400)
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--steps", type=positive_int, default=400)
+    ap.add_argument("--seed", type=non_negative_int, default=0)
     ap.add_argument("--numpy", action="store_true")
-    ap.add_argument("--rounds", type=int, default=1)
+    ap.add_argument("--rounds", type=positive_int, default=1)
     args = ap.parse_args()
     built = factories(args.policy, args.numpy, args.seed)
     times: dict[str, list[np.ndarray]] = {name: [] for name in built}

@@ -23,6 +23,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
+from baselines.options import positive_int
 from uvms_env.vector import VectorEnv
 
 
@@ -91,12 +92,16 @@ def table(title: str, runners: dict[str, object], repeats: int) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(
+        prog="python benchmarks/comm_step.py",
+        allow_abbrev=False,
+        description=__doc__.split("\n")[0],
+    )
     ap.add_argument("--presets", nargs="+", default=["ideal", "atm900"])
-    ap.add_argument("--num-envs", type=int, default=256)
-    ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--steps", type=int, default=300, help="single env steps per run")
-    ap.add_argument("--vector-steps", type=int, default=40, help="VectorEnv steps per run")
+    ap.add_argument("--num-envs", type=positive_int, default=256)
+    ap.add_argument("--repeats", type=positive_int, default=7)
+    ap.add_argument("--steps", type=positive_int, default=300, help="single env steps per run")
+    ap.add_argument("--vector-steps", type=positive_int, default=40, help="VectorEnv steps per run")
     ap.add_argument("--backend", choices=["cpu", "cuda"], default="cpu")
     args = ap.parse_args()
     print(f"load average {os.getloadavg()}")

@@ -27,6 +27,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
+from baselines.options import positive_int, team_size
 
 
 def env_rate(env, actions: list[dict[str, np.ndarray]]) -> float:
@@ -48,11 +49,14 @@ def sim_rate(env, taus: np.ndarray) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python benchmarks/env_step.py",
+        allow_abbrev=False,
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ap.add_argument("--steps", type=int, default=500)
-    ap.add_argument("--repeats", type=int, default=21)
-    ap.add_argument("--sizes", type=int, nargs="*", default=[2, 4, 6], help="random family N")
+    ap.add_argument("--steps", type=positive_int, default=500)
+    ap.add_argument("--repeats", type=positive_int, default=21)
+    ap.add_argument("--sizes", type=team_size, nargs="*", default=[2, 4, 6], help="random family N")
     args = ap.parse_args()
     cases = [("paper", "paper", {})] + [
         (f"random N={n}", "random", {"n_agents": n, "seed": 1}) for n in args.sizes

@@ -28,6 +28,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 from baselines.evaluation.outputs import write_outputs
 from baselines.evaluation.runner import evaluate
 from baselines.evaluation.summary import VIOLATION_KINDS
+from baselines.options import non_negative_int, positive_int, team_size
 
 PAPER_CASE = ("paper_mild_mismatch0.1", "paper", {"current": "mild", "mismatch": 0.1})
 
@@ -89,15 +90,18 @@ def summary_table(results: list[tuple[str, list[dict[str, Any]]]]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python benchmarks/expert_sweep.py",
+        allow_abbrev=False,
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--sizes", type=int, nargs="+", default=[2, 3, 4, 5, 6])
-    ap.add_argument("--episodes", type=int, default=10, help="per random team size")
-    ap.add_argument("--paper-episodes", type=int, default=5)
+    ap.add_argument("--seed", type=non_negative_int, default=2026)
+    ap.add_argument("--sizes", type=team_size, nargs="+", default=[2, 3, 4, 5, 6])
+    ap.add_argument("--episodes", type=positive_int, default=10, help="per random team size")
+    ap.add_argument("--paper-episodes", type=positive_int, default=5)
     ap.add_argument("--no-paper", action="store_true", help="random family only")
     ap.add_argument("--policy", action="append", default=None, help="default: nmpc:paper, nmpc")
-    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--workers", type=positive_int, default=1)
     ap.add_argument("--out", type=Path, default=Path("runs/expert_sweep"))
     ap.add_argument("--resume", action="store_true")
     args = ap.parse_args(argv)

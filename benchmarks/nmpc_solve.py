@@ -25,6 +25,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
+from baselines.options import positive_int, team_size
 from nmpc_expert import CONTROLLERS, make_policy
 from uvms_env.policy import AgentSpec
 
@@ -56,11 +57,14 @@ def measure(
 
 def main() -> None:
     ap = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python benchmarks/nmpc_solve.py",
+        allow_abbrev=False,
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ap.add_argument("--steps", type=int, default=150)
+    ap.add_argument("--steps", type=positive_int, default=150)
     ap.add_argument("--solver", default="rti", choices=["rti", "ipopt"])
-    ap.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 6])
+    ap.add_argument("--sizes", type=team_size, nargs="+", default=[2, 4, 6])
     ap.add_argument("--random", action="store_true", help="random family at every N")
     ap.add_argument("--controllers", nargs="+", default=["paper", "observer"], choices=CONTROLLERS)
     args = ap.parse_args()

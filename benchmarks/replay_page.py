@@ -18,6 +18,8 @@ import statistics
 import subprocess
 from pathlib import Path
 
+from baselines.options import positive_int
+
 BROWSERS = ("chromium-headless-shell", "chromium", "chromium-browser", "google-chrome")
 FLAGS = (
     "--headless",
@@ -52,10 +54,14 @@ def console_line(browser: str, url: str, pattern: str, timeout: float) -> re.Mat
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(
+        prog="python benchmarks/replay_page.py",
+        allow_abbrev=False,
+        description=__doc__.split("\n")[0],
+    )
     ap.add_argument("page", type=Path)
     ap.add_argument("--browser", default=None)
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--repeats", type=positive_int, default=3)
     args = ap.parse_args()
     browser = args.browser or next((p for p in map(shutil.which, BROWSERS) if p), None)
     if browser is None:

@@ -25,6 +25,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
+from baselines.options import positive_float, positive_int, team_size
 from baselines.rl.shield import Shield
 from uvms_env.vector import VectorEnv
 
@@ -82,10 +83,14 @@ def builder_us() -> tuple[float, float]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--num-envs", type=int, nargs="+", default=[4, 16])
-    ap.add_argument("--n-agents", type=int, default=2)
-    ap.add_argument("--seconds", type=float, default=6.0)
+    ap = argparse.ArgumentParser(
+        prog="python benchmarks/shield_step.py",
+        allow_abbrev=False,
+        description=__doc__.split("\n\n")[0],
+    )
+    ap.add_argument("--num-envs", type=positive_int, nargs="+", default=[4, 16])
+    ap.add_argument("--n-agents", type=team_size, default=2)
+    ap.add_argument("--seconds", type=positive_float, default=6.0)
     args = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f}; random N = {args.n_agents}, float64")
     print("| K | robots | no filter | one by one | batched builders | batched / one by one |")

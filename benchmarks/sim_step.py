@@ -16,6 +16,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
+from baselines.options import positive_int
 from uvms_env.scenarios import make
 from uvms_env.sim import Simulator
 
@@ -31,10 +32,13 @@ def measure(sim: Simulator, periods: int, rng: np.random.Generator) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python benchmarks/sim_step.py",
+        allow_abbrev=False,
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ap.add_argument("--periods", type=int, default=3000)
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--periods", type=positive_int, default=3000)
+    ap.add_argument("--repeats", type=positive_int, default=5)
     args = ap.parse_args()
     rng = np.random.default_rng(0)
     cases = [("paper", make("paper"))] + [

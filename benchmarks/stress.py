@@ -25,6 +25,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
+from baselines.options import non_negative_int, positive_int
 
 # (name, family, overrides, share of the step budget): one RK4 substep per period refines
 # every period (~20x slower), so that case gets a quarter share.
@@ -90,10 +91,13 @@ def run_case(family: str, overrides: dict, steps: int, rng: np.random.Generator)
 
 def main() -> None:
     ap = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python benchmarks/stress.py",
+        allow_abbrev=False,
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ap.add_argument("--steps", type=int, default=200_000, help="total over all cases")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--steps", type=positive_int, default=200_000, help="total over all cases")
+    ap.add_argument("--seed", type=non_negative_int, default=0)
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     per_share = args.steps / sum(case[3] for case in CASES)

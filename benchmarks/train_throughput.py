@@ -35,6 +35,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from baselines import train as trainer
+from baselines.options import positive_int, team_size
 from baselines.registry import trainer_module
 from baselines.runs import RunSettings
 from uvms_env.vector import VectorEnv
@@ -175,14 +176,20 @@ def _time_updates(library: str, trainer_obj: Any):
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("May import")[0])
+    ap = argparse.ArgumentParser(
+        prog="python benchmarks/train_throughput.py",
+        allow_abbrev=False,
+        description=__doc__.split("May import")[0],
+    )
     ap.add_argument(
         "--libraries", nargs="+", default=["sb3", "torchrl"], choices=["sb3", "torchrl"]
     )
-    ap.add_argument("--n-agents", type=int, nargs="+", default=[4])
-    ap.add_argument("--robot-steps", type=int, default=200_000)
-    ap.add_argument("--repeats", type=int, default=2)
-    ap.add_argument("--settings", nargs="+", default=["before", "after"])
+    ap.add_argument("--n-agents", type=team_size, nargs="+", default=[4])
+    ap.add_argument("--robot-steps", type=positive_int, default=200_000)
+    ap.add_argument("--repeats", type=positive_int, default=2)
+    ap.add_argument(
+        "--settings", nargs="+", default=["before", "after"], choices=("before", "after")
+    )
     ap.add_argument(
         "--geometry-pool",
         type=int,

@@ -32,8 +32,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
+from baselines.options import non_negative_int, positive_float, positive_int
 from uvms_env.vector import VectorEnv
-from uvms_env.vector.kernels import available_cores
+from uvms_env.vector.kernels import DTYPES, available_cores
 
 CASES = {
     "paper N=2": ("paper", {}),
@@ -121,14 +122,18 @@ def vector_rate(
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="python benchmarks/vector_step.py",
+        allow_abbrev=False,
+        description=__doc__.split("\n")[0],
+    )
     parser.add_argument("--backend", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--device", default="0", help="GPU index, or cpu (emulated kernels)")
-    parser.add_argument("--num-envs", type=int, nargs="+")
-    parser.add_argument("--threads", type=int, nargs="+", default=[1, 0])
-    parser.add_argument("--dtype", nargs="+", default=["float32", "float64"])
+    parser.add_argument("--num-envs", type=positive_int, nargs="+")
+    parser.add_argument("--threads", type=non_negative_int, nargs="+", default=[1, 0])
+    parser.add_argument("--dtype", nargs="+", default=["float32", "float64"], choices=DTYPES)
     parser.add_argument("--cases", nargs="+", choices=list(CASES))
-    parser.add_argument("--seconds", type=float, default=1.5)
+    parser.add_argument("--seconds", type=positive_float, default=1.5)
     parser.add_argument("--json", help="also write the results here")
     args = parser.parse_args()
     if args.backend == "cuda":

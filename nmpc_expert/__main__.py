@@ -9,7 +9,11 @@ figures, an animation, metrics.json and the trajectory (.npz).
 controller only.
 
 One NMPCPolicy per agent on the PettingZoo environment (``uvms_env.parallel_env``), each
-fed only its own observation.
+fed only its own observation. Every option is checked against the environment's own table
+before the controllers are built.
+
+May import: numpy, ``nmpc_expert`` (its rollout, settings and figures) and ``uvms_env``
+(the options' tables, the scenario families).
 """
 
 from __future__ import annotations
@@ -26,16 +30,41 @@ import numpy as np
 
 from nmpc_expert.rollout import run_episode
 from nmpc_expert.settings import CONTROLLERS, controller_settings
+from uvms_env.env.options import ENV_OPTIONS
+from uvms_env.scenarios import CURRENT_PRESETS, FAMILIES, make
+from uvms_env.scenarios.overrides import SCENARIO_OVERRIDES
+
+
+def check_options(ap: argparse.ArgumentParser, args: argparse.Namespace, overrides: dict) -> None:
+    """Every value against the environment's own table (``ap.error`` naming the flag and
+    what it accepts), then the scenario family's own checks (its team size): before the
+    controllers are built."""
+    values = {"seed": args.seed, "max_cycles": args.max_cycles, **overrides}
+    for key, value in values.items():
+        option = SCENARIO_OVERRIDES.get(key) or ENV_OPTIONS[key]
+        try:
+            option.check(f"--{key.replace('_', '-')}", value)
+        except (TypeError, ValueError) as exc:
+            ap.error(str(exc))
+    try:
+        make(args.scenario, **overrides)
+    except (TypeError, ValueError) as exc:
+        ap.error(f"--scenario {args.scenario}: {exc}")
 
 
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python -m nmpc_expert",
+        description=__doc__.split("May import")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        allow_abbrev=False,
     )
-    ap.add_argument("--scenario", default="paper", help="paper or random")
+    ap.add_argument("--scenario", default="paper", choices=tuple(FAMILIES))
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--n-agents", type=int, default=None, help="random family only (2..6)")
-    ap.add_argument("--current", default="none", choices=["none", "mild", "strong"])
+    ap.add_argument(
+        "--n-agents", type=int, default=None, help="team size: random family only (2..6)"
+    )
+    ap.add_argument("--current", default="none", choices=CURRENT_PRESETS)
     ap.add_argument("--mismatch", type=float, default=0.0, help="truth-model perturbation")
     ap.add_argument("--solver", default="rti", choices=["rti", "ipopt"])
     ap.add_argument(
@@ -55,6 +84,7 @@ def main(argv: list[str] | None = None) -> dict:
     controller = args.controller or ("paper" if args.solver == "ipopt" else "observer")
     if controller == "observer" and args.solver == "ipopt":
         ap.error("--controller observer needs --solver rti")
+    check_options(ap, args, overrides)
     start = time.perf_counter()
     args.out.mkdir(parents=True, exist_ok=True)
     metrics, arr, scenario = run_episode(

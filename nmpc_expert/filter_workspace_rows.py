@@ -22,6 +22,7 @@ import numpy as np
 from uvms_env.dynamics import ObjectModel
 from uvms_env.dynamics.compiled import BufferCall, compile_function
 from uvms_env.dynamics.local_model import NTHETA, NX, build_local_model
+from uvms_env.dynamics.payload import object_key, object_tag
 from uvms_env.dynamics.spatial import rot_zyx
 from uvms_env.dynamics.uvms import default_model
 
@@ -54,7 +55,7 @@ def workspace_function(shape: str, ring_radius: float) -> cs.Function:
     """(x, theta, ws (6)) -> (r (2), dr/dx (2 x NX), h (2)) for the own bodies and the
     object: r = d/dt h + rate (h + margin), the largest over the group's balls, and h,
     the largest excess (compiled, disk-cached). ``ws``: centre, radius, margin, rate.
-    ``ring_radius``: 0 for the bar (the compiled model functions' convention)."""
+    ``ring_radius``: the object's size or key (``uvms_env.dynamics.payload.object_key``)."""
     uvms = default_model()
     prm = uvms.params
     model = build_local_model(uvms, ObjectModel(shape, ring_radius))
@@ -74,7 +75,7 @@ def workspace_function(shape: str, ring_radius: float) -> cs.Function:
     r_own, h_own = _barrier(own, q, q_dot, ws, ws[5])
     r_obj, h_obj = _barrier(obj, q, q_dot, ws, ws[5])
     r, h = cs.vertcat(r_own, r_obj), cs.vertcat(h_own, h_obj)
-    tag = f"{shape}_{ring_radius:.4f}".replace(".", "p")
+    tag = f"{shape}_{object_tag(object_key(shape, ring_radius))}"
     fn = cs.Function(
         f"filter_workspace_{tag}", [x, theta, ws], [r, cs.jacobian(r, x), h], {"cse": True}
     )

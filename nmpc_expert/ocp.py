@@ -42,6 +42,7 @@ from uvms_env.dynamics.local_model import (
     local_terms,
     wrap,
 )
+from uvms_env.dynamics.payload import object_key, object_tag
 from uvms_env.dynamics.uvms import default_model
 
 # The soft constraints of one node, in the order ``node_terms`` stacks them (rows of the
@@ -294,7 +295,8 @@ def _condense(
 def ocp_functions(
     shape: str, ring_radius: float, horizon: int, period: float, substeps: int
 ) -> OCPFunctions:
-    """Build and compile (disk-cached) the OCP functions once per process and object."""
+    """Build and compile (disk-cached) the OCP functions once per process and object
+    (``ring_radius``: the object's size or its key, ``uvms_env.dynamics.payload``)."""
     uvms = default_model()
     obj = ObjectModel(shape, ring_radius)
     model = build_local_model(uvms, obj)
@@ -303,7 +305,8 @@ def ocp_functions(
     outputs = build_outputs(model)
     steady = build_steady_input(uvms, obj, model)
     builder = build_qp_builder(interval, outputs, steady, horizon)
-    tag = f"{shape}_{ring_radius:.4f}_n{horizon}_h{period:g}_s{substeps}".replace(".", "p")
+    size = object_tag(object_key(shape, ring_radius))
+    tag = f"{shape}_{size}_n{horizon}_h{period:g}_s{substeps}".replace(".", "p")
     graph = _renamed(builder, tag)
     compiled = compile_function(graph)
     return OCPFunctions(

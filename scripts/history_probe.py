@@ -85,7 +85,7 @@ def fit_losses(x: np.ndarray, y: np.ndarray, held: np.ndarray, epochs: int) -> t
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python scripts/history_probe.py")
+    ap = argparse.ArgumentParser(prog="python scripts/history_probe.py", allow_abbrev=False)
     ap.add_argument(
         "--data", type=Path, action="append", required=True, help="a collect dataset, data/NAME"
     )

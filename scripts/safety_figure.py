@@ -45,7 +45,9 @@ def joint_trace(policy: str, scenario: str, seed: int, overrides: dict) -> dict[
 def main(argv: list[str] | None = None) -> None:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     ap = argparse.ArgumentParser(
-        prog="python scripts/safety_figure.py", description=__doc__.split("\n\n")[0]
+        prog="python scripts/safety_figure.py",
+        description=__doc__.split("\n\n")[0],
+        allow_abbrev=False,
     )
     ap.add_argument("--policy", default="dagger:pretrained")
     ap.add_argument("--scenario", default="random")

@@ -82,7 +82,12 @@ def probe(policy: str, scenario: str, seed: int, overrides: dict[str, Any]) -> l
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python scripts/violation_probe.py",
+        description=__doc__,
+        formatter_class=argparse.RawTextHelpFormatter,
+        allow_abbrev=False,
+    )
     ap.add_argument("--policy", action="append", required=True)
     ap.add_argument("--scenario", default="random")
     ap.add_argument("--n-agents", type=int, default=None)

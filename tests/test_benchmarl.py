@@ -1,7 +1,9 @@
 """BenchMARL's uvms tasks (examples/benchmarl: the package ``benchmarl_uvms`` and its Hydra
 plugin) as a BenchMARL user runs them: the registry, ``get_from_yaml``, the Hydra configs,
-the env's specs, a ``benchmarl.run`` whose checkpoint ``reload_experiment_from_file``
-restores, and (slow) a multirun over MAPPO and MASAC.
+the env's specs and infos, a ``benchmarl.run`` whose checkpoint ``reload_experiment_from_file``
+restores, the episodes' metrics in the scalars and marl-eval JSON (``benchmarl_uvms.run``),
+a checkpoint's evaluation that replays the run's, its policy in the project's evaluator
+(``--policy benchmarl:PATH``), and (slow) a multirun over MAPPO and MASAC.
 
 BenchMARL 1.5.2 needs torchrl < 0.12 and the project's test extra torchrl >= 0.14, so
 these tests run in BenchMARL's own virtual environment (examples/benchmarl/README.md) and
@@ -18,6 +20,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 SKIP = "BenchMARL has its own venv (.venv-benchmarl, torchrl < 0.12): examples/benchmarl/README.md"
@@ -25,10 +28,16 @@ SKIP = "BenchMARL has its own venv (.venv-benchmarl, torchrl < 0.12): examples/b
 YAML_DIR = Path(__file__).resolve().parents[1] / "examples/benchmarl/benchmarl_uvms/conf/task/uvms"
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _benchmarl() -> None:
+# the tests of the project's side where BenchMARL is missing
+WITHOUT_BENCHMARL = {"test_without_benchmarl_the_loader_names_the_install"}
+
+
+@pytest.fixture(autouse=True)
+def _benchmarl(request: pytest.FixtureRequest) -> None:
     # Skips each test rather than the module at import: a module skipped while collecting
     # leaves `pytest tests/test_benchmarl.py` with no test collected (exit status 5).
+    if request.node.originalname in WITHOUT_BENCHMARL:
+        return
     pytest.importorskip("benchmarl", reason=SKIP)
     pytest.importorskip("benchmarl_uvms", reason=f"pip install -e examples/benchmarl; {SKIP}")
 
@@ -64,11 +73,13 @@ def _yaml(name: str) -> dict[str, Any]:
     return data
 
 
-def _benchmarl_run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    """``python -m benchmarl.run ARGS`` as a user types it, in ``cwd``."""
+def _benchmarl_run(
+    *args: str, cwd: Path, module: str = "benchmarl.run"
+) -> subprocess.CompletedProcess:
+    """``python -m benchmarl.run ARGS`` (or ``module``) as a user types it, in ``cwd``."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "1"}
     out = subprocess.run(
-        [sys.executable, "-m", "benchmarl.run", *args],
+        [sys.executable, "-m", module, *args],
         cwd=cwd,
         env=env,
         capture_output=True,
@@ -158,6 +169,12 @@ def test_the_tasks_env_gives_one_copys_specs_and_steps():
     assert uvms.group_map(env) == {"uvms": ["uvms_0", "uvms_1"]}
     assert uvms.observation_spec(env)["uvms", "observation"].shape == (2, 79)
     assert "state" not in uvms.observation_spec(env).keys()
+    assert "info" not in uvms.observation_spec(env)["uvms"].keys()  # never a model's input
+    info = uvms.info_spec(env)["uvms", "info"]
+    assert {"cost", "success", "clean_success", "violation_periods", "episode_cost"} <= set(
+        info.keys()
+    )
+    assert info["violations_collision"].shape == (2,)
     assert uvms.action_spec(env)["uvms", "action"].shape == (2, 8)
     assert uvms.state_spec(env)["state"].shape == (20 * 2 + 19,)
     assert uvms.max_steps(env) == 5
@@ -165,6 +182,34 @@ def test_the_tasks_env_gives_one_copys_specs_and_steps():
     assert td["next", "uvms", "reward"].shape == (3, 6, 2, 1)
     # truncated after max_cycles, then a new episode
     assert td["next", "truncated"][:, :, 0].tolist() == [[False] * 4 + [True, False]] * 3
+    # the collection scalars of the ended episodes, from their last step's infos
+    logged = uvms.log_info(td)
+    assert logged["collection/uvms/episode/count"] == 3.0
+    ended = td["next", "uvms", "info"][:, 4]
+    assert logged["collection/uvms/episode/episode_steps"] == 5.0
+    expected = ended["violation_periods"].double().mean().item()
+    assert logged["collection/uvms/episode/violation_periods"] == pytest.approx(expected)
+    assert uvms.log_info(td[:, :4]) == {}  # none ended
+
+
+def test_the_task_renders_copy_0_every_render_every_steps():
+    from types import SimpleNamespace
+
+    from benchmarl_uvms import UVMSTask
+
+    uvms = UVMSTask.SHORT.get_from_yaml()
+    env = uvms.get_env_fun(num_envs=2, continuous_actions=True, seed=0, device="cpu")()
+    assert not uvms.has_render(env)  # the yamls' default: no video (README.md, "Videos")
+    uvms.config["render_every"] = 2
+    assert uvms.has_render(env)
+    experiment = SimpleNamespace(task=uvms)
+    td = env.reset()
+    frames = []
+    for _ in range(3):
+        frames.append(uvms.render_callback(experiment, env, td))
+        env.rand_step()
+    assert frames[0].shape == (360, 720, 3) and frames[0].dtype == np.uint8
+    assert frames[1] is frames[0] and frames[2] is not frames[0]
 
 
 def test_options_must_not_repeat_the_tasks_own_keys():
@@ -224,3 +269,144 @@ def test_multirun_over_algorithms_and_seeds(tmp_path):
     for path in jobs:
         overrides = yaml.safe_load((path.parents[2] / ".hydra" / "overrides.yaml").read_text())
         assert "task=uvms/short" in overrides
+
+
+# TINY with an evaluation after each of the two iterations (steps 1 and 2 of the JSON)
+EVALUATED = [
+    *(o for o in TINY if not o.startswith("experiment.evaluation=")),
+    "experiment.evaluation=true",
+    "experiment.evaluation_interval=80",
+]
+
+
+@pytest.fixture(scope="module")
+def mappo_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``python -m benchmarl_uvms.run`` of MAPPO on uvms/short, seed 1: the Hydra run
+    folder (one experiment folder inside)."""
+    pytest.importorskip("benchmarl", reason=SKIP)
+    root = tmp_path_factory.mktemp("mappo")
+    run = ["algorithm=mappo", "task=uvms/short", "seed=1", *EVALUATED]
+    _benchmarl_run(*run, f"hydra.run.dir={root / 'run'}", cwd=root, module="benchmarl_uvms.run")
+    return root / "run"
+
+
+def _experiment(run: Path) -> Path:
+    (folder,) = run.glob("mappo_short_*")
+    return folder
+
+
+def test_the_logs_hold_the_episodes_and_a_checkpoint_replays_the_evaluation(mappo_run):
+    from benchmarl_uvms.evaluate import main as evaluate_main
+
+    folder = _experiment(mappo_run)
+    scalars = folder / folder.name / "scalars"
+    for name in (
+        "collection_uvms_episode_success",  # log_info: the episodes ended in the batch
+        "collection_uvms_episode_clean_success",
+        "collection_uvms_episode_violation_periods",
+        "collection_uvms_episode_violations_joint_speed",
+        "collection_uvms_info_cost",  # BenchMARL's mean over the frames
+        "eval_uvms_episode_success",  # EpisodeMetrics: the evaluation's episodes
+        "eval_uvms_episode_clean_success",
+        "eval_uvms_episode_violation_periods",
+        "eval_uvms_episode_episode_cost",
+    ):
+        assert (scalars / f"{name}.csv").exists(), name
+    (result,) = folder.glob("*.json")
+    runs = json.loads(result.read_text())["uvms"]["short"]["mappo"]
+    assert list(runs) == ["seed_1"] and sorted(runs["seed_1"]) == [
+        "absolute_metrics",
+        "step_1",
+        "step_2",
+    ]
+    last = runs["seed_1"]["step_2"]
+    for key in ("return", "success", "clean_success", "violation_periods", "episode_cost"):
+        assert len(last[key]) == 3, key  # experiment.evaluation_episodes
+    assert all(0 < steps <= 10 for steps in last["episode_steps"])
+    assert set(last["success"]) <= {0.0, 1.0}
+    kinds = sum(last[k][0] for k in last if k.startswith("violations_"))
+    assert kinds == last["violation_periods"][0]
+    # a checkpoint's evaluation, in a new process, plays the run's evaluation again
+    evaluate_main([str(folder / "checkpoints" / "checkpoint_160.pt")])
+    again = json.loads(result.read_text())["uvms"]["short"]["mappo"]["seed_1"]["step_2"]
+    assert again.keys() == last.keys()
+    for key, values in last.items():  # the same episodes; float32 sums of another process
+        assert again[key] == pytest.approx(values, rel=1e-5, abs=1e-6), key
+
+
+def test_benchmarl_policy_acts_as_the_experiments_policy(mappo_run):
+    import torch
+    from benchmarl.hydra_config import reload_experiment_from_file
+    from tensordict import TensorDict
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    import uvms_env
+    from baselines.rl.benchmarl_policy import BenchMARLPolicy
+    from uvms_env.policy import AgentSpec
+
+    checkpoint = _experiment(mappo_run) / "checkpoints" / "checkpoint_160.pt"
+    for path in (mappo_run, _experiment(mappo_run), checkpoint):
+        assert BenchMARLPolicy.find(path) == checkpoint
+    run = BenchMARLPolicy.training_run(mappo_run)
+    assert (run.algorithm, run.seed, run.frames, run.task) == ("mappo", 1, 160, "short")
+
+    env = uvms_env.parallel_env("short")
+    obs, _ = env.reset(seed=3)
+    robots = [BenchMARLPolicy(AgentSpec.from_scenario(env.scenario, i), checkpoint) for i in (0, 1)]
+    mine = np.stack([p.act(obs[f"uvms_{i}"]) for i, p in enumerate(robots)])
+    experiment = reload_experiment_from_file(str(checkpoint))
+    rows = torch.as_tensor(np.stack([obs["uvms_0"], obs["uvms_1"]]))
+    td = TensorDict({"uvms": TensorDict({"observation": rows}, [2])}, [])
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        theirs = experiment.policy(td)["uvms", "action"].numpy()
+    np.testing.assert_allclose(mine, theirs, rtol=1e-5, atol=1e-6)
+
+
+def test_the_evaluator_files_a_checkpoint_under_its_training_run(mappo_run, tmp_path):
+    from baselines.distributed import marl_eval
+    from baselines.evaluate import main as evaluate_main
+
+    path = tmp_path / "marl.json"
+    common = ["--scenario", "short", "--episodes", "2", "--max-cycles", "5", "--workers", "1"]
+    policies = ["--policy", f"benchmarl:{mappo_run}", "--policy", "zero"]
+    evaluate_main([*policies, *common, "--out", str(tmp_path / "eval")])
+    rows = (tmp_path / "eval" / "episodes.csv").read_text()
+    assert rows.count("benchmarl:") == 2 and "Error" not in rows
+    evaluate_main(
+        [*policies, *common, "--out", str(tmp_path / "e2"), "--marl-eval-json", str(path)]
+    )
+    ours = json.loads(path.read_text())
+    algos = ours["uvms"]["short"]
+    assert set(algos) == {"mappo", "zero"}  # by what was trained
+    assert set(algos["mappo"]) == set(algos["zero"]) == {"seed_1"}  # the training seed
+    (benchmarls,) = _experiment(mappo_run).glob("*.json")
+    theirs = json.loads(benchmarls.read_text())
+    # one run evaluated by both tools, on different episodes: the merge refuses
+    with pytest.raises(ValueError, match="mappo/seed_1"):
+        marl_eval.merge(theirs, ours, final=True)
+    # BenchMARL's evaluations of its runs, the evaluator's of the others at their seeds
+    del ours["uvms"]["short"]["mappo"]
+    runs = marl_eval.merge(theirs, ours, final=True)["uvms"]["short"]
+    assert set(runs) == {"mappo", "zero"} and set(runs["zero"]) == {"seed_1"}
+    metrics = set(runs["zero"]["seed_1"]["step_0"])
+    assert {"return", "uvms_return", "success", "violation_periods"} <= metrics
+    assert metrics == set(runs["mappo"]["seed_1"]["step_0"]) | {"elapsed_time"}
+
+
+def test_without_benchmarl_the_loader_names_the_install(tmp_path):
+    import importlib.util
+
+    if importlib.util.find_spec("benchmarl") is not None:
+        pytest.skip("BenchMARL is installed here")
+    from baselines.distributed import marl_eval
+    from baselines.policies import PolicySource
+
+    checkpoints = tmp_path / "mappo_short" / "checkpoints"
+    checkpoints.mkdir(parents=True)
+    (checkpoints / "checkpoint_160.pt").write_bytes(b"")
+    (checkpoints.parent / "config.pkl").write_bytes(b"")
+    factory = PolicySource.parse(f"benchmarl:{tmp_path}").factory(0)  # found
+    with pytest.raises(ImportError, match=r"\.venv-benchmarl"):
+        factory(None)
+    label = f"benchmarl:{tmp_path}"
+    assert marl_eval.run_identity(label) == marl_eval.RunIdentity(label, None)

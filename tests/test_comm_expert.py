@@ -166,8 +166,11 @@ def test_refuses_without_a_channel() -> None:
         TalkingNMPCPolicy(_spec(ChannelSettings(message_dim=2)))
     with pytest.raises(ValueError, match="observer"):
         PolicySource.parse("nmpc:comm,paper").factory(0)
-    # in an evaluation the episode fails with that error recorded, not the run
-    from baselines.evaluation.runner import evaluate
+    # an evaluation refuses it before any episode (a usage error naming the policy); one
+    # that does not check first (a training run's) fails the episode with it recorded
+    from baselines.evaluation.runner import UsageError, evaluate
 
-    rows = evaluate(["nmpc:comm"], ["paper"], 1, 0, 1, max_cycles=2, progress=False)
+    with pytest.raises(UsageError, match="nmpc:comm.*has none"):
+        evaluate(["nmpc:comm"], ["paper"], 1, 0, 1, max_cycles=2, progress=False)
+    rows = evaluate(["nmpc:comm"], ["paper"], 1, 0, 1, max_cycles=2, progress=False, check=False)
     assert "has none" in rows[0]["error"]

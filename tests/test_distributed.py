@@ -40,8 +40,8 @@ def test_marl_eval_json_has_marl_eval_structure_and_the_episode_values(tmp_path)
     marl = ["--marl-eval-json", str(path), "--marl-eval-step-count", "1000"]
     evaluate_main(["--policy", "zero", "--policy", "random", *common, "--out", str(out), *marl])
     data = json.loads(path.read_text())
-    assert list(data) == ["uvms_coop"] and list(data["uvms_coop"]) == ["short"]
-    algos = data["uvms_coop"]["short"]
+    assert list(data) == ["uvms"] and list(data["uvms"]) == ["short"]  # BenchMARL's names
+    algos = data["uvms"]["short"]
     assert set(algos) == {"zero", "random"}
     rows = _csv_rows(out / "episodes.csv")
     for algo, runs in algos.items():
@@ -54,14 +54,16 @@ def test_marl_eval_json_has_marl_eval_structure_and_the_episode_values(tmp_path)
         # the short scenario has no obstacles: no clearance, so no such metric
         assert "min_obstacle_clearance_m" not in step
         assert {"return", "success", "final_pos_error_m", "episode_steps"} <= set(step)
-        for metric in set(step) & set(marl_eval.METRICS):
+        assert step["uvms_return"] == step["return"]  # BenchMARL's group return: the team's
+        assert "violations_collision" in step  # and one list per constraint kind
+        for metric in set(step) & set(marl_eval.METRICS) - {"uvms_return"}:
             expected = [_number(r[metric]) for r in mine]
             assert step[metric] == pytest.approx(expected, rel=1e-12)
             assert run["absolute_metrics"][metric] == step[metric]
     # a second evaluation of the same run is its next logging step; absolute stays last
     more = evaluate(["zero"], ["short"], 2, 0, 1, max_cycles=4, progress=False)
     marl_eval.write(path, more, 0, step_count=2000, elapsed_time=1.5)
-    run = json.loads(path.read_text())["uvms_coop"]["short"]["zero"]["seed_0"]
+    run = json.loads(path.read_text())["uvms"]["short"]["zero"]["seed_0"]
     assert list(run) == ["step_0", "step_1", "absolute_metrics"]
     assert run["step_1"]["step_count"] == 2000
     assert run["absolute_metrics"]["episode_steps"] == [4.0, 4.0]
@@ -69,6 +71,7 @@ def test_marl_eval_json_has_marl_eval_structure_and_the_episode_values(tmp_path)
 
 def test_task_names_carry_the_team_size_and_algorithm_names_no_commas():
     assert marl_eval.task_name("random", {"n_agents": 3}) == "random_n3"
+    assert marl_eval.task_name("random", {}) == "random_n2"  # BenchMARL's uvms/random_n2
     assert marl_eval.task_name("paper", {}) == "paper"
     assert marl_eval.algo_name("pkg.mod:f,x") == "pkg.mod:f;x"
 

@@ -53,7 +53,7 @@ def test_condition_flags_become_overrides_and_draws():
     }
     args = _parsed(["--current", "mild", "--mismatch", "0", "0.2"])
     assert condition_overrides(args) == {"current": "mild", "randomize": {"mismatch": [0.0, 0.2]}}
-    with pytest.raises(SystemExit, match="LOW HIGH"):
+    with pytest.raises(ValueError, match="LOW HIGH"):
         condition_overrides(_parsed(["--mismatch", "0.2", "0.1"]))
 
 
@@ -69,7 +69,7 @@ def test_trainer_settings_from_the_condition_flags():
     assert s.team_sizes == () and s.overrides["n_agents"] == 5
     with pytest.raises(ValueError, match="once"):
         settings("--scenario", "random", "--n-agents", "2", "3", "--env-option", "n_agents=2")
-    with pytest.raises(ValueError, match="--scenario random"):
+    with pytest.raises(ValueError, match="--scenario paper --n-agents 3: the paper scenario"):
         settings("--scenario", "paper", "--n-agents", "2", "3")
     with pytest.raises(ValueError, match="contradicts"):
         settings("--current", "mild", "--env-option", 'current="none"')
@@ -201,7 +201,7 @@ def test_recurrent_ppo_trains_and_its_state_restarts_each_episode(tmp_path):
     assert not np.array_equal(policy.act(stream[0]), first[0])
 
 
-def test_torchrl_trains_over_team_sizes(tmp_path):
+def test_torchrl_trains_over_team_sizes(tmp_path, capsys):
     pytest.importorskip("torchrl", minversion="0.14")
     out = tmp_path / "torchrl"
     main(["--library", "torchrl", "--robot-steps", "100", "--out", str(out), *TINY,
@@ -212,9 +212,11 @@ def test_torchrl_trains_over_team_sizes(tmp_path):
     # 2 copies x 4 steps x (2 + 3) robots per iteration
     assert config["library_settings"]["robot_steps_per_iteration"] == 40
     assert config["robot_steps"] == 120
-    with pytest.raises(ValueError, match="--cost with several team sizes"):
+    with pytest.raises(SystemExit) as refused:  # a usage error, before the run folder
         main(["--library", "torchrl", "--robot-steps", "40", "--out", str(tmp_path / "c"),
               *TINY, "--cost", "count"])  # fmt: skip
+    assert refused.value.code == 2 and not (tmp_path / "c").exists()
+    assert "--cost with several team sizes" in capsys.readouterr().err
 
 
 # -- imitation over the distribution --------------------------------------------------------
@@ -306,9 +308,9 @@ def test_seed_aggregate_is_rliables_iqm_of_the_seed_by_case_scores(tmp_path):
     assert low <= point <= high
     assert summary["metrics"]["violation_periods"]["per_seed"][2] == [24.5, 24.5]
     assert summary["cases"] == ["random N=2", "paper"]
-    from baselines.seeds import interval_estimates
+    from baselines.stats import iqm_and_mean
 
-    assert interval_estimates(rates, seed=3) == interval_estimates(rates, seed=3)  # reproducible
+    assert iqm_and_mean(rates, seed=3) == iqm_and_mean(rates, seed=3)  # reproducible
 
 
 def test_dagger_warm_starts_and_evaluates_each_iteration_per_team_size(tmp_path):
@@ -341,7 +343,7 @@ def test_dagger_warm_starts_and_evaluates_each_iteration_per_team_size(tmp_path)
     assert info["warm_start_epochs"] == 1 and info["n_agents"] == [2, 3]
 
 
-def test_dagger_resumes_to_the_network_of_an_uninterrupted_run(tmp_path):
+def test_dagger_resumes_to_the_network_of_an_uninterrupted_run(tmp_path, capsys):
     """``--resume RUN`` (a run saved with --save-data) continues from the last iteration's
     network and aggregate: the resumed run's network is the straight run's, bit for bit."""
     pytest.importorskip("minari")
@@ -368,8 +370,9 @@ def test_dagger_resumes_to_the_network_of_an_uninterrupted_run(tmp_path):
     info = json.loads((resumed / "train.json").read_text())
     assert [h["iteration"] for h in info["history"]] == [0, 1, 2]
     unsaved = [a for a in common if a != "--save-data"]
-    with pytest.raises(SystemExit, match="--save-data"):
+    with pytest.raises(SystemExit) as refused:
         imitate(["dagger", *unsaved, "--iterations", "3", "--resume", str(resumed)])
+    assert refused.value.code == 2 and "--resume needs --save-data" in capsys.readouterr().err
 
 
 def test_anchor_penalty_is_the_distance_to_the_clones_residual():

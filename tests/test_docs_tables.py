@@ -86,12 +86,16 @@ def test_environment_option_defaults_are_what_an_env_built_without_them_uses(env
     from uvms_env.env.options import ENV_OPTIONS
     from uvms_env.scenarios import make
     from uvms_env.scenarios.config import Scenario
+    from uvms_env.scenarios.families import RANDOM_DEFAULT_COURSE, RANDOM_DEFAULT_OBJECT
     from uvms_env.scenarios.overrides import SCENARIO_FIELDS
 
     fields = {f.name: f.default for f in dataclasses.fields(Scenario)}
     for name in SCENARIO_FIELDS:
         assert default_literal(env_rows[name]["default"]) == fields[name], name
     assert default_literal(env_rows["n_agents"]["default"]) == make("random", seed=0).n_agents
+    assert default_literal(env_rows["object"]["default"]) == RANDOM_DEFAULT_OBJECT
+    assert make("random", seed=0).object_shape == RANDOM_DEFAULT_OBJECT
+    assert default_literal(env_rows["course"]["default"]) == RANDOM_DEFAULT_COURSE
 
     env = uvms_env.parallel_env("paper")
     built = {

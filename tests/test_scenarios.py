@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 import pytest
 
@@ -60,3 +62,50 @@ def test_short_family_is_a_single_seeded_waypoint_two_metres_away():
     assert np.array_equal(a.waypoints, b.waypoints) and not np.array_equal(a.waypoints, c.waypoints)
     assert a.waypoints.shape == (1, 6) and not a.obstacles
     assert np.linalg.norm(a.waypoints[0, :2] - a.object_start[:2]) == pytest.approx(2.0)
+
+
+def _digest(s) -> str:
+    """The drawn geometry of a scenario, rounded to a micrometre (IPOPT's start aside)."""
+    obstacles = [
+        [getattr(o, "x", 0.0), getattr(o, "y", 0.0), *getattr(o, "center", (0.0,) * 3), o.radius]
+        for o in s.obstacles
+    ]
+    parts = [
+        s.object_start,
+        s.waypoints,
+        s.grasp_offsets,
+        s.grasp_rotations,
+        s.load_shares,
+        np.array([s.ring_radius, s.workspace.radius, *s.workspace.center]),
+        np.array(obstacles).reshape(-1),
+    ]
+    h = hashlib.sha256()
+    for p in parts:
+        h.update(np.round(np.asarray(p, float), 6).tobytes())
+    return h.hexdigest()[:16]
+
+
+# Recorded before the random family learned bars and turning courses: committed models and
+# results were trained and evaluated on these geometries. (seed, n_agents) -> (digest,
+# team radius, sum |initial_q|).
+RANDOM_DRAWS = {
+    (0, 2): ("59cd111e93a995a2", 1.903486, 26.12302),
+    (7, 2): ("10cfeff03a4802d4", 1.887498, 21.46181),
+    (202, 3): ("bb1f1a97cd8a5879", 1.892953, 35.47474),
+    (11, 4): ("b3f6280ed015e518", 2.078456, 67.88234),
+    (5, 5): ("79ae1dcaee4c3296", 2.318034, 69.71865),
+    (3, 6): ("0b925b66bab59471", 2.569155, 85.0971),
+    (9, None): ("9c8333e14e9376a0", 1.887875, 25.99478),  # the default team size
+}
+
+
+@pytest.mark.parametrize(("seed", "n"), list(RANDOM_DRAWS))
+def test_the_random_familys_default_draws_are_unchanged(seed, n):
+    sizes = {} if n is None else {"n_agents": n}
+    s = make("random", seed=seed, **sizes)
+    digest, radius, q_sum = RANDOM_DRAWS[seed, n]
+    assert _digest(s) == digest
+    assert s.team_radius == pytest.approx(radius, abs=1e-5)
+    assert np.abs(s.initial_q).sum() == pytest.approx(q_sum, abs=1e-3)
+    explicit = make("random", seed=seed, object="ring", course="open", **sizes)
+    assert _digest(explicit) == digest

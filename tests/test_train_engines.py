@@ -45,6 +45,9 @@ CONFIG_KEYS = (
     "library_settings",
     "robot_steps",
     "wall_time_s",
+    "build_s",
+    "train_s",
+    "eval_s",
     "robot_steps_per_s",
     "eval",
     "best",
@@ -154,6 +157,9 @@ def test_every_library_writes_the_same_records(trained):
         assert config["num_envs"] == 2 and config["seed"] == 1
         assert config["overrides"] == {"max_cycles": 6}
         assert config["robot_steps"] >= 64 and config["wall_time_s"] > 0
+        # the build, the training and the evaluations timed apart, within the wall time
+        parts = [config[k] for k in ("build_s", "train_s", "eval_s")]
+        assert all(p >= 0 for p in parts) and sum(parts) <= config["wall_time_s"] + 0.2
         progress = _rows(run / "progress.csv")
         steps = [int(r["robot_steps"]) for r in progress]
         assert steps == sorted(steps) and steps[-1] == config["robot_steps"], library
@@ -408,6 +414,9 @@ def test_every_library_learns_with_the_channel_and_its_policy_sends(library, tmp
     env.step({a: policies[a].act(obs[a]) for a in env.possible_agents})
 
 
-def test_comm_flag_contradicting_an_env_option_is_an_error(tmp_path):
-    with pytest.raises(ValueError, match="contradicts"):
-        main(["--comm", "atm900", "--env-option", 'comm="ideal"', "--out", str(tmp_path), *TINY])
+def test_comm_flag_contradicting_an_env_option_is_an_error(tmp_path, capsys):
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as refused:  # a usage error, before the run folder
+        main(["--comm", "atm900", "--env-option", 'comm="ideal"', "--out", str(out), *TINY])
+    assert refused.value.code == 2 and not out.exists()
+    assert "--comm atm900 contradicts --env-option comm='ideal'" in capsys.readouterr().err

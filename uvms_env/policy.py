@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 
 from uvms_env.navigation import Cylinder, Sphere, Workspace
-from uvms_env.scenarios import Scenario
+from uvms_env.scenarios import Scenario, object_key
 
 if TYPE_CHECKING:
     from uvms_env.env.channel import ChannelSettings
@@ -53,9 +53,9 @@ class AgentSpec:
 
     @property
     def object_ring_radius(self) -> float:
-        """The object as the compiled model functions name it: the ring's radius, 0 for
-        the bar."""
-        return float(self.ring_radius) if self.object_shape == "ring" else 0.0
+        """The object as one number, as the compiled functions name it (``object_key``):
+        the ring's radius; 0 for the parameter file's bar, minus the length for another."""
+        return object_key(self.object_shape, self.ring_radius)
 
     @staticmethod
     def from_scenario(

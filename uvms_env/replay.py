@@ -342,6 +342,7 @@ def write_replay(ep: Episode, path: str | Path, full_rate: bool = False) -> Path
 def main(argv: list[str] | None = None) -> Path:
     ap = argparse.ArgumentParser(
         prog="python -m uvms_env.replay",
+        allow_abbrev=False,
         description="Write a 3D replay page (one HTML file) from a trajectory.npz.",
     )
     ap.add_argument("trajectory", type=Path, help="trajectory.npz of python -m nmpc_expert")

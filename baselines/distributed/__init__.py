@@ -4,4 +4,4 @@ BenchMARL task is an example: examples/benchmarl). Ray and RLlib are optional
 each module imports them only inside the functions that need them, except the RLlib
 modules, which are only imported on demand."""
 
-ENV_NAME = "uvms_coop"  # the environment's name in RLlib's registry and in marl-eval's JSON
+ENV_NAME = "uvms_coop"  # the environment's name in RLlib's registry

@@ -9,7 +9,8 @@ shared by all robots.
 the final ``checkpoint/``, which ``--resume`` restores. Reference: docs/scale-out.md.
 
 May import: ray (inside functions), torch, ``baselines.runs``, ``baselines.lagrangian``,
-``baselines.registry``, ``baselines.distributed`` and ``uvms_env``.
+``baselines.registry``, ``baselines.options`` (the flags' types), ``baselines.distributed``
+and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from typing import Any
 
 from baselines.distributed.rllib_policy import POLICY_ID
 from baselines.lagrangian import Lagrangian
+from baselines.options import non_negative_int, positive_int
 from baselines.registry import LIBRARIES
 from baselines.runs import Run, seeded_pool
 
@@ -53,6 +55,9 @@ GEOMETRIES_PER_COPY = 32
 # Env copies per runner (``--num-envs``), stepped together with one forward pass: 4
 # beat 1 and matched 8, which builds twice the geometries (figures in the docs).
 DEFAULTS: dict[str, Any] = {"num_envs": 4, "geometry_pool": None}
+# One team size per run: every env copy of every runner plays the run's overrides (the
+# several-size trainers deal their copies into groups; ``rllib_env`` has no such groups).
+SEVERAL_TEAM_SIZES = False
 
 
 def build_config(
@@ -119,13 +124,57 @@ OPTIONS_NOTE = (
 )
 
 
+def fragment_length(text: str) -> str:
+    """``--rollout-fragment-length``: ``auto`` or a positive number of env steps."""
+    return text if text == "auto" else str(positive_int(text))
+
+
 def add_arguments(g: Any) -> None:
     """The RLlib trainer's own options (``--num-envs``: env copies per runner)."""
-    g.add_argument("--num-env-runners", type=int, default=2, help="RLlib env runner actors")
+    g.add_argument(
+        "--num-env-runners", type=non_negative_int, default=2, help="RLlib env runner actors"
+    )
     g.add_argument("--address", default=None, help="Ray cluster to join (default: local Ray)")
-    g.add_argument("--num-cpus", type=int, default=None, help="local Ray only")
-    g.add_argument("--iterations", type=int, default=None, help="stop after this many too")
-    g.add_argument("--rollout-fragment-length", default="auto", help="env steps per runner request")
+    g.add_argument("--num-cpus", type=positive_int, default=None, help="local Ray only")
+    g.add_argument("--iterations", type=positive_int, default=None, help="stop after this many too")
+    g.add_argument(
+        "--rollout-fragment-length",
+        type=fragment_length,
+        default="auto",
+        help="env steps per runner request (auto or a number)",
+    )
+
+
+def check_options(settings: Any, algo: str, args: argparse.Namespace) -> None:
+    """ValueError naming the option where this trainer cannot honour ``settings``
+    (``baselines.runs.RunSettings``) or its own options ``args``: before any work (Ray is
+    imported only to check ``--hp``)."""
+    if algo not in ALGOS:
+        raise ValueError(f"unknown algorithm {algo!r} for RLlib; expected one of {ALGOS}")
+    if args.address and args.num_cpus is not None:
+        raise ValueError("--num-cpus sizes a local Ray: a cluster (--address) has its own")
+    if settings.hyperparameters:
+        import inspect
+
+        from baselines.distributed.ray_backend import require_ray
+
+        require_ray()
+        from ray.rllib.algorithms.ppo import PPOConfig
+
+        known = sorted(
+            {
+                name
+                for cls in PPOConfig.__mro__
+                if "training" in vars(cls)
+                for name in inspect.signature(vars(cls)["training"]).parameters
+            }
+            - {"self", "kwargs"}
+        )
+        unknown = sorted(set(settings.hyperparameters) - set(known))
+        if unknown:
+            raise ValueError(
+                f"--hp {unknown}: PPOConfig.training() takes none of them; it takes {known}"
+            )
 
 
 def iteration_robot_steps(result: dict[str, Any]) -> int:
@@ -141,8 +190,7 @@ class Trainer:
     """RLlib's PPO under a ``baselines.runs.Run`` (``baselines.runs.Trainer``)."""
 
     def __init__(self, run: Run, algo: str, args: argparse.Namespace) -> None:
-        if algo not in ALGOS:
-            raise ValueError(f"unknown algorithm {algo!r} for RLlib; expected one of {ALGOS}")
+        check_options(run.settings, algo, args)
         self.run, self.args = run, args
         self.algorithm: Any = None
         # the driver's side of PPO-Lagrangian: the multiplier and its dual step
@@ -202,6 +250,9 @@ class Trainer:
 
     def learn(self) -> int:
         budget, limit = self.run.settings.robot_steps, self.args.iterations
+        # the runners' envs are built: stepping starts (an iteration samples as many
+        # robot-steps as its episodes give, so the end is not known in advance)
+        self.run.begin()
         iteration = 0
         while self.robot_steps < budget and (limit is None or iteration < limit):
             self.robot_steps += iteration_robot_steps(self.algorithm.train())

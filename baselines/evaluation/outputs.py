@@ -18,7 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from baselines.evaluation.report import markdown_table, write_plots
+from baselines.evaluation.report import failure_lines, markdown_table, write_plots
 from baselines.evaluation.runner import Case, Settings
 from baselines.evaluation.summary import aggregate
 
@@ -41,7 +41,7 @@ def write_outputs(rows: list[Row], seed: int, out: Path) -> list[Row]:
         for r in rows:
             writer.writerow({k: r.get(k, "") for k in keys})
     (out / "results.json").write_text(json.dumps(summaries, indent=2))
-    (out / "results.md").write_text(markdown_table(summaries))
+    (out / "results.md").write_text(markdown_table(summaries, failure_lines(rows)))
     write_plots(rows, summaries, out)
     return summaries
 
@@ -73,9 +73,13 @@ def run_and_write(
     settings: Settings, plays: Sequence[Play], out: Path
 ) -> tuple[list[Row], list[Row]]:
     """Each play evaluated with ``settings``, the rows pooled (in the plays' order) and the
-    evaluator's outputs written to ``out``: the rows and their summaries."""
+    evaluator's outputs written to ``out``: the rows and their summaries. The policies
+    whose episodes failed are named on the console too, with their first error."""
     rows = [row for policies, cases in plays for row in settings.evaluate(policies, cases)]
-    return rows, write_outputs(rows, settings.seed, out)
+    summaries = write_outputs(rows, settings.seed, out)
+    for line in failure_lines(rows):
+        print(f"failed: {line}", flush=True)
+    return rows, summaries
 
 
 def write_result(out: Path, name: str, result: dict[str, Any], text: str, command: dict) -> None:

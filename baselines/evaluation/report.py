@@ -14,14 +14,25 @@ from typing import Any
 
 import numpy as np
 
-from baselines.evaluation.summary import VIOLATION_KINDS
+from baselines.evaluation.summary import VIOLATION_KINDS, failures
 
 Row = dict[str, Any]
 
 
-def markdown_table(summaries: Sequence[Row]) -> str:
-    """``results.md``: a row per summary (``aggregate``), then the violations per kind, and
-    what ``information`` means when a team policy is among them."""
+def failure_lines(rows: Sequence[Row]) -> list[str]:
+    """A line per policy with failed episodes: how many of its episodes, and the first
+    one's error (its first line) with where it happened."""
+    return [
+        f"{f['policy']}: {f['failed']} of {f['episodes']} episodes failed; first "
+        f"({f['scenario']}, episode {f['episode']}): {str(f['error']).splitlines()[0]}"
+        for f in failures(rows)
+    ]
+
+
+def markdown_table(summaries: Sequence[Row], failed: Sequence[str] = ()) -> str:
+    """``results.md``: a row per summary (``aggregate``), then the violations per kind,
+    what ``information`` means when a team policy is among them and the ``failed`` lines
+    (``failure_lines``)."""
 
     def fmt(x: Any, digits: int = 2) -> str:
         return (
@@ -65,6 +76,9 @@ def markdown_table(summaries: Sequence[Row]) -> str:
             "one policy per robot on its own observation. Decision time: per team decision "
             "for `full`, per agent decision for `local`.",
         ]
+    if failed:
+        lines += ["", "Failed episodes (the rows' `error` in episodes.csv):", ""]
+        lines += [f"* {line}" for line in failed]
     return "\n".join(lines) + "\n"
 
 
@@ -122,16 +136,25 @@ def success_plot(summaries: Sequence[Row], policies: list[str], path: Path) -> N
 
 
 def decision_time_plot(rows: Sequence[Row], policies: list[str], path: Path) -> None:
+    """A box per policy of its decision times; a policy without a positive time (every
+    episode failed before deciding) is left out, and a figure with none says so."""
     fig, ax = pyplot().subplots(figsize=(6, 3.5))
-    data = [
-        np.concatenate([r["_decision_ms"] for r in rows if r["policy"] == p] or [[np.nan]])
-        for p in policies
-    ]
-    ax.boxplot(
-        [d[np.isfinite(d)] if np.isfinite(d).any() else [np.nan] for d in data], showfliers=False
-    )
-    ax.set_xticks(np.arange(1, len(policies) + 1), policies)
-    ax.set_yscale("log")
+    data = {}
+    for p in policies:
+        ms = np.concatenate(
+            [np.asarray(r.get("_decision_ms", []), float) for r in rows if r["policy"] == p]
+            or [np.zeros(0)]
+        )
+        ms = ms[np.isfinite(ms) & (ms > 0)]  # the log scale takes positive values only
+        if len(ms):
+            data[p] = ms
+    if data:
+        ax.boxplot(list(data.values()), showfliers=False)
+        ax.set_xticks(np.arange(1, len(data) + 1), list(data))
+        ax.set_yscale("log")
+    else:
+        ax.text(0.5, 0.5, "no decision times: no episode decided", ha="center", va="center")
+        ax.set_xticks([])
     ax.set_ylabel("decision time per agent [ms]")
     save(fig, path)
 

@@ -6,9 +6,14 @@ noise: every policy plays the same episodes, and a result depends only on (polic
 scenario, seed), never on the number of workers or the backend. ``Settings`` holds what a
 command's evaluations share.
 
+Before any episode, ``preflight`` builds each case's environment and each policy once:
+a case the environment refuses or a policy that cannot be loaded is a ``UsageError``
+naming it, not a column of failed episodes. A policy that fails while it plays (a solver error)
+still ends its episodes as failures, each with its error.
+
 May import: the standard library, tqdm, ``baselines.evaluation.episode``,
 ``baselines.policies``, ``baselines.distributed.ray_backend`` (``backend="ray"``) and
-``uvms_env.replay``.
+``uvms_env``.
 """
 
 from __future__ import annotations
@@ -28,6 +33,12 @@ from baselines.policies import PolicySource
 from uvms_env.replay import replay_path
 
 BACKENDS = ("process", "ray")
+
+
+class UsageError(ValueError):
+    """What ``evaluate`` refuses before any episode (an unknown policy, two cases with one
+    label, a case the environment refuses, a policy that cannot be built): a command
+    that passed it on makes it a usage error."""
 
 
 def case_episode_seed(seed: int, scenario: str, index: int) -> int:
@@ -64,6 +75,7 @@ def evaluate(
     backend: str = "process",
     address: str | None = None,
     replay_dir: Path | None = None,
+    check: bool = True,
 ) -> list[dict[str, Any]]:
     """Run every (policy, scenario, episode) and return the per-episode rows, sorted.
     ``scenarios``: names, or ``Case``s whose keywords go over ``overrides``.
@@ -71,7 +83,8 @@ def evaluate(
     page (``uvms_env.replay.replay_path``).
     ``backend``: ``process`` (a process pool of ``workers``; 1: in this process) or
     ``ray`` (Ray tasks on a local Ray of ``workers`` CPUs, or on the cluster at
-    ``address``); the rows do not depend on it."""
+    ``address``); the rows do not depend on it. ``check``: ``preflight`` first. What is
+    refused before any episode raises ``UsageError``."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {BACKENDS}")
     if backend == "ray":
@@ -79,11 +92,16 @@ def evaluate(
 
         require_ray()  # before the warm-up episodes
     for p in policies:
-        PolicySource.parse(p)  # fail fast on a typo, before any worker starts
+        try:
+            PolicySource.parse(p)  # fail fast on a typo, before any worker starts
+        except ValueError as exc:
+            raise UsageError(str(exc)) from exc
     cases = [Case.of(c) for c in scenarios]
     labels = [c.label for c in cases]
     if len(set(labels)) != len(labels):
-        raise ValueError(f"two scenarios share a label: {labels}")
+        raise UsageError(f"two scenarios share a label: {labels}")
+    if check:
+        preflight(policies, cases, seed, overrides or {}, max_cycles, progress)
     jobs = [
         _job(p, c, k, seed, overrides or {}, max_cycles, replay_dir)
         for p in policies
@@ -94,6 +112,48 @@ def evaluate(
     order = list(policies)
     rows.sort(key=lambda r: (order.index(r["policy"]), labels.index(r["scenario"]), r["episode"]))
     return rows
+
+
+def preflight(
+    policies: Sequence[str],
+    cases: Sequence[Case],
+    seed: int,
+    overrides: dict[str, Any],
+    max_cycles: int | None = None,
+    progress: bool = True,
+) -> None:
+    """Each case's environment (its first episode's) and each policy (on the first case)
+    built once, before any episode: ``UsageError`` naming the case or the policy, with the
+    environment's or the loader's message, where one cannot be built."""
+    import uvms_env
+
+    envs: list[Any] = []
+    with tqdm(
+        total=len(cases) + len(policies), desc="building", disable=not progress, unit="item"
+    ) as bar:
+        try:
+            for case in cases:
+                kwargs = {**overrides, **dict(case.overrides)}
+                if max_cycles is not None:
+                    kwargs["max_cycles"] = max_cycles
+                episode_seed = case_episode_seed(seed, case.scenario, 0)
+                try:
+                    env = uvms_env.parallel_env(scenario=case.scenario, seed=episode_seed, **kwargs)
+                except Exception as exc:  # whatever the environment refuses: the case's error
+                    raise UsageError(f"scenario {case.label}: {type(exc).__name__}: {exc}") from exc
+                envs.append(env)
+                bar.update()
+            for policy in policies:
+                try:
+                    PolicySource.parse(policy).build_once(envs[0], seed)
+                except Exception as exc:  # whatever the loader raises: the policy is unusable
+                    raise UsageError(
+                        f"policy {policy} cannot be loaded: {type(exc).__name__}: {exc}"
+                    ) from exc
+                bar.update()
+        finally:
+            for env in envs:
+                env.close()
 
 
 def _job(
@@ -126,33 +186,38 @@ def _job(
 def _play(
     jobs: list[EpisodeJob], workers: int, backend: str, address: str | None, progress: bool
 ) -> list[dict[str, Any]]:
-    """The jobs' rows, in the order they finish."""
+    """The jobs' rows, in the order they finish; the bar counts the failed episodes."""
     rows: list[dict[str, Any]] = []
+    if backend != "process" or workers > 1:
+        # Build each (policy, scenario) once here first: compiled controllers and
+        # simulators land in the disk cache before the workers would race to build them.
+        firsts: dict[tuple[Any, ...], EpisodeJob] = {}
+        for job in jobs:
+            firsts.setdefault((job.policy, job.scenario, job.overrides), job)
+        for job in tqdm(list(firsts.values()), desc="warm-up", disable=not progress, unit="case"):
+            run_episode(dataclasses.replace(job, max_cycles=1, record_path=False, replay=None))
+    # opened after the builds: its rate and ETA count the episodes alone
     bar = tqdm(total=len(jobs), desc="episodes", disable=not progress, unit="ep")
+
+    def done(row: dict[str, Any]) -> None:
+        rows.append(row)
+        failed = sum(bool(r["error"]) for r in rows)
+        if failed:
+            bar.set_postfix(failed=failed, refresh=False)
+        bar.update()
+
     if backend == "process" and workers <= 1:
         for job in jobs:
-            rows.append(run_episode(job))
-            bar.update()
-        bar.close()
-        return rows
-    # Build each (policy, scenario) once here first: compiled controllers and
-    # simulators land in the disk cache before the workers would race to build them.
-    seen = set()
-    for job in jobs:
-        if (job.policy, job.scenario, job.overrides) not in seen:
-            seen.add((job.policy, job.scenario, job.overrides))
-            run_episode(dataclasses.replace(job, max_cycles=1, record_path=False, replay=None))
-    if backend == "ray":
+            done(run_episode(job))
+    elif backend == "ray":
         from baselines.distributed.ray_backend import run_jobs
 
         for row in run_jobs(run_episode, jobs, address, workers):
-            rows.append(row)
-            bar.update()
+            done(row)
     else:
         with ProcessPoolExecutor(max_workers=workers) as pool:
             for fut in as_completed([pool.submit(run_episode, j) for j in jobs]):
-                rows.append(fut.result())
-                bar.update()
+                done(fut.result())
     bar.close()
     return rows
 
@@ -172,6 +237,7 @@ class Settings:
     backend: str = "process"
     address: str | None = None
     replay_dir: Path | None = None
+    check: bool = True  # ``evaluate``'s preflight
 
     def evaluate(
         self, policies: Sequence[str], cases: Sequence[str | Case]
@@ -189,6 +255,7 @@ class Settings:
             self.backend,
             self.address,
             self.replay_dir,
+            self.check,
         )
 
     def record(self) -> dict[str, Any]:

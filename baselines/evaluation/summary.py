@@ -156,3 +156,18 @@ def aggregate(rows: Sequence[Row], seed: int) -> list[Row]:
             }
         )
     return out
+
+
+def failures(rows: Sequence[Row]) -> list[Row]:
+    """One entry per policy with failed episodes (an error recorded), in the rows' order:
+    ``policy``, ``failed``, ``episodes`` and its first failure's ``error``, ``scenario``
+    and ``episode``."""
+    out: dict[str, Row] = {}
+    for r in rows:
+        entry = out.setdefault(r["policy"], {"policy": r["policy"], "failed": 0, "episodes": 0})
+        entry["episodes"] += 1
+        if r.get("error"):
+            entry["failed"] += 1
+            if "error" not in entry:
+                entry.update(error=r["error"], scenario=r["scenario"], episode=r["episode"])
+    return [e for e in out.values() if e["failed"]]

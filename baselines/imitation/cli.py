@@ -6,7 +6,9 @@
         --scenario short --scenario paper --iterations 4 --out runs/dagger
 
 Every option, the schedule and the outputs: docs/imitation.md; ``--help`` lists the
-options.
+options. Every option is checked before any rollout or fit: the environment of each
+scenario and team size and the teacher (``--expert``) are built once, ``--init`` and
+``--resume`` read, and a refusal is a usage error naming the option.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from typing import Any
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
+from tqdm import tqdm
 
 from baselines.imitation import bc, dataset
 from baselines.imitation.dataset import AgentStream
@@ -30,11 +33,19 @@ from baselines.imitation.features import FEATURES
 from baselines.imitation.network import MLPPolicyNet
 from baselines.imitation.rollout import RolloutJob, parallel_rollouts
 from baselines.options import (
+    SCENARIOS,
     add_condition_arguments,
     add_evaluation_arguments,
     command_parser,
     condition_overrides,
+    existing_path,
+    fraction,
+    non_negative_float,
+    non_negative_int,
+    positive_float,
+    positive_int,
     team_sizes,
+    usage_errors,
 )
 from baselines.policies import PolicySource
 from baselines.runs import EVAL_KEEP, TRAIN_ENV_DEFAULTS, evaluate_rungs, hardware, write_json
@@ -146,6 +157,17 @@ def _scenario_episodes(entry: str, default: int) -> tuple[str, int]:
     return name, int(count) if count else default
 
 
+def scenario_entry(text: str) -> str:
+    """An argparse ``type`` for ``NAME`` or ``NAME:EPISODES``: NAME a scenario family,
+    EPISODES a positive count."""
+    name, sep, episodes = text.partition(":")
+    if name not in SCENARIOS:
+        raise argparse.ArgumentTypeError(f"unknown scenario {name!r}; expected one of {SCENARIOS}")
+    if sep:
+        positive_int(episodes)  # its own message: expected int >= 1
+    return text
+
+
 def _fit_arguments(args: argparse.Namespace) -> dict[str, Any]:
     """What every fit of the command line shares (``bc.fit``'s keywords)."""
     return {
@@ -199,21 +221,23 @@ SELF_FILTER = "self+filter"
 
 
 def _init_network(source: str) -> MLPPolicyNet:
-    """``--init``: the network of a ``bc:`` / ``dagger:`` source."""
+    """``--init``: the network of a ``bc:`` / ``dagger:`` source (ValueError naming the
+    option where it is none)."""
     parsed = PolicySource.parse(source)
     if parsed.name not in ("bc", "dagger") or parsed.filtered:
-        raise SystemExit(f"--init takes bc:PATH or dagger:PATH (or :pretrained), got {source!r}")
+        raise ValueError(f"--init takes bc:PATH or dagger:PATH (or :pretrained), got {source!r}")
     from baselines.imitation.policy import ClonedPolicy
 
-    return MLPPolicyNet.load(ClonedPolicy.locate(parsed.name, parsed.arg))
+    try:
+        return MLPPolicyNet.load(ClonedPolicy.locate(parsed.name, parsed.arg))
+    except (OSError, RuntimeError, ValueError) as exc:
+        raise ValueError(f"--init {source}: {exc}") from exc
 
 
 def train_dagger(args: argparse.Namespace) -> None:
     start = time.time()
     if args.resume is not None:
         args.out = args.resume
-    if not args.data and args.init is None:
-        raise SystemExit("dagger needs --data (demonstrations) or --init (a clone to start from)")
     obs = act = ring = None
     n_streams = 0
     memory = (args.features if args.init is None else _init_network(args.init).features) == "memory"
@@ -245,8 +269,9 @@ def train_dagger(args: argparse.Namespace) -> None:
         history = [{"iteration": 0, "init": args.init, "samples": 0 if obs is None else len(obs)}]
         first = 1
     distill = args.expert == SELF_FILTER
-    if not distill:
-        PolicySource.parse(args.expert)  # a wrong name fails before any rollout
+    bar = tqdm(
+        total=args.iterations, initial=first - 1, desc="dagger", unit="iteration", leave=True
+    )
     for k in range(first, args.iterations + 1):
         path = (args.out / f"iter_{k - 1}" / "policy.pt").resolve()
         net.save(path, {"method": "dagger", "iteration": k - 1})
@@ -274,11 +299,14 @@ def train_dagger(args: argparse.Namespace) -> None:
             loss=losses[-1],
             wall_s=round(time.time() - start, 1),
         )
-        _evaluate_iteration(args, net, k, len(obs), start)
+        evaluated = _evaluate_iteration(args, net, k, len(obs), start)
         history.append(row)
-        print(json.dumps(row))
+        bar.write(json.dumps(row))
         # after every iteration: what --resume continues from
         _save_dagger(args, net, scenarios, n_streams, len(obs), history, start)
+        bar.set_postfix(_evaluation_postfix(evaluated, row), refresh=False)
+        bar.update()
+    bar.close()
     info = _save_dagger(args, net, scenarios, n_streams, len(obs), history, start)
     print(f"saved {args.out / 'policy.pt'} ({len(obs)} samples, {info['train_wall_s']} s)")
 
@@ -315,23 +343,32 @@ def _resumed(
     iterations' rollouts must have been saved (``--save-data``). None without --resume."""
     if args.resume is None:
         return None
-    info_path = args.resume / "train.json"
-    if not info_path.exists() or not (args.resume / "policy.pt").exists():
-        raise SystemExit(f"nothing to resume at {args.resume} (no train.json and policy.pt)")
-    info = json.loads(info_path.read_text())
+    info, net = _resume_record(args, memory)
     history = info["history"]
     last = history[-1]["iteration"]
-    if last >= 1 and not info.get("save_data"):
-        raise SystemExit(
-            f"{args.resume} did not save its rollouts (--save-data): its aggregate is lost"
-        )
-    if not args.save_data:
-        raise SystemExit("--resume needs --save-data: the next resume reads this run's rollouts")
-    net = MLPPolicyNet.load(args.resume / "policy.pt")
-    if (net.features == "memory") != memory:
-        raise SystemExit(f"{args.resume} was trained on {net.features!r} features")
     print(f"resuming {args.resume} after iteration {last}")
     return net, history, last + 1, float(info.get("train_wall_s", 0.0))
+
+
+def _resume_record(args: argparse.Namespace, memory: bool) -> tuple[dict[str, Any], MLPPolicyNet]:
+    """``--resume RUN``'s train.json and network; ValueError naming the option where the
+    run cannot be continued (``memory``: this command's features have the memory block)."""
+    info_path = args.resume / "train.json"
+    if not info_path.exists() or not (args.resume / "policy.pt").exists():
+        raise ValueError(
+            f"--resume: nothing to resume at {args.resume} (no train.json and policy.pt)"
+        )
+    info = json.loads(info_path.read_text())
+    if info["history"][-1]["iteration"] >= 1 and not info.get("save_data"):
+        raise ValueError(
+            f"--resume {args.resume} did not save its rollouts (--save-data): its aggregate is lost"
+        )
+    if not args.save_data:
+        raise ValueError("--resume needs --save-data: the next resume reads this run's rollouts")
+    net = MLPPolicyNet.load(args.resume / "policy.pt")
+    if (net.features == "memory") != memory:
+        raise ValueError(f"--resume {args.resume} was trained on {net.features!r} features")
+    return info, net
 
 
 def dagger_rungs(args: argparse.Namespace, scenarios: list[str]) -> dict[str, tuple[str, dict]]:
@@ -352,11 +389,12 @@ def dagger_rungs(args: argparse.Namespace, scenarios: list[str]) -> dict[str, tu
 
 def _evaluate_iteration(
     args: argparse.Namespace, net: MLPPolicyNet, k: int, samples: int, start: float
-) -> None:
+) -> list[dict[str, Any]]:
     """With ``--eval-episodes``: iteration ``k``'s network on every rung (``dagger_rungs``),
-    rows in the run's evaluations.csv at its labelled robot-steps so far (``samples``)."""
+    rows in the run's evaluations.csv at its labelled robot-steps so far (``samples``);
+    the rows (none without)."""
     if not args.eval_episodes:
-        return
+        return []
     path = (args.out / f"iter_{k}" / "policy.pt").resolve()
     net.save(path, {"method": "dagger", "iteration": k})
     seed = args.eval_seed if args.eval_seed is not None else args.seed
@@ -367,17 +405,28 @@ def _evaluate_iteration(
         args.eval_episodes,
         seed,
         samples,
-        name=f"dagger:{args.out.name}",
+        algorithm="dagger",
+        training_seed=args.seed,
         elapsed=time.time() - start,
         max_cycles=args.eval_max_cycles,
     )
     for r in rows:
-        print(
+        tqdm.write(
             f"iteration {k} on {r['rung']}: success {r['success_rate']:.2f}, clean "
             f"{r['clean_success_rate']:.2f}, violation periods median "
-            f"{r['violation_periods_median']:.0f}",
-            flush=True,
+            f"{r['violation_periods_median']:.0f}"
         )
+    return rows
+
+
+def _evaluation_postfix(rows: list[dict[str, Any]], row: dict[str, Any]) -> dict[str, str]:
+    """The DAgger bar's postfix: the fit's loss and the evaluation's success and clean
+    success (means over the rungs)."""
+    out = {"loss": f"{row['loss']:.3g}"}
+    if rows:
+        out["success"] = f"{np.mean([r['success_rate'] for r in rows]):.2f}"
+        out["clean"] = f"{np.mean([r['clean_success_rate'] for r in rows]):.2f}"
+    return out
 
 
 def _dagger_fit(
@@ -488,14 +537,24 @@ def _dagger_settings(args: argparse.Namespace, scenarios: list[str]) -> dict[str
 
 
 def _add_env_args(p: argparse.ArgumentParser) -> None:
+    from uvms_env.env.options import CONSTRAINT_MODES
+
     add_condition_arguments(p)
     p.add_argument(
-        "--workers", type=int, default=1, help="processes that play the episodes (one core each)"
+        "--workers",
+        type=positive_int,
+        default=1,
+        help="processes that play the episodes (one core each)",
     )
-    p.add_argument("--max-cycles", type=int, default=None, help="cap on the episode length")
-    p.add_argument("--constraint-mode", default=None, choices=["penalize", "terminate"])
     p.add_argument(
-        "--noise", type=float, default=0.0, help="std of Gaussian noise on executed actions (DART)"
+        "--max-cycles", type=positive_int, default=None, help="cap on the episode length"
+    )
+    p.add_argument("--constraint-mode", default=None, choices=CONSTRAINT_MODES)
+    p.add_argument(
+        "--noise",
+        type=non_negative_float,
+        default=0.0,
+        help="std of Gaussian noise on executed actions (DART)",
     )
     p.add_argument(
         "--expert",
@@ -505,38 +564,44 @@ def _add_env_args(p: argparse.ArgumentParser) -> None:
 
 
 def _add_train_args(p: argparse.ArgumentParser, epochs: int, data_required: bool = True) -> None:
-    p.add_argument("--data", type=Path, action="append", required=data_required, help="data/NAME")
-    p.add_argument("--epochs", type=int, default=epochs)
-    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument(
+        "--data", type=existing_path, action="append", required=data_required, help="data/NAME"
+    )
+    p.add_argument("--epochs", type=positive_int, default=epochs)
+    p.add_argument("--lr", type=positive_float, default=1e-3)
     p.add_argument("--lr-schedule", default="constant", choices=bc.LR_SCHEDULES)
-    p.add_argument("--batch-size", type=int, default=256)
+    p.add_argument("--batch-size", type=positive_int, default=256)
     p.add_argument(
         "--loss-scale", default="none", choices=bc.LOSS_SCALES, help="std: per-component 1/var"
     )
-    p.add_argument("--hidden", type=int, nargs="*", default=[128, 128], help="widths; none: linear")
+    p.add_argument(
+        "--hidden", type=positive_int, nargs="*", default=[128, 128], help="widths; none: linear"
+    )
     p.add_argument(
         "--margin-weight",
-        type=float,
+        type=non_negative_float,
         default=0.0,
         help="samples near a speed or joint limit weigh up to 1 + W (bc.margin_weights)",
     )
     p.add_argument("--features", default="features", choices=FEATURES, help="input set")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=non_negative_int, default=0)
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = command_parser("baselines.imitate", __doc__)
     sub = ap.add_subparsers(dest="command", required=True)
-    c = sub.add_parser("collect", help="expert demonstrations to a Minari dataset")
-    c.add_argument("--scenario", default="paper")
-    c.add_argument("--episodes", type=int, default=4)
-    c.add_argument("--seed", type=int, default=0)
+    c = sub.add_parser(
+        "collect", help="expert demonstrations to a Minari dataset", allow_abbrev=False
+    )
+    c.add_argument("--scenario", choices=SCENARIOS, default="paper")
+    c.add_argument("--episodes", type=positive_int, default=4)
+    c.add_argument("--seed", type=non_negative_int, default=0)
     c.add_argument("--out", type=Path, required=True, help="data/NAME")
     _add_env_args(c)
-    b = sub.add_parser("bc", help="behaviour cloning")
+    b = sub.add_parser("bc", help="behaviour cloning", allow_abbrev=False)
     _add_train_args(b, epochs=50)
     b.add_argument("--out", type=Path, default=Path("runs/bc"))
-    d = sub.add_parser("dagger", help="DAgger with the expert relabelling")
+    d = sub.add_parser("dagger", help="DAgger with the expert relabelling", allow_abbrev=False)
     _add_train_args(d, epochs=30, data_required=False)
     d.add_argument(
         "--init", default=None, help="start from this clone (dagger:pretrained, bc:PATH, ...)"
@@ -544,30 +609,34 @@ def main(argv: list[str] | None = None) -> None:
     d.add_argument(
         "--scenario",
         action="append",
+        type=scenario_entry,
         default=None,
         help="NAME or NAME:EPISODES (per iteration); repeatable; default short",
     )
-    d.add_argument("--iterations", type=int, default=4)
+    d.add_argument("--iterations", type=non_negative_int, default=4)
     d.add_argument(
         "--warm-start",
-        type=int,
+        type=positive_int,
         default=None,
         metavar="EPOCHS",
         help="iterations 1.. fine-tune the previous network for EPOCHS epochs on the "
         "aggregate (default: a new network each iteration, --epochs)",
     )
-    d.add_argument("--episodes-per-iteration", type=int, default=2, help="per scenario")
-    d.add_argument("--beta", type=float, default=0.5, help="beta_k = beta**k")
+    d.add_argument("--episodes-per-iteration", type=positive_int, default=2, help="per scenario")
+    d.add_argument("--beta", type=fraction, default=0.5, help="beta_k = beta**k")
     d.add_argument("--save-data", action="store_true", help="write each iteration's data")
     d.add_argument(
         "--resume",
-        type=Path,
+        type=existing_path,
         default=None,
         metavar="RUN",
         help="continue a run saved with --save-data up to --iterations (its folder is --out)",
     )
     d.add_argument(
-        "--gate", type=float, default=None, help="learner acts only within this of the label"
+        "--gate",
+        type=positive_float,
+        default=None,
+        help="learner acts only within this of the label",
     )
     add_evaluation_arguments(
         d, 0, "after each fit, evaluate the network on every rung this many episodes (0: none)"
@@ -575,7 +644,64 @@ def main(argv: list[str] | None = None) -> None:
     d.add_argument("--out", type=Path, default=Path("runs/dagger"))
     _add_env_args(d)
     args = ap.parse_args(argv)
+    check = {"collect": check_collect, "bc": None, "dagger": check_dagger}[args.command]
+    if check is not None:
+        parser = {"collect": c, "dagger": d}[args.command]
+        with usage_errors(parser, (ValueError,)):  # before any rollout, fit or file
+            check(args)
     {"collect": collect, "bc": train_bc, "dagger": train_dagger}[args.command](args)
+
+
+def check_collect(args: argparse.Namespace) -> None:
+    """``collect``'s options: ValueError naming the one the environment or the teacher
+    refuses."""
+    _check_rollouts(args, [args.scenario], args.seed)
+
+
+def check_dagger(args: argparse.Namespace) -> None:
+    """``dagger``'s options: ValueError naming the one that cannot be honoured."""
+    if not args.data and args.init is None:
+        raise ValueError("dagger needs --data (demonstrations) or --init (a clone to start from)")
+    features = args.features if args.init is None else _init_network(args.init).features
+    if args.resume is not None:
+        _resume_record(args, features == "memory")
+    _check_rollouts(args, args.scenario or ["short"], args.seed)
+
+
+def _check_rollouts(args: argparse.Namespace, entries: list[str], seed: int) -> None:
+    """The environment of every scenario (each of its team sizes) and the teacher
+    (``--expert``; not ``self+filter``, the network itself) built once, through the
+    evaluator's ``preflight``; ``--n-agents`` that no scenario would use is refused."""
+    from baselines.evaluation.runner import Case, UsageError, preflight
+
+    scenarios = [_scenario_episodes(e, 1)[0] for e in entries]
+    sizes = team_sizes(args)
+    if sizes and "random" not in scenarios:
+        # the fixed scenarios keep their own team: a size they do not have is refused
+        for scenario in scenarios:
+            for n in sizes:
+                overrides = {**env_overrides(scenario, args), "n_agents": n}
+                case = Case(scenario, scenario, tuple(overrides.items()))
+                try:
+                    preflight([], [case], seed, {}, progress=False)
+                except UsageError as exc:
+                    raise ValueError(f"--n-agents {n}: {exc}") from exc
+    cases = []
+    for scenario in dict.fromkeys(scenarios):
+        job = rollout_job(scenario, args)
+        for n in job.n_agents or (None,):
+            overrides = dict(job.overrides) | ({} if n is None else {"n_agents": n})
+            label = scenario if n is None else f"{scenario} --n-agents {n}"
+            cases.append(Case(label, scenario, tuple(overrides.items())))
+    try:
+        preflight([], cases, seed, {}, args.max_cycles, progress=False)
+    except UsageError as exc:
+        raise ValueError(f"--scenario: {exc}") from exc
+    if args.expert != SELF_FILTER:
+        try:
+            preflight([args.expert], cases[:1], seed, {}, args.max_cycles, progress=False)
+        except UsageError as exc:
+            raise ValueError(f"--expert: {exc}") from exc
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ import casadi as cs
 import numpy as np
 
 from uvms_env.dynamics.compiled import BufferCall, compile_function
+from uvms_env.dynamics.payload import object_tag
 from uvms_env.env.priors import (
     ACT_DIM,
     BASE_FEATURES,
@@ -81,7 +82,7 @@ def inputs_sx(
     mean, inv_std, clip = cs.SX.sym("mean", n), cs.SX.sym("inv_std", n), cs.SX.sym("clip")
     z = cs.fmin(clip, cs.fmax(-clip, (x - mean) * inv_std))
     ff = x[n - ACT_DIM :] if features in FEEDFORWARD else cs.DM.zeros(ACT_DIM)
-    tag = f"{features}_{ring_radius:.4f}_{dim}".replace(".", "p").replace("-", "")
+    tag = f"{features.replace('-', '')}_{object_tag(ring_radius)}_{dim}"
     return [o, mean, inv_std, clip], z, ff, tag
 
 
@@ -96,9 +97,10 @@ def input_function(features: str, ring_radius: float, dim: int = OBS_DIM) -> cs.
 
 
 def object_ring(ring_radius: float | None, features: str) -> float:
-    """The object argument of the compiled functions (0 for the bar or unused)."""
+    """The object argument of the compiled functions: its key (``object_ring_radius``;
+    0 when unused)."""
     if features in FEEDFORWARD and ring_radius is None:
-        raise ValueError(f"{features} features need the object (ring radius, 0 for the bar)")
+        raise ValueError(f"{features} features need the object (its object_ring_radius)")
     return float(ring_radius or 0.0)
 
 
@@ -167,7 +169,7 @@ def prepare(
     if features not in FEEDFORWARD:
         return base
     if ring_radius is None:
-        raise ValueError(f"{features} features need the object (ring radius, 0 for the bar)")
+        raise ValueError(f"{features} features need the object (its object_ring_radius)")
     single = obs.ndim == 1
     o2 = np.atleast_2d(obs).astype(np.float64)
     rings = np.broadcast_to(np.asarray(ring_radius, dtype=np.float64), (len(o2),))

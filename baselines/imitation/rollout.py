@@ -89,6 +89,10 @@ def rollouts(
 
         def record(step: Step, labelled: _Labelling = labelled, ep: int = ep) -> None:
             labelled.record(step)
+            if step.index == 0:
+                # the episode's env, geometry and policies are built, its first decision
+                # compiled: the bar's rate and ETA leave that time out
+                bar.unpause()
             if (step.index + 1) % 50 == 0:
                 bar.set_postfix(ep=ep, step=step.index + 1)
 

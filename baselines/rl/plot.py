@@ -7,8 +7,11 @@
         --out docs/figures/learning_curves_seeds.png
 
 ``--group``: runs of one variant over training seeds, drawn as the mean and its 95% band
-(Student t over the seeds); ``--per-seed``: every seed's evaluations on every rung.
-Reference: docs/rl.md.
+(Student t over the seeds, ``baselines.stats``); ``--per-seed``: every seed's
+evaluations on every rung. Reference: docs/rl.md.
+
+May import: the standard library, numpy, ``baselines.evaluation.report`` (the figures'
+backend), ``baselines.options`` and ``baselines.stats``.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import numpy as np
 
 from baselines.evaluation.report import pyplot, save
 from baselines.options import command_parser
+from baselines.stats import t_band
 
 
 def read_csv(path: Path) -> dict[str, np.ndarray]:
@@ -103,16 +107,10 @@ def plot(runs: list[Path], out: Path) -> None:
 
 def mean_band(xs: list[np.ndarray], ys: list[np.ndarray], grid: np.ndarray):
     """Mean and 95% t-interval half-width over runs of y(x), interpolated onto ``grid``."""
-    from scipy import stats
-
     table = np.array(
         [np.interp(grid, x, y, left=np.nan, right=np.nan) for x, y in zip(xs, ys, strict=True)]
     )
-    n = np.sum(np.isfinite(table), axis=0)
-    mean = np.nanmean(table, axis=0)
-    sd = np.nanstd(table, axis=0, ddof=1) if len(xs) > 1 else np.zeros_like(mean)
-    half = stats.t.ppf(0.975, np.maximum(n - 1, 1)) * sd / np.sqrt(np.maximum(n, 1))
-    return mean, np.where(n > 1, half, 0.0)
+    return t_band(table)
 
 
 def plot_groups(groups: dict[str, list[Path]], out: Path) -> None:

@@ -8,8 +8,8 @@ normalized (``VecNormalize``, saved with the model). The run folder also gets
 Flags and the modules behind them: docs/rl.md.
 
 May import: numpy, torch and stable-baselines3 (inside the trainer), ``baselines.runs``,
-``baselines.lagrangian``, ``baselines.loaded_policy`` (a run's priors), ``baselines.rl``
-and ``uvms_env``.
+``baselines.lagrangian``, ``baselines.loaded_policy`` (a run's priors), ``baselines.rl``,
+``baselines.options`` (the flags' types) and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from baselines.loaded_policy import priors_from_options
+from baselines.options import non_negative_float, non_negative_int
 from baselines.rl.policy import ALGOS, algorithm_class
 from baselines.runs import (
     DEFAULT_DTYPE,
@@ -41,6 +42,7 @@ if TYPE_CHECKING:
 # 64 copies: the batched step and torch's forward amortize their per-call cost over many
 # robots (benchmarks/train_throughput.py).
 DEFAULTS: dict[str, Any] = {"num_envs": 64, "geometry_pool": 1024}
+SEVERAL_TEAM_SIZES = True  # one group of env copies per team size (``make_vec_env``)
 ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
     # PPO: the many-environments regime of GPU simulators' PPO (short rollouts of many
     # copies, few epochs, large minibatches): 32 steps per sub-env, 4 epochs; on the
@@ -108,10 +110,11 @@ def add_arguments(g: Any) -> None:
     )
     g.add_argument(
         "--filter-penalty",
-        type=float,
-        default=1.0,
+        type=non_negative_float,
+        default=None,
         metavar="W",
-        help="with --filter: each robot's reward minus W |a_safe - a_prop|^2 (command space)",
+        help="with --filter: each robot's reward minus W |a_safe - a_prop|^2 (command space; "
+        f"default {FILTER_PENALTY})",
     )
     g.add_argument(
         "--init-actor",
@@ -123,7 +126,7 @@ def add_arguments(g: Any) -> None:
     )
     g.add_argument(
         "--anchor",
-        type=float,
+        type=non_negative_float,
         default=0.0,
         metavar="W",
         help="with --init-actor: each robot's reward minus W times the squared distance "
@@ -131,11 +134,53 @@ def add_arguments(g: Any) -> None:
     )
     g.add_argument(
         "--critic-warmup",
-        type=int,
+        type=non_negative_int,
         default=0,
         metavar="ROBOT_STEPS",
         help="PPO: the actor stays fixed for this many robot-steps while the critic learns",
     )
+
+
+# what SB3's algorithms take that is no hyperparameter of ``--hp`` (the trainer sets them)
+NOT_HYPERPARAMETERS = ("self", "policy", "env", "seed", "device", "verbose", "_init_setup_model")
+
+
+# shielded training's penalty weight where --filter comes without --filter-penalty
+FILTER_PENALTY = 1.0
+
+
+def filter_penalty(args: argparse.Namespace) -> float | None:
+    """The shield's penalty weight of a run (None: no shield)."""
+    if not getattr(args, "filter", False):
+        return None
+    value = getattr(args, "filter_penalty", None)
+    return FILTER_PENALTY if value is None else value
+
+
+def check_options(settings: Any, algo: str, args: argparse.Namespace) -> None:
+    """ValueError naming the option where this trainer cannot honour ``settings``
+    (``baselines.runs.RunSettings``) or its own options ``args``: before any work."""
+    import inspect
+
+    if algo not in ALGO_DEFAULTS:
+        raise ValueError(f"unknown algorithm {algo!r}; expected one of {ALGOS}")
+    if args.central_critic and algo != "ppo":
+        raise ValueError("--central-critic (MAPPO) needs --algo ppo (no LSTM)")
+    if getattr(args, "init_actor", None) and algo != "ppo":
+        raise ValueError("--init-actor initializes PPO's actor (--algo ppo)")
+    if getattr(args, "anchor", 0.0) and not getattr(args, "init_actor", None):
+        raise ValueError("--anchor keeps PPO near its initial clone: give --init-actor")
+    if getattr(args, "critic_warmup", 0) and algo not in ON_POLICY:
+        raise ValueError(f"--critic-warmup holds PPO's actor: --algo {' or '.join(ON_POLICY)}")
+    if getattr(args, "filter_penalty", None) is not None and not getattr(args, "filter", False):
+        raise ValueError("--filter-penalty weighs the safety filter's corrections: give --filter")
+    if getattr(args, "filter", False) and len(settings.team_sizes) > 1:
+        raise ValueError("shielded training (--filter) takes one team size (--n-agents N)")
+    taken = inspect.signature(algorithm_class(algo).__init__).parameters
+    known = sorted(k for k in taken if k not in NOT_HYPERPARAMETERS)
+    unknown = sorted(set(settings.hyperparameters) - set(known))
+    if unknown:
+        raise ValueError(f"--hp {unknown}: SB3's {algo} takes none of them; it takes {known}")
 
 
 def env_settings(
@@ -185,8 +230,6 @@ def make_vec_env(
 
     settings = env_settings(scenario, dtype, geometry_pool, env_threads, overrides)
     sizes: tuple[int | None, ...] = tuple(team_sizes) or (None,)
-    if filter_penalty is not None and len(sizes) > 1:
-        raise ValueError("shielded training (--filter) takes one team size")
     parts, inners = [], []
     for j, n in enumerate(sizes):
         kwargs = {**TRAIN_ENV_DEFAULTS, **overrides}
@@ -278,12 +321,7 @@ class Trainer:
     """SB3's PPO or SAC under a ``baselines.runs.Run`` (``baselines.runs.Trainer``)."""
 
     def __init__(self, run: Run, algo: str, args: argparse.Namespace) -> None:
-        if algo not in ALGO_DEFAULTS:
-            raise ValueError(f"unknown algorithm {algo!r}; expected one of {ALGOS}")
-        if args.central_critic and algo != "ppo":
-            raise ValueError("a central critic (MAPPO) needs --algo ppo (no LSTM)")
-        if getattr(args, "init_actor", None) and algo != "ppo":
-            raise ValueError("--init-actor initializes PPO's actor (--algo ppo)")
+        check_options(run.settings, algo, args)
         self.run, self.algo, self.args = run, algo, args
         self.model: Any = None
         self.venv: Any = None
@@ -315,7 +353,7 @@ class Trainer:
             **env,
             cost=s.cost,
             central_critic=a.central_critic,
-            filter_penalty=a.filter_penalty if getattr(a, "filter", False) else None,
+            filter_penalty=filter_penalty(a),
             team_sizes=s.team_sizes,
         )
         venv = self._anchored(venv, clone)
@@ -344,7 +382,7 @@ class Trainer:
             "policy_kwargs": chosen_policy_kwargs,
             "central_critic": a.central_critic,
             "torch_threads": torch.get_num_threads(),
-            "filter": {"penalty": a.filter_penalty} if self.shield is not None else None,
+            "filter": {"penalty": filter_penalty(a)} if self.shield is not None else None,
             "init_actor": getattr(a, "init_actor", None),
             "critic_warmup": getattr(a, "critic_warmup", 0),
             "anchor": getattr(a, "anchor", 0.0),
@@ -376,8 +414,6 @@ class Trainer:
         anchor = getattr(a, "anchor", 0.0)
         if not anchor:
             return venv
-        if not getattr(a, "init_actor", None):
-            raise ValueError("--anchor keeps PPO near its initial clone: give --init-actor")
         from baselines.rl import init_actor
         from baselines.rl.anchor import AnchorPenalty
 
@@ -474,6 +510,14 @@ def _progress_callback(trainer: Trainer) -> Any:
     run, penalty, shield = trainer.run, trainer.penalty, trainer.shield
 
     class ProgressCallback(BaseCallback):
+        def _on_training_start(self) -> None:
+            # after SB3's first reset of the envs: the build is over, stepping starts
+            n_envs = self.model.n_envs
+            if trainer.algo in ON_POLICY:
+                run.begin(self.model.n_steps * n_envs)
+            else:  # SAC steps every sub-env once per call
+                run.begin(n_envs, ("step of every robot sub-env", "steps of every robot sub-env"))
+
         def _init_callback(self) -> None:
             leaders = team_leaders(self.training_env)
             self.leaders = leaders if leaders is not None else [True] * self.model.n_envs
@@ -492,6 +536,7 @@ def _progress_callback(trainer: Trainer) -> Any:
                 if "episode" in info and self.leaders[i]:
                     self.returns.append(float(info["episode"]["r"]))
                     self.lengths.append(float(info["episode"]["l"]))
+            run.advance(self.model.num_timesteps)
             return True
 
         def _on_rollout_end(self) -> None:

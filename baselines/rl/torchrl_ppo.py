@@ -9,8 +9,8 @@ trainer (``HYPERPARAMETERS``); the actor keeps the observation statistics, so th
 Reference: docs/rl.md, "The torchrl trainer".
 
 May import: numpy, torch, tensordict and torchrl (inside the training functions),
-``baselines.runs``, ``baselines.lagrangian``, ``baselines.registry``,
-``baselines.rl.torchrl_policy`` (the actor's network) and ``uvms_env``.
+``baselines.runs``, ``baselines.lagrangian``, ``baselines.registry``, ``baselines.options``
+(the flags' types), ``baselines.rl.torchrl_policy`` (the actor's network) and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ import torch
 from torch import nn
 
 from baselines.lagrangian import Lagrangian
+from baselines.options import positive_int
 from baselines.registry import LIBRARIES
 from baselines.rl.torchrl_policy import (
     ACTOR_FILE,
@@ -63,6 +64,7 @@ HYPERPARAMETERS: dict[str, Any] = {
 TRAINER_FILE = "trainer.pt"
 # As the SB3 trainer: a seeded family's episodes take the bank's first 1,024 geometries.
 DEFAULTS: dict[str, Any] = {"num_envs": 64, "geometry_pool": 1024}
+SEVERAL_TEAM_SIZES = True  # one TorchRL env per team size, one shared policy
 
 
 OPTIONS_NOTE = f"--hp KEY=JSON sets one of {', '.join(HYPERPARAMETERS)}"
@@ -78,7 +80,28 @@ def add_arguments(g: Any) -> None:
         "the networks and the updates live",
     )
     add_step_arguments(g)
-    g.add_argument("--torch-threads", type=int, default=1)
+    g.add_argument("--torch-threads", type=positive_int, default=1)
+
+
+def check_options(settings: Any, algo: str, args: argparse.Namespace) -> None:
+    """ValueError naming the option where this trainer cannot honour ``settings``
+    (``baselines.runs.RunSettings``) or its own options ``args``: before any work."""
+    if algo not in ALGOS:
+        raise ValueError(f"torchrl trains {ALGOS}, not {algo!r}")
+    if args.backend not in BACKENDS:
+        raise ValueError(f"--backend must be one of {BACKENDS}, got {args.backend!r}")
+    if args.dtype not in DTYPES:
+        raise ValueError(f"--dtype must be one of {DTYPES}, got {args.dtype!r}")
+    unknown = set(settings.hyperparameters) - set(HYPERPARAMETERS)
+    if unknown:
+        known = list(HYPERPARAMETERS)
+        raise ValueError(f"--hp: unknown hyperparameters {sorted(unknown)}; known: {known}")
+    if settings.cost is not None and len(settings.team_sizes) > 1:
+        raise ValueError(
+            "--cost with several team sizes: train it with --library sb3 (one multiplier "
+            "over every robot), or give torchrl one team size"
+        )
+    parse_device(args.device, args.backend)
 
 
 # -- networks ---------------------------------------------------------------------------------
@@ -102,7 +125,7 @@ def parse_device(text: str | int | None, backend: str) -> str | int:
     if str(text).startswith("cuda:") and str(text)[5:].isdigit():
         return int(str(text)[5:])
     if text != "cpu":
-        raise ValueError(f"device must be a GPU index or 'cpu', got {text!r}")
+        raise ValueError(f"--device must be a GPU index or 'cpu', got {text!r}")
     return "cpu"
 
 
@@ -272,16 +295,7 @@ class Trainer:
     """TorchRL's PPO under a ``baselines.runs.Run`` (``baselines.runs.Trainer``)."""
 
     def __init__(self, run: Run, algo: str, args: argparse.Namespace) -> None:
-        if algo not in ALGOS:
-            raise ValueError(f"torchrl trains {ALGOS}, not {algo!r}")
-        if args.backend not in BACKENDS:
-            raise ValueError(f"backend must be one of {BACKENDS}, got {args.backend!r}")
-        if args.dtype not in DTYPES:
-            raise ValueError(f"dtype must be one of {DTYPES}, got {args.dtype!r}")
-        unknown = set(run.settings.hyperparameters) - set(HYPERPARAMETERS)
-        if unknown:
-            known = list(HYPERPARAMETERS)
-            raise ValueError(f"unknown hyperparameters {sorted(unknown)}; known: {known}")
+        check_options(run.settings, algo, args)
         self.run, self.args = run, args
         self.hp = {**HYPERPARAMETERS, **run.settings.hyperparameters}
         self.collectors: list[Any] = []
@@ -297,16 +311,10 @@ class Trainer:
 
         s, a, hp = self.run.settings, self.args, self.hp
         sizes: tuple[int | None, ...] = tuple(s.team_sizes) or (None,)
-        if s.cost is not None and len(sizes) > 1:
-            raise ValueError(
-                "--cost with several team sizes: train it with --library sb3 (one multiplier "
-                "over every robot), or give torchrl one team size"
-            )
         device = parse_device(a.device, a.backend)
         pool = seeded_pool(s.scenario, s.overrides, s.geometry_pool)
         torch.set_num_threads(a.torch_threads)
         torch.manual_seed(s.seed + self.run.config["resumes"])
-        setup_start = time.perf_counter()
         envs = [self._group_env(j, n, device, pool) for j, n in enumerate(sizes)]
         dev = self.dev = envs[0].device
         if s.cost is not None:
@@ -360,7 +368,6 @@ class Trainer:
             "minibatch_robot_samples": minibatch,
             "robot_steps_per_iteration": self.robot_steps_per_batch,
             "torch_threads": torch.get_num_threads(),
-            "setup_s": round(time.perf_counter() - setup_start, 1),
         }
 
     def _group_env(self, j: int, n_agents: int | None, device: str | int, pool: int | None):
@@ -384,6 +391,8 @@ class Trainer:
 
         if self.iterations == 0:
             return self.robot_steps
+        # the collectors reset their envs when they were made: stepping starts here
+        self.run.begin(self.robot_steps_per_batch)
         hp, loss = self.hp, self.loss
         tick = time.perf_counter()
         for batches in zip(*self.collectors, strict=True):

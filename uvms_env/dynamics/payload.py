@@ -10,9 +10,18 @@ V = blkdiag(R^T, R^T) v_O and Vdot = blkdiag(R^T, R^T) v_O_dot + [-w x v; 0].
 ``p_O`` holds what a scenario may perturb: mass, displaced volume, added-mass and drag
 scales. Grasp kinematics (paper eq3-eq4): end effector i sits at p_O + R_O l_i with
 rotation R_O R_Oi; its inertial twist is J_Oi v_O, J_Oi = [[I, -S(R_O l_i)], [0, I]].
+
+An object is a shape and a size: a ring's radius or a bar's length (0: the parameter
+file's bar, ``object.bar.length``). ``object_key`` writes both as one number, the name
+the compiled functions, the priors and the datasets use (``object_ring_radius``): the
+ring's radius, 0 for the parameter file's bar, minus the length for another bar.
+
+May import: numpy, casadi, ``uvms_env.models`` and the sibling ``dynamics`` modules.
 """
 
 from __future__ import annotations
+
+import math
 
 import casadi as cs
 import numpy as np
@@ -36,6 +45,45 @@ OBJECT_PARAMETER_LAYOUT: dict[str, int] = {
     "drag_scale": 3,
 }
 NPO = 4
+DEFAULT_RING_RADIUS = 1.6  # m, a ring built without a size
+# Strip length of a bar's strip theory: the parameter file's 1.8 m bar in 8 strips; a
+# longer bar keeps the strip length (more strips), so its drag is resolved alike.
+BAR_STRIP_LENGTH = 0.225  # m
+# Two sizes of one shape closer than this are the same object.
+SIZE_TOLERANCE = 1e-9
+
+
+def bar_length(size: float | None, params: Parameters | None = None) -> float:
+    """A bar's length from its size: ``|size|`` (the object key writes a bar's length
+    negative), the parameter file's ``object.bar.length`` for 0 or None."""
+    if size is None or abs(float(size)) < SIZE_TOLERANCE:
+        return (params or load_parameters()).object.bar_length
+    return abs(float(size))
+
+
+def object_key(shape: str, size: float | None, params: Parameters | None = None) -> float:
+    """The object as one number: a ring's radius; 0 for the parameter file's bar, minus
+    the length for another bar. Equal objects get equal keys (a bar of the file's length
+    is 0, whether its size says 0 or the length)."""
+    if shape == "ring":
+        return float(size) if size is not None else DEFAULT_RING_RADIUS
+    if shape != "bar":
+        raise ValueError(f"unknown object shape {shape!r}: expected 'bar' or 'ring'")
+    length = bar_length(size, params)
+    default = (params or load_parameters()).object.bar_length
+    return 0.0 if abs(length - default) < SIZE_TOLERANCE else -length
+
+
+def object_size(shape: str, size: float | None, params: Parameters | None = None) -> float:
+    """The canonical size of an object (what a scenario stores): a ring's radius; a bar's
+    length, 0 for the parameter file's bar, so that its compiled functions keep one name."""
+    return abs(object_key(shape, size, params))
+
+
+def object_tag(key: float) -> str:
+    """An object key inside compiled functions' names: ``1p6000`` for a ring of 1.6 m,
+    ``0p0000`` for the parameter file's bar, ``m5p0000`` for a 5 m bar."""
+    return f"{float(key):.4f}".replace(".", "p").replace("-", "m")
 
 
 def bar_segments(length: float) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -51,20 +99,28 @@ def ring_segments(radius: float, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
 
 
 class ObjectModel:
-    """Symbolic model of the object. ``shape`` is "bar" or "ring" (``ring_radius`` in m)."""
+    """Symbolic model of the object. ``shape`` is "bar" or "ring"; ``size`` (m) a ring's
+    radius (default 1.6) or a bar's length (``bar_length``: None, 0 or the object key's
+    negative length all name a bar)."""
 
     def __init__(
-        self, shape: str = "bar", ring_radius: float = 1.6, params: Parameters | None = None
+        self, shape: str = "bar", size: float | None = None, params: Parameters | None = None
     ) -> None:
         prm = params or load_parameters()
         obj = prm.object
         if shape == "bar":
-            segments, per = bar_segments(obj.bar_length), 8
+            length = bar_length(size, prm)
+            segments = bar_segments(length)
+            per = max(1, math.ceil(round(length / BAR_STRIP_LENGTH, 6)))
         elif shape == "ring":
-            segments, per = ring_segments(ring_radius, obj.ring_segments), 1
+            radius = DEFAULT_RING_RADIUS if size is None else float(size)
+            if not (math.isfinite(radius) and radius > 0):
+                raise ValueError(f"a ring's radius must be a finite float > 0, got {size!r}")
+            segments, per = ring_segments(radius, obj.ring_segments), 1
         else:
             raise ValueError(f"unknown object shape {shape!r}: expected 'bar' or 'ring'")
         self.shape = shape
+        self.key = object_key(shape, size, prm)
         self.segments = segments
         self.strips = Strips.along(segments, obj.tube_radius, per)
         self.length = self.strips.total_length
@@ -132,6 +188,11 @@ class ObjectModel:
             [x, v],
             [cs.vertcat(v[:3], euler_rate_matrix(x[3:6]) @ rot.T @ v[3:])],
         )
+
+    @classmethod
+    def from_key(cls, key: float) -> ObjectModel:
+        """The object named by ``object_key``'s number."""
+        return cls("ring", key) if key > 0 else cls("bar", key)
 
     def nominal_parameters(self) -> np.ndarray:
         p = np.zeros(NPO)

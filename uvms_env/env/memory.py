@@ -30,6 +30,7 @@ import numpy as np
 from uvms_env.dynamics import NQ, NU
 from uvms_env.dynamics.compiled import BufferCall, compile_function
 from uvms_env.dynamics.local_model import local_terms
+from uvms_env.dynamics.payload import object_tag
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.env.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
 from uvms_env.env.priors import object_model, own_model_inputs
@@ -66,7 +67,7 @@ def _update_one(ring: float) -> cs.Function:
     u, d, h = cs.SX.sym("command", NU), cs.SX.sym("d", NU), cs.SX.sym("period")
     raw = disturbance_sx(o, zeta, u, h, ring)
     new = cs.fmin(DISTURBANCE_LIMIT, cs.fmax(-DISTURBANCE_LIMIT, d + DISTURBANCE_GAIN * (raw - d)))
-    name = f"memory_update_{ring:.4f}".replace(".", "p")
+    name = f"memory_update_{object_tag(ring)}"
     return compile_function(cs.Function(name, [o, zeta, u, d, h], [new], {"cse": True}))
 
 

@@ -31,6 +31,7 @@ from uvms_env.scenarios import FAMILIES, SEEDED_FAMILIES, Scenario, make, replac
 from uvms_env.scenarios.bank import GeometryBank
 from uvms_env.scenarios.families import default_agents
 from uvms_env.scenarios.overrides import (
+    FAMILY_OPTIONS,
     SCENARIO_OVERRIDES,
     Option,
     describe_options,
@@ -106,7 +107,11 @@ class EnvSetup:
         self.priors = priors_of(self.options)
         self.comm = channel_settings(self.options.get("comm"))
         self.draws = condition_draws(self.options.get("randomize"))
-        self._bank = GeometryBank(self.family, self.n_agents) if self.seeded else None  # type: ignore[arg-type]
+        self._bank = (
+            GeometryBank(self.family, self.n_agents, overrides=self.overrides)  # type: ignore[arg-type]
+            if self.seeded
+            else None
+        )
         self._by_seed: dict[int, Scenario] = {}
 
     @property
@@ -152,8 +157,9 @@ def resolve(
     ``default_seed`` without one (None: a fresh random draw)."""
     overrides, options, own = split_keywords(keywords, extra, extra_name)
     if isinstance(scenario, Scenario):
-        if "n_agents" in overrides:
-            raise ValueError("n_agents cannot be overridden on a built Scenario")
+        for key in FAMILY_OPTIONS:
+            if key in overrides:
+                raise ValueError(f"{key} cannot be overridden on a built Scenario")
         setup = EnvSetup(None, overrides, options, own, False, scenario.n_agents)
         setup.scenario = replace(scenario, **overrides) if overrides else scenario
         return setup

@@ -129,8 +129,9 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     `policy_time_ms` is left None). The internal wrench metric costs ~20 us (~6% of a
     step); `internal_wrench_every=0` drops it (e.g. for training).
 
-    **Rendering.** `render_mode="rgb_array"`: `render()` returns a 720 x 360 x 3 uint8
-    top and side view (`uvms_env.env.render`); "human" and videos: docs/environment.md.
+    **Rendering.** `render_mode="rgb_array"`: `render()` returns a (360, 720, 3) uint8
+    array (height, width, RGB), a top and a side view (`uvms_env.env.render`); "human"
+    and videos: docs/environment.md.
 
     **Beyond the API.** `env.sim` and `env.scenario` (global: never feed them to a
     policy), `env.observe()` (observations of the current state, e.g. after

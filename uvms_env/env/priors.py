@@ -31,6 +31,7 @@ import numpy as np
 from uvms_env.dynamics import NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall, compile_function
 from uvms_env.dynamics.local_model import build_local_model, build_steady_input
+from uvms_env.dynamics.payload import object_tag
 from uvms_env.dynamics.spatial import wrap_angle, wrap_angle_sx
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.env.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
@@ -143,14 +144,16 @@ def featurize_sx(o: cs.SX) -> cs.SX:
 
 @functools.cache
 def _steady_input(ring_radius: float) -> cs.Function:
-    """The expert's a_ss(x, theta, v_d) for the bar (``ring_radius`` 0) or a ring."""
+    """The expert's a_ss(x, theta, v_d) for the object ``ring_radius`` (its key)."""
     uvms, obj = default_model(), object_model(ring_radius)
     return build_steady_input(uvms, obj, build_local_model(uvms, obj))
 
 
 def object_model(ring_radius: float) -> ObjectModel:
-    """The carried object by the compiled functions' name for it (0: the bar)."""
-    return ObjectModel("ring", ring_radius) if ring_radius > 0 else ObjectModel("bar")
+    """The carried object by the compiled functions' name for it, its key
+    (``uvms_env.dynamics.payload.object_key``: a ring's radius, 0 for the parameter
+    file's bar, minus the length for another bar)."""
+    return ObjectModel.from_key(ring_radius)
 
 
 def own_model_inputs(o: cs.SX, ring_radius: float) -> tuple[cs.SX, cs.SX]:
@@ -179,7 +182,7 @@ def steady_sx(o: cs.SX, ring_radius: float) -> cs.SX:
 def _steady_one(ring_radius: float) -> cs.Function:
     """a_ss alone, compiled (the features come from the numpy ``featurize``)."""
     o = cs.SX.sym("obs", OBS_DIM)
-    name = f"prior_steady_{ring_radius:.4f}".replace(".", "p")
+    name = f"prior_steady_{object_tag(ring_radius)}"
     return compile_function(cs.Function(name, [o], [steady_sx(o, ring_radius)]))
 
 
@@ -188,7 +191,7 @@ def prior_functions(ring_radius: float) -> tuple[cs.Function, cs.Function]:
     """(a_ss, features) of one (79,) observation as CasADi functions, for batched
     kernels (the GPU backend evaluates them over every robot's column)."""
     o = cs.SX.sym("obs", OBS_DIM)
-    tag = f"{ring_radius:.4f}".replace(".", "p")
+    tag = object_tag(ring_radius)
     steady = cs.Function(f"prior_steady_{tag}", [o], [steady_sx(o, ring_radius)])
     return steady, cs.Function("prior_features", [o], [featurize_sx(o)])
 
@@ -219,7 +222,7 @@ def check_mode(name: str, value: object, allowed: tuple[str, ...]) -> str:
 class Priors:
     """The action and observation options. ``observe`` and ``command`` take (..., 79) raw
     observations of any leading shape (robots, environments x robots) of robots that
-    carry one object (``ring_radius``: the ring's radius, 0 for the bar)."""
+    carry one object (``ring_radius``: its key, ``Scenario.object_ring_radius``)."""
 
     action_mode: str = "torque"
     observation_mode: str = "raw"

@@ -62,6 +62,15 @@ class ObjectParameters:
     linear_drag_per_length: float
     bar_length: float
     ring_segments: int
+    random_bar_lengths: tuple[float, ...]  # the random family's bar for N = 2, 3, ... robots
+
+    def random_bar_length(self, n_agents: int) -> float:
+        """The random family's bar for a team of ``n_agents`` (from 2)."""
+        k = n_agents - 2
+        if not 0 <= k < len(self.random_bar_lengths):
+            top = len(self.random_bar_lengths) + 1
+            raise ValueError(f"the random family's bars hold 2..{top} robots, got {n_agents}")
+        return self.random_bar_lengths[k]
 
 
 @dataclass(frozen=True)
@@ -134,6 +143,7 @@ def load_parameters(path: Path | None = None) -> Parameters:
             **_fields(obj, ObjectParameters),
             bar_length=float(obj["bar"]["length"]),
             ring_segments=int(obj["ring"]["segments"]),
+            random_bar_lengths=tuple(float(v) for v in obj["bar"]["random_lengths"]),
         ),
         limits=Limits(**_fields(raw["limits"], Limits)),
         currents={

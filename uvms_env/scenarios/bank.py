@@ -6,10 +6,12 @@ batched environment copies a start instead of solving for one (docs/batched.md,
     g = bank.get(17)              # Geometry(scenario, navigation), built on first use
     bank.fill(range(1024))        # or ahead of time:
     python -m uvms_env.vector.build_bank random --n-agents 4 --seeds 0:1024 --workers 2
+    python -m uvms_env.vector.build_bank random --n-agents 4 --object bar --course mixed
 
-A geometry depends on the family, the team size and the seed only; every other scenario
-override is laid over it with ``scenarios.replace`` (``Geometry.scenario_with``), so one
-bank serves every such setting. Entries are keyed by a hash of the code that builds them
+A geometry depends on the family, its geometry options (the team size; the random
+family's object and course) and the seed only; every other scenario override is laid
+over it with ``scenarios.replace`` (``Geometry.scenario_with``), so one bank serves every
+such setting. Entries are keyed by a hash of the code that builds them
 (the scenario and navigation modules and the model parameters): a change there starts a
 new bank instead of serving stale geometries. ``geometry_of_seed`` gives the single and
 the batched environment the same scenario of a seed.
@@ -37,7 +39,18 @@ from uvms_env.dynamics.compiled import cache_dir
 from uvms_env.navigation.parametric import N_CYLINDERS, N_SPHERES, twist_parameters
 from uvms_env.navigation.task_navigator import task_navigator
 from uvms_env.scenarios.config import Scenario
-from uvms_env.scenarios.families import SEEDED_FAMILIES, make, replace
+from uvms_env.scenarios.families import (
+    RANDOM_DEFAULT_COURSE,
+    RANDOM_DEFAULT_OBJECT,
+    SEEDED_FAMILIES,
+    make,
+    replace,
+)
+from uvms_env.scenarios.overrides import FAMILY_OPTIONS, RANDOM_COURSES, RANDOM_OBJECTS
+
+# The geometry options a bank is kept per (besides the team size), with their defaults:
+# a bank of the defaults keeps its folder name.
+GEOMETRY_OPTIONS = {"object": RANDOM_DEFAULT_OBJECT, "course": RANDOM_DEFAULT_COURSE}
 
 #: Entries of one waypoint's navigation parameters (``parametric_twist_function``'s inputs
 #: after ``x``, matrices column-major): goal 6, workspace 4, cylinders 4 x 5, spheres
@@ -55,7 +68,7 @@ class Geometry:
 
     def scenario_with(self, overrides: dict[str, Any]) -> Scenario:
         """The scenario with the non-geometry ``overrides`` laid over it."""
-        rest = {k: v for k, v in overrides.items() if k not in ("seed", "n_agents")}
+        rest = {k: v for k, v in overrides.items() if k != "seed" and k not in FAMILY_OPTIONS}
         return replace(self.scenario, **rest) if rest else self.scenario
 
 
@@ -72,9 +85,21 @@ def navigation_table(scenario: Scenario) -> np.ndarray:
     return np.array(rows)
 
 
-def build_geometry(family: str, n_agents: int, seed: int | None) -> Geometry:
-    scenario = make(family, seed=seed, n_agents=n_agents)
+def build_geometry(
+    family: str, n_agents: int, seed: int | None, options: dict[str, str] | None = None
+) -> Geometry:
+    """The geometry of ``seed``; ``options``: the family's geometry options (``object``,
+    ``course``) other than their defaults."""
+    scenario = make(family, seed=seed, n_agents=n_agents, **(options or {}))
     return Geometry(scenario, navigation_table(scenario))
+
+
+def geometry_options(overrides: dict[str, Any] | None) -> dict[str, str]:
+    """The geometry options among scenario ``overrides`` that differ from the defaults."""
+    given = overrides or {}
+    return {
+        k: given[k] for k, default in GEOMETRY_OPTIONS.items() if given.get(k, default) != default
+    }
 
 
 @cache
@@ -90,14 +115,24 @@ def _code_key() -> str:
 
 
 class GeometryBank:
-    """Geometries of one seeded family and team size: in memory, on disk, or built."""
+    """Geometries of one seeded family, team size and geometry options: in memory, on
+    disk, or built. ``overrides``: the environment's scenario overrides (only the
+    geometry options among them count: ``GEOMETRY_OPTIONS``)."""
 
-    def __init__(self, family: str, n_agents: int, folder: Path | None = None) -> None:
+    def __init__(
+        self,
+        family: str,
+        n_agents: int,
+        folder: Path | None = None,
+        overrides: dict[str, Any] | None = None,
+    ) -> None:
         if family not in SEEDED_FAMILIES:
             raise ValueError(f"only seeded families have a bank {SEEDED_FAMILIES}, got {family!r}")
         self.family, self.n_agents = family, int(n_agents)
+        self.options = geometry_options(overrides)
         base = Path(folder) if folder is not None else cache_dir() / "geometry_bank"
-        self.folder = base / f"{family}_n{self.n_agents}_{_code_key()}"
+        tags = "".join(f"_{k}-{v}" for k, v in self.options.items())
+        self.folder = base / f"{family}_n{self.n_agents}{tags}_{_code_key()}"
         self._memory: dict[int, Geometry] = {}
 
     def path(self, seed: int) -> Path:
@@ -116,7 +151,7 @@ class GeometryBank:
             except (OSError, EOFError, pickle.UnpicklingError, AttributeError):
                 geometry = None  # a damaged entry is rebuilt
         if geometry is None:
-            geometry = build_geometry(self.family, self.n_agents, seed)
+            geometry = build_geometry(self.family, self.n_agents, seed, self.options)
             self._store(path, geometry)
         self._memory[seed] = geometry
         return geometry
@@ -133,12 +168,13 @@ class GeometryBank:
         bar = _progress(len(todo), f"{self.family} N={self.n_agents}") if progress else None
         if workers <= 1:
             for seed in todo:
-                self._store(self.path(seed), build_geometry(self.family, self.n_agents, seed))
+                geometry = build_geometry(self.family, self.n_agents, seed, self.options)
+                self._store(self.path(seed), geometry)
                 if bar is not None:
                     bar.update()
         else:
             with ProcessPoolExecutor(workers) as pool:
-                jobs = [(self.family, self.n_agents, s) for s in todo]
+                jobs = [(self.family, self.n_agents, s, self.options) for s in todo]
                 for seed, geometry in zip(todo, pool.map(_build, jobs), strict=True):
                     self._store(self.path(seed), geometry)
                     if bar is not None:
@@ -154,7 +190,7 @@ class GeometryBank:
         part.replace(path)  # atomic: a parallel reader never sees half an entry
 
 
-def _build(job: tuple[str, int, int]) -> Geometry:
+def _build(job: tuple[str, int, int, dict[str, str]]) -> Geometry:
     return build_geometry(*job)
 
 
@@ -182,8 +218,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--n-agents", type=int, default=2)
     parser.add_argument("--seeds", type=_seed_range, default=range(0, 256), help="start:stop")
     parser.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)))
+    parser.add_argument("--object", choices=RANDOM_OBJECTS, default=RANDOM_DEFAULT_OBJECT)
+    parser.add_argument("--course", choices=RANDOM_COURSES, default=RANDOM_DEFAULT_COURSE)
     args = parser.parse_args(argv)
-    bank = GeometryBank(args.family, args.n_agents)
+    options = {"object": args.object, "course": args.course}
+    bank = GeometryBank(args.family, args.n_agents, overrides=options)
     built = bank.fill(args.seeds, workers=args.workers, progress=True)
     print(f"{built} built, {len(args.seeds) - built} already there: {bank.folder}")
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from uvms_env.dynamics.payload import object_key
 from uvms_env.dynamics.spatial import SINGULARITY_MARGIN
 from uvms_env.models import load_parameters
 from uvms_env.navigation import Cylinder, Sphere, Workspace
@@ -27,6 +28,8 @@ class Scenario:
     name: str
     n_agents: int
     object_shape: str
+    # the object's size (m): a ring's radius, a bar's length (0: the parameter file's bar;
+    # canonical, ``uvms_env.dynamics.payload.object_size``); named for the ring it first was
     ring_radius: float
     grasp_offsets: np.ndarray  # (N, 3)
     grasp_rotations: np.ndarray  # (N, 3, 3)
@@ -57,9 +60,10 @@ class Scenario:
 
     @property
     def object_ring_radius(self) -> float:
-        """The object as the compiled model functions name it: the ring's radius, 0 for
-        the bar."""
-        return float(self.ring_radius) if self.object_shape == "ring" else 0.0
+        """The object as one number, as the compiled functions, the priors and the
+        datasets name it (``uvms_env.dynamics.payload.object_key``): the ring's radius; 0
+        for the parameter file's bar, minus the length for another bar."""
+        return object_key(self.object_shape, self.ring_radius)
 
 
 def _shape(name: str, arr: np.ndarray, shape: tuple[int, ...]) -> None:
@@ -88,6 +92,13 @@ def validate(s: Scenario) -> None:
         raise ValueError(f"n_agents must be an integer >= 2, got {n!r}")
     if s.object_shape not in ("bar", "ring"):
         raise ValueError(f"object_shape must be 'bar' or 'ring', got {s.object_shape!r}")
+    size = s.ring_radius
+    if not (isinstance(size, float | int | np.floating) and np.isfinite(size) and size >= 0):
+        raise ValueError(
+            f"ring_radius (the object's size) must be a finite float >= 0, got {size!r}"
+        )
+    if s.object_shape == "ring" and size == 0:
+        raise ValueError("ring_radius must be > 0 for a ring")
     _shape("grasp_offsets", s.grasp_offsets, (n, 3))
     _shape("grasp_rotations", s.grasp_rotations, (n, 3, 3))
     _shape("load_shares", s.load_shares, (n,))

@@ -23,6 +23,9 @@ from typing import Any
 import numpy as np
 
 CURRENT_PRESETS = ("none", "mild", "strong")
+# The random family's objects and courses (uvms_env.scenarios.families.random).
+RANDOM_OBJECTS = ("ring", "bar")
+RANDOM_COURSES = ("open", "turns", "mixed")
 
 
 @dataclass(frozen=True)
@@ -163,9 +166,22 @@ SCENARIO_OVERRIDES: dict[str, Option] = {
         "float", "final-waypoint attitude tolerance, rad", low=0, low_open=True
     ),
     "n_agents": Option("int", "team size: random family 2..6, default 2; others 2", low=2, high=6),
+    "object": Option(
+        "choice",
+        "random family: the carried object, a ring or a bar (one per team size), default ring",
+        choices=RANDOM_OBJECTS,
+    ),
+    "course": Option(
+        "choice",
+        "random family: obstacles off the path (open, default), on it so that the path turns "
+        "around them (turns), or either by seed (mixed)",
+        choices=RANDOM_COURSES,
+    ),
 }
-# The overrides that are Scenario fields (n_agents is the family's to interpret).
-SCENARIO_FIELDS = tuple(k for k in SCENARIO_OVERRIDES if k != "n_agents")
+# The overrides a family interprets (they shape its geometry; not Scenario fields).
+FAMILY_OPTIONS = ("n_agents", "object", "course")
+# The overrides that are Scenario fields.
+SCENARIO_FIELDS = tuple(k for k in SCENARIO_OVERRIDES if k not in FAMILY_OPTIONS)
 
 
 def describe_options(table: Mapping[str, Option]) -> str:

@@ -189,7 +189,9 @@ def main(argv: list[str] | None = None) -> None:
     from uvms_env.scenarios import make
     from uvms_env.sim.simulator import _chain
 
-    ap = argparse.ArgumentParser(description=main.__doc__)
+    ap = argparse.ArgumentParser(
+        prog="python -m uvms_env.vector.kernels_cuda", description=main.__doc__, allow_abbrev=False
+    )
     ap.add_argument("--arch", nargs="+", default=["90"], help="compute capabilities, e.g. 80 89 90")
     ap.add_argument("--n-agents", type=int, nargs="+", default=[2])
     ap.add_argument("--dtype", nargs="+", default=["float64", "float32"])

@@ -20,7 +20,23 @@ automatic reset). So ``step`` returns the ended episode's last observation as
 ``next.observation`` and keeps the new episode's first one, which the reset then hands
 over; a ``_reset`` of an environment that did not end starts its next episode where it
 stands (``VectorEnv.restart``). ``set_seed(s)``: the next full reset is
-``reset(seed=s)`` (environment k: seed ``s + k``).
+``reset(seed=s)`` (environment k: seed ``s + k``); with ``fixed_seed=True`` every reset
+without a ``_reset`` entry (each ``rollout``, a collector's first reset) is, so that
+evaluations that start afresh play the same episodes.
+
+Infos (``info=True``): ``(uvms, info)`` holds, per robot (K, N) float32, ``cost`` (its
+violated constraints this period) and, on the step that ends an episode (zero on every
+other), that episode's ``EPISODE_INFO`` values: ``success``, ``clean_success`` (0/1),
+``violation_periods``, ``violations_<kind>`` per constraint kind, ``episode_steps``,
+``final_pos_error_m``, ``final_att_error_rad``, ``episode_cost`` (the robot's ``cost``
+summed over the episode) and, when the vector env computes it (``internal_wrench_every >
+0``), ``internal_wrench_rms``.
+The same numbers are what ``FlatInfos`` gives TorchRL's ``PettingZooWrapper`` of one
+``parallel_env``, whose own infos hold dicts and strings that the wrapper cannot carry.
+
+Rendering: ``render(env_index=0)`` draws one copy's current state as
+``parallel_env(render_mode="rgb_array").render()`` does (``uvms_env.env.render``, imported
+by the first call only: the step never draws).
 
 Backends. Over the CPU backend the numpy arrays become torch tensors on ``device``
 (default the host). Over the CUDA backend (``VectorEnv(..., backend="cuda", device=D)``)
@@ -32,31 +48,77 @@ passes through numpy. The host reads a mask only where ``_reset`` restarts envir
 that had not ended (the ids ``VectorEnv.restart`` takes).
 
 Only imported on demand (TorchRL is optional). May import: numpy, torch, tensordict,
-torchrl and ``uvms_env.vector.env``.
+torchrl, pettingzoo, ``uvms_env.vector.env``, ``uvms_env.env`` (options; the renderer and the
+parallel env's class only inside ``render`` and ``FlatInfos``).
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 import torch
+from pettingzoo.utils.wrappers import BaseParallelWrapper
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from uvms_env.env.options import state_structure
 from uvms_env.vector.env import VectorEnv
 
 GROUP = "uvms"
+# an ended episode's values, by metric (``uvms_env.env.metrics``), in the infos; the
+# per-kind violation periods, the episode's cost and the internal wrench are added per env
+EPISODE_INFO = (
+    "success",
+    "clean_success",
+    "violation_periods",
+    "episode_steps",
+    "final_pos_error_m",
+    "final_att_error_rad",
+)
+
+
+def episode_info_keys(constraints: Sequence[str], internal_wrench: bool) -> tuple[str, ...]:
+    """The names of an ended episode's values in the infos, in order (module docstring)."""
+    keys = (*EPISODE_INFO, *(f"violations_{kind}" for kind in constraints), "episode_cost")
+    return (*keys, "internal_wrench_rms") if internal_wrench else keys
+
+
+def episode_info_values(
+    metrics: Mapping[str, Any], episode_cost: float, keys: Sequence[str]
+) -> list[float]:
+    """``keys``' values of one ended episode: its metrics dict and the robot's summed cost;
+    a metric the episode has none of (``internal_wrench_rms`` before its first sample) is
+    NaN."""
+    values = []
+    for key in keys:
+        if key == "episode_cost":
+            value: Any = episode_cost
+        elif key.startswith("violations_"):
+            value = metrics["violations"][key.removeprefix("violations_")]
+        else:
+            value = metrics[key]
+        values.append(math.nan if value is None else float(value))
+    return values
 
 
 class CoopTransportTorchRLEnv(EnvBase):
     """``EnvBase`` of batch size (K,) stepping one ``VectorEnv`` (see module docstring).
 
     ``device``: where the tensors live; default the vector env's (the host for the CPU
-    backend)."""
+    backend). ``info``: carry the infos under ``(uvms, info)``; ``fixed_seed``: every fresh
+    reset starts from the seed of the last ``set_seed`` (module docstring)."""
 
-    def __init__(self, vector_env: VectorEnv, device: str | torch.device | None = None) -> None:
+    def __init__(
+        self,
+        vector_env: VectorEnv,
+        device: str | torch.device | None = None,
+        info: bool = False,
+        fixed_seed: bool = False,
+    ) -> None:
         k, n = vector_env.num_envs, vector_env.n
         self._native = vector_device(vector_env)
         super().__init__(
@@ -71,12 +133,21 @@ class CoopTransportTorchRLEnv(EnvBase):
         high = torch.as_tensor(np.broadcast_to(obs_space.high, (k, n, size)).copy())
         state_size = vector_env.state().shape[1]
         act_size = vector_env.single_action_space.shape[0]  # 8, or more with a channel
+        group_obs: dict[str, Any] = {"observation": Bounded(low, high, (k, n, size), self.device)}
+        self.episode_keys: tuple[str, ...] = ()
+        if info:
+            wrench = vector_env.internal_wrench_every > 0
+            self.episode_keys = episode_info_keys(vector_env.task.constraints, wrench)
+            group_obs["info"] = Composite(
+                {
+                    key: Unbounded((k, n), self.device, torch.float32)
+                    for key in ("cost", *self.episode_keys)
+                },
+                shape=(k, n),
+            )
         self.observation_spec = Composite(
             {
-                GROUP: Composite(
-                    {"observation": Bounded(low, high, (k, n, size), self.device)},
-                    shape=(k, n),
-                ),
+                GROUP: Composite(group_obs, shape=(k, n)),
                 "state": Unbounded((k, state_size), self.device, torch.float32),
             },
             shape=(k,),
@@ -98,7 +169,15 @@ class CoopTransportTorchRLEnv(EnvBase):
         team = {f: Categorical(2, (k, 1), self.device, torch.bool) for f in flags}
         robots = {f: Categorical(2, (k, n, 1), self.device, torch.bool) for f in flags}
         self.done_spec = Composite({**team, GROUP: Composite(robots, shape=(k, n))}, shape=(k,))
+        self.carry_info, self.fixed_seed = info, fixed_seed
         self._next_seed: int | None = None
+        self._seed: int | None = None  # the last set_seed's, for fixed_seed
+        self._episode_cost = torch.zeros(k, n, dtype=torch.float64, device=self.device)
+        self._renderer: Any = None
+        self._path: list[np.ndarray] = []
+        self._last_time = math.inf
+        self._calls = 0
+        self._frame: np.ndarray | None = None
         # each env's episode under way (None: not reset); replaced, never written in place
         # once handed out, so the tensors of earlier outputs keep their values
         self._obs: torch.Tensor | None = None
@@ -110,19 +189,25 @@ class CoopTransportTorchRLEnv(EnvBase):
         venv = self.vector_env
         mask = None if tensordict is None else tensordict.get("_reset", None)
         if mask is None or self._obs is None or bool(mask.all()):
-            obs, _ = venv.reset(seed=self._next_seed)
+            seed = self._next_seed
+            if seed is None and mask is None and self.fixed_seed:
+                seed = self._seed
+            obs, _ = venv.reset(seed=seed)
             self._obs = self._tensor(obs)
             self._next_seed = None
             self._ended.zero_()
+            self._episode_cost.zero_()
         else:
             mask = mask.reshape(-1).to(self.device)
             going_on = torch.nonzero(mask & ~self._ended).reshape(-1)
             if len(going_on):
                 self._obs = self._obs.clone()
                 self._obs[going_on] = self._tensor(venv.restart(going_on.tolist()))
+                self._episode_cost[going_on] = 0.0
             self._ended &= ~mask
         none = torch.zeros(venv.num_envs, dtype=torch.bool, device=self.device)
-        return self._output(self._obs, None, none, none)
+        info = self._neutral_info() if self.carry_info else None
+        return self._output(self._obs, None, none, none, info)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get((GROUP, "action")).detach()
@@ -138,11 +223,46 @@ class CoopTransportTorchRLEnv(EnvBase):
         # where an episode ended, the step's observation is the ended episode's last one
         final = self._tensor(infos["final_observation"])
         last = torch.where(ended.reshape(-1, 1, 1), final, self._obs)
-        return self._output(last, self._tensor(reward), terminated, truncated)
+        info = self._step_info(infos, ended) if self.carry_info else None
+        return self._output(last, self._tensor(reward), terminated, truncated, info)
 
     def _set_seed(self, seed: int | None) -> int | None:
-        self._next_seed = seed
+        self._next_seed = self._seed = seed
         return None if seed is None else seed + self.vector_env.num_envs
+
+    # -- rendering --------------------------------------------------------------------------
+    def render(self, env_index: int = 0, every: int = 1) -> np.ndarray:
+        """(360, 720, 3) uint8 picture of copy ``env_index``'s current state and of its
+        object's path since this copy's first rendered step of the episode. ``every``: draw
+        on every ``every``-th call of an episode and return the last picture in between
+        (drawing costs ~0.1 s; a video of a long episode needs fewer)."""
+        from uvms_env.env.render import Renderer  # matplotlib: never on the step's path
+
+        venv = self.vector_env
+        scenario = venv.scenarios[env_index]
+        state = venv.state()[env_index]
+        state = state.cpu().numpy() if isinstance(state, torch.Tensor) else np.asarray(state)
+        layout = state_structure(venv.n)
+        time = float(state[layout["time_fraction"]][0]) * venv.max_cycles * scenario.period
+        x_o = state[layout["object_pose"]].astype(float)
+        if self._renderer is None or self._renderer.scenario is not scenario:
+            self.close_renderer()
+            self._renderer = Renderer(scenario, venv.sim.object.segments)
+            self._last_time = math.inf
+        if time < self._last_time:  # a new episode
+            self._path, self._calls = [], 0
+        self._last_time = time
+        self._path.append(x_o[:3].copy())
+        if self._calls % max(int(every), 1) == 0 or self._frame is None:
+            q = state[layout["q"]].astype(float).reshape(venv.n, -1)
+            self._frame = self._renderer.frame(q, x_o, np.array(self._path), time)
+        self._calls += 1
+        return self._frame
+
+    def close_renderer(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer, self._frame = None, None
 
     # -- internals --------------------------------------------------------------------------
     def _tensor(self, x: Any) -> torch.Tensor:
@@ -152,12 +272,42 @@ class CoopTransportTorchRLEnv(EnvBase):
             return x.to(self.device)
         return torch.as_tensor(x, device=self.device)
 
+    def _neutral_info(self) -> dict[str, torch.Tensor]:
+        k, n = self.vector_env.num_envs, self.vector_env.n
+        zero = torch.zeros(k, n, dtype=torch.float32, device=self.device)
+        return {key: zero.clone() for key in ("cost", *self.episode_keys)}
+
+    def _step_info(self, infos: dict[str, Any], ended: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The step's ``(uvms, info)``: the robots' cost, and the ended episodes' values."""
+        cost = self._tensor(infos["cost"])
+        self._episode_cost += cost
+        info = self._neutral_info()
+        info["cost"] = cost.to(torch.float32)
+        done = torch.nonzero(ended).reshape(-1).tolist()  # the host reads the ended few
+        if done:
+            rows = torch.tensor(
+                [
+                    [
+                        episode_info_values(infos["metrics"][e], float(c), self.episode_keys)
+                        for c in self._episode_cost[e].tolist()
+                    ]
+                    for e in done
+                ],
+                dtype=torch.float32,
+                device=self.device,
+            )  # (ended, N, keys)
+            for j, key in enumerate(self.episode_keys):
+                info[key][done] = rows[:, :, j]
+            self._episode_cost[done] = 0.0
+        return info
+
     def _output(
         self,
         obs: torch.Tensor,
         reward: torch.Tensor | None,
         terminated: torch.Tensor,
         truncated: torch.Tensor,
+        info: dict[str, torch.Tensor] | None = None,
     ) -> TensorDict:
         k, n = self.vector_env.num_envs, self.vector_env.n
         dev = self.device
@@ -175,6 +325,8 @@ class CoopTransportTorchRLEnv(EnvBase):
         }
         if reward is not None:
             group["reward"] = robots(reward.to(torch.float32))
+        if info is not None:
+            group["info"] = TensorDict(info, batch_size=(k, n), device=dev)
         return TensorDict(
             {
                 GROUP: TensorDict(group, batch_size=(k, n), device=dev),
@@ -194,3 +346,54 @@ def vector_device(vector_env: VectorEnv) -> torch.device:
     if vector_env.backend == "cpu" or vector_env.device == "cpu":
         return torch.device("cpu")
     return torch.device("cuda", int(vector_env.device))
+
+
+class FlatInfos(BaseParallelWrapper):
+    """One ``parallel_env`` whose infos are numbers only, the same keys at ``reset`` (zeros)
+    and at every step, for TorchRL's ``PettingZooWrapper``: it builds its info spec from
+    ``reset``'s infos and writes each step's into it as tensors, so the parallel env's
+    own infos (dicts, and at the end strings and a metrics dict) cannot go through.
+
+        from torchrl.envs import PettingZooWrapper
+        env = PettingZooWrapper(env=FlatInfos(uvms_env.parallel_env("short")), return_state=True)
+        td = env.rollout(100)    # td["next", "uvms", "info", "cost"]: (100, 2)
+
+    Per agent: ``cost``, ``constraint_<kind>`` (the constraint values), ``reward_<term>`` (the
+    reward's terms) and the ended episode's values of ``episode_info_keys`` (zero on the
+    other steps), as ``CoopTransportTorchRLEnv(..., info=True)`` names them."""
+
+    def __init__(self, env: Any) -> None:
+        super().__init__(env)
+        base = env.unwrapped
+        task = base.task
+        self.episode_keys = episode_info_keys(task.constraints, base.internal_wrench_every > 0)
+        self.info_keys: tuple[str, ...] = (
+            "cost",
+            *(f"constraint_{kind}" for kind in task.constraints),
+            *(f"reward_{term}" for term in task.reward_terms),
+            *self.episode_keys,
+        )
+        self._episode_cost: dict[str, float] = {}
+
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, float]]]:
+        obs, _ = self.env.reset(seed=seed, options=options)
+        self._episode_cost = dict.fromkeys(self.possible_agents, 0.0)
+        return obs, {a: dict.fromkeys(self.info_keys, 0.0) for a in self.possible_agents}
+
+    def step(self, actions: Mapping[str, Any]) -> tuple[Any, Any, Any, Any, dict[str, Any]]:
+        obs, reward, terminated, truncated, infos = self.env.step(actions)
+        flat: dict[str, dict[str, float]] = {}
+        for agent, info in infos.items():
+            self._episode_cost[agent] += info["cost"]
+            row = dict.fromkeys(self.info_keys, 0.0)
+            row["cost"] = float(info["cost"])
+            row.update({f"constraint_{k}": float(g) for k, g in info["constraint_values"].items()})
+            row.update({f"reward_{t}": float(v) for t, v in info["reward_terms"].items()})
+            if "metrics" in info:
+                cost = self._episode_cost[agent]
+                values = episode_info_values(info["metrics"], cost, self.episode_keys)
+                row.update(zip(self.episode_keys, values, strict=True))
+            flat[agent] = row
+        return obs, reward, terminated, truncated, flat

@@ -4,7 +4,11 @@
 Importing the package registers them with BenchMARL (``tasks.register``). BenchMARL's
 own commands (``python -m benchmarl.run``, ``python -m benchmarl.evaluate``) never import
 it: the Hydra plugin ``hydra_plugins.benchmarl_uvms_searchpath`` does, and adds this
-package's ``conf`` folder to Hydra's config search path.
+package's ``conf`` folder to Hydra's config search path. ``benchmarl_uvms.run`` and
+``benchmarl_uvms.evaluate`` are those commands with the callback of ``metrics``, which
+puts the episodes' metrics in the evaluations' scalars and marl-eval JSON.
+
+May import: benchmarl, hydra, torch, tensordict, torchrl and ``uvms_env``.
 """
 
 from benchmarl_uvms.tasks import (

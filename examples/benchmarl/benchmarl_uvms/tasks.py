@@ -6,9 +6,20 @@ Hydra's ConfigStore.
 
 A task's env is one ``CoopTransportTorchRLEnv`` over a ``VectorEnv`` of BenchMARL's
 ``num_envs`` copies: the robots one group ``uvms``, the global state for centralized
-critics, continuous actions only. Its yaml holds the ``VectorEnv`` keywords (the
-scenario family, team size, truncation, precision, threads, geometry pool) and
-``options``, any further keyword of ``uvms_env.env.parallel_env``.
+critics, continuous actions only, the infos under ``(uvms, info)`` (BenchMARL's info spec:
+never a model's input, left out of its training batches). Its yaml holds the ``VectorEnv``
+keywords (the scenario family, team size, truncation, precision, threads, geometry pool),
+``options``, any further keyword of ``uvms_env.env.parallel_env``, and ``render_every``.
+
+What BenchMARL gets beyond the return: ``log_info`` gives its collection scalars the
+episodes that ended in the batch (``collection/uvms/episode/<key>``, the mean over them,
+from their last step's infos); the evaluation's episodes go to its scalars and marl-eval
+JSON through the callback ``benchmarl_uvms.metrics.EpisodeMetrics``. Every reset that
+starts the copies afresh (each evaluation's rollout) starts from the experiment's seed,
+so every evaluation, in training or of a checkpoint, plays the same episodes.
+
+May import: yaml, torch, tensordict, torchrl, benchmarl, hydra, ``benchmarl_uvms.metrics``
+and ``uvms_env.vector``.
 """
 
 from __future__ import annotations
@@ -19,15 +30,18 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+import torch
 import yaml
 from benchmarl.environments import task_config_registry
 from benchmarl.environments.common import Task, TaskClass
 from hydra.core.config_store import ConfigStore
+from tensordict import TensorDictBase
 from torchrl.data import Composite
 from torchrl.envs import EnvBase
 
+from benchmarl_uvms.metrics import ended_episodes
 from uvms_env.vector import VectorEnv
-from uvms_env.vector.torchrl_env import CoopTransportTorchRLEnv
+from uvms_env.vector.torchrl_env import GROUP, CoopTransportTorchRLEnv
 
 ENV_NAME = "uvms"
 # Where the tasks' yaml files are: the folder Hydra searches (the plugin in
@@ -50,6 +64,7 @@ class UVMSTaskConfig:
     geometry_pool: int | None = 1024  # seeded families only (short, random); None: off
     internal_wrench_every: int = 0  # internal-wrench metric period; 0: never (cheaper)
     options: dict[str, Any] = field(default_factory=dict)  # more parallel_env keywords
+    render_every: int = 0  # evaluation videos: a new picture every this many steps; 0: none
 
     def env_keywords(self) -> dict[str, Any]:
         """The ``VectorEnv`` keywords after ``scenario`` and ``num_envs``: the optional
@@ -61,7 +76,8 @@ class UVMSTaskConfig:
         named = {
             name: getattr(self, name)
             for name in own
-            if name not in ("scenario", "options") and getattr(self, name) is not None
+            if name not in ("scenario", "options", "render_every")
+            and getattr(self, name) is not None
         }
         return {**named, **self.options}
 
@@ -87,7 +103,12 @@ class UVMSTaskClass(TaskClass):
 
         def make() -> EnvBase:
             venv = VectorEnv(config.scenario, num_envs=num_envs, **keywords)
-            env = CoopTransportTorchRLEnv(venv, device=device)
+            # fixed_seed: BenchMARL seeds each env once, at its creation, and its evaluations
+            # start with a fresh reset, which would otherwise continue the copies' episode
+            # sequences: the n-th evaluation of a run would play other episodes than the
+            # first, and than a checkpoint's evaluation (a new env). The collector's env
+            # resets afresh only once; after that its resets name the copies (_reset).
+            env = CoopTransportTorchRLEnv(venv, device=device, info=True, fixed_seed=True)
             if seed is not None:
                 env.set_seed(seed)
             return env
@@ -105,7 +126,14 @@ class UVMSTaskClass(TaskClass):
         return int(env.vector_env.max_cycles)
 
     def has_render(self, env: EnvBase) -> bool:
-        return False
+        return self.config.get("render_every", 0) > 0
+
+    @staticmethod
+    def render_callback(experiment: Any, env: EnvBase, data: TensorDictBase) -> Any:
+        """Copy 0's picture (``CoopTransportTorchRLEnv.render``), a new one every
+        ``render_every`` steps: BenchMARL keeps one frame per step of the video's episode."""
+        every = int(experiment.task.config.get("render_every", 1))
+        return base_env(env).render(0, every=max(every, 1))
 
     def group_map(self, env: EnvBase) -> dict[str, list[str]]:
         return env.group_map
@@ -114,10 +142,27 @@ class UVMSTaskClass(TaskClass):
     def observation_spec(self, env: EnvBase) -> Composite:
         spec = env.full_observation_spec_unbatched.clone()
         del spec["state"]  # the critic's input, under state_spec
+        del spec[GROUP, "info"]  # never a model's input
         return spec
 
     def info_spec(self, env: EnvBase) -> Composite | None:
-        return None
+        spec = env.full_observation_spec_unbatched.clone()
+        del spec["state"]
+        del spec[GROUP, "observation"]
+        return spec
+
+    @staticmethod
+    def log_info(batch: TensorDictBase) -> dict[str, float]:
+        """The collection scalars of the episodes that ended in ``batch``: each info value
+        at their last step, the mean over them (and over robots: ``episode_cost`` is per
+        robot); ``collection/uvms/episode/count`` of them. Nothing when none ended (BenchMARL
+        then warns that its episode returns are NaN)."""
+        values = ended_episodes(batch)
+        if not values:
+            return {}
+        out = {f"collection/{GROUP}/episode/{key}": mean(v) for key, v in values.items()}
+        out[f"collection/{GROUP}/episode/count"] = float(len(next(iter(values.values()))))
+        return out
 
     def state_spec(self, env: EnvBase) -> Composite | None:
         return Composite({"state": env.full_observation_spec_unbatched["state"].clone()})
@@ -131,6 +176,18 @@ class UVMSTaskClass(TaskClass):
     @staticmethod
     def env_name() -> str:
         return ENV_NAME
+
+
+def base_env(env: EnvBase) -> CoopTransportTorchRLEnv:
+    """The ``CoopTransportTorchRLEnv`` under BenchMARL's transformed envs."""
+    while not isinstance(env, CoopTransportTorchRLEnv):
+        env = env.base_env
+    return env
+
+
+def mean(values: torch.Tensor) -> float:
+    """The mean of the values that are not NaN (NaN: a metric no episode has)."""
+    return float(torch.nanmean(values.to(torch.float64)))
 
 
 class UVMSTask(Task):

@@ -1,0 +1,165 @@
+"""A BenchMARL checkpoint's policy as a per-robot policy (``--policy benchmarl:PATH``), so that
+the evaluator plays it on the ladder's episodes beside the expert and the other baselines.
+
+PATH: a checkpoint (``<experiment>/checkpoints/checkpoint_<frames>.pt``), an experiment
+folder or the Hydra run folder that holds one (its latest checkpoint). BenchMARL restores
+the experiment (``Experiment.reload_from_file``, its own config.pkl beside the checkpoints,
+patched to one env copy, no loggers, and a scratch folder for what it writes), and the
+robot acts with BenchMARL's policy under TorchRL's deterministic exploration, as BenchMARL's
+own evaluation does: the robot's observation goes in, its action comes out. The task's
+``options`` give the priors and the channel (``baselines.loaded_policy``).
+
+BenchMARL lives in its own virtual environment (it needs torchrl < 0.12; the project's test
+extra has torchrl >= 0.14), where the project is installed too: run the evaluator there
+(examples/benchmarl/README.md). Elsewhere loading raises ``ImportError`` naming that install.
+
+May import: numpy, torch, tensordict, torchrl and benchmarl (inside the loader),
+``baselines.loaded_policy`` and ``uvms_env``.
+"""
+
+from __future__ import annotations
+
+import pickle
+import re
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from baselines.loaded_policy import (
+    LoadedPolicy,
+    comm_from_options,
+    load_once,
+    priors_from_options,
+)
+from uvms_env.policy import AgentSpec
+
+INSTALL = (
+    "BenchMARL is not installed here: --policy benchmarl:PATH runs in BenchMARL's own "
+    "virtual environment (python -m venv .venv-benchmarl; pip install -e . -e "
+    "examples/benchmarl benchmarl==1.5.2 -c constraints.txt; examples/benchmarl/README.md)"
+)
+CHECKPOINT = re.compile(r"checkpoint_(\d+)\.pt")
+GROUP = "uvms"  # the tasks' agent group (uvms_env.vector.torchrl_env.GROUP)
+# the restored experiment's settings that matter for acting only: one copy, nothing logged
+PATCH: dict[str, Any] = {
+    "loggers": [],
+    "create_json": False,
+    "render": False,
+    "evaluation_episodes": 1,
+    "on_policy_n_envs_per_worker": 1,
+    "off_policy_n_envs_per_worker": 1,
+}
+
+
+@dataclass(frozen=True)
+class TrainingRun:
+    """What trained a checkpoint: BenchMARL's algorithm name (``mappo``), the experiment's
+    seed, its frames, the task's name and config."""
+
+    algorithm: str
+    seed: int
+    frames: int
+    task: str
+    task_config: dict[str, Any]
+
+
+def _frames(path: Path) -> int:
+    match = CHECKPOINT.fullmatch(path.name)
+    return int(match.group(1)) if match else -1
+
+
+def read_config(checkpoint: Path) -> TrainingRun:
+    """The experiment's config.pkl (BenchMARL's pickles: task, task config, algorithm
+    config, model config, seed, ...) beside ``checkpoints/``. Needs BenchMARL and the
+    task's package to unpickle."""
+    try:
+        import benchmarl  # noqa: F401
+    except ImportError as exc:
+        raise ImportError(INSTALL) from exc
+    with open(Path(checkpoint).parents[1] / "config.pkl", "rb") as fh:
+        task, task_config, algorithm_config = (pickle.load(fh) for _ in range(3))
+        pickle.load(fh)  # the model config
+        seed = pickle.load(fh)
+    algorithm = algorithm_config.associated_class().__name__.lower()
+    return TrainingRun(algorithm, int(seed), _frames(checkpoint), task.name.lower(), task_config)
+
+
+def load_policy(checkpoint: Path) -> Any:
+    """The restored experiment (BenchMARL's ``Experiment.reload_from_file``)."""
+    try:
+        from benchmarl.experiment import Experiment
+        from benchmarl.models.common import Model
+    except ImportError as exc:
+        raise ImportError(INSTALL) from exc
+    scratch = tempfile.mkdtemp(prefix="benchmarl_policy_")  # BenchMARL writes config.pkl
+    experiment = Experiment.reload_from_file(
+        str(checkpoint), experiment_patch={**PATCH, "save_folder": scratch}
+    )
+    policy = experiment.policy
+    if any(isinstance(m, Model) and m.centralised for m in policy.modules()):
+        raise ValueError(
+            f"{checkpoint}: its actor is centralised (it reads every robot's observation); "
+            "a robot's policy decides from its own"
+        )
+    return policy.eval()
+
+
+class BenchMARLPolicy(LoadedPolicy):
+    """A BenchMARL checkpoint's policy acting for one robot (module docstring)."""
+
+    SAVED = "checkpoints"
+    KIND = "BenchMARL checkpoint"
+
+    def __init__(self, spec: AgentSpec, path: Path) -> None:
+        """``path``: a checkpoint, or a folder that holds one (``find``)."""
+        saved = self.find(path)
+        run = load_once(read_config, saved)
+        self.policy = load_once(load_policy, saved)
+        options = dict(run.task_config.get("options") or {})
+        super().__init__(spec, priors_from_options(options), comm_from_options(options))
+        self.run = run
+
+    @classmethod
+    def accepts(cls, path: Path) -> bool:
+        return path.is_file() and CHECKPOINT.fullmatch(path.name) is not None
+
+    @classmethod
+    def find(cls, path: Path | str) -> Path:
+        """A checkpoint itself; else the latest in ``path/checkpoints`` or, for a Hydra run
+        folder, in its one experiment folder's."""
+        path = Path(path)
+        if cls.accepts(path):
+            return path
+        folders = [path / cls.SAVED, *sorted(path.glob(f"*/{cls.SAVED}"))]
+        found = [f for f in folders if f.is_dir() and any(map(cls.accepts, f.iterdir()))]
+        if len(found) > 1:
+            raise ValueError(f"{path} holds several BenchMARL experiments: name one of {found}")
+        if not found:
+            raise ValueError(
+                f"no {cls.KIND} at {path} (expected checkpoint_<frames>.pt, or a folder with "
+                f"{cls.SAVED}/)"
+            )
+        return max((p for p in found[0].iterdir() if cls.accepts(p)), key=_frames)
+
+    @classmethod
+    def training_run(cls, saved: Path) -> TrainingRun:
+        """What trained ``saved`` (``baselines.distributed.marl_eval`` names its runs so)."""
+        return load_once(read_config, cls.find(saved))
+
+    def decide(self, x: np.ndarray) -> np.ndarray:
+        import torch
+        from tensordict import TensorDict
+        from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+        n = self.spec.n_agents if self.spec is not None else 1
+        index = self.spec.index if self.spec is not None else 0
+        # every row this robot's observation: a shared or per-agent decentralised actor
+        # gives row ``index`` from row ``index`` alone (its weights when not shared)
+        obs = torch.as_tensor(np.asarray(x, np.float32)).expand(n, -1)
+        td = TensorDict({GROUP: TensorDict({"observation": obs}, [n])}, [])
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            action = self.policy(td).get((GROUP, "action"))
+        return action[index].numpy()
