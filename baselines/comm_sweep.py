@@ -325,7 +325,7 @@ def main(argv: list[str] | None = None) -> None:
         help="modem latency, periods",
     )
     ap.add_argument("--no-references", action="store_true", help="no silent / central runs")
-    add_case_arguments(ap, SWEEP_TEAM_SIZES, "runs/comm_sweep")
+    add_case_arguments(ap, SWEEP_TEAM_SIZES, "runs/comm_sweep", bars=False)
     args = ap.parse_args(argv)
     with usage_errors(ap, (ValueError,)):  # the grid: an impossible channel, named
         points = grid(args.preset, args.bit_rates, args.losses, args.latencies)

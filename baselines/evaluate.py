@@ -108,6 +108,8 @@ def env_overrides(ap: argparse.ArgumentParser, args: argparse.Namespace) -> dict
         k: v
         for k, v in {
             "n_agents": args.n_agents,
+            "object": args.object,
+            "course": args.course,
             "current": args.current,
             "mismatch": args.mismatch,
             "comm": args.comm,

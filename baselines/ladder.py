@@ -2,10 +2,10 @@
 
     python -m baselines.ladder --episodes 10 --seed 202 --workers 2 --out runs/ladder
 
-One evaluation of the rungs ``LADDER`` on random N = 2..6 and ``paper``, then per team
-size the price of decentralization (each distributed expert against ``nmpc:central``) and
-the price of learning (each learned rung against ``nmpc``, and against ``nmpc:central``)
-on the paired episodes.
+One evaluation of the rungs ``LADDER`` on random rings and bars at N = 2..6 and ``paper``,
+then per team size the price of decentralization (each distributed expert against
+``nmpc:central``) and the price of learning (each learned rung against ``nmpc``, and
+against ``nmpc:central``) on the paired episodes.
 ``--from EPISODES_CSV`` aggregates earlier runs instead of playing.
 Reference: docs/evaluation.md, docs/results.md.
 
@@ -69,8 +69,21 @@ PRICE_STYLES = {"decentralization": "-o", "learning": "--s", "learning against t
 MIN_PAIRED = 3
 
 
-def cases(team_sizes: tuple[int, ...] = TEAM_SIZES, paper: bool = True) -> list[Case]:
+# the bar cases' options: the random family's bars on courses that turn around obstacles
+# or not, drawn per episode (docs/options.md, "Bars and turning courses")
+BAR_CASE = (("object", "bar"), ("course", "mixed"))
+
+
+def cases(
+    team_sizes: tuple[int, ...] = TEAM_SIZES, paper: bool = True, bars: bool = True
+) -> list[Case]:
+    """The ladder's cases: random rings at each team size, then (``bars``) random bars,
+    then (``paper``) the paper's scenario."""
     out = [Case(f"random N={n}", "random", (("n_agents", n),)) for n in team_sizes]
+    if bars:
+        out += [
+            Case(f"random bar N={n}", "random", (("n_agents", n), *BAR_CASE)) for n in team_sizes
+        ]
     return [*out, Case("paper", "paper")] if paper else out
 
 
@@ -321,8 +334,11 @@ def run(policies: list[str], chosen: list[Case], settings: Settings, out: Path) 
     return result
 
 
-def add_case_arguments(ap: argparse.ArgumentParser, team_sizes: tuple[int, ...], out: str) -> None:
-    """The cases, conditions and run options the ladder and the channel sweep share."""
+def add_case_arguments(
+    ap: argparse.ArgumentParser, team_sizes: tuple[int, ...], out: str, bars: bool = True
+) -> None:
+    """The cases, conditions and run options the ladder and the channel sweep share;
+    ``bars``: whether the bar cases are in by default (``--no-bars``) or out (``--bars``)."""
     ap.add_argument(
         "--n-agents",
         type=team_size,
@@ -331,6 +347,12 @@ def add_case_arguments(ap: argparse.ArgumentParser, team_sizes: tuple[int, ...],
         help=f"random team sizes (the ladder's: {' '.join(map(str, TEAM_SIZES))})",
     )
     ap.add_argument("--no-paper", action="store_true", help="leave the paper scenario out")
+    if bars:
+        ap.add_argument(
+            "--no-bars", dest="bars", action="store_false", help="leave the bar cases out"
+        )
+    else:
+        ap.add_argument("--bars", action="store_true", help="add the bar cases")
     ap.add_argument("--episodes", type=positive_int, default=10)
     ap.add_argument(
         "--seed", type=non_negative_int, default=202, help="held out: used by no training"
@@ -350,7 +372,7 @@ def settings_of(args: argparse.Namespace) -> Settings:
 
 def cases_of(args: argparse.Namespace) -> list[Case]:
     """The cases of ``add_case_arguments``' flags."""
-    return cases(tuple(args.n_agents), not args.no_paper)
+    return cases(tuple(args.n_agents), not args.no_paper, args.bars)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -122,26 +122,37 @@ def key_value_pairs(items: list[str]) -> dict[str, Any]:
 team_size = option_type(SCENARIO_OVERRIDES["n_agents"])
 model_mismatch = option_type(SCENARIO_OVERRIDES["mismatch"])
 
-# flag -> (type, what one value is, what several values are), shared by every CLI
-CONDITION_FLAGS: dict[str, tuple[Any, str, str]] = {
-    "--n-agents": (team_size, "team size (random family)", "a set to draw from"),
+object_kind = option_type(SCENARIO_OVERRIDES["object"])
+course_kind = option_type(SCENARIO_OVERRIDES["course"])
+
+# flag -> (type, what one value is, what several values are; None: one value only), shared
+# by every CLI
+CONDITION_FLAGS: dict[str, tuple[Any, str, str | None]] = {
+    "--n-agents": (team_size, "team size (random family)", "one group of env copies each"),
+    "--object": (object_kind, "the random family's object: ring or bar", "one group each"),
+    "--course": (course_kind, "the random family's course: open, turns or mixed", None),
     "--current": (str, "ocean current preset", "each episode draws one"),
     "--mismatch": (model_mismatch, "model mismatch", "LOW HIGH: each episode draws one uniformly"),
 }
 
 
+NAMES = {"--object": "OBJECT", "--course": "COURSE"}  # metavars (the others: a letter)
+
+
 def add_condition_arguments(g: Any, draws: bool = True) -> None:
-    """``--n-agents``, ``--current`` and ``--mismatch``; ``draws``: each takes several
-    values (a set of team sizes, of presets, a range), else one."""
+    """``--n-agents``, ``--object``, ``--course``, ``--current`` and ``--mismatch``;
+    ``draws``: those that can take several values (a set of team sizes, of objects, of
+    presets, a range) do, else one."""
     for flag, (kind, one, several) in CONDITION_FLAGS.items():
+        many = draws and several is not None
         g.add_argument(
             flag,
             type=kind,
-            nargs="+" if draws else None,
+            nargs="+" if many else None,
             default=None,
             choices=CURRENT_PRESETS if flag == "--current" else None,
-            metavar=None if flag == "--current" else flag[2].upper(),
-            help=one + (f"; several: {several}" if draws else ""),
+            metavar=None if flag == "--current" else NAMES.get(flag, flag[2].upper()),
+            help=one + (f"; several: {several}" if many else ""),
         )
 
 
@@ -154,11 +165,21 @@ def team_sizes(args: argparse.Namespace) -> tuple[int, ...]:
     return tuple(dict.fromkeys(int(n) for n in sizes))
 
 
+def objects(args: argparse.Namespace) -> tuple[str, ...]:
+    """The objects of ``--object`` (empty: the scenario's own)."""
+    value = getattr(args, "object", None)
+    if value is None:
+        return ()
+    return tuple(dict.fromkeys([value] if isinstance(value, str) else value))
+
+
 def condition_overrides(args: argparse.Namespace) -> dict[str, Any]:
-    """Environment keywords of ``--current`` and ``--mismatch``: one value an override,
-    several a ``randomize`` draw (``uvms_env.env.conditions``). ValueError, naming the
-    flag, on a malformed range."""
+    """Environment keywords of ``--course``, ``--current`` and ``--mismatch``: one value an
+    override, several a ``randomize`` draw (``uvms_env.env.conditions``). ValueError,
+    naming the flag, on a malformed range."""
     out: dict[str, Any] = {}
+    if getattr(args, "course", None) is not None:
+        out["course"] = args.course
     draws: dict[str, Any] = {}
     current = getattr(args, "current", None)
     if current is not None:

@@ -90,7 +90,9 @@ DEFAULT_ENV_THREADS = 1
 # The options a periodic evaluation keeps from training's: the team, the channel and the
 # conditions (the evaluation plays the plain environment otherwise: a policy applies its
 # own priors).
-EVAL_KEEP = ("n_agents", "comm", "current", "mismatch", "randomize")
+EVAL_KEEP = ("n_agents", "object", "course", "comm", "current", "mismatch", "randomize")
+# what tells a run's groups of env copies apart (several team sizes, several objects)
+GROUP_KEYS = ("n_agents", "object")
 
 
 def add_step_arguments(g: Any) -> None:
@@ -157,39 +159,64 @@ class RunSettings:
     progress: bool = True
     record_eval: bool = True  # the final policy's per-episode result, in config.json
     team_sizes: tuple[int, ...] = ()  # several: one group of env copies each (empty: one)
+    objects: tuple[str, ...] = ()  # several: one group of env copies each, per team size
     eval_seed: int | None = None  # the periodic evaluations' seed (None: ``seed``)
     eval_max_cycles: int | None = None  # cap on evaluation episodes (None: the scenario's)
 
     def env_options(self) -> dict[str, Any]:
-        """The environment options training uses: the defaults, then the overrides."""
-        return {**TRAIN_ENV_DEFAULTS, **self.overrides}
+        """The environment options training uses (``training_env_options``)."""
+        return training_env_options(self.overrides)
+
+    def groups(self) -> list[dict[str, Any]]:
+        """The groups of env copies the run trains on, each its environment options: one
+        per team size and object where several are given (``team_sizes`` x ``objects``),
+        else one. Every library's trainer builds its env copies from these."""
+        out = []
+        for n in self.team_sizes or (None,):
+            for kind in self.objects or (None,):
+                group = self.env_options()
+                if n is not None:
+                    group["n_agents"] = n
+                if kind is not None:
+                    group["object"] = kind
+                out.append(group)
+        return out
 
     def rungs(self) -> dict[str, tuple[str, dict[str, Any]]]:
-        """The evaluation's rungs: the benchmark's ladder (``baselines.ladder``: random N =
-        2..6 and paper under its conditions), or the training scenario with its team size
-        (each of ``team_sizes``), its channel and its conditions (``EVAL_KEEP``)."""
-        from baselines.ladder import CONDITIONS, TEAM_SIZES
+        """The evaluation's rungs: the benchmark's ladder (``baselines.ladder``'s cases
+        under its conditions), or the training scenario once per group of env copies
+        (``groups``) with the run's channel and conditions (``EVAL_KEEP``)."""
+        from baselines.ladder import CONDITIONS, cases
 
+        comm = {"comm": self.overrides["comm"]} if "comm" in self.overrides else {}
         if self.eval_ladder:
-            comm = {"comm": self.overrides["comm"]} if "comm" in self.overrides else {}
-            ladder = {
-                f"random_n{n}": ("random", {"n_agents": n, **CONDITIONS, **comm})
-                for n in TEAM_SIZES
+            return {
+                case.rung: (case.scenario, {**dict(case.overrides), **CONDITIONS, **comm})
+                for case in cases()
             }
-            return {**ladder, "paper": ("paper", {**CONDITIONS, **comm})}
-        keep = {k: v for k, v in self.overrides.items() if k in EVAL_KEEP}
-        if len(self.team_sizes) <= 1:
-            if self.team_sizes:
-                keep["n_agents"] = self.team_sizes[0]
-            return {self.scenario: (self.scenario, keep)}
-        return {
-            f"{self.scenario}_n{n}": (self.scenario, {**keep, "n_agents": n})
-            for n in self.team_sizes
-        }
+        groups = [
+            {k: v for k, v in group.items() if k in EVAL_KEEP} for group in self.groups()
+        ]
+        if len(groups) == 1:
+            return {self.scenario: (self.scenario, groups[0])}
+        return {_group_name(self.scenario, g, self.objects): (self.scenario, g) for g in groups}
 
     @property
     def evaluation_seed(self) -> int:
         return self.seed if self.eval_seed is None else self.eval_seed
+
+
+def training_env_options(overrides: dict[str, Any]) -> dict[str, Any]:
+    """The environment options of every training loop (the RL trainers', DAgger's): the
+    training defaults (``TRAIN_ENV_DEFAULTS``), then ``overrides``."""
+    return {**TRAIN_ENV_DEFAULTS, **overrides}
+
+
+def _group_name(scenario: str, group: dict[str, Any], objects: tuple[str, ...]) -> str:
+    """A group's rung name: ``random_n3``, ``random_n3_bar`` where the run has several
+    objects."""
+    name = f"{scenario}_n{group['n_agents']}" if "n_agents" in group else scenario
+    return f"{name}_{group['object']}" if objects else name
 
 
 def seeded_pool(scenario: str, overrides: dict[str, Any], pool: int | None) -> int | None:
@@ -250,6 +277,7 @@ class Run:
             "eval_seed": settings.evaluation_seed,
             "eval_max_cycles": settings.eval_max_cycles,
             "team_sizes": list(settings.team_sizes),
+            "objects": list(settings.objects),
             "checkpoint_every": settings.checkpoint_every,
             "cost": settings.cost.as_dict() if settings.cost is not None else None,
             "resumes": self.previous.get("resumes", -1) + 1 if self.resumed else 0,

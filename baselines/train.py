@@ -33,6 +33,7 @@ from baselines.options import (
     key_value_pairs,
     non_negative_float,
     non_negative_int,
+    objects,
     positive_int,
     team_sizes,
     usage_errors,
@@ -193,18 +194,21 @@ def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> Any:
         if key in overrides and overrides[key] != value:
             raise ValueError(f"--{key} contradicts --env-option {key}={overrides[key]!r}")
         overrides[key] = value
-    sizes = team_sizes(args)
-    if sizes and "n_agents" in overrides:
-        raise ValueError("give the team size once: --n-agents or --env-option n_agents")
+    sizes, kinds = team_sizes(args), objects(args)
+    for flag, key, values in (("--n-agents", "n_agents", sizes), ("--object", "object", kinds)):
+        if values and key in overrides:
+            raise ValueError(f"give the {key} once: {flag} or --env-option {key}")
     if len(sizes) == 1:
         overrides["n_agents"], sizes = sizes[0], ()
+    if len(kinds) == 1:
+        overrides["object"], kinds = kinds[0], ()
     if args.comm is not None:
         if "comm" in overrides and overrides["comm"] != args.comm:
             raise ValueError(
                 f"--comm {args.comm} contradicts --env-option comm={overrides['comm']!r}"
             )
         overrides["comm"] = args.comm
-    check_environment(args.scenario, overrides, sizes)
+    check_environment(args.scenario, overrides, sizes, kinds)
     return RunSettings(
         scenario=args.scenario,
         overrides=overrides,
@@ -224,6 +228,7 @@ def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> Any:
         hyperparameters=key_value_pairs(args.hp),
         progress=not args.no_progress,
         team_sizes=sizes,
+        objects=kinds,
         eval_seed=args.eval_seed,
         eval_max_cycles=args.eval_max_cycles,
     )
@@ -244,11 +249,13 @@ def _cost_settings(args: argparse.Namespace) -> CostSettings | None:
     return CostSettings(args.cost, **given)
 
 
-def check_environment(scenario: str, overrides: dict[str, Any], sizes: tuple[int, ...]) -> None:
+def check_environment(
+    scenario: str, overrides: dict[str, Any], sizes: tuple[int, ...], kinds: tuple[str, ...] = ()
+) -> None:
     """ValueError (or TypeError) in the environment's own words where it would refuse
-    ``scenario`` with ``overrides`` (and each of ``sizes`` as its team): its checks
-    (``uvms_env.env.options.resolve``) on the geometry of seed 0, built once, before any
-    run folder, env copy or model."""
+    ``scenario`` with ``overrides`` (and each of ``sizes`` as its team, each of ``kinds``
+    as its object): its checks (``uvms_env.env.options.resolve``) on the geometry of seed
+    0, built once, before any run folder, env copy or model."""
     from uvms_env.env.options import resolve, split_keywords
 
     try:
@@ -257,19 +264,24 @@ def check_environment(scenario: str, overrides: dict[str, Any], sizes: tuple[int
         raise ValueError(f"--env-option: {exc}") from exc
     probe = {**overrides, "seed": 0, "reseed_geometry": False}
     for n in sizes or (None,):
-        try:
-            resolve(scenario, probe if n is None else {**probe, "n_agents": n})
-        except (TypeError, ValueError) as exc:
-            team = "" if n is None else f" --n-agents {n}"
-            raise ValueError(f"--scenario {scenario}{team}: {exc}") from exc
+        for kind in kinds or (None,):
+            group = {**probe, **({} if n is None else {"n_agents": n})}
+            group.update({} if kind is None else {"object": kind})
+            try:
+                resolve(scenario, group)
+            except (TypeError, ValueError) as exc:
+                team = "" if n is None else f" --n-agents {n}"
+                team += "" if kind is None else f" --object {kind}"
+                raise ValueError(f"--scenario {scenario}{team}: {exc}") from exc
 
 
 def check_library(name: str, algo: str, settings: Any, args: argparse.Namespace) -> None:
     """ValueError naming the option where library ``name`` cannot honour the shared
     options in ``settings`` or its own in ``args``: an option is honoured or refused,
-    never dropped. A trainer module says whether it trains over several team sizes
-    (``SEVERAL_TEAM_SIZES``; without it, it does not) and checks the rest itself
-    (``check_options(settings, algo, args)``, where it has one)."""
+    never dropped. A trainer module says whether it trains over several groups of env
+    copies, several team sizes or objects (``SEVERAL_TEAM_SIZES``; without it, it does
+    not) and checks the rest itself (``check_options(settings, algo, args)``, where it has
+    one)."""
 
     def several(module: Any) -> bool:
         return bool(getattr(module, "SEVERAL_TEAM_SIZES", False))
@@ -277,12 +289,14 @@ def check_library(name: str, algo: str, settings: Any, args: argparse.Namespace)
     module = trainer_module(name)
     if algo not in library(name).algos:
         raise ValueError(f"{name} trains {library(name).algos}, not {algo!r}")
-    if len(settings.team_sizes) > 1 and not several(module):
-        takers = [n for n in LIBRARIES if several(trainer_module(n))]
-        raise ValueError(
-            f"--n-agents with several team sizes {list(settings.team_sizes)}: the {name} "
-            f"trainer takes one; the libraries that take several: {', '.join(takers)}"
-        )
+    groups = {"--n-agents": settings.team_sizes, "--object": settings.objects}
+    for flag, values in groups.items():
+        if len(values) > 1 and not several(module):
+            takers = [n for n in LIBRARIES if several(trainer_module(n))]
+            raise ValueError(
+                f"{flag} with several values {list(values)}: the {name} trainer takes one; "
+                f"the libraries that take several: {', '.join(takers)}"
+            )
     check = getattr(module, "check_options", None)
     if check is not None:
         check(settings, algo, args)

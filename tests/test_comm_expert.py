@@ -170,7 +170,7 @@ def test_refuses_without_a_channel() -> None:
     # that does not check first (a training run's) fails the episode with it recorded
     from baselines.evaluation.runner import UsageError, evaluate
 
-    with pytest.raises(UsageError, match="nmpc:comm.*has none"):
+    with pytest.raises(UsageError, match=r"nmpc:comm.*has none"):
         evaluate(["nmpc:comm"], ["paper"], 1, 0, 1, max_cycles=2, progress=False)
     rows = evaluate(["nmpc:comm"], ["paper"], 1, 0, 1, max_cycles=2, progress=False, check=False)
     assert "has none" in rows[0]["error"]

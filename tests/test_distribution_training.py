@@ -73,6 +73,20 @@ def test_trainer_settings_from_the_condition_flags():
         settings("--scenario", "paper", "--n-agents", "2", "3")
     with pytest.raises(ValueError, match="contradicts"):
         settings("--current", "mild", "--env-option", 'current="none"')
+    # several objects: one group of env copies per (team size, object), a rung each
+    s = settings("--scenario", "random", "--n-agents", "2", "3", "--object", "ring", "bar")
+    assert s.objects == ("ring", "bar") and "object" not in s.overrides
+    assert [(g["n_agents"], g["object"]) for g in s.groups()] == [
+        (2, "ring"), (2, "bar"), (3, "ring"), (3, "bar")
+    ]  # fmt: skip
+    assert all(g["internal_wrench_every"] == 0 for g in s.groups())  # the training defaults
+    assert list(s.rungs()) == ["random_n2_ring", "random_n2_bar", "random_n3_ring", "random_n3_bar"]
+    assert s.rungs()["random_n3_bar"][1]["object"] == "bar"
+    s = settings("--scenario", "random", "--object", "bar", "--course", "turns")
+    assert s.objects == () and (s.overrides["object"], s.overrides["course"]) == ("bar", "turns")
+    assert list(s.rungs()) == ["random"] and s.rungs()["random"][1]["course"] == "turns"
+    with pytest.raises(ValueError, match="--object ring: object: only the random family"):
+        settings("--scenario", "short", "--object", "ring", "bar")
 
 
 # -- the VecEnv over several team sizes ---------------------------------------------------------

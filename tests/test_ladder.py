@@ -59,7 +59,7 @@ def test_prices_are_paired_differences_over_the_episodes_both_succeeded_in():
 def test_a_case_plays_the_episodes_of_the_plain_evaluator_command():
     """``Case("random N=3", "random", n_agents=3)`` gives the rows of
     ``--scenario random --n-agents 3``: the same seeds and the same episode."""
-    (case,) = cases((3,), paper=False)
+    (case,) = cases((3,), paper=False, bars=False)
     assert case == Case("random N=3", "random", (("n_agents", 3),))
     kw = dict(workers=1, max_cycles=3, progress=False)
     labelled = evaluate(["zero"], [case], 1, 5, overrides={"current": "mild"}, **kw)
@@ -83,7 +83,9 @@ def test_the_ladder_command_runs_end_to_end(tmp_path):
     result = json.loads((tmp_path / "ladder.json").read_text())
     labels = {(s["policy"], s["scenario"]) for s in result["rungs"]}
     assert labels == {
-        (p, c) for p in ("nmpc:central", "nmpc", "zero") for c in ("random N=2", "paper")
+        (p, c)
+        for p in ("nmpc:central", "nmpc", "zero")
+        for c in ("random N=2", "random bar N=2", "paper")
     }
     assert all(s["errors"] == 0 for s in result["rungs"])
     central = next(s for s in result["rungs"] if s["policy"] == "nmpc:central")

@@ -13,7 +13,7 @@ pytest.importorskip("stable_baselines3")
 from baselines.evaluation.runner import evaluate
 from baselines.loaded_policy import PRETRAINED
 from baselines.rl.sb3_trainer import find_resume, make_vec_env
-from baselines.runs import RunSettings
+from baselines.runs import RunSettings, training_env_options
 from baselines.train import main, train
 
 SEED = 7
@@ -62,18 +62,18 @@ def test_train_save_resume_evaluate(tmp_path):
 def test_make_vec_env_paths():
     from uvms_env.vector.sb3 import VectorVecEnv
 
-    vector = make_vec_env("short", 3, 0, {"max_cycles": 10})
+    vector = make_vec_env("short", 3, 0, [training_env_options({"max_cycles": 10})])
     assert isinstance(vector.venv, VectorVecEnv) and vector.num_envs == 6
     inner = vector.venv.vector_env
     assert (inner.dtype, inner.geometry_pool, inner.threads) == ("float32", 1024, 1)
-    assert inner.internal_wrench_every == 0  # TRAIN_ENV_DEFAULTS reach the batched env
-    paper = make_vec_env("paper", 1, 0, {}, dtype="float64", geometry_pool=1024)
+    assert inner.internal_wrench_every == 0  # the training defaults reach the batched env
+    paper = make_vec_env("paper", 1, 0, [{}], dtype="float64", geometry_pool=1024)
     assert paper.venv.vector_env.geometry_pool is None  # a fixed geometry: no pool
     for venv in (vector, paper):
         assert venv.reset().shape == (venv.num_envs, 79)
         venv.close()
     with pytest.raises(ValueError, match="dtype"):
-        make_vec_env("short", 1, 0, {}, dtype="float16")
+        make_vec_env("short", 1, 0, [{}], dtype="float16")
 
 
 def test_cli_records_the_env_settings(tmp_path):

@@ -62,6 +62,12 @@ class Case:
     def of(cls, case: Case | str) -> Case:
         return case if isinstance(case, Case) else cls(case, case)
 
+    @property
+    def rung(self) -> str:
+        """The label as a name: ``random N=2`` -> ``random_n2``, ``random bar N=3`` ->
+        ``random_bar_n3`` (a training run's evaluation rungs)."""
+        return self.label.replace(" N=", "_n").replace(" ", "_")
+
 
 def evaluate(
     policies: Sequence[str],

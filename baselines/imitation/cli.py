@@ -42,13 +42,20 @@ from baselines.options import (
     fraction,
     non_negative_float,
     non_negative_int,
+    objects,
     positive_float,
     positive_int,
     team_sizes,
     usage_errors,
 )
 from baselines.policies import PolicySource
-from baselines.runs import EVAL_KEEP, TRAIN_ENV_DEFAULTS, evaluate_rungs, hardware, write_json
+from baselines.runs import (
+    EVAL_KEEP,
+    evaluate_rungs,
+    hardware,
+    training_env_options,
+    write_json,
+)
 
 
 def env_overrides(scenario: str, args: argparse.Namespace) -> dict[str, Any]:
@@ -57,9 +64,14 @@ def env_overrides(scenario: str, args: argparse.Namespace) -> dict[str, Any]:
     ``--constraint-mode``; the team sizes are the job's (``rollout_job``); ``--max-cycles``
     is applied as a cap."""
     out: dict[str, Any] = condition_overrides(args)
+    kinds = objects(args)
+    if len(kinds) > 1:  # a rollout job cycles team sizes, not objects: refused, not dropped
+        raise ValueError(f"--object takes one object here, got {list(kinds)}")
+    if kinds:
+        out["object"] = kinds[0]
     if getattr(args, "constraint_mode", None):
         out["constraint_mode"] = args.constraint_mode
-    return {**TRAIN_ENV_DEFAULTS, **out}
+    return training_env_options(out)
 
 
 def rollout_job(scenario: str, args: argparse.Namespace, **labelling: Any) -> RolloutJob:
@@ -655,6 +667,7 @@ def main(argv: list[str] | None = None) -> None:
 def check_collect(args: argparse.Namespace) -> None:
     """``collect``'s options: ValueError naming the one the environment or the teacher
     refuses."""
+    env_overrides(args.scenario, args)
     _check_rollouts(args, [args.scenario], args.seed)
 
 
@@ -662,6 +675,7 @@ def check_dagger(args: argparse.Namespace) -> None:
     """``dagger``'s options: ValueError naming the one that cannot be honoured."""
     if not args.data and args.init is None:
         raise ValueError("dagger needs --data (demonstrations) or --init (a clone to start from)")
+    env_overrides("random", args)
     features = args.features if args.init is None else _init_network(args.init).features
     if args.resume is not None:
         _resume_record(args, features == "memory")

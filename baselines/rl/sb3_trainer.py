@@ -28,7 +28,6 @@ from baselines.runs import (
     DEFAULT_DTYPE,
     DEFAULT_ENV_THREADS,
     DTYPES,
-    TRAIN_ENV_DEFAULTS,
     Run,
     add_step_arguments,
     seeded_pool,
@@ -174,8 +173,10 @@ def check_options(settings: Any, algo: str, args: argparse.Namespace) -> None:
         raise ValueError(f"--critic-warmup holds PPO's actor: --algo {' or '.join(ON_POLICY)}")
     if getattr(args, "filter_penalty", None) is not None and not getattr(args, "filter", False):
         raise ValueError("--filter-penalty weighs the safety filter's corrections: give --filter")
-    if getattr(args, "filter", False) and len(settings.team_sizes) > 1:
-        raise ValueError("shielded training (--filter) takes one team size (--n-agents N)")
+    if getattr(args, "filter", False) and len(settings.groups()) > 1:
+        raise ValueError(
+            "shielded training (--filter) takes one team size and object (--n-agents N)"
+        )
     taken = inspect.signature(algorithm_class(algo).__init__).parameters
     known = sorted(k for k in taken if k not in NOT_HYPERPARAMETERS)
     unknown = sorted(set(settings.hyperparameters) - set(known))
@@ -205,36 +206,33 @@ def make_vec_env(
     scenario: str,
     num_envs: int,
     seed: int,
-    overrides: dict[str, Any],
+    groups: list[dict[str, Any]],
     dtype: str = DEFAULT_DTYPE,
     geometry_pool: int | None = DEFAULT_GEOMETRY_POOL,
     env_threads: int | None = DEFAULT_ENV_THREADS,
     cost: CostSettings | None = None,
     central_critic: bool = False,
     filter_penalty: float | None = None,
-    team_sizes: tuple[int, ...] = (),
 ):
     """``CostPenalty`` (with ``cost``) over ``ShieldPenalty`` (with ``filter_penalty``) over
-    ``VecMonitor`` over ``num_envs`` env copies as
-    ``num_envs * N`` robot sub-environments of one ``VectorEnv`` (in ``dtype``, on
-    ``env_threads`` threads, None: all cores; seeded families: episodes on the first
-    ``geometry_pool`` bank geometries, 0 or None: each copy keeps its first).
-    ``team_sizes`` (several): one ``VectorEnv`` of ``num_envs`` copies per team size,
-    side by side (``ConcatVecEnv``), the central critic's state padded to the largest team.
-    ``filter_penalty``: shielded training, ``baselines.rl.shield.ShieldPenalty`` with that
-    weight (one team size)."""
+    ``VecMonitor`` over one ``VectorEnv`` of ``num_envs`` env copies per group (each of
+    ``groups`` its environment options: ``RunSettings.groups``), as ``num_envs * N``
+    robot sub-environments each (in ``dtype``, on ``env_threads`` threads, None: all cores;
+    seeded families: episodes on the first ``geometry_pool`` bank geometries, 0 or None:
+    each copy keeps its first). Several groups sit side by side (``ConcatVecEnv``), the
+    central critic's state padded to the largest team. ``filter_penalty``: shielded
+    training, ``baselines.rl.shield.ShieldPenalty`` with that weight (one group)."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     from uvms_env.vector import VectorEnv
     from uvms_env.vector.sb3 import PART_SEED_STRIDE, ConcatVecEnv, VectorVecEnv
 
-    settings = env_settings(scenario, dtype, geometry_pool, env_threads, overrides)
-    sizes: tuple[int | None, ...] = tuple(team_sizes) or (None,)
+    settings = env_settings(scenario, dtype, geometry_pool, env_threads, groups[0])
+    if filter_penalty is not None and len(groups) > 1:
+        raise ValueError("shielded training (--filter) takes one group of env copies")
     parts, inners = [], []
-    for j, n in enumerate(sizes):
-        kwargs = {**TRAIN_ENV_DEFAULTS, **overrides}
-        if n is not None:
-            kwargs["n_agents"] = n
+    for j, group in enumerate(groups):
+        kwargs = dict(group)
         if settings["geometry_pool"] is not None:
             kwargs["geometry_pool"] = settings["geometry_pool"]
         inner = VectorEnv(
@@ -248,7 +246,7 @@ def make_vec_env(
         if central_critic:
             from baselines.rl.mappo import CentralStateVecEnv
 
-            most = max(sizes) if len(sizes) > 1 else None  # type: ignore[type-var]
+            most = max(g.get("n_agents", inner.n) for g in groups) if len(groups) > 1 else None
             part = CentralStateVecEnv(part, max_agents=most)
         parts.append(part)
         inners.append(inner)
@@ -349,12 +347,11 @@ class Trainer:
             s.scenario,
             s.num_envs,
             self.run.env_seed,
-            s.overrides,
+            s.groups(),
             **env,
             cost=s.cost,
             central_critic=a.central_critic,
             filter_penalty=filter_penalty(a),
-            team_sizes=s.team_sizes,
         )
         venv = self._anchored(venv, clone)
         if s.resume is not None:

@@ -40,7 +40,7 @@ from baselines.rl.torchrl_policy import (
     mlp,
     save_actor,
 )
-from baselines.runs import DTYPES, TRAIN_ENV_DEFAULTS, Run, add_step_arguments, seeded_pool
+from baselines.runs import DTYPES, Run, add_step_arguments, seeded_pool
 from uvms_env.vector.simulator import BACKENDS
 
 ALGOS = LIBRARIES["torchrl"].algos
@@ -96,7 +96,7 @@ def check_options(settings: Any, algo: str, args: argparse.Namespace) -> None:
     if unknown:
         known = list(HYPERPARAMETERS)
         raise ValueError(f"--hp: unknown hyperparameters {sorted(unknown)}; known: {known}")
-    if settings.cost is not None and len(settings.team_sizes) > 1:
+    if settings.cost is not None and len(settings.groups()) > 1:
         raise ValueError(
             "--cost with several team sizes: train it with --library sb3 (one multiplier "
             "over every robot), or give torchrl one team size"
@@ -141,14 +141,15 @@ def make_env(
     dtype: str,
     geometry_pool: int | None,
     env_threads: int | None,
-    overrides: dict[str, Any],
+    options: dict[str, Any],
 ):
-    """The TorchRL env over one ``VectorEnv`` (``backend``, ``device``; seeded families:
-    episodes on the first ``geometry_pool`` bank geometries), its tensors on ``device``."""
+    """The TorchRL env over one ``VectorEnv`` with the environment ``options`` (a group's:
+    ``RunSettings.groups``) (``backend``, ``device``; seeded families: episodes on the first
+    ``geometry_pool`` bank geometries), its tensors on ``device``."""
     from uvms_env.vector import VectorEnv
     from uvms_env.vector.torchrl_env import CoopTransportTorchRLEnv
 
-    kwargs = {**TRAIN_ENV_DEFAULTS, **overrides}
+    kwargs = dict(options)
     if geometry_pool is not None:
         kwargs["geometry_pool"] = geometry_pool
     if backend == "cuda":
@@ -310,12 +311,11 @@ class Trainer:
         from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
 
         s, a, hp = self.run.settings, self.args, self.hp
-        sizes: tuple[int | None, ...] = tuple(s.team_sizes) or (None,)
         device = parse_device(a.device, a.backend)
         pool = seeded_pool(s.scenario, s.overrides, s.geometry_pool)
         torch.set_num_threads(a.torch_threads)
         torch.manual_seed(s.seed + self.run.config["resumes"])
-        envs = [self._group_env(j, n, device, pool) for j, n in enumerate(sizes)]
+        envs = [self._group_env(j, g, device, pool) for j, g in enumerate(s.groups())]
         dev = self.dev = envs[0].device
         if s.cost is not None:
             self.costs = StepCosts(envs[0].vector_env)
@@ -370,16 +370,14 @@ class Trainer:
             "torch_threads": torch.get_num_threads(),
         }
 
-    def _group_env(self, j: int, n_agents: int | None, device: str | int, pool: int | None):
-        """The TorchRL env of team-size group ``j`` (``n_agents`` robots, None: the run's)."""
+    def _group_env(self, j: int, group: dict[str, Any], device: str | int, pool: int | None):
+        """The TorchRL env of group ``j`` of env copies (``RunSettings.groups``: its
+        environment options)."""
         from uvms_env.vector.sb3 import PART_SEED_STRIDE
 
         s, a = self.run.settings, self.args
-        overrides = dict(s.overrides)
-        if n_agents is not None:
-            overrides["n_agents"] = n_agents
         env = make_env(
-            s.scenario, s.num_envs, a.backend, device, a.dtype, pool, a.env_threads, overrides
+            s.scenario, s.num_envs, a.backend, device, a.dtype, pool, a.env_threads, group
         )
         env.set_seed(self.run.env_seed + j * PART_SEED_STRIDE)
         return env
