@@ -138,6 +138,13 @@ class EnvSetup:
             self._by_seed[seed] = self._bank.get(seed).scenario_with(self.overrides)
         return self._by_seed[seed]
 
+    def prebuild(self, seeds: range) -> int:
+        """Build the missing bank geometries of ``seeds`` now, with a progress bar (a pool
+        an env cycles through), rather than one by one in the episodes' resets; returns
+        how many were built."""
+        assert self._bank is not None, "geometry seeds need a seeded family"
+        return self._bank.fill(seeds, progress=True)
+
     def navigation(self, scenario: Scenario) -> np.ndarray | None:
         """The bank's navigation parameters of a seeded geometry (None: not in the bank)."""
         if self._bank is None or scenario.seed is None:

@@ -16,8 +16,8 @@ such setting. Entries are keyed by a hash of the code that builds them
 new bank instead of serving stale geometries. ``geometry_of_seed`` gives the single and
 the batched environment the same scenario of a seed.
 
-May import: numpy, ``uvms_env.scenarios``, ``uvms_env.navigation`` and
-``uvms_env.dynamics.compiled`` (the cache folder).
+May import: numpy, tqdm (the build's progress), ``uvms_env.scenarios``,
+``uvms_env.navigation`` and ``uvms_env.dynamics.compiled`` (the cache folder).
 """
 
 from __future__ import annotations
@@ -165,7 +165,8 @@ class GeometryBank:
         todo = self.missing(seeds)
         if not todo:
             return 0
-        bar = _progress(len(todo), f"{self.family} N={self.n_agents}") if progress else None
+        what = f"{self.family} N={self.n_agents}" + "".join(f" {v}" for v in self.options.values())
+        bar = _progress(len(todo), what) if progress else None
         if workers <= 1:
             for seed in todo:
                 geometry = build_geometry(self.family, self.n_agents, seed, self.options)
@@ -195,10 +196,8 @@ def _build(job: tuple[str, int, int, dict[str, str]]) -> Geometry:
 
 
 def _progress(total: int, what: str) -> Any:
-    try:
-        from tqdm import tqdm
-    except ImportError:  # tqdm is in the learn extra; the bank works without it
-        return None
+    from tqdm import tqdm
+
     return tqdm(total=total, desc=f"geometries {what}", unit="geometry")
 
 

@@ -147,6 +147,10 @@ class VectorEnv(CoreViews):
             raise ValueError(
                 "geometry_pool needs a seeded family (random, short) with reseed_geometry"
             )
+        if self.geometry_pool is not None:
+            # every geometry the pool will cycle through, built before the first step: a
+            # reset never stalls the batch to solve a grasp, and the build is not stepping
+            setup.prebuild(range(self.geometry_pool))
         self.family = setup.family
         self._first_seed = int(first or 0)
         self._engine = BatchedEngine(setup, k, backend, dtype, self.threads, lanes, device)
