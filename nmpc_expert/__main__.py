@@ -2,8 +2,9 @@
 figures, an animation, metrics.json and the trajectory (.npz).
 
     python -m nmpc_expert --scenario paper --out runs/paper [--solver rti|ipopt]
-        [--controller observer|paper] [--seed 0] [--n-agents N]
-        [--current none|mild|strong] [--mismatch 0.1] [--max-cycles 2000] [--no-figures]
+        [--controller observer|paper] [--seed 0] [--n-agents N] [--object ring|bar]
+        [--course open|turns|mixed] [--current none|mild|strong] [--mismatch 0.1]
+        [--max-cycles 2000] [--no-figures]
 
 ``--controller``: docs/expert.md, "Two controllers". The IPOPT solver runs the paper's
 controller only.
@@ -21,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -64,6 +66,11 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument(
         "--n-agents", type=int, default=None, help="team size: random family only (2..6)"
     )
+    for key in ("object", "course"):
+        option = SCENARIO_OVERRIDES[key]
+        ap.add_argument(
+            f"--{key}", default=None, choices=option.choices, help=option.doc
+        )
     ap.add_argument("--current", default="none", choices=CURRENT_PRESETS)
     ap.add_argument("--mismatch", type=float, default=0.0, help="truth-model perturbation")
     ap.add_argument("--solver", default="rti", choices=["rti", "ipopt"])
@@ -79,8 +86,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--no-figures", action="store_true", help="no figures, animation, replay")
     args = ap.parse_args(argv)
     overrides: dict = {"current": args.current, "mismatch": args.mismatch}
-    if args.n_agents is not None:
-        overrides["n_agents"] = args.n_agents
+    for key in ("n_agents", "object", "course"):
+        if getattr(args, key) is not None:
+            overrides[key] = getattr(args, key)
     controller = args.controller or ("paper" if args.solver == "ipopt" else "observer")
     if controller == "observer" and args.solver == "ipopt":
         ap.error("--controller observer needs --solver rti")
@@ -102,6 +110,7 @@ def main(argv: list[str] | None = None) -> dict:
     if not args.no_figures:
         from nmpc_expert.figures import make_figures
 
+        print("writing the figures and the animation ...", file=sys.stderr, flush=True)
         make_figures(arr, scenario, args.out)
     metrics["wall_time_incl_figures_s"] = time.perf_counter() - start
     (args.out / "metrics.json").write_text(json.dumps(metrics, indent=2))

@@ -494,7 +494,7 @@ def test_internal_wrench_matches_the_simulator(env):
     rng = np.random.default_rng(3)
     for _ in range(10):
         info = env.sim.step(rng.uniform(-1, 1, (2, 8)) * env.sim.tau_max)
-    norm_sq = probe(info.tau_applied, info.current)
+    norm_sq = probe(info.tau_applied)
     # independent: pseudo-inverse projection of the grasp wrenches onto null(G^T)
     lam = env.sim.wrenches().reshape(-1)
     g_t = env.sim.grasp_matrix_t()

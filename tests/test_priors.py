@@ -65,12 +65,17 @@ def test_residual_and_features_are_the_plain_env_driven_through_a_ss():
         obs_p, _, _, _, info_p = with_priors.step(
             dict(zip(with_priors.possible_agents, r, strict=True))
         )
-        obs_0, _, _, _, _ = plain.step(dict(zip(plain.possible_agents, command, strict=True)))
+        obs_0, _, _, _, info_0 = plain.step(dict(zip(plain.possible_agents, command, strict=True)))
         # the expert's a_ss here runs in CasADi's VM, the env's in generated C: 1e-12 apart
         np.testing.assert_allclose(with_priors.sim.flat_state, plain.sim.flat_state, atol=1e-7)
-        # the input constraint reports the policy's own action beyond its space
+        # what is measured is the applied input, as in the plain env fed it: the input
+        # constraint and the effort term see the command, not the residual
+        for agent in plain.possible_agents:
+            for key in ("constraint_values", "reward_terms"):
+                mine, theirs = info_p[agent][key], info_0[agent][key]
+                assert mine == pytest.approx(theirs, abs=1e-6), (agent, key)
         g_input = info_p["uvms_0"]["constraint_values"]["input"]
-        assert g_input == pytest.approx(np.abs(r[0]).max() - 1.0, abs=1e-6)
+        assert g_input == pytest.approx(np.abs(command[0]).max() - 1.0, abs=1e-6)
 
 
 def test_vector_env_applies_the_same_priors_as_single_envs():

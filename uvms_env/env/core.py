@@ -323,14 +323,16 @@ class EnvCore(NamespacePickled):
         sampled = task.tick(diverged)
         rows = list(range(self.k)) if engine.noisy else []
         previous = self.obs.copy() if self.memory is not None else None
-        team = self.evaluate(self.all, rows, a)
+        # the inputs measured (the input constraint, the effort term and metric, the extra
+        # terms' action) are the ones applied: the priors' and the filter's command
+        team = self.evaluate(self.all, rows, command)
         if self.memory is not None:
             self.memory.update(self.all, previous, self.obs, command)
         x_o = engine.object_pose(self.all)
         wrench_sq = None
         if sampled is not None and task._any(sampled):
             wrench_sq = engine.wrench_sq(sampled)
-        state = self.task_arrays(x_o, a) if task.extended else None
+        state = self.task_arrays(x_o, command) if task.extended else None
         out = task.step(x_o, team, self.g, self.cost, diverged, sampled, wrench_sq, state)
         return out, diverged
 

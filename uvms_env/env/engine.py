@@ -158,7 +158,7 @@ class ScalarEngine(Engine):
 
     def wrench_sq(self, sampled: Any) -> float:
         assert self._info is not None
-        return self.world.wrench(self._info.tau_applied, self._info.current)
+        return self.world.wrench(self._info.tau_applied)
 
     def object_pose(self, ids: Any) -> np.ndarray:
         return self._x_o

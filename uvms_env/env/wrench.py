@@ -12,16 +12,16 @@ from uvms_env.sim import Simulator
 
 
 class InternalWrench:
-    """``InternalWrench(sim)(tau_applied, current)`` -> squared Frobenius norm of the
-    (N, 6) squeeze after a step; the squeeze itself is then in ``.value``.
+    """``InternalWrench(sim)(tau_applied)`` -> squared Frobenius norm of the (N, 6)
+    squeeze after a step; the squeeze itself is then in ``.value``.
 
-    Arguments as in ``StepInfo``: the saturated inputs of the last period and the current
-    during it (the simulator's own record of it; ``current`` must agree)."""
+    ``tau_applied`` as in ``StepInfo``: the saturated inputs of the last period; the
+    current is the simulator's own record of that period (``Simulator.internal_wrench``)."""
 
     def __init__(self, sim: Simulator) -> None:
         self.sim = sim
         self.value = np.zeros((sim.n, 6))
 
-    def __call__(self, tau_applied: np.ndarray, current: np.ndarray) -> float:
+    def __call__(self, tau_applied: np.ndarray) -> float:
         self.value = self.sim.internal_wrench(tau_applied)
         return float(np.einsum("ij,ij->", self.value, self.value))
