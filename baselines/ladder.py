@@ -75,11 +75,14 @@ BAR_CASE = (("object", "bar"), ("course", "mixed"))
 
 
 def cases(
-    team_sizes: tuple[int, ...] = TEAM_SIZES, paper: bool = True, bars: bool = True
+    team_sizes: tuple[int, ...] = TEAM_SIZES,
+    paper: bool = True,
+    bars: bool = True,
+    rings: bool = True,
 ) -> list[Case]:
-    """The ladder's cases: random rings at each team size, then (``bars``) random bars,
-    then (``paper``) the paper's scenario."""
-    out = [Case(f"random N={n}", "random", (("n_agents", n),)) for n in team_sizes]
+    """The ladder's cases: (``rings``) random rings at each team size, then (``bars``)
+    random bars, then (``paper``) the paper's scenario."""
+    out = [Case(f"random N={n}", "random", (("n_agents", n),)) for n in team_sizes if rings]
     if bars:
         out += [
             Case(f"random bar N={n}", "random", (("n_agents", n), *BAR_CASE)) for n in team_sizes
@@ -347,6 +350,7 @@ def add_case_arguments(
         help=f"random team sizes (the ladder's: {' '.join(map(str, TEAM_SIZES))})",
     )
     ap.add_argument("--no-paper", action="store_true", help="leave the paper scenario out")
+    ap.add_argument("--no-rings", action="store_true", help="leave the ring cases out")
     if bars:
         ap.add_argument(
             "--no-bars", dest="bars", action="store_false", help="leave the bar cases out"
@@ -372,7 +376,10 @@ def settings_of(args: argparse.Namespace) -> Settings:
 
 def cases_of(args: argparse.Namespace) -> list[Case]:
     """The cases of ``add_case_arguments``' flags."""
-    return cases(tuple(args.n_agents), not args.no_paper, args.bars)
+    chosen = cases(tuple(args.n_agents), not args.no_paper, args.bars, not args.no_rings)
+    if not chosen:
+        raise UsageError("no case left: --no-rings, --no-paper and no bar cases")
+    return chosen
 
 
 def main(argv: list[str] | None = None) -> None:
