@@ -133,7 +133,7 @@ def build_library(
     parallel workers never load a half-written library), saying so on a line of its own
     with the time it should take, and log the time it took. A process that needs a library
     another one is compiling waits for it rather than compiling it again."""
-    with _exclusive(lib.with_suffix(".lock")):
+    with exclusive(lib.with_suffix(".lock")):
         if lib.exists():  # another process compiled it while this one waited
             return
         lines = sum(u.count("\n") for u in units)
@@ -157,7 +157,7 @@ def build_library(
 
 
 @contextlib.contextmanager
-def _exclusive(path: Path) -> Iterator[None]:
+def exclusive(path: Path) -> Iterator[None]:
     """Hold an exclusive lock on ``path`` (a no-op where there is no ``fcntl``)."""
     try:
         import fcntl
