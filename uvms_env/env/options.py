@@ -139,9 +139,8 @@ class EnvSetup:
         return self._by_seed[seed]
 
     def prebuild(self, seeds: range) -> int:
-        """Build the missing bank geometries of ``seeds`` now, with a progress bar (a pool
-        an env cycles through), rather than one by one in the episodes' resets; returns
-        how many were built."""
+        """Build the missing bank geometries of ``seeds`` now, with a progress bar, rather
+        than one by one in the episodes' resets; returns how many were built."""
         assert self._bank is not None, "geometry seeds need a seeded family"
         return self._bank.fill(seeds, progress=True)
 

@@ -148,9 +148,10 @@ class VectorEnv(CoreViews):
                 "geometry_pool needs a seeded family (random, short) with reseed_geometry"
             )
         if self.geometry_pool is not None:
-            # every geometry the pool will cycle through, built before the first step: a
-            # reset never stalls the batch to solve a grasp, and the build is not stepping
-            setup.prebuild(range(self.geometry_pool))
+            # the first episodes' geometries, built now with a progress bar rather than
+            # silently in the first reset; the rest of the pool as the episodes reach it
+            # (a pool of 1024 random N = 6 geometries would take ~15 minutes up front)
+            setup.prebuild(range(min(self.geometry_pool, int(num_envs))))
         self.family = setup.family
         self._first_seed = int(first or 0)
         self._engine = BatchedEngine(setup, k, backend, dtype, self.threads, lanes, device)
