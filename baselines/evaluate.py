@@ -7,7 +7,7 @@ Every policy plays exactly the same episodes, and a result depends only on (poli
 scenario, seed), never on the number of workers. Outputs and policies: docs/evaluation.md.
 
 May import: the standard library, ``baselines.evaluation``, ``baselines.options`` and
-``baselines.distributed.marl_eval``. The command line only: the evaluator's parts live in
+``baselines.evaluation.marl_eval``. The command line only: the evaluator's parts live in
 ``baselines.evaluation``.
 """
 
@@ -91,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="PATH",
         help="also write (merge into) marl-eval's JSON: env uvms (BenchMARL's name), task = "
         "scenario, algorithm and seed_S = what trained the policy (its run's config.json; "
-        "baselines.distributed.marl_eval)",
+        "baselines.evaluation.marl_eval)",
     )
     ap.add_argument(
         "--marl-eval-step-count",
@@ -148,7 +148,7 @@ def main(argv: list[str] | None = None) -> None:
             settings, [(args.policy, args.scenario or ["paper"])], args.out
         )
     if args.marl_eval_json is not None:
-        from baselines.distributed import marl_eval
+        from baselines.evaluation import marl_eval
 
         marl_eval.write(
             args.marl_eval_json,

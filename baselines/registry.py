@@ -2,8 +2,8 @@
 load saved policies.
 
 ``baselines.train --library NAME`` builds that library's trainer (a module with a
-``Trainer``, ``baselines.runs.Trainer``); ``baselines.policies`` builds ``--policy
-NAME:PATH`` with that name's loader (a ``baselines.loaded_policy.LoadedPolicy``). Both are
+``Trainer``, ``baselines.runs.Trainer``); ``baselines.loaders.sources`` builds ``--policy
+NAME:PATH`` with that name's loader (a ``baselines.loaders.saved.LoadedPolicy``). Both are
 named here as strings and imported on demand: a library loads only when it is chosen.
 
 May import: the standard library only (the modules it names are imported on demand).
@@ -31,18 +31,18 @@ class Library:
 LIBRARIES: dict[str, Library] = {
     "sb3": Library("baselines.rl.sb3_trainer", ("ppo", "sac", "recurrent_ppo")),
     "torchrl": Library("baselines.rl.torchrl_ppo", ("ppo",), policy="torchrl"),
-    "rllib": Library("baselines.distributed.rllib_train", ("ppo",), policy="rllib"),
+    "rllib": Library("baselines.rl.rllib_trainer", ("ppo",), policy="rllib"),
 }
 DEFAULT_LIBRARY = "sb3"
 
-_SB3 = "baselines.rl.policy:SB3Policy"
-_CLONE = "baselines.imitation.policy:ClonedPolicy"
+_SB3 = "baselines.loaders.sb3_policy:SB3Policy"
+_CLONE = "baselines.loaders.clone_policy:ClonedPolicy"
 # ``--policy NAME[:PATH]`` of a saved network -> its loader (``module:Class``)
 LOADERS: dict[str, str] = {
     **{algo: _SB3 for algo in LIBRARIES["sb3"].algos},
-    "torchrl": "baselines.rl.torchrl_policy:TorchRLPolicy",
-    "benchmarl": "baselines.rl.benchmarl_policy:BenchMARLPolicy",
-    "rllib": "baselines.distributed.rllib_policy:RLlibPolicy",
+    "torchrl": "baselines.loaders.torchrl_policy:TorchRLPolicy",
+    "benchmarl": "baselines.loaders.benchmarl_policy:BenchMARLPolicy",
+    "rllib": "baselines.loaders.rllib_policy:RLlibPolicy",
     "bc": _CLONE,
     "dagger": _CLONE,
     "student": _CLONE,  # DAgger clones named by teacher: student:pretrained (the bound), :expert

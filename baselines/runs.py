@@ -19,7 +19,7 @@ kernels, model) and the periodic evaluations and checkpoints are timed apart
 docs/rl.md.
 
 May import: the standard library, numpy, tqdm, ``baselines.evaluation``, ``baselines.ladder``,
-``baselines.distributed.marl_eval``, ``baselines.lagrangian``, ``baselines.loaded_policy``
+``baselines.evaluation.marl_eval``, ``baselines.lagrangian``, ``baselines.loaders.saved``
 (the config file it reads back), ``baselines.registry`` and ``uvms_env``.
 """
 
@@ -41,7 +41,7 @@ import numpy as np
 from tqdm import tqdm
 
 from baselines.lagrangian import CostSettings
-from baselines.loaded_policy import CONFIG_FILE, read_config
+from baselines.loaders.saved import CONFIG_FILE, read_config
 from baselines.registry import policy_spec
 
 PROGRESS_FILE = "progress.csv"
@@ -658,7 +658,7 @@ def evaluate_rungs(
     and the episodes to its marl_eval.json (as run ``seed_TRAINING_SEED`` of ``algorithm``,
     so that every snapshot of a run is one marl-eval run); returns the rows. Every
     training loop that evaluates as it learns (the RL trainers, DAgger) writes here."""
-    from baselines.distributed import marl_eval
+    from baselines.evaluation import marl_eval
     from baselines.evaluation.runner import evaluate
     from baselines.evaluation.summary import aggregate
 

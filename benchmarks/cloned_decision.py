@@ -25,8 +25,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
+from baselines.loaders.sources import PolicySource
 from baselines.options import non_negative_int, positive_int
-from baselines.policies import PolicySource
 from uvms_env.policy import AgentSpec, PolicyFactory
 
 NUMPY = "{} (numpy layers)"
@@ -56,7 +56,7 @@ def measure(factory: PolicyFactory, scenario: str, steps: int, seed: int) -> np.
 def factories(policy: str, numpy_layers: bool, seed: int) -> dict[str, PolicyFactory]:
     out = {p: PolicySource.parse(p).factory(seed) for p in ("nmpc", policy)}
     if numpy_layers:
-        from baselines.imitation.policy import ClonedPolicy
+        from baselines.loaders.clone_policy import ClonedPolicy
 
         source = PolicySource.parse(policy)
         if source.name not in ("bc", "dagger") or source.filtered:

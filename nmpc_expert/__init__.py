@@ -18,7 +18,7 @@ May import: numpy, scipy, casadi, matplotlib, tqdm and ``uvms_env``. Never ``bas
 
 from nmpc_expert.central import CentralNMPC, make_central_policy
 from nmpc_expert.comm import TalkingNMPCPolicy, make_talking_policy
-from nmpc_expert.policy import NMPCPolicy, make_policy
+from nmpc_expert.local_controller import NMPCPolicy, make_policy
 from nmpc_expert.safety_filter import SafetyFilter, make_filter
 from nmpc_expert.settings import CONTROLLERS, NMPCSettings, controller_settings
 

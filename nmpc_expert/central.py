@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from nmpc_expert.central_rti import CentralRTI
-from nmpc_expert.policy import controller_weights, local_parameters, waypoint_index
+from nmpc_expert.local_controller import controller_weights, local_parameters, waypoint_index
 from nmpc_expert.reference import GoalIntegral, HorizonReference
 from nmpc_expert.settings import NMPCSettings
 from nmpc_expert.team_model import TeamModel

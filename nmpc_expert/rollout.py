@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 import uvms_env
-from nmpc_expert.policy import NMPCPolicy
+from nmpc_expert.local_controller import NMPCPolicy
 from nmpc_expert.settings import NMPCSettings
 from uvms_env.env.constraints import CONSTRAINTS, MANIPULABILITY_EPS
 from uvms_env.episode import Step, play

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from nmpc_expert.filter_workspace_rows import WorkspaceRows
-from nmpc_expert.policy import LocalController, local_parameters
+from nmpc_expert.local_controller import LocalController, local_parameters
 from nmpc_expert.settings import NMPCSettings
 from uvms_env.dynamics import NU
 from uvms_env.dynamics.local_model import NX

@@ -23,7 +23,7 @@ import numpy as np
 
 import uvms_env
 from baselines.evaluation.runner import case_episode_seed
-from baselines.policies import PolicySource
+from baselines.loaders.sources import PolicySource
 from uvms_env.episode import Step, play
 
 

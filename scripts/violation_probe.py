@@ -26,7 +26,7 @@ import numpy as np
 
 import uvms_env
 from baselines.evaluation.runner import case_episode_seed
-from baselines.policies import PolicySource
+from baselines.loaders.sources import PolicySource
 from uvms_env.episode import Step, play, play_team
 
 SATURATED = 0.98  # |a| at which a normalized input counts as saturated

@@ -341,7 +341,7 @@ def test_benchmarl_policy_acts_as_the_experiments_policy(mappo_run):
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
     import uvms_env
-    from baselines.rl.benchmarl_policy import BenchMARLPolicy
+    from baselines.loaders.benchmarl_policy import BenchMARLPolicy
     from uvms_env.policy import AgentSpec
 
     checkpoint = _experiment(mappo_run) / "checkpoints" / "checkpoint_160.pt"
@@ -363,8 +363,8 @@ def test_benchmarl_policy_acts_as_the_experiments_policy(mappo_run):
 
 
 def test_the_evaluator_files_a_checkpoint_under_its_training_run(mappo_run, tmp_path):
-    from baselines.distributed import marl_eval
     from baselines.evaluate import main as evaluate_main
+    from baselines.evaluation import marl_eval
 
     path = tmp_path / "marl.json"
     common = ["--scenario", "short", "--episodes", "2", "--max-cycles", "5", "--workers", "1"]
@@ -398,8 +398,8 @@ def test_without_benchmarl_the_loader_names_the_install(tmp_path):
 
     if importlib.util.find_spec("benchmarl") is not None:
         pytest.skip("BenchMARL is installed here")
-    from baselines.distributed import marl_eval
-    from baselines.policies import PolicySource
+    from baselines.evaluation import marl_eval
+    from baselines.loaders.sources import PolicySource
 
     checkpoints = tmp_path / "mappo_short" / "checkpoints"
     checkpoints.mkdir(parents=True)

@@ -15,7 +15,7 @@ import uvms_env
 from baselines.evaluation.report import markdown_table
 from baselines.evaluation.runner import evaluate
 from baselines.evaluation.summary import aggregate
-from baselines.policies import PolicySource
+from baselines.loaders.sources import PolicySource
 from nmpc_expert import central as central_module
 from nmpc_expert.central import CentralNMPC, central_settings, make_central_policy
 from nmpc_expert.ocp import CONSTRAINT_NAMES, build_outputs

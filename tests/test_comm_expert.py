@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import uvms_env
-from baselines.policies import PolicySource
+from baselines.loaders.sources import PolicySource
 from nmpc_expert.comm import (
     FRESH_PERIODS,
     MESSAGE_NUMBERS,

@@ -19,7 +19,7 @@ from baselines.imitation.decision import (
     mlp_decision_function,
 )
 from baselines.imitation.network import MLPPolicyNet
-from baselines.imitation.policy import ClonedPolicy
+from baselines.loaders.clone_policy import ClonedPolicy
 from uvms_env.dynamics.compiled import compile_function
 from uvms_env.policy import AgentSpec
 

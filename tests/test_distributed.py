@@ -14,11 +14,11 @@ from pathlib import Path
 
 import pytest
 
-from baselines.distributed import marl_eval
 from baselines.evaluate import main as evaluate_main
+from baselines.evaluation import marl_eval
 from baselines.evaluation.outputs import write_outputs
 from baselines.evaluation.runner import evaluate
-from baselines.policies import PolicySource
+from baselines.loaders.sources import PolicySource
 
 TIMING = ("policy_time_ms_median", "policy_time_ms_p95", "policy_time_ms_max")
 
@@ -142,7 +142,7 @@ def test_rllib_sub_envs_cycle_through_their_own_geometries(local_ray):
     pytest.importorskip("ray.rllib")
     from ray.rllib.env.env_context import EnvContext
 
-    from baselines.distributed.rllib_env import make_env
+    from baselines.rl.rllib_env import make_env
     from uvms_env.vector.seeding import copy_reset_seed
 
     config = {"scenario": "short", "seed": 10, "geometry_pool": 7, "envs_per_runner": 2}

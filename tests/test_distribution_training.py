@@ -176,7 +176,7 @@ def test_memory_policy_decides_compiled_as_with_predict(memory_run):
     """The compiled decision of a PPO actor on the memory observation rebuilds the robot's
     memory as the environment did and matches SB3's predict (numpy priors) step by step."""
     import uvms_env
-    from baselines.rl.policy import SB3Policy
+    from baselines.loaders.sb3_policy import SB3Policy
     from uvms_env.policy import AgentSpec
 
     env = uvms_env.parallel_env("random", n_agents=3, current="mild", mismatch=0.1)
@@ -194,7 +194,7 @@ def test_memory_policy_decides_compiled_as_with_predict(memory_run):
 def test_recurrent_ppo_trains_and_its_state_restarts_each_episode(tmp_path):
     pytest.importorskip("sb3_contrib")
     import uvms_env
-    from baselines.rl.policy import SB3Policy
+    from baselines.loaders.sb3_policy import SB3Policy
     from uvms_env.policy import AgentSpec
 
     out = tmp_path / "rppo"
@@ -261,7 +261,7 @@ def test_imitation_cli_collects_and_clones_memory_over_the_distribution(tmp_path
     from baselines.imitation.cli import main as imitate
     from baselines.imitation.dataset import read_many
     from baselines.imitation.network import MLPPolicyNet
-    from baselines.imitation.policy import ClonedPolicy
+    from baselines.loaders.clone_policy import ClonedPolicy
     from uvms_env.env.memory import RobotMemory
     from uvms_env.policy import AgentSpec
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from baselines.evaluation.runner import case_episode_seed
-from baselines.policies import PolicySource
+from baselines.loaders.sources import PolicySource
 from baselines.stats import bootstrap_mean_interval, wilson_interval
 
 
@@ -71,7 +71,7 @@ def test_episodes_beyond_the_currents_reach_are_left_out_of_the_rates():
 
 
 def test_nmpc_policy_options():
-    from baselines.policies import PolicySource
+    from baselines.loaders.sources import PolicySource
 
     assert PolicySource.parse("nmpc:paper").arg == "paper"
     with pytest.raises(ValueError, match="unknown nmpc option"):
@@ -82,7 +82,7 @@ def test_nmpc_policy_options():
 
 def test_nmpc_settings_from_the_policy_name():
     """``nmpc:NAME=VALUE`` reaches the controller's settings; the rest stay the defaults."""
-    from baselines.policies import PolicySource
+    from baselines.loaders.sources import PolicySource
     from nmpc_expert import NMPCSettings
     from uvms_env.policy import AgentSpec
     from uvms_env.scenarios import make

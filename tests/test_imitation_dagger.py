@@ -195,7 +195,7 @@ def test_safe_distillation_labels_are_the_filters_correction_of_the_network(tmp_
     observations; the network is fine-tuned, its input normalization kept."""
     pytest.importorskip("daqp")
     from baselines.imitation.network import MLPPolicyNet
-    from baselines.imitation.policy import ClonedPolicy
+    from baselines.loaders.clone_policy import ClonedPolicy
     from nmpc_expert import make_filter
     from uvms_env.policy import AgentSpec
 
@@ -306,7 +306,7 @@ def test_the_centralized_bound_teaches_the_team_it_would_drive():
     """``nmpc:central`` as the DAgger teacher with beta = 1: the labels are the bound's own
     episode, row by row (the same team decisions ``play_team`` makes)."""
     pytest.importorskip("daqp")
-    from baselines.policies import PolicySource
+    from baselines.loaders.sources import PolicySource
     from uvms_env.episode import play_team
 
     seed = 3

@@ -17,7 +17,7 @@ from baselines.imitation.features import (
     prepare,
 )
 from baselines.imitation.network import MLPPolicyNet
-from baselines.imitation.policy import ClonedPolicy
+from baselines.loaders.clone_policy import ClonedPolicy
 from uvms_env.env.memory import RobotMemory
 from uvms_env.env.priors import featurize
 from uvms_env.policy import AgentSpec

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import uvms_env
-from baselines.imitation.policy import ClonedPolicy
-from baselines.rl.policy import SB3Policy
+from baselines.loaders.clone_policy import ClonedPolicy
+from baselines.loaders.sb3_policy import SB3Policy
 from baselines.train import build_parser, settings_from
 from uvms_env.policy import AgentSpec
 

@@ -1,4 +1,4 @@
-"""The loaded-policy base (``baselines.loaded_policy``) and the registry: one rule finds
+"""The loaded-policy base (``baselines.loaders.saved``) and the registry: one rule finds
 every saved policy, one cache loads each once per file stamp, one run record gives the
 priors and the channel, and every ``--policy`` name of a saved network has its loader."""
 
@@ -9,11 +9,12 @@ import os
 
 import pytest
 
-from baselines import loaded_policy, registry
-from baselines.imitation.policy import ClonedPolicy
-from baselines.loaded_policy import PRETRAINED, LoadedPolicy, load_once, run_record
-from baselines.rl.policy import SB3Policy
-from baselines.rl.torchrl_policy import TorchRLPolicy
+from baselines import registry
+from baselines.loaders import saved as loaded_policy
+from baselines.loaders.clone_policy import ClonedPolicy
+from baselines.loaders.saved import PRETRAINED, LoadedPolicy, load_once, run_record
+from baselines.loaders.sb3_policy import SB3Policy
+from baselines.loaders.torchrl_policy import TorchRLPolicy
 
 
 def test_one_rule_finds_the_committed_models_a_run_folder_and_a_file(tmp_path):
@@ -83,7 +84,7 @@ def test_every_saved_policy_name_has_a_loaded_policy_loader():
 
 
 def test_the_robots_of_a_committed_model_share_one_loaded_network():
-    from baselines.policies import PolicySource
+    from baselines.loaders.sources import PolicySource
     from uvms_env.policy import AgentSpec
     from uvms_env.scenarios import make
 

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from baselines.distributed import marl_eval
+from baselines.evaluation import marl_eval
 
 KINDS = ("collision", "workspace")
 # id-marl-eval 0.0.4 pins pandas 1.4.4 (no Python 3.11 wheel); the pipeline needs numpy only

@@ -12,9 +12,9 @@ import pytest
 
 import uvms_env
 from nmpc_expert import NMPCPolicy, NMPCSettings, make_policy
+from nmpc_expert.local_controller import local_parameters
 from nmpc_expert.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
 from nmpc_expert.ocp import CONSTRAINT_NAMES, CONSTRAINT_STATE, NC, WEIGHT_LAYOUT, build_outputs
-from nmpc_expert.policy import local_parameters
 from uvms_env.dynamics import ObjectModel
 from uvms_env.dynamics.local_model import NX, build_local_model
 from uvms_env.dynamics.uvms import default_model

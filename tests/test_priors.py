@@ -153,7 +153,7 @@ def test_sb3_policy_rebuilds_the_runs_priors(tmp_path):
     the raw observation itself and returns clip(a_ss + s r)."""
     from stable_baselines3 import PPO
 
-    from baselines.rl.policy import SB3Policy
+    from baselines.loaders.sb3_policy import SB3Policy
     from uvms_env.vector import VectorEnv
     from uvms_env.vector.sb3 import VectorVecEnv
 

@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("stable_baselines3")
 
 from baselines.evaluation.runner import evaluate
-from baselines.loaded_policy import PRETRAINED
+from baselines.loaders.saved import PRETRAINED
 from baselines.rl.sb3_trainer import find_resume, make_vec_env
 from baselines.runs import RunSettings, training_env_options
 from baselines.train import main, train

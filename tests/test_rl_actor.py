@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import uvms_env
-from baselines.rl.policy import SB3Policy
+from baselines.loaders.sb3_policy import SB3Policy
 from uvms_env.policy import AgentSpec
 from uvms_env.vector import VectorEnv
 from uvms_env.vector.sb3 import VectorVecEnv

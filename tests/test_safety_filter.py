@@ -13,7 +13,7 @@ import uvms_env
 from baselines.evaluation.outputs import write_outputs
 from baselines.evaluation.report import markdown_table
 from baselines.evaluation.runner import evaluate
-from baselines.policies import PolicySource, RandomPolicy
+from baselines.loaders.sources import PolicySource, RandomPolicy
 from nmpc_expert import NMPCPolicy, NMPCSettings, SafetyFilter
 from uvms_env.dynamics.local_model import NX
 from uvms_env.navigation import Workspace

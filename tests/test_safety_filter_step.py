@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import uvms_env
-from baselines.policies import RandomPolicy
+from baselines.loaders.sources import RandomPolicy
 from nmpc_expert import NMPCPolicy, SafetyFilter
 from uvms_env.policy import AgentSpec
 

@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from baselines.imitation.policy import ClonedPolicy
+from baselines.loaders.clone_policy import ClonedPolicy
 from baselines.rl.shield import SHIELD_COLUMNS, Shield, ShieldPenalty
 from nmpc_expert import make_filter
 from uvms_env.env.priors import steady_inputs

@@ -19,7 +19,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 import uvms_env
 from baselines.evaluation.runner import evaluate
-from baselines.policies import PolicySource
+from baselines.loaders.sources import PolicySource
 from baselines.rl import torchrl_ppo
 from baselines.runs import RunSettings
 from baselines.train import main, train

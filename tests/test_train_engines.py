@@ -288,8 +288,8 @@ def test_ppo_lagrangian_takes_the_dual_step_from_each_rollouts_episode_cost(
     held: list[list[float]] = []
     if library == "rllib":
         request.getfixturevalue("local_ray")
-        from baselines.distributed import rllib_train
-        from baselines.distributed.rllib_env import runner_envs
+        from baselines.rl import rllib_trainer as rllib_train
+        from baselines.rl.rllib_env import runner_envs
 
         step = rllib_train.Trainer.dual_step
 
@@ -345,7 +345,7 @@ def test_rllib_subtracts_the_weighted_cost_from_every_robots_reward(trained, tmp
         float(plain["episode_return_mean"]), abs=1e-6
     )
 
-    from baselines.distributed.rllib_env import UVMSMultiAgentEnv
+    from baselines.rl.rllib_env import UVMSMultiAgentEnv
 
     config = {"scenario": "short", "overrides": {"max_cycles": 20}, "seed": 3}
     plain_env = UVMSMultiAgentEnv(config)
@@ -400,7 +400,7 @@ def test_every_library_learns_with_the_channel_and_its_policy_sends(library, tmp
     assert evaluations and all(int(r["errors"]) == 0 for r in evaluations)
 
     import uvms_env
-    from baselines.policies import PolicySource
+    from baselines.loaders.sources import PolicySource
     from uvms_env.episode import build_policies
 
     env = uvms_env.parallel_env("short", comm="atm900")

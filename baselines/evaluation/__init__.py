@@ -9,7 +9,7 @@ run-and-write sequence every command shares).
 Inside the package, ``outputs`` imports the others, ``runner`` imports ``episode``, and
 ``report`` imports ``summary``; nothing here imports a command.
 
-May import: the standard library, numpy, tqdm, matplotlib, ``baselines.policies``,
-``baselines.stats``, ``baselines.distributed`` (the Ray backend, on request) and
-``uvms_env``.
+May import: the standard library, numpy, tqdm, matplotlib, ``baselines.loaders.sources``,
+``baselines.stats``, ``baselines.registry`` and ``uvms_env``; Ray only in ``ray_backend``
+(on request) and ``marl_eval`` (merging marl-eval's JSON).
 """

@@ -6,7 +6,7 @@ the safety filter's interventions, the return and the object's path, and never r
 policy or environment that fails ends its episode as a failure with the error recorded.
 It runs in worker processes (and Ray tasks), so a job is plain picklable data.
 
-May import: the standard library, numpy, ``baselines.policies`` and ``uvms_env``.
+May import: the standard library, numpy, ``baselines.loaders.sources`` and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.policies import PolicySource, check_policy
+from baselines.loaders.sources import PolicySource, check_policy
 from uvms_env.env.constraints import CONSTRAINTS
 from uvms_env.episode import decision_time_summary
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
@@ -26,7 +26,7 @@ from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 
 @dataclass(frozen=True)
 class EpisodeJob:
-    """One episode to play: a policy source (``baselines.policies.PolicySource``), a
+    """One episode to play: a policy source (``baselines.loaders.sources.PolicySource``), a
     scenario with its environment keywords, its index and seed."""
 
     policy: str

@@ -12,7 +12,7 @@ naming it, not a column of failed episodes. A policy that fails while it plays (
 still ends its episodes as failures, each with its error.
 
 May import: the standard library, tqdm, ``baselines.evaluation.episode``,
-``baselines.policies``, ``baselines.distributed.ray_backend`` (``backend="ray"``) and
+``baselines.loaders.sources``, ``baselines.evaluation.ray_backend`` (``backend="ray"``) and
 ``uvms_env``.
 """
 
@@ -29,7 +29,7 @@ from typing import Any
 from tqdm import tqdm
 
 from baselines.evaluation.episode import EpisodeJob, run_episode
-from baselines.policies import PolicySource
+from baselines.loaders.sources import PolicySource
 from uvms_env.replay import replay_path
 
 BACKENDS = ("process", "ray")
@@ -94,7 +94,7 @@ def evaluate(
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {BACKENDS}")
     if backend == "ray":
-        from baselines.distributed.ray_backend import require_ray
+        from baselines.evaluation.ray_backend import require_ray
 
         require_ray()  # before the warm-up episodes
     for p in policies:
@@ -216,7 +216,7 @@ def _play(
         for job in jobs:
             done(run_episode(job))
     elif backend == "ray":
-        from baselines.distributed.ray_backend import run_jobs
+        from baselines.evaluation.ray_backend import run_jobs
 
         for row in run_jobs(run_episode, jobs, address, workers):
             done(row)

@@ -32,6 +32,7 @@ from baselines.imitation.dataset import AgentStream
 from baselines.imitation.features import FEATURES
 from baselines.imitation.network import MLPPolicyNet
 from baselines.imitation.rollout import RolloutJob, parallel_rollouts
+from baselines.loaders.sources import PolicySource
 from baselines.options import (
     SCENARIOS,
     add_condition_arguments,
@@ -48,7 +49,6 @@ from baselines.options import (
     team_sizes,
     usage_errors,
 )
-from baselines.policies import PolicySource
 from baselines.runs import (
     EVAL_KEEP,
     evaluate_rungs,
@@ -238,7 +238,7 @@ def _init_network(source: str) -> MLPPolicyNet:
     parsed = PolicySource.parse(source)
     if parsed.name not in ("bc", "dagger") or parsed.filtered:
         raise ValueError(f"--init takes bc:PATH or dagger:PATH (or :pretrained), got {source!r}")
-    from baselines.imitation.policy import ClonedPolicy
+    from baselines.loaders.clone_policy import ClonedPolicy
 
     try:
         return MLPPolicyNet.load(ClonedPolicy.locate(parsed.name, parsed.arg))

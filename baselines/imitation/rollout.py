@@ -226,8 +226,8 @@ def _play_block(
 ) -> tuple[list[AgentStream], list[dict]]:
     """Episodes ``first .. first + count - 1`` of ``job`` (episode e: seed ``seed + e``), in
     this process."""
-    from baselines.imitation.policy import ClonedPolicy
-    from baselines.policies import PolicySource
+    from baselines.loaders.clone_policy import ClonedPolicy
+    from baselines.loaders.sources import PolicySource
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     source = PolicySource.parse(job.expert)

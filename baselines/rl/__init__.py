@@ -3,6 +3,6 @@
 of the constraint cost (``cost``), learning curves (``plot``), and trained models as
 per-agent policies (``policy``, ``torchrl_policy``; PPO's decision compiled whole,
 ``actor``). May import: uvms_env, stable-baselines3, torch, torchrl, ``baselines.runs``,
-``baselines.lagrangian``, ``baselines.loaded_policy``, ``baselines.registry``,
+``baselines.lagrangian``, ``baselines.loaders.saved``, ``baselines.registry``,
 ``baselines.options``, ``baselines.evaluation.report`` (the figures) and
 ``baselines.imitation``'s compiled-network code."""

@@ -36,7 +36,7 @@ INIT_LOG_STD = float(np.log(0.05))
 
 def clone_path(source: str) -> Any:
     """``dagger:pretrained`` / ``bc:PATH`` -> the clone's ``policy.pt``."""
-    from baselines.imitation.policy import ClonedPolicy
+    from baselines.loaders.clone_policy import ClonedPolicy
 
     method, _, arg = source.partition(":")
     if method not in SOURCES:

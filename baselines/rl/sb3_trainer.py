@@ -8,7 +8,7 @@ normalized (``VecNormalize``, saved with the model). The run folder also gets
 Flags and the modules behind them: docs/rl.md.
 
 May import: numpy, torch and stable-baselines3 (inside the trainer), ``baselines.runs``,
-``baselines.lagrangian``, ``baselines.loaded_policy`` (a run's priors), ``baselines.rl``,
+``baselines.lagrangian``, ``baselines.loaders.saved`` (a run's priors), ``baselines.rl``,
 ``baselines.options`` (the flags' types) and ``uvms_env``.
 """
 
@@ -21,9 +21,9 @@ from typing import TYPE_CHECKING, Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from baselines.loaded_policy import priors_from_options
+from baselines.loaders.saved import priors_from_options
+from baselines.loaders.sb3_policy import ALGOS, algorithm_class
 from baselines.options import non_negative_float, non_negative_int
-from baselines.rl.policy import ALGOS, algorithm_class
 from baselines.runs import (
     DEFAULT_DTYPE,
     DEFAULT_ENV_THREADS,

@@ -10,7 +10,7 @@ Reference: docs/rl.md, "The torchrl trainer".
 
 May import: numpy, torch, tensordict and torchrl (inside the training functions),
 ``baselines.runs``, ``baselines.lagrangian``, ``baselines.registry``, ``baselines.options``
-(the flags' types), ``baselines.rl.torchrl_policy`` (the actor's network) and ``uvms_env``.
+(the flags' types), ``baselines.loaders.torchrl_policy`` (the actor's network) and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -30,9 +30,7 @@ import torch
 from torch import nn
 
 from baselines.lagrangian import Lagrangian
-from baselines.options import positive_int
-from baselines.registry import LIBRARIES
-from baselines.rl.torchrl_policy import (
+from baselines.loaders.torchrl_policy import (
     ACTOR_FILE,
     CLIP_OBSERVATION,
     ActorNet,
@@ -40,6 +38,8 @@ from baselines.rl.torchrl_policy import (
     mlp,
     save_actor,
 )
+from baselines.options import positive_int
+from baselines.registry import LIBRARIES
 from baselines.runs import DTYPES, Run, add_step_arguments, seeded_pool
 from uvms_env.vector.simulator import BACKENDS
 

@@ -1,5 +1,5 @@
 """The one seeding rule of every parameter-sharing adapter (SB3's ``VectorVecEnv``,
-RLlib's ``baselines.distributed.rllib_env``).
+RLlib's ``baselines.rl.rllib_env``).
 
 A training run of base seed ``s`` steps K env copies; episode e of copy k (e = 0 the
 first) is reset with seed (``copy_reset_seed``)

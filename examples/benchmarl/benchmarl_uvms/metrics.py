@@ -9,7 +9,7 @@ alone and have no task hook. Its mechanism for more is a ``Callback``, which Exp
 takes as an argument and ``benchmarl.run``/``benchmarl.evaluate`` never pass: the
 package's ``benchmarl_uvms.run`` and ``benchmarl_uvms.evaluate`` are those commands with it.
 
-In the JSON the metrics are named as ``baselines.distributed.marl_eval`` names them, one
+In the JSON the metrics are named as ``baselines.evaluation.marl_eval`` names them, one
 value per episode (0/1 for success and clean success), so that the two tools' files merge.
 
 May import: torch, tensordict, benchmarl and ``uvms_env.vector.torchrl_env`` (names).

@@ -3,10 +3,10 @@
 
 A saved run folder holds ``model.zip`` and ``vecnormalize.pkl``; the policy normalizes
 its own observation with the saved statistics and acts deterministically. Finding,
-caching, the run's priors and the statistics: ``baselines.loaded_policy``.
+caching, the run's priors and the statistics: ``baselines.loaders.saved``.
 
 May import: numpy, stable-baselines3 and sb3-contrib (inside functions),
-``baselines.loaded_policy``, ``baselines.registry``, ``baselines.rl.actor`` and
+``baselines.loaders.saved``, ``baselines.registry``, ``baselines.rl.actor`` and
 ``uvms_env``.
 """
 
@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.loaded_policy import LoadedPolicy, ObservationStats, load_once, run_record
+from baselines.loaders.saved import LoadedPolicy, ObservationStats, load_once, run_record
 from baselines.registry import LIBRARIES
 from uvms_env.policy import AgentSpec, PolicyFactory
 

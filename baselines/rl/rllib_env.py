@@ -29,6 +29,8 @@ from baselines.lagrangian import CostSettings, Lagrangian
 from uvms_env.env.constraints import CONSTRAINTS
 from uvms_env.vector.seeding import copy_reset_seed
 
+ENV_NAME = "uvms_coop"  # the environment's name in RLlib's registry
+
 _BUILT = itertools.count()  # sub-envs built in this process (see module docstring)
 
 

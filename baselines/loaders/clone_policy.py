@@ -6,9 +6,9 @@ Where nothing is compiled (``UVMS_ENV_NO_COMPILE``, no C compiler), or with
 the compiled input function instead. The torch network (``MLPPolicyNet.predict``) is the
 reference both are tested against. The same network serves every robot; on ``memory``
 features each robot's policy keeps its own ``RobotMemory``. Finding, caching and the
-memory: ``baselines.loaded_policy``.
+memory: ``baselines.loaders.saved``.
 
-May import: numpy, torch, ``uvms_env``, ``baselines.loaded_policy`` and this package's
+May import: numpy, torch, ``uvms_env``, ``baselines.loaders.saved`` and this package's
 network, features and decision.
 """
 
@@ -21,7 +21,7 @@ import numpy as np
 from baselines.imitation.decision import decision_function
 from baselines.imitation.features import INPUT_CLIP, CompiledInputs, input_dim, object_ring
 from baselines.imitation.network import MLPPolicyNet
-from baselines.loaded_policy import LoadedPolicy, ObservationStats, load_once
+from baselines.loaders.saved import LoadedPolicy, ObservationStats, load_once
 from uvms_env.env.observation import OBSERVATION_SIZE
 from uvms_env.env.priors import MEMORY_BLOCK, Priors
 from uvms_env.policy import AgentSpec

@@ -25,8 +25,8 @@ algorithm, under each training seed of the evaluation's trained policies on its 
 of the task's runs already in the file, else the evaluation seed: one run per training seed,
 the same episodes in each, as marl-eval's per-run tables need.
 
-May import: the standard library, numpy, ``baselines.registry``, ``baselines.loaded_policy``
-and ``baselines.policies`` (names), and the loaders they name (on demand; no ray, no torch
+May import: the standard library, numpy, ``baselines.registry``, ``baselines.loaders.saved``
+and ``baselines.loaders.sources`` (names), and the loaders they name (on demand; no ray, no torch
 otherwise).
 """
 
@@ -91,8 +91,8 @@ class RunIdentity:
 
 def _nearest_config(saved: Path) -> dict[str, Any]:
     """The config.json of the run that saved ``saved`` (its folder or the two above, as
-    ``baselines.loaded_policy.run_record`` looks); {} without one."""
-    from baselines.loaded_policy import read_config
+    ``baselines.loaders.saved.run_record`` looks); {} without one."""
+    from baselines.loaders.saved import read_config
 
     for folder in [saved, *list(saved.resolve().parents)[:3]]:
         if folder.is_dir():
@@ -110,7 +110,7 @@ def run_identity(policy: str) -> RunIdentity:
     ``<library>_<algo>`` (``sb3`` when it names no library) and ``seed``. Anything else, or a
     saved policy that cannot be read here, keeps its label and has no seed. A ``+filter``
     suffix stays on the algorithm: the safety filter makes another controller."""
-    from baselines.policies import FILTER_SUFFIX
+    from baselines.loaders.sources import FILTER_SUFFIX
     from baselines.registry import DEFAULT_LIBRARY, LOADERS, loader
 
     base = policy.removesuffix(FILTER_SUFFIX)
@@ -281,10 +281,10 @@ def write(path: Path, rows: list[dict[str, Any]], seed: int, **kwargs: Any) -> d
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m baselines.distributed.marl_eval merge A.json B.json ... --out C.json
+    """``python -m baselines.evaluation.marl_eval merge A.json B.json ... --out C.json
     [--final]``."""
     parser = argparse.ArgumentParser(
-        prog="python -m baselines.distributed.marl_eval",
+        prog="python -m baselines.evaluation.marl_eval",
         description="Merge marl-eval JSON files (``merge``).",
         allow_abbrev=False,
     )

@@ -4,12 +4,12 @@ shared by all robots.
     python -m baselines.train --library rllib --algo ppo --scenario random \\
         --env-option n_agents=2 --num-env-runners 2 [--address HEAD:6379] --out runs/rllib_ppo
 
-``--num-env-runners`` actors collect episodes (``baselines.distributed.rllib_env``); without
+``--num-env-runners`` actors collect episodes (``baselines.rl.rllib_env``); without
 ``--address`` a local Ray starts. The run folder also gets ``checkpoints/robot_steps_S`` and
 the final ``checkpoint/``, which ``--resume`` restores. Reference: docs/scale-out.md.
 
 May import: ray (inside functions), torch, ``baselines.runs``, ``baselines.lagrangian``,
-``baselines.registry``, ``baselines.options`` (the flags' types), ``baselines.distributed``
+``baselines.registry``, ``baselines.options`` (the flags' types), ``baselines.rl.rllib_env``
 and ``uvms_env``.
 """
 
@@ -21,8 +21,8 @@ import os
 from pathlib import Path
 from typing import Any
 
-from baselines.distributed.rllib_policy import POLICY_ID
 from baselines.lagrangian import Lagrangian
+from baselines.loaders.rllib_policy import POLICY_ID
 from baselines.options import non_negative_int, positive_int
 from baselines.registry import LIBRARIES
 from baselines.runs import Run, seeded_pool
@@ -79,8 +79,7 @@ def build_config(
     from ray.rllib.core.rl_module.rl_module import RLModuleSpec
     from ray.tune.registry import register_env
 
-    from baselines.distributed import ENV_NAME
-    from baselines.distributed.rllib_env import make_env
+    from baselines.rl.rllib_env import ENV_NAME, make_env
 
     register_env(ENV_NAME, make_env)
     env_config = {
@@ -156,7 +155,7 @@ def check_options(settings: Any, algo: str, args: argparse.Namespace) -> None:
     if settings.hyperparameters:
         import inspect
 
-        from baselines.distributed.ray_backend import require_ray
+        from baselines.evaluation.ray_backend import require_ray
 
         require_ray()
         from ray.rllib.algorithms.ppo import PPOConfig
@@ -199,7 +198,7 @@ class Trainer:
         self.robot_steps = 0
 
     def build(self) -> dict[str, Any]:
-        from baselines.distributed.ray_backend import init_ray, require_ray
+        from baselines.evaluation.ray_backend import init_ray, require_ray
 
         require_ray()
         import torch
@@ -227,7 +226,7 @@ class Trainer:
         )
         self.algorithm = config.build_algo()
         if s.resume is not None:
-            from baselines.distributed.rllib_policy import RLlibPolicy
+            from baselines.loaders.rllib_policy import RLlibPolicy
 
             checkpoint = RLlibPolicy.find(s.resume)
             self.algorithm.restore_from_path(str(checkpoint.resolve()))
@@ -268,7 +267,7 @@ class Trainer:
         """The team returns (unpenalized) and lengths of the training episodes every env
         runner ended in the iteration, as the other trainers record them (RLlib's own
         means are smoothed over recent episodes and sum the robots' penalized rewards)."""
-        from baselines.distributed.rllib_env import take_episodes
+        from baselines.rl.rllib_env import take_episodes
 
         ended = [
             e
@@ -283,7 +282,7 @@ class Trainer:
         multiplier ({} without a cost)."""
         if self.lagrangian is None:
             return {}
-        from baselines.distributed.rllib_env import take_episode_costs
+        from baselines.rl.rllib_env import take_episode_costs
 
         for costs in self.algorithm.env_runner_group.foreach_env_runner(take_episode_costs):
             self.lagrangian.add(costs)
@@ -293,7 +292,7 @@ class Trainer:
 
     def broadcast_multiplier(self) -> None:
         """Sets the multiplier on every env of every env runner."""
-        from baselines.distributed.rllib_env import set_multiplier
+        from baselines.rl.rllib_env import set_multiplier
 
         assert self.lagrangian is not None
         value = self.lagrangian.multiplier

@@ -7,14 +7,14 @@ the experiment (``Experiment.reload_from_file``, its own config.pkl beside the c
 patched to one env copy, no loggers, and a scratch folder for what it writes), and the
 robot acts with BenchMARL's policy under TorchRL's deterministic exploration, as BenchMARL's
 own evaluation does: the robot's observation goes in, its action comes out. The task's
-``options`` give the priors and the channel (``baselines.loaded_policy``).
+``options`` give the priors and the channel (``baselines.loaders.saved``).
 
 BenchMARL lives in its own virtual environment (it needs torchrl < 0.12; the project's test
 extra has torchrl >= 0.14), where the project is installed too: run the evaluator there
 (examples/benchmarl/README.md). Elsewhere loading raises ``ImportError`` naming that install.
 
 May import: numpy, torch, tensordict, torchrl and benchmarl (inside the loader),
-``baselines.loaded_policy`` and ``uvms_env``.
+``baselines.loaders.saved`` and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.loaded_policy import (
+from baselines.loaders.saved import (
     LoadedPolicy,
     comm_from_options,
     load_once,
@@ -146,7 +146,7 @@ class BenchMARLPolicy(LoadedPolicy):
 
     @classmethod
     def training_run(cls, saved: Path) -> TrainingRun:
-        """What trained ``saved`` (``baselines.distributed.marl_eval`` names its runs so)."""
+        """What trained ``saved`` (``baselines.evaluation.marl_eval`` names its runs so)."""
         return load_once(read_config, cls.find(saved))
 
     def decide(self, x: np.ndarray) -> np.ndarray:

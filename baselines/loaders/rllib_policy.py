@@ -6,10 +6,10 @@ named ``shared``). Only the ``RLModule`` is restored, with torch, in this proces
 runtime starts, so RLlib policies run in the evaluator's worker processes like every
 other policy. The policy acts deterministically: the mean of the Gaussian, clipped to
 [-1, 1], as RLlib's ``clip_actions`` does for the environment during training. The run's
-priors: ``baselines.loaded_policy``.
+priors: ``baselines.loaders.saved``.
 
 May import: numpy, torch, ray.rllib (inside functions), ``uvms_env.policy``,
-``baselines.loaded_policy`` and ``baselines.distributed.ray_backend``.
+``baselines.loaders.saved`` and ``baselines.evaluation.ray_backend``.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.loaded_policy import LoadedPolicy, load_once, run_record
+from baselines.loaders.saved import LoadedPolicy, load_once, run_record
 from uvms_env.policy import AgentSpec
 
 POLICY_ID = "shared"
@@ -39,7 +39,7 @@ def module_dir(checkpoint: Path) -> Path:
 
 def load_module(folder: Path) -> Any:
     """The ``RLModule`` saved in ``folder``, in evaluation mode."""
-    from baselines.distributed.ray_backend import require_ray
+    from baselines.evaluation.ray_backend import require_ray
 
     require_ray()
     from ray.rllib.core.rl_module.rl_module import RLModule

@@ -38,7 +38,7 @@ from uvms_env.env.options import ENV_OPTIONS, priors_of
 from uvms_env.env.priors import Priors
 from uvms_env.policy import AgentSpec, PolicyFactory
 
-PRETRAINED = Path(__file__).resolve().parent / "pretrained"  # the committed models
+PRETRAINED = Path(__file__).resolve().parents[1] / "pretrained"  # the committed models
 CONFIG_FILE = "config.json"  # a training run's record (``baselines.runs``)
 # the environment options a trained policy applies itself: the fields of ``Priors``
 PRIOR_OPTIONS = tuple(f.name for f in dataclasses.fields(Priors))

@@ -3,9 +3,9 @@
 The evaluator loads the trainer's ``actor.pt`` without TorchRL or the trainer: the
 deterministic action is tanh of the Gaussian's mean (TanhNormal's deterministic sample);
 the observation statistics are the actor's own (``RunningNorm``); the run's priors:
-``baselines.loaded_policy``.
+``baselines.loaders.saved``.
 
-May import: numpy, torch, ``baselines.loaded_policy`` and ``uvms_env``.
+May import: numpy, torch, ``baselines.loaders.saved`` and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from baselines.loaded_policy import LoadedPolicy, load_once, run_record
+from baselines.loaders.saved import LoadedPolicy, load_once, run_record
 from uvms_env.policy import AgentSpec
 
 ACTOR_FILE = "actor.pt"
