@@ -103,6 +103,20 @@ def key_value(text: str) -> str:
     return text
 
 
+def script_parser(path: str, doc: str | None) -> argparse.ArgumentParser:
+    """The parser of a script run as ``python FOLDER/NAME.py`` (the benchmarks): its
+    docstring as the description, up to any "May import" line; no abbreviations."""
+    from pathlib import Path
+
+    here = Path(path)
+    return argparse.ArgumentParser(
+        prog=f"python {here.parent.name}/{here.name}",
+        description=(doc or "").split("May import")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        allow_abbrev=False,
+    )
+
+
 def key_value_pairs(items: list[str]) -> dict[str, Any]:
     """``["a=1", "b=\\"x\\"", "c=plain"]`` -> {a: 1, b: "x", c: "plain"}: each value parsed
     as JSON, kept as text when it is not JSON."""

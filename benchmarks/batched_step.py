@@ -14,7 +14,6 @@ periods, and float32 vs float64.
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import os
 import time
@@ -23,7 +22,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from baselines.options import non_negative_int, positive_int, team_size
+from baselines.options import non_negative_int, positive_int, script_parser, team_size
 from uvms_env.scenarios import make
 from uvms_env.sim import Simulator
 from uvms_env.vector.kernels import DTYPES
@@ -93,12 +92,7 @@ def to_numpy(a) -> np.ndarray:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(
-        prog="python benchmarks/batched_step.py",
-        allow_abbrev=False,
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = script_parser(__file__, __doc__)
     ap.add_argument("--backend", nargs="+", default=["cpu"], choices=["cpu", "cuda"])
     ap.add_argument("--num-envs", type=positive_int, nargs="+", default=[64, 256, 1024])
     ap.add_argument("--dtype", nargs="+", default=["float64", "float32"], choices=DTYPES)

@@ -15,7 +15,6 @@ rest is numpy and DAQP. The first run compiles the linearization of each team si
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 
@@ -24,7 +23,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # BLAS threads collapse on shared
 import numpy as np
 
 import uvms_env
-from baselines.options import positive_int, team_size
+from baselines.options import positive_int, script_parser, team_size
 from nmpc_expert import CentralNMPC, make_central_policy
 from uvms_env.episode import play_team
 
@@ -69,12 +68,7 @@ def parts(n: int, repeats: int = 20) -> dict[str, float]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(
-        prog="python benchmarks/central_solve.py",
-        allow_abbrev=False,
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = script_parser(__file__, __doc__)
     ap.add_argument("--steps", type=positive_int, default=150)
     ap.add_argument("--sizes", type=team_size, nargs="+", default=[2, 4, 6])
     ap.add_argument("--parts", action="store_true", help="also time the compiled parts")

@@ -16,7 +16,6 @@ them. Prints median and p95 per policy and the ratios of the medians.
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 
@@ -26,7 +25,7 @@ import numpy as np
 
 import uvms_env
 from baselines.loaders.sources import PolicySource
-from baselines.options import non_negative_int, positive_int
+from baselines.options import non_negative_int, positive_int, script_parser
 from uvms_env.policy import AgentSpec, PolicyFactory
 
 NUMPY = "{} (numpy layers)"
@@ -67,11 +66,7 @@ def factories(policy: str, numpy_layers: bool, seed: int) -> dict[str, PolicyFac
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(
-        prog="python benchmarks/cloned_decision.py",
-        allow_abbrev=False,
-        description=__doc__.split("\n\n")[0],
-    )
+    ap = script_parser(__file__, __doc__)
     ap.add_argument("--policy", default="dagger:pretrained")
     ap.add_argument("--scenario", default="paper", choices=["paper", "random"])
     ap.add_argument("--steps", type=positive_int, default=400)

@@ -14,7 +14,6 @@ the table shows medians over repeats and the median of the paired ratios on / of
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 
@@ -23,7 +22,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
-from baselines.options import positive_int
+from baselines.options import positive_int, script_parser
 from uvms_env.vector import VectorEnv
 
 
@@ -92,11 +91,7 @@ def table(title: str, runners: dict[str, object], repeats: int) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(
-        prog="python benchmarks/comm_step.py",
-        allow_abbrev=False,
-        description=__doc__.split("\n")[0],
-    )
+    ap = script_parser(__file__, __doc__)
     ap.add_argument("--presets", nargs="+", default=["ideal", "atm900"])
     ap.add_argument("--num-envs", type=positive_int, default=256)
     ap.add_argument("--repeats", type=positive_int, default=7)

@@ -79,12 +79,9 @@ def run(way: str, scenario: str, steps: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(
-        prog="python benchmarks/compile_time.py",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        allow_abbrev=False,
-    )
+    from baselines.options import script_parser  # after OMP_NUM_THREADS is set
+
+    ap = script_parser(__file__, __doc__)
     ap.add_argument("--scenarios", nargs="+", choices=("paper", "random"), default=["paper"])
     ap.add_argument("--steps", type=int, default=300, help="periods played per way")
     ap.add_argument("--worker", choices=WAYS, default=None, help=argparse.SUPPRESS)

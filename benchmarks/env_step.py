@@ -17,7 +17,6 @@ machine, prefer many short repeats (the defaults).
 
 from __future__ import annotations
 
-import argparse
 import os
 import platform
 import time
@@ -27,7 +26,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
-from baselines.options import positive_int, team_size
+from baselines.options import positive_int, script_parser, team_size
 
 
 def env_rate(env, actions: list[dict[str, np.ndarray]]) -> float:
@@ -48,12 +47,7 @@ def sim_rate(env, taus: np.ndarray) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(
-        prog="python benchmarks/env_step.py",
-        allow_abbrev=False,
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = script_parser(__file__, __doc__)
     ap.add_argument("--steps", type=positive_int, default=500)
     ap.add_argument("--repeats", type=positive_int, default=21)
     ap.add_argument("--sizes", type=team_size, nargs="*", default=[2, 4, 6], help="random family N")

@@ -17,7 +17,6 @@ the decision time per robot.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 from pathlib import Path
@@ -28,7 +27,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 from baselines.evaluation.outputs import write_outputs
 from baselines.evaluation.runner import evaluate
 from baselines.evaluation.summary import VIOLATION_KINDS
-from baselines.options import non_negative_int, positive_int, team_size
+from baselines.options import non_negative_int, positive_int, script_parser, team_size
 
 PAPER_CASE = ("paper_mild_mismatch0.1", "paper", {"current": "mild", "mismatch": 0.1})
 
@@ -89,12 +88,7 @@ def summary_table(results: list[tuple[str, list[dict[str, Any]]]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(
-        prog="python benchmarks/expert_sweep.py",
-        allow_abbrev=False,
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = script_parser(__file__, __doc__)
     ap.add_argument("--seed", type=non_negative_int, default=2026)
     ap.add_argument("--sizes", type=team_size, nargs="+", default=[2, 3, 4, 5, 6])
     ap.add_argument("--episodes", type=positive_int, default=10, help="per random team size")

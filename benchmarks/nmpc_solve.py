@@ -16,7 +16,6 @@ first run compiles the OCP of each object shape (~50 s each, cached on disk).
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 
@@ -25,7 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
-from baselines.options import positive_int, team_size
+from baselines.options import positive_int, script_parser, team_size
 from nmpc_expert import CONTROLLERS, make_policy
 from uvms_env.policy import AgentSpec
 
@@ -56,12 +55,7 @@ def measure(
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(
-        prog="python benchmarks/nmpc_solve.py",
-        allow_abbrev=False,
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = script_parser(__file__, __doc__)
     ap.add_argument("--steps", type=positive_int, default=150)
     ap.add_argument("--solver", default="rti", choices=["rti", "ipopt"])
     ap.add_argument("--sizes", type=team_size, nargs="+", default=[2, 4, 6])

@@ -11,14 +11,13 @@ mean time to place the meshes and issue the draw per frame. Prints the medians.
 
 from __future__ import annotations
 
-import argparse
 import re
 import shutil
 import statistics
 import subprocess
 from pathlib import Path
 
-from baselines.options import positive_int
+from baselines.options import positive_int, script_parser
 
 BROWSERS = ("chromium-headless-shell", "chromium", "chromium-browser", "google-chrome")
 FLAGS = (
@@ -54,11 +53,7 @@ def console_line(browser: str, url: str, pattern: str, timeout: float) -> re.Mat
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(
-        prog="python benchmarks/replay_page.py",
-        allow_abbrev=False,
-        description=__doc__.split("\n")[0],
-    )
+    ap = script_parser(__file__, __doc__)
     ap.add_argument("page", type=Path)
     ap.add_argument("--browser", default=None)
     ap.add_argument("--repeats", type=positive_int, default=3)

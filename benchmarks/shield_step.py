@@ -17,7 +17,6 @@ one lane-parallel call for 64 robots.
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 
@@ -25,7 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from baselines.options import positive_float, positive_int, team_size
+from baselines.options import positive_float, positive_int, script_parser, team_size
 from baselines.rl.shield import Shield
 from uvms_env.vector import VectorEnv
 
@@ -83,11 +82,7 @@ def builder_us() -> tuple[float, float]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(
-        prog="python benchmarks/shield_step.py",
-        allow_abbrev=False,
-        description=__doc__.split("\n\n")[0],
-    )
+    ap = script_parser(__file__, __doc__)
     ap.add_argument("--num-envs", type=positive_int, nargs="+", default=[4, 16])
     ap.add_argument("--n-agents", type=team_size, default=2)
     ap.add_argument("--seconds", type=positive_float, default=6.0)

@@ -8,7 +8,6 @@ at N = 4 and 6. The first build compiles the step function (cached on disk after
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 
@@ -16,7 +15,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from baselines.options import positive_int
+from baselines.options import positive_int, script_parser
 from uvms_env.scenarios import make
 from uvms_env.sim import Simulator
 
@@ -31,12 +30,7 @@ def measure(sim: Simulator, periods: int, rng: np.random.Generator) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(
-        prog="python benchmarks/sim_step.py",
-        allow_abbrev=False,
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = script_parser(__file__, __doc__)
     ap.add_argument("--periods", type=positive_int, default=3000)
     ap.add_argument("--repeats", type=positive_int, default=5)
     args = ap.parse_args()

@@ -12,7 +12,6 @@ promise is broken. The budget is split evenly over the cases.
 
 from __future__ import annotations
 
-import argparse
 import collections
 import os
 import re
@@ -25,7 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
-from baselines.options import non_negative_int, positive_int
+from baselines.options import non_negative_int, positive_int, script_parser
 
 # (name, family, overrides, share of the step budget): one RK4 substep per period refines
 # every period (~20x slower), so that case gets a quarter share.
@@ -90,12 +89,7 @@ def run_case(family: str, overrides: dict, steps: int, rng: np.random.Generator)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(
-        prog="python benchmarks/stress.py",
-        allow_abbrev=False,
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = script_parser(__file__, __doc__)
     ap.add_argument("--steps", type=positive_int, default=200_000, help="total over all cases")
     ap.add_argument("--seed", type=non_negative_int, default=0)
     args = ap.parse_args()

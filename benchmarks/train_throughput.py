@@ -22,7 +22,6 @@ May import: the standard library, numpy, ``baselines`` and ``uvms_env``.
 
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
 import tempfile
@@ -35,7 +34,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from baselines import train as trainer
-from baselines.options import positive_int, team_size
+from baselines.options import positive_int, script_parser, team_size
 from baselines.registry import trainer_module
 from baselines.runs import RunSettings
 from uvms_env.vector import VectorEnv
@@ -176,11 +175,7 @@ def _time_updates(library: str, trainer_obj: Any):
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(
-        prog="python benchmarks/train_throughput.py",
-        allow_abbrev=False,
-        description=__doc__.split("May import")[0],
-    )
+    ap = script_parser(__file__, __doc__)
     ap.add_argument(
         "--libraries", nargs="+", default=["sb3", "torchrl"], choices=["sb3", "torchrl"]
     )

@@ -32,7 +32,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
-from baselines.options import non_negative_int, positive_float, positive_int
+from baselines.options import non_negative_int, positive_float, positive_int, script_parser
 from uvms_env.vector import VectorEnv
 from uvms_env.vector.kernels import DTYPES, available_cores
 
@@ -122,11 +122,7 @@ def vector_rate(
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        prog="python benchmarks/vector_step.py",
-        allow_abbrev=False,
-        description=__doc__.split("\n")[0],
-    )
+    parser = script_parser(__file__, __doc__)
     parser.add_argument("--backend", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--device", default="0", help="GPU index, or cpu (emulated kernels)")
     parser.add_argument("--num-envs", type=positive_int, nargs="+")

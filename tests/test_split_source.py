@@ -3,15 +3,13 @@ computes what CasADi computes, and leaves alone what it cannot cut."""
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import casadi as cs
 import numpy as np
 import pytest
 
-from uvms_env.dynamics.compiled import find_compiler
+from uvms_env.dynamics.compiled import find_compiler, generated_source
 from uvms_env.dynamics.split_source import (
     compile_units,
     cut_long_functions,
@@ -38,12 +36,7 @@ def _long_function(name: str, n: int = 8, rounds: int = 12) -> cs.Function:
     return cs.Function(name, [x], [out, cs.jacobian(out, x)])
 
 
-def _source(fn: cs.Function) -> str:
-    with tempfile.TemporaryDirectory() as tmp:
-        cg = cs.CodeGenerator(f"{fn.name()}.c", {"with_header": False})
-        cg.add(fn)
-        cg.generate(tmp + os.sep)
-        return (Path(tmp) / f"{fn.name()}.c").read_text()
+_source = generated_source
 
 
 def _build(fn: cs.Function, units: list[str], folder: Path) -> cs.Function:

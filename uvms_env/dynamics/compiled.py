@@ -80,16 +80,21 @@ def find_compiler(candidates: tuple[str, ...] = C_COMPILERS) -> str | None:
     return None
 
 
+def generated_source(fn: cs.Function) -> str:
+    """CasADi's C for ``fn`` and everything it calls."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cg = cs.CodeGenerator(f"{fn.name()}.c", {"with_header": False})
+        cg.add(fn)
+        cg.generate(tmp + os.sep)
+        return (Path(tmp) / f"{fn.name()}.c").read_text()
+
+
 def compile_function(fn: cs.Function) -> cs.Function:
     """A compiled, cached equivalent of ``fn`` (same name, inputs and outputs)."""
     cc = find_compiler()
     if os.environ.get("UVMS_ENV_NO_COMPILE") or cc is None:
         return fn
-    with tempfile.TemporaryDirectory() as tmp:
-        cg = cs.CodeGenerator(f"{fn.name()}.c", {"with_header": False})
-        cg.add(fn)
-        cg.generate(tmp + os.sep)
-        code = cut_long_functions((Path(tmp) / f"{fn.name()}.c").read_text())
+    code = cut_long_functions(generated_source(fn))
     key = hashlib.sha256(
         code.encode() + " ".join(CFLAGS).encode() + cs.__version__.encode() + _cpu_identity()
     )

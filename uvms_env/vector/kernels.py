@@ -27,7 +27,6 @@ import hashlib
 import os
 import platform
 import re
-import tempfile
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -41,6 +40,7 @@ from uvms_env.dynamics.compiled import (
     build_library,
     cache_dir,
     find_compiler,
+    generated_source,
 )
 from uvms_env.dynamics.split_source import cut_long_functions, default_units, translation_units
 
@@ -84,15 +84,6 @@ class Signature:
             fn.sz_iw(),
             fn.sz_w(),
         )
-
-
-def generated_source(fn: cs.Function) -> str:
-    """CasADi's C for ``fn`` and everything it calls, as for the scalar libraries."""
-    with tempfile.TemporaryDirectory() as tmp:
-        cg = cs.CodeGenerator(f"{fn.name()}.c", {"with_header": False})
-        cg.add(fn)
-        cg.generate(tmp + os.sep)
-        return (Path(tmp) / f"{fn.name()}.c").read_text()
 
 
 def available_cores() -> int:
