@@ -18,8 +18,9 @@ kernels, model) and the periodic evaluations and checkpoints are timed apart
 (``build_s``, ``eval_s`` beside ``train_s`` in config.json). The run folder's files:
 docs/rl.md.
 
-May import: the standard library, numpy, tqdm, ``baselines.evaluation``, ``baselines.ladder``,
-``baselines.evaluation.marl_eval``, ``baselines.lagrangian``, ``baselines.loaders.saved``
+May import: the standard library, numpy, tqdm, ``baselines.evaluation`` (the periodic
+evaluations: ``during_training``), ``baselines.ladder``, ``baselines.lagrangian``,
+``baselines.loaders.saved``
 (the config file it reads back), ``baselines.registry`` and ``uvms_env``.
 """
 
@@ -32,7 +33,6 @@ import platform
 import shlex
 import shutil
 import time
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -40,12 +40,15 @@ from typing import Any, Protocol
 import numpy as np
 from tqdm import tqdm
 
+from baselines.evaluation.during_training import (
+    evaluate_rungs,
+    evaluation_score,
+)
 from baselines.lagrangian import CostSettings
 from baselines.loaders.saved import CONFIG_FILE, read_config
 from baselines.registry import policy_spec
 
 PROGRESS_FILE = "progress.csv"
-EVAL_FILE = "evaluations.csv"
 SNAPSHOT = "eval_snapshot"
 BEST = "best"
 # One row per training iteration (a rollout and its update): the training episodes that
@@ -62,19 +65,6 @@ PROGRESS_COLUMNS = (
     "iteration_s",
     "wall_time_s",
     "robot_steps_per_s",
-)
-# One row per evaluation and rung (deterministic policy, fixed seeds).
-EVAL_COLUMNS = (
-    "robot_steps",
-    "rung",
-    "success_rate",
-    "clean_success_rate",
-    "violation_periods",
-    "violation_periods_median",
-    "mean_return",
-    "final_pos_error_m",
-    "episode_steps",
-    "errors",
 )
 RECORD_EPISODES = 2  # the final policy's recorded per-episode evaluation ("eval")
 # Training drops the internal-wrench metric (docs/simulator.md, "Measured"): it changes
@@ -638,89 +628,6 @@ def previous_record(settings: RunSettings, library: str) -> dict[str, Any]:
     if trained_by != library:  # "engine": the key's earlier name
         raise ValueError(f"--resume {resume} was trained with {trained_by}, not {library}")
     return previous
-
-
-def evaluate_rungs(
-    folder: Path,
-    rungs: dict[str, tuple[str, dict[str, Any]]],
-    policy: str,
-    episodes: int,
-    seed: int,
-    robot_steps: int,
-    algorithm: str,
-    training_seed: int,
-    elapsed: float = 0.0,
-    max_cycles: int | None = None,
-) -> list[dict[str, Any]]:
-    """``policy`` (an evaluator ``--policy`` spec) on every rung, ``episodes`` each from
-    ``seed`` (capped at ``max_cycles`` periods, None: the scenarios' own episodes): one row
-    per rung appended to ``folder``'s evaluations.csv (``EVAL_COLUMNS``)
-    and the episodes to its marl_eval.json (as run ``seed_TRAINING_SEED`` of ``algorithm``,
-    so that every snapshot of a run is one marl-eval run); returns the rows. Every
-    training loop that evaluates as it learns (the RL trainers, DAgger) writes here."""
-    from baselines.evaluation import marl_eval
-    from baselines.evaluation.runner import evaluate
-    from baselines.evaluation.summary import aggregate
-
-    path = Path(folder) / EVAL_FILE
-    if not path.exists():
-        Run._write_header(path, EVAL_COLUMNS)
-    out = []
-    for rung, (scenario, overrides) in rungs.items():
-        rows = evaluate(
-            [policy],
-            [scenario],
-            episodes,
-            seed,
-            1,
-            overrides,
-            max_cycles,
-            progress=False,
-            check=False,  # a training run goes on: failed episodes are warned of below
-        )
-        summary = aggregate(rows, seed)[0]
-        failed = [r["error"] for r in rows if r["error"]]
-        if failed:
-            warnings.warn(
-                f"evaluation on {rung}: {len(failed)} episodes failed: {failed[0]}",
-                stacklevel=2,
-            )
-        row = {
-            "robot_steps": int(robot_steps),
-            "rung": rung,
-            "success_rate": summary["success_rate"],
-            "clean_success_rate": summary["clean_success_rate"],
-            "violation_periods": float(np.mean([r["violation_periods"] for r in rows])),
-            "violation_periods_median": float(np.median([r["violation_periods"] for r in rows])),
-            "mean_return": summary.get("return", math.nan),
-            "final_pos_error_m": summary.get("final_pos_error_m", math.nan),
-            "episode_steps": summary.get("episode_steps", math.nan),
-            "errors": summary["errors"],
-        }
-        with open(path, "a", newline="") as fh:
-            csv.DictWriter(fh, fieldnames=EVAL_COLUMNS).writerow(row)
-        marl_eval.write(
-            Path(folder) / "marl_eval.json",
-            rows,
-            seed,
-            identity=marl_eval.RunIdentity(algorithm, training_seed),
-            step_count=int(robot_steps),
-            elapsed_time=elapsed,
-            overrides=overrides,
-        )
-        out.append(row)
-    return out
-
-
-def evaluation_score(rows: list[dict[str, Any]]) -> tuple[float, float, float]:
-    """How one evaluation (its rows, one per rung) ranks against another, higher better:
-    clean successes summed over the rungs, then successes, then the fewest violation
-    periods (the rungs' medians summed, negated)."""
-    return (
-        round(sum(r["clean_success_rate"] for r in rows), 9),
-        round(sum(r["success_rate"] for r in rows), 9),
-        -round(sum(r["violation_periods_median"] for r in rows), 9),
-    )
 
 
 def _header(path: Path) -> tuple[str, ...]:

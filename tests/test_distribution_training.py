@@ -332,8 +332,8 @@ def test_dagger_warm_starts_and_evaluates_each_iteration_per_team_size(tmp_path)
     ``--eval-episodes``: each iteration's network on every team size under the run's
     conditions, at the labelled robot-steps so far (evaluations.csv, the trainers' schema)."""
     pytest.importorskip("minari")
+    from baselines.evaluation.during_training import EVAL_COLUMNS
     from baselines.imitation.cli import main as imitate
-    from baselines.runs import EVAL_COLUMNS
 
     data = tmp_path / "data" / "demo"
     expert = "experts.scripted:expert"

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import json
 
-from baselines.runs import BEST, Run, RunSettings, evaluation_score
+from baselines.evaluation.during_training import evaluation_score
+from baselines.runs import BEST, Run, RunSettings
 
 
 def _rows(clean: float, success: float, violations: float) -> list[dict]:

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from baselines import runs
+from baselines.evaluation.during_training import EVAL_COLUMNS
 from baselines.registry import LIBRARIES
 from baselines.train import SHARED_GROUP, build_parser, main
 
@@ -38,6 +39,7 @@ CONFIG_KEYS = (
     "eval_seed",
     "eval_max_cycles",
     "team_sizes",
+    "objects",
     "checkpoint_every",
     "cost",
     "resumes",
@@ -149,7 +151,7 @@ def test_every_library_writes_the_same_records(trained):
     assert set(trained) == set(LIBRARIES)
     for library, run in trained.items():
         assert _header(run / "progress.csv") == list(runs.PROGRESS_COLUMNS), library
-        assert _header(run / "evaluations.csv") == list(runs.EVAL_COLUMNS), library
+        assert _header(run / "evaluations.csv") == list(EVAL_COLUMNS), library
         config = json.loads((run / "config.json").read_text())
         assert list(config) == list(CONFIG_KEYS), library
         assert config["library"] == library and config["algo"] == "ppo"

@@ -27,6 +27,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 from tqdm import tqdm
 
+from baselines.evaluation.during_training import evaluate_rungs
 from baselines.imitation import bc, dataset
 from baselines.imitation.dataset import AgentStream
 from baselines.imitation.features import FEATURES
@@ -51,7 +52,6 @@ from baselines.options import (
 )
 from baselines.runs import (
     EVAL_KEEP,
-    evaluate_rungs,
     hardware,
     training_env_options,
     write_json,
