@@ -8,7 +8,7 @@ under ``ideal``; the silent expert and the centralized bound play the same episo
 without a channel (neither talks, and the channel changes no physics draw).
 Reference: docs/channel.md.
 
-May import: the standard library, numpy, ``uvms_env.env.channel``, ``baselines.evaluation``,
+May import: the standard library, numpy, ``uvms_env.robot.channel``, ``baselines.evaluation``,
 ``baselines.options`` and ``baselines.ladder``.
 """
 
@@ -40,7 +40,7 @@ from baselines.ladder import (
     settings_of,
 )
 from baselines.options import command_parser, usage_errors
-from uvms_env.env.channel import ChannelSettings, channel_settings
+from uvms_env.robot.channel import ChannelSettings, channel_settings
 
 TALKER = "nmpc:comm"
 IDEAL = "ideal"

@@ -59,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--comm",
         default=None,
         metavar="PRESET",
-        help="acoustic channel preset (uvms_env.env.channel.PRESETS; default off): policies "
+        help="acoustic channel preset (uvms_env.robot.channel.PRESETS; default off): policies "
         "that do not read messages play silent",
     )
     for flag, what in (("reward-term", "reward term"), ("constraint", "constraint")):
@@ -68,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
             action="append",
             default=[],
             metavar="NAME=MODULE:FUNCTION",
-            help=f"an extra {what} fn(s, xp) of the environment (uvms_env.env.task)",
+            help=f"an extra {what} fn(s, xp) of the environment (uvms_env.task.rules)",
         )
     ap.add_argument("--out", type=Path, default=Path("runs/eval"))
     ap.add_argument(

@@ -11,7 +11,7 @@ made and ``Lagrangian.end_rollout`` once per rollout. Written here because the R
 libraries have no constrained RL and the safe-RL ones (OmniSafe, safety-gymnasium) bring
 their own environment loop and pins.
 
-May import: numpy and ``uvms_env.env.constraints``.
+May import: numpy and ``uvms_env.task.constraints``.
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from uvms_env.env.constraints import CONSTRAINTS, MANIPULABILITY_EPS
 from uvms_env.models import load_parameters
+from uvms_env.task.constraints import CONSTRAINTS, MANIPULABILITY_EPS
 
 COSTS = ("count", "magnitude")
 

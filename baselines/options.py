@@ -10,7 +10,7 @@ Where training draws from a distribution, the condition flags take several value
 sizes (each episode, or each group of environment copies, one of them), current presets
 (each episode draws one) and a mismatch range (``--mismatch LOW HIGH``: each episode draws
 one uniformly). They reach the environment as overrides and its ``randomize`` option
-(``uvms_env.env.conditions``).
+(``uvms_env.task.conditions``).
 
 May import: the standard library and ``uvms_env.scenarios`` (the families, the current
 presets and the overrides' table, whose ranges and wording the types reuse).
@@ -189,7 +189,7 @@ def objects(args: argparse.Namespace) -> tuple[str, ...]:
 
 def condition_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """Environment keywords of ``--course``, ``--current`` and ``--mismatch``: one value an
-    override, several a ``randomize`` draw (``uvms_env.env.conditions``). ValueError,
+    override, several a ``randomize`` draw (``uvms_env.task.conditions``). ValueError,
     naming the flag, on a malformed range."""
     out: dict[str, Any] = {}
     if getattr(args, "course", None) is not None:

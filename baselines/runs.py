@@ -184,9 +184,7 @@ class RunSettings:
                 case.rung: (case.scenario, {**dict(case.overrides), **CONDITIONS, **comm})
                 for case in cases()
             }
-        groups = [
-            {k: v for k, v in group.items() if k in EVAL_KEEP} for group in self.groups()
-        ]
+        groups = [{k: v for k, v in group.items() if k in EVAL_KEEP} for group in self.groups()]
         if len(groups) == 1:
             return {self.scenario: (self.scenario, groups[0])}
         return {_group_name(self.scenario, g, self.objects): (self.scenario, g) for g in groups}

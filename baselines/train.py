@@ -81,7 +81,7 @@ def add_shared_arguments(ap: argparse.ArgumentParser, name: str, algos: tuple[st
         "--comm",
         default=None,
         metavar="PRESET",
-        help="acoustic channel preset (uvms_env.env.channel.PRESETS; default off): the "
+        help="acoustic channel preset (uvms_env.robot.channel.PRESETS; default off): the "
         "shared policy's action gains the send flag and the message",
     )
     g.add_argument(

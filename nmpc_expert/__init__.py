@@ -24,7 +24,7 @@ from nmpc_expert.settings import CONTROLLERS, NMPCSettings, controller_settings
 
 # Re-exported for compatibility: the environment's definition (the expert's bound is
 # ``NMPCSettings.manipulability_eps``, derived from it).
-from uvms_env.env.constraints import MANIPULABILITY_EPS
+from uvms_env.task.constraints import MANIPULABILITY_EPS
 
 __all__ = [
     "CONTROLLERS",

@@ -68,9 +68,7 @@ def main(argv: list[str] | None = None) -> dict:
     )
     for key in ("object", "course"):
         option = SCENARIO_OVERRIDES[key]
-        ap.add_argument(
-            f"--{key}", default=None, choices=option.choices, help=option.doc
-        )
+        ap.add_argument(f"--{key}", default=None, choices=option.choices, help=option.doc)
     ap.add_argument("--current", default="none", choices=CURRENT_PRESETS)
     ap.add_argument("--mismatch", type=float, default=0.0, help="truth-model perturbation")
     ap.add_argument("--solver", default="rti", choices=["rti", "ipopt"])

@@ -1,6 +1,6 @@
 """``TalkingNMPCPolicy`` (``--policy nmpc:comm``): the distributed expert with messages.
 
-The default (observer) expert, plus an acoustic channel (``uvms_env.env.channel``): every
+The default (observer) expert, plus an acoustic channel (``uvms_env.robot.channel``): every
 period each robot broadcasts its disturbance estimate on its vehicle's linear rates,
 rotated into the world frame, and fuses what it receives into the team's mean estimate,
 which replaces its own estimate in the steady-input shift (``observer_input_gain``); the
@@ -14,8 +14,8 @@ in docs/channel.md, "The talking expert". **No usable message: exactly the silen
 Needs a channel: built from a spec without one (``AgentSpec.comm`` None) it raises, as it
 does when ``message_dim`` < ``MESSAGE_NUMBERS``.
 
-May import: numpy, casadi, ``uvms_env`` (policy, dynamics, env.observation,
-env.channel) and this package. Never ``baselines``.
+May import: numpy, casadi, ``uvms_env`` (policy, dynamics, robot.observation,
+robot.channel) and this package. Never ``baselines``.
 """
 
 from __future__ import annotations

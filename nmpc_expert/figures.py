@@ -20,9 +20,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from uvms_env.dynamics.uvms import default_model
-from uvms_env.env.constraints import MANIPULABILITY_EPS
 from uvms_env.models import load_parameters
 from uvms_env.navigation import Cylinder
+from uvms_env.task.constraints import MANIPULABILITY_EPS
 
 
 def _bounds(ax, value: float, label: str | None = None) -> None:

@@ -1,7 +1,7 @@
 """The safety filter's workspace rows: how far the robot's own bodies and the object reach
 outside the workspace ball, and their gradients, at the nodes of the plan.
 
-The same balls as the environment's ``workspace`` constraint (``uvms_env.env.constraints``),
+The same balls as the environment's ``workspace`` constraint (``uvms_env.task.constraints``),
 computed from the robot's own model state: its bodies from its configuration, the object
 from its grasp (``LocalModel.object_state``, its own estimate of the shared object). Two
 values per node, each the largest excess of a group of balls (its gradient is the largest

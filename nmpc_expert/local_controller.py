@@ -10,7 +10,7 @@
 Built only from robot i's ``AgentSpec`` and fed only its own observation; nothing is
 shared between instances except read-only compiled functions.
 
-May import: numpy, casadi, ``uvms_env`` (dynamics, navigation, policy, env.observation)
+May import: numpy, casadi, ``uvms_env`` (dynamics, navigation, policy, robot.observation)
 and this package. Never ``baselines``.
 """
 

@@ -1,18 +1,18 @@
 """Reading one robot's own observation: the layout, validation and the parts the NMPC uses.
 
-The layout is the environment's (``uvms_env.env.observation.OBSERVATION_STRUCTURE``,
+The layout is the environment's (``uvms_env.robot.observation.OBSERVATION_STRUCTURE``,
 names -> slices); it is re-exported here so the expert and its tests use names, never
 magic indices. The controller uses ``q``, ``zeta`` and ``waypoint``; it computes its own
 object estimate from its model (the same formula as the environment's ``object_pose``).
 
-May import: numpy and ``uvms_env.env.observation`` (layout constants only).
+May import: numpy and ``uvms_env.robot.observation`` (layout constants only).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from uvms_env.env.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
+from uvms_env.robot.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
 
 __all__ = ["OBSERVATION_SIZE", "OBSERVATION_STRUCTURE", "check_observation"]
 

@@ -21,9 +21,9 @@ from tqdm import tqdm
 import uvms_env
 from nmpc_expert.local_controller import NMPCPolicy
 from nmpc_expert.settings import NMPCSettings
-from uvms_env.env.constraints import CONSTRAINTS, MANIPULABILITY_EPS
 from uvms_env.episode import Step, play
 from uvms_env.policy import AgentSpec
+from uvms_env.task.constraints import CONSTRAINTS, MANIPULABILITY_EPS
 
 
 @dataclass

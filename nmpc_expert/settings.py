@@ -3,13 +3,13 @@
 The constraint limits are not settings: they are the environment's (one source per limit),
 read when used: the physical ones from the model's parameters (``uvms_env.models``,
 ``parameters.toml`` ``[limits]``), the manipulability bound and the pitch margin from the
-task's constraint definitions (``uvms_env.env.constraints``). ``NMPCSettings`` only holds
+task's constraint definitions (``uvms_env.task.constraints``). ``NMPCSettings`` only holds
 how much tighter the expert keeps them, as fractions of (or margins beyond) those limits:
 ``vehicle_speed``, ``joint_speed``, ``joint_position``, ``pitch_margin`` and
 ``manipulability_eps`` are derived properties.
 
 May import: numpy, the standard library, ``uvms_env.models``, ``uvms_env.scenarios``
-(the default control period) and ``uvms_env.env.constraints``.
+(the default control period) and ``uvms_env.task.constraints``.
 """
 
 from __future__ import annotations
@@ -18,11 +18,12 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-# ``task_constraints`` as a module, its constants read at use: the definition there stays
-# the only one (redefining it moves the expert's bounds too).
-from uvms_env.env import constraints as task_constraints
 from uvms_env.models import load_parameters
 from uvms_env.scenarios import Scenario
+
+# ``task_constraints`` as a module, its constants read at use: the definition there stays
+# the only one (redefining it moves the expert's bounds too).
+from uvms_env.task import constraints as task_constraints
 
 # The control period is the scenario's (one definition: ``Scenario.period``'s default).
 _SCENARIO_PERIOD: float = {f.name: f.default for f in fields(Scenario)}["period"]

@@ -25,7 +25,7 @@ silent through ``SilentPolicy`` (docs/channel.md, "Policies, evaluation and trai
 Only the public env API is used (``reset(seed=)``, ``step``, ``agents``,
 ``possible_agents``, ``scenario``, ``infos[agent]["metrics"]``, and ``comm`` and
 ``observation_structure`` under a channel).
-May import: numpy, ``uvms_env.policy``, ``uvms_env.team_policy``, ``uvms_env.env.channel``
+May import: numpy, ``uvms_env.policy``, ``uvms_env.team_policy``, ``uvms_env.robot.channel``
 and (when a replay is asked for) ``uvms_env.replay``.
 """
 
@@ -40,8 +40,8 @@ from typing import Any
 import numpy as np
 
 from uvms_env.dynamics import NU
-from uvms_env.env.channel import ChannelSettings, silent
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
+from uvms_env.robot.channel import ChannelSettings, silent
 from uvms_env.team_policy import (
     TeamPolicy,
     TeamPolicyFactory,

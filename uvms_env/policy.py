@@ -12,7 +12,7 @@ A policy never sees another agent's observation, the global state or contact for
 Under an acoustic channel the spec's ``comm`` holds the channel's settings, known before
 the task like the robot's modem (docs/channel.md, "Policies, evaluation and training").
 May import: numpy, ``uvms_env.scenarios`` and ``uvms_env.navigation`` (the map's types);
-``uvms_env.env.channel`` for type checking only (the env package imports this module).
+``uvms_env.robot.channel`` for type checking only (the env package imports this module).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from uvms_env.navigation import Cylinder, Sphere, Workspace
 from uvms_env.scenarios import Scenario, object_key
 
 if TYPE_CHECKING:
-    from uvms_env.env.channel import ChannelSettings
+    from uvms_env.robot.channel import ChannelSettings
 
 
 @dataclass(frozen=True, eq=False)

@@ -19,9 +19,9 @@ from typing import Any
 import numpy as np
 
 from baselines.loaders.sources import PolicySource, check_policy
-from uvms_env.env.constraints import CONSTRAINTS
 from uvms_env.episode import decision_time_summary
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
+from uvms_env.task.constraints import CONSTRAINTS
 
 
 @dataclass(frozen=True)

@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 
 from baselines.stats import bootstrap_mean_interval, wilson_interval
-from uvms_env.env.constraints import CONSTRAINTS
-from uvms_env.env.metrics import METRICS
 from uvms_env.episode import decision_time_summary
+from uvms_env.task.constraints import CONSTRAINTS
+from uvms_env.task.metrics import METRICS
 
 Row = dict[str, Any]
 

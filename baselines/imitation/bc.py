@@ -55,7 +55,7 @@ def margin_weights(obs: np.ndarray, strength: float) -> np.ndarray:
     if strength == 0:
         return np.ones(len(obs), dtype=np.float32)
     from uvms_env.dynamics.uvms import default_model
-    from uvms_env.env.observation import OBSERVATION_STRUCTURE
+    from uvms_env.robot.observation import OBSERVATION_STRUCTURE
 
     limits = default_model().params.limits
     q = obs[:, OBSERVATION_STRUCTURE["q"]]

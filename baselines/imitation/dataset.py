@@ -44,7 +44,7 @@ class AgentStream:
     fallbacks: list[int] = field(default_factory=list)  # expert fallbacks so far
     learner_acted: list[bool] = field(default_factory=list)  # executed: learner (DAgger)
     object_ring_radius: float = float("nan")  # the carried object's key (Scenario's)
-    # (T+1, 16): the robot's memory block at each observation (uvms_env.env.memory)
+    # (T+1, 16): the robot's memory block at each observation (uvms_env.robot.memory)
     memory: list[np.ndarray] = field(default_factory=list)
 
     @staticmethod

@@ -13,7 +13,7 @@ generated-C function through preallocated buffers. The numpy ``featurize`` is th
 independent twin of ``featurize_sx``, and the expert's compiled a_ss that of
 ``steady_sx``; the tests check that they agree.
 
-May import: numpy, casadi, ``uvms_env.dynamics`` and ``uvms_env.env.priors``.
+May import: numpy, casadi, ``uvms_env.dynamics`` and ``uvms_env.robot.priors``.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import numpy as np
 
 from uvms_env.dynamics.compiled import BufferCall, compile_function
 from uvms_env.dynamics.payload import object_tag
-from uvms_env.env.priors import (
+from uvms_env.robot.priors import (
     ACT_DIM,
     BASE_FEATURES,
     FEATURES_SIZE,
@@ -41,7 +41,7 @@ from uvms_env.env.priors import (
 FEATURES = ("raw", "uvms-v1", "features", "memory")
 FEEDFORWARD = ("features", "memory")  # feature sets whose last 8 numbers are the steady input
 FEATURE_DIMS = {"uvms-v1": BASE_FEATURES, "features": FEATURES_SIZE, "memory": MEMORY_FEATURES_SIZE}
-# ``memory`` reads the robot's memory block (uvms_env.env.memory) after its raw observation
+# ``memory`` reads the robot's memory block (uvms_env.robot.memory) after its raw observation
 MEMORY_INPUT = OBS_DIM + MEMORY_BLOCK
 INPUT_CLIP = 10.0  # normalized inputs are clipped to +-10 standard deviations
 # Earlier names of a feature set -> its name (saved policies keep the name they had).

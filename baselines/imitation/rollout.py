@@ -21,7 +21,7 @@ plain DAgger rollout in fast joint motion against the limits, and the aggregate 
 with those (expert-saturated, hard to fit) states; gating keeps the visited states near
 the ones the learner has to master, yet reached by the learner's own small errors.
 
-Every stream also records each robot's memory block (``uvms_env.env.memory``: the last
+Every stream also records each robot's memory block (``uvms_env.robot.memory``: the last
 command it executed and its disturbance estimate) at each observation, as a policy on
 ``memory`` features would have built it along that stream. A learner with a memory is
 asked for its action every step and told what was executed, so that its memory follows
@@ -50,9 +50,9 @@ from tqdm import tqdm
 
 from baselines.imitation.dataset import AgentStream
 from baselines.imitation.teacher import TeamTeacher
-from uvms_env.env.memory import RobotMemory
 from uvms_env.episode import Step, play
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
+from uvms_env.robot.memory import RobotMemory
 from uvms_env.team_policy import TeamPolicyFactory
 
 _LABELLING_STREAM = 0xDA66E2  # mixed into each episode's seed: its labelling draws

@@ -22,9 +22,9 @@ from baselines.imitation.decision import decision_function
 from baselines.imitation.features import INPUT_CLIP, CompiledInputs, input_dim, object_ring
 from baselines.imitation.network import MLPPolicyNet
 from baselines.loaders.saved import LoadedPolicy, ObservationStats, load_once
-from uvms_env.env.observation import OBSERVATION_SIZE
-from uvms_env.env.priors import MEMORY_BLOCK, Priors
 from uvms_env.policy import AgentSpec
+from uvms_env.robot.observation import OBSERVATION_SIZE
+from uvms_env.robot.priors import MEMORY_BLOCK, Priors
 
 
 class ClonedPolicy(LoadedPolicy):

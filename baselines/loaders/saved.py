@@ -31,12 +31,12 @@ from typing import Any, ClassVar, NamedTuple
 import numpy as np
 
 from uvms_env.dynamics import NU
-from uvms_env.env.channel import ChannelSettings, channel_settings
-from uvms_env.env.memory import RobotMemory
-from uvms_env.env.observation import OBSERVATION_SIZE
 from uvms_env.env.options import ENV_OPTIONS, priors_of
-from uvms_env.env.priors import Priors
 from uvms_env.policy import AgentSpec, PolicyFactory
+from uvms_env.robot.channel import ChannelSettings, channel_settings
+from uvms_env.robot.memory import RobotMemory
+from uvms_env.robot.observation import OBSERVATION_SIZE
+from uvms_env.robot.priors import Priors
 
 PRETRAINED = Path(__file__).resolve().parents[1] / "pretrained"  # the committed models
 CONFIG_FILE = "config.json"  # a training run's record (``baselines.runs``)

@@ -1,7 +1,7 @@
 """A trained SB3 PPO actor's whole deterministic decision as one compiled function.
 
 The decision is one generated-C call (instead of the model's ``predict``, torch and
-numpy): the run's priors (features and a_ss, ``uvms_env.env.priors`` in CasADi),
+numpy): the run's priors (features and a_ss, ``uvms_env.robot.priors`` in CasADi),
 the saved observation normalization, the actor's layers (the cloned networks' loop nest,
 ``baselines.imitation.decision.dense_c``) and the action's way to the input (clip to
 [-1, 1]; in residual mode clip(a_ss + h + s a, -1, 1) with the joint hold h).
@@ -25,7 +25,7 @@ import numpy as np
 from baselines.imitation.decision import layers_digest, network_graph
 from baselines.imitation.features import FEEDFORWARD, CompiledInputs, input_dim, inputs_sx
 from uvms_env.dynamics.compiled import compile_function
-from uvms_env.env.priors import ACT_DIM, OBS_DIM, Priors, steady_sx
+from uvms_env.robot.priors import ACT_DIM, OBS_DIM, Priors, steady_sx
 
 NO_CLIP = 1e30  # a model saved without observation normalization
 

@@ -26,7 +26,7 @@ import numpy as np
 from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
 from baselines.lagrangian import CostSettings, Lagrangian
-from uvms_env.env.constraints import CONSTRAINTS
+from uvms_env.task.constraints import CONSTRAINTS
 from uvms_env.vector.seeding import copy_reset_seed
 
 ENV_NAME = "uvms_coop"  # the environment's name in RLlib's registry

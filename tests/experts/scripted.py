@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 
 from uvms_env.dynamics.spatial import wrap_angle
-from uvms_env.env.observation import OBSERVATION_STRUCTURE
 from uvms_env.policy import AgentSpec
+from uvms_env.robot.observation import OBSERVATION_STRUCTURE
 
 GAIN = 0.5
 _POSE = OBSERVATION_STRUCTURE["object_pose"]  # own estimate: x, y, z, phi, theta, psi

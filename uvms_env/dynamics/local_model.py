@@ -1,7 +1,7 @@
 """The local (distributed) prediction model of one UVMS and its object estimate.
 
 Used by the NMPC expert (its prediction model) and by the environment's priors (the
-steady input a_ss, ``uvms_env.env.priors``), so both read the same functions. MODEL
+steady input a_ss, ``uvms_env.robot.priors``), so both read the same functions. MODEL
 section 5: UVMS i carries the share c_i of the object's dynamics (the equation:
 docs/expert.md, "Prediction model").
 

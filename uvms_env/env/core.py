@@ -1,6 +1,6 @@
 """The code that drives the task, written once for one environment and for K.
 
-``EnvCore`` runs the flow of an episode around the task's rules (``uvms_env.env.task``) on
+``EnvCore`` runs the flow of an episode around the task's rules (``uvms_env.task.rules``) on
 a physics engine (the ``Engine`` protocol: ``ScalarEngine`` for ``parallel_env``, batch
 shape B = (); ``BatchedEngine`` for ``VectorEnv``, B = (K,)). The environments only turn
 their APIs into calls here. Reference: docs/environment.md, "The task and its driver".
@@ -9,7 +9,7 @@ Indices: ``ids`` index the engine's and the task's arrays (``...`` for one envir
 slice or an index array of ``xp`` for K), ``rows`` are the same environments as host
 ints, for what Python does per environment (each one's random generators).
 
-The acoustic channel (``uvms_env.env.channel``, ``comm=``) runs here too, once for both:
+The acoustic channel (``uvms_env.robot.channel``, ``comm=``) runs here too, once for both:
 with one, an action is B + (N, 8 + 1 + D) (inputs, send flag, message), the channel takes
 the message part of each step and ``view`` appends each robot's inbox.
 
@@ -26,20 +26,20 @@ import numpy as np
 
 from uvms_env.dynamics import NQ, NU
 from uvms_env.dynamics.compiled import NamespacePickled
-from uvms_env.env.channel import Channel
-from uvms_env.env.conditions import Conditions
-from uvms_env.env.memory import Memory
-from uvms_env.env.observation import (
+from uvms_env.env.options import EnvSetup
+from uvms_env.robot.channel import Channel
+from uvms_env.robot.memory import Memory
+from uvms_env.robot.observation import (
     NOISE_STD_Q,
     NOISE_STD_ZETA,
     OBSERVATION_SIZE,
     OBSERVATION_STRUCTURE,
 )
-from uvms_env.env.options import EnvSetup
-from uvms_env.env.priors import Priors, steady_inputs
-from uvms_env.env.reward import RewardWeights
-from uvms_env.env.task import Task, TaskArrays
+from uvms_env.robot.priors import Priors, steady_inputs
 from uvms_env.scenarios import Scenario, max_waypoints
+from uvms_env.task.conditions import Conditions
+from uvms_env.task.reward import RewardWeights
+from uvms_env.task.rules import Task, TaskArrays
 
 # Action dtype kinds accepted: float, signed and unsigned int (not bool, complex, str, object).
 ACTION_KINDS = "fiu"
@@ -50,8 +50,8 @@ _NAV = OBSERVATION_STRUCTURE["nav_velocity"]
 
 class Engine(Protocol):
     """The physics and per-step kernels of one batch, B = () or (K,), float64 results: what
-    ``EnvCore`` calls. ``uvms_env.env.engine.ScalarEngine`` and
-    ``uvms_env.vector.engine.BatchedEngine`` implement it (and inherit ``steady`` and
+    ``EnvCore`` calls. ``uvms_env.env.scalar_engine.ScalarEngine`` and
+    ``uvms_env.vector.batched_engine.BatchedEngine`` implement it (and inherit ``steady`` and
     ``features``, host calls, unless they have device kernels for them). B' is the batch
     shape of ``ids``."""
 
@@ -166,7 +166,7 @@ class EnvCore(NamespacePickled):
         self._noise_q = xp.asarray(s.sensor_noise * NOISE_STD_Q)
         self._noise_zeta = xp.asarray(s.sensor_noise * NOISE_STD_ZETA)
         self.scenarios: list[Scenario] = [s] * k
-        # each environment's current episode conditions (uvms_env.env.conditions)
+        # each environment's current episode conditions (uvms_env.task.conditions)
         self.conditions = [Conditions(s.current, s.mismatch)] * k
         self._geometry_set = np.zeros(k, bool)
         # ``command_filter(raw_obs, commands, first)`` -> commands: replaces each step's
@@ -305,7 +305,7 @@ class EnvCore(NamespacePickled):
         return (
             f" (the acoustic channel is on: {NU} inputs, a send flag (> 0: send) and "
             f"message_dim = {c.message_dim} message numbers, {c.action_size} in all; "
-            "uvms_env.env.channel.silent pads 8-number actions with silence)"
+            "uvms_env.robot.channel.silent pads 8-number actions with silence)"
         )
 
     def step(self, a: Any) -> tuple[Any, Any]:

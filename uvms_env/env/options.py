@@ -22,11 +22,9 @@ import numpy as np
 from gymnasium import spaces
 
 from uvms_env.dynamics import NQ, NU
-from uvms_env.env.channel import ChannelSettings, block_bounds, channel_settings
-from uvms_env.env.conditions import ConditionDraws, condition_draws
-from uvms_env.env.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE, observation_bounds
-from uvms_env.env.priors import ACTION_MODES, DEFAULT_RESIDUAL_SCALE, OBSERVATION_MODES, Priors
-from uvms_env.env.reward import RewardWeights
+from uvms_env.robot.channel import ChannelSettings, block_bounds, channel_settings
+from uvms_env.robot.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE, observation_bounds
+from uvms_env.robot.priors import ACTION_MODES, DEFAULT_RESIDUAL_SCALE, OBSERVATION_MODES, Priors
 from uvms_env.scenarios import FAMILIES, SEEDED_FAMILIES, Scenario, make, replace
 from uvms_env.scenarios.bank import GeometryBank
 from uvms_env.scenarios.families import default_agents
@@ -38,6 +36,8 @@ from uvms_env.scenarios.overrides import (
     validate_options,
     validate_overrides,
 )
+from uvms_env.task.conditions import ConditionDraws, condition_draws
+from uvms_env.task.reward import RewardWeights
 
 CONSTRAINT_MODES = ("penalize", "terminate")
 # The environment's own keyword options (the scenario overrides: SCENARIO_OVERRIDES).
@@ -48,10 +48,10 @@ ENV_OPTIONS: dict[str, Option] = {
     "reseed_geometry": Option("bool", "reset(seed=s) also sets a seeded family's geometry"),
     "internal_wrench_every": Option("int", "internal wrench metric period, 0: never", low=0),
     "extra_reward_terms": Option(
-        "functions", "extra reward terms fn(s, xp) -> (K,) (uvms_env.env.task)", optional=True
+        "functions", "extra reward terms fn(s, xp) -> (K,) (uvms_env.task.rules)", optional=True
     ),
     "extra_constraints": Option(
-        "functions", "extra constraints fn(s, xp) -> g (K, N) (uvms_env.env.task)", optional=True
+        "functions", "extra constraints fn(s, xp) -> g (K, N) (uvms_env.task.rules)", optional=True
     ),
     "action_mode": Option(
         "choice", "torque: normalized inputs; residual: around own a_ss", choices=ACTION_MODES
@@ -72,12 +72,12 @@ ENV_OPTIONS: dict[str, Option] = {
     ),
     "comm": Option(
         "comm",
-        "acoustic channel: None/'off' (silent team) or a preset (uvms_env.env.channel)",
+        "acoustic channel: None/'off' (silent team) or a preset (uvms_env.robot.channel)",
         optional=True,
     ),
     "randomize": Option(
         "draws",
-        "per-episode draws of the current preset and the mismatch (uvms_env.env.conditions)",
+        "per-episode draws of the current preset and the mismatch (uvms_env.task.conditions)",
         optional=True,
     ),
 }
@@ -240,7 +240,7 @@ def observation_space(priors: Priors, comm: ChannelSettings | None = None) -> sp
 
 def action_space(comm: ChannelSettings | None = None) -> spaces.Box:
     """One robot's action space: 8 normalized inputs; with a channel, the send flag and
-    the message after them (``uvms_env.env.channel``)."""
+    the message after them (``uvms_env.robot.channel``)."""
     size = NU if comm is None else comm.action_size
     return spaces.Box(-1.0, 1.0, (size,), np.float32)
 

@@ -1,7 +1,7 @@
 """The PettingZoo environment (native ParallelEnv): the class docstring is its documentation.
 
 A dict adapter: the episode's flow is ``uvms_env.env.core.EnvCore`` for one environment on
-the scalar engine (``uvms_env.env.engine``), the code ``VectorEnv`` runs for K; here are
+the scalar engine (``uvms_env.env.scalar_engine``), the code ``VectorEnv`` runs for K; here are
 the PettingZoo API, the agents' names and rendering.
 
 May import: numpy, gymnasium, pettingzoo and everything in ``uvms_env`` below ``env``
@@ -21,7 +21,6 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from uvms_env.env.core import ACTION_KINDS, CoreViews, EnvCore
-from uvms_env.env.engine import ScalarEngine
 from uvms_env.env.options import (
     RESET_SEED,
     action_space,
@@ -31,9 +30,10 @@ from uvms_env.env.options import (
     state_structure,
 )
 from uvms_env.env.registration import ENV_ID
-from uvms_env.env.task import HARD_KINDS, episode_end
+from uvms_env.env.scalar_engine import ScalarEngine
 from uvms_env.scenarios import Scenario
 from uvms_env.sim import Simulator
+from uvms_env.task.rules import HARD_KINDS, episode_end
 
 __all__ = ["HARD_KINDS", "CoopTransportEnv", "episode_end", "parallel_env"]  # re-exported
 
@@ -102,10 +102,10 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
 
     **Reward** (shared: computed once per step, the same for every agent; every term in
     `infos[agent]["reward_terms"]`, and the reward is their sum): the formulas and
-    weights are `uvms_env.env.reward`'s; change them with `reward_weights`.
+    weights are `uvms_env.task.reward`'s; change them with `reward_weights`.
 
     **Constraints** (`infos[agent]["constraint_values"]`, g <= 0 holds, on the true state;
-    the kinds and their definitions: `uvms_env.env.constraints`). `infos[agent]["cost"]`
+    the kinds and their definitions: `uvms_env.task.constraints`). `infos[agent]["cost"]`
     is the number of the robot's violated constraints. Collisions always end the episode;
     the others end it in `constraint_mode="terminate"` and only cost reward in
     `"penalize"` (default).
@@ -122,7 +122,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     refused, its observation is the last valid state's, the episode ends as a failure
     and `infos[agent]["diverged_reason"]` says why. Truncated: `max_cycles` periods. All
     agents end together. The last infos carry `"episode_end"` (success, collision, constraint,
-    diverged, max_cycles) and `"metrics"` (`uvms_env.env.metrics`).
+    diverged, max_cycles) and `"metrics"` (`uvms_env.task.metrics`).
 
     **Infos.** Every step, per agent: `constraint_values` (dict), `cost`, `reward_terms`
     (dict); at the end also `episode_end` and `metrics` (the same dict for every agent;
@@ -136,17 +136,17 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     **Beyond the API.** `env.sim` and `env.scenario` (global: never feed them to a
     policy), `env.observe()` (observations of the current state, e.g. after
     `sim.set_state`), `env.constraint_values()`, `env.task` (the task's rules and this
-    episode's bookkeeping: `uvms_env.env.task.Task` for one environment, the code
+    episode's bookkeeping: `uvms_env.task.rules.Task` for one environment, the code
     `VectorEnv` runs over K environments), `env.command_filter` (a function that replaces
     each step's normalized inputs before the simulator, e.g. a safety filter:
     `uvms_env.env.core.EnvCore`).
 
     **Extensions** (no change to the package): `extra_reward_terms={"name": fn}` and
     `extra_constraints={"name": fn}`, `fn(s, xp)` with `s` a
-    `uvms_env.env.task.TaskArrays` (here K = 1): docs/environment.md, "Extension points".
+    `uvms_env.task.rules.TaskArrays` (here K = 1): docs/environment.md, "Extension points".
 
     **Communication** (`comm=`; default None: the silent team, nothing changes). With an
-    acoustic channel (`uvms_env.env.channel`: a preset `ideal`, `micromodem_fsk`, `atm900`,
+    acoustic channel (`uvms_env.robot.channel`: a preset `ideal`, `micromodem_fsk`, `atm900`,
     `s2c_48_78`, a `ChannelSettings` or `{"preset": name, field: value}`) each action is
     `Box(-1, 1, (8 + 1 + D,))` (inputs, send flag, message) and each observation gains the
     inbox `messages`; an 8-number action raises ValueError. The layouts and the channel's

@@ -77,7 +77,7 @@ class ObjectParameters:
 class Limits:
     """The physical limits (``[limits]``): the one source of the input saturations, the
     environment's joint, joint-rate and vehicle-speed constraints and the expert's bounds
-    on them (``uvms_env.env.constraints``, ``nmpc_expert.settings``)."""
+    on them (``uvms_env.task.constraints``, ``nmpc_expert.settings``)."""
 
     vehicle_force: float
     vehicle_moment: float

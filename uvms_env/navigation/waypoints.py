@@ -3,7 +3,7 @@
 A mission is a list of object poses ``[x, y, z, phi, theta, psi]`` (position [m] and
 ZYX Euler angles [rad]) visited in order; the last one is the goal.
 :class:`WaypointSequencer` holds the validated list (which waypoint is active is the
-task's rule: ``uvms_env.env.task`` sequences them).  :class:`WaypointNavigator` builds one
+task's rule: ``uvms_env.task.rules`` sequences them).  :class:`WaypointNavigator` builds one
 :class:`~uvms_env.navigation.field.NavigationField` per waypoint (goal = waypoint
 position) and, per waypoint, the symbolic desired object twist::
 

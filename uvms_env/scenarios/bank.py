@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from uvms_env.dynamics.compiled import cache_dir
+from uvms_env.dynamics.compiled import cache_dir, exclusive
 from uvms_env.navigation.parametric import N_CYLINDERS, N_SPHERES, twist_parameters
 from uvms_env.navigation.task_navigator import task_navigator
 from uvms_env.scenarios.config import Scenario
@@ -162,7 +162,15 @@ class GeometryBank:
     def fill(self, seeds: Iterable[int], workers: int = 1, progress: bool = False) -> int:
         """Build every missing geometry of ``seeds`` (in ``workers`` processes); returns
         how many were built."""
-        todo = self.missing(seeds)
+        seeds = list(seeds)
+        if not self.missing(seeds):
+            return 0
+        self.folder.mkdir(parents=True, exist_ok=True)
+        # one builder per bank at a time: a process that needs it waits, then reads
+        with exclusive(self.folder / "build.lock"):
+            return self._fill(self.missing(seeds), workers, progress)
+
+    def _fill(self, todo: list[int], workers: int, progress: bool) -> int:
         if not todo:
             return 0
         what = f"{self.family} N={self.n_agents}" + "".join(f" {v}" for v in self.options.values())

@@ -34,8 +34,8 @@ class Option:
     ``choices``), "weights" (a mapping name -> finite float; the names are checked by
     their consumer), "functions" (a mapping name -> callable or "module:function"
     string; imported and checked by their consumer), "comm" (the acoustic channel's
-    settings, checked by ``uvms_env.env.channel``) or "draws" (per-episode draws of the
-    conditions, checked by ``uvms_env.env.conditions``). ``low``/``high`` bound numbers
+    settings, checked by ``uvms_env.robot.channel``) or "draws" (per-episode draws of the
+    conditions, checked by ``uvms_env.task.conditions``). ``low``/``high`` bound numbers
     (inclusive unless ``*_open``); ``optional``: None is allowed too."""
 
     kind: str

@@ -219,7 +219,7 @@ class Simulator(RebuiltOnUnpickle):
     ) -> SimState:
         """Back to the scenario's start at rest; draws the truth model and the current,
         under the scenario's current preset and mismatch or this episode's ``current``
-        and ``mismatch`` (``uvms_env.env.conditions``)."""
+        and ``mismatch`` (``uvms_env.task.conditions``)."""
         s = self.scenario
         rng = np.random.default_rng(seed if seed is not None else s.seed)
         self.parameters, self.object_parameters = draw_truth_parameters(

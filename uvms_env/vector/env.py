@@ -10,7 +10,7 @@ stepped with ``actions[k]``: in float64 the same episode step for step (docs/bat
 "Same episodes"). The class docstring lists what differs and what is returned.
 
 The episode's flow is the single environment's (``uvms_env.env.core.EnvCore``) on
-``uvms_env.vector.engine.BatchedEngine``. Python runs per environment only where an
+``uvms_env.vector.batched_engine.BatchedEngine``. Python runs per environment only where an
 environment's own random generator must be drawn from (sensor noise, ocean current: a
 loop over K when they are switched on, so that every draw is the single environment's)
 and for environments whose episode ended. This module adds the array API: automatic
@@ -40,7 +40,7 @@ from uvms_env.env.options import (
 )
 from uvms_env.scenarios import Scenario
 from uvms_env.scenarios.overrides import Option
-from uvms_env.vector.engine import DIVERGED_REASONS, BatchedEngine
+from uvms_env.vector.batched_engine import DIVERGED_REASONS, BatchedEngine
 from uvms_env.vector.kernels import available_cores
 from uvms_env.vector.simulator import BACKENDS, BatchedSimulator
 
@@ -98,7 +98,7 @@ class VectorEnv(CoreViews):
     | episode_end | (K,) object | "" or success, collision, constraint, diverged, max_cycles |
     | final_observation | (K, N, 79) | last observation of the envs that ended (else zeros) |
     | final_state | (K, 20 N + 19) or None | `state()` before the resets, when an env ended |
-    | metrics | (K,) object | the ended episodes' metrics (`uvms_env.env.metrics`) or None |
+    | metrics | (K,) object | the ended episodes' metrics (`uvms_env.task.metrics`) or None |
     | diverged_reason | (K,) object | why a step was refused ("" elsewhere) |
 
     **Communication** (`comm=`): as in `parallel_env`, the same channel code over K: actions

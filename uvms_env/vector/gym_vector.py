@@ -60,7 +60,7 @@ class CoopTransportVectorEnv(GymVectorEnv):
     | cost | (K,) int | every step: violated constraints, summed over the robots |
     | constraint_values | (K, N, 8) | every step: each robot's g <= 0 values |
     | episode_end | (K,) object | in ``final_info`` only |
-    | metrics | dict name -> (K,) | in ``final_info`` only (``uvms_env.env.metrics``) |
+    | metrics | dict name -> (K,) | in ``final_info`` only (``uvms_env.task.metrics``) |
     | diverged_reason | (K,) object | in ``final_info``, for refused steps |
     | episode_seed | (K,) int | ``reset`` |
 

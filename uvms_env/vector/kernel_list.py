@@ -10,11 +10,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from uvms_env.env.kinematics import BATCH_CYLINDERS, BATCH_SPHERES, team_function
-from uvms_env.env.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT
-from uvms_env.env.priors import prior_functions
 from uvms_env.navigation.parametric import parametric_twist_function
+from uvms_env.robot.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT
+from uvms_env.robot.priors import prior_functions
 from uvms_env.sim import period
+from uvms_env.task.team_kernel import BATCH_CYLINDERS, BATCH_SPHERES, team_function
 from uvms_env.vector.kernels import Refinement
 
 

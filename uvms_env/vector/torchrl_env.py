@@ -69,7 +69,7 @@ from uvms_env.env.options import state_structure
 from uvms_env.vector.env import VectorEnv
 
 GROUP = "uvms"
-# an ended episode's values, by metric (``uvms_env.env.metrics``), in the infos; the
+# an ended episode's values, by metric (``uvms_env.task.metrics``), in the infos; the
 # per-kind violation periods, the episode's cost and the internal wrench are added per env
 EPISODE_INFO = (
     "success",

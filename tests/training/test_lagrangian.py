@@ -1,0 +1,61 @@
+"""The constraint cost and the Lagrange multiplier of constraint-aware training."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from baselines.lagrangian import SCALES, CostSettings, magnitude_cost
+from baselines.rl.cost import CostPenalty
+from uvms_env.models import load_parameters
+from uvms_env.task.constraints import CONSTRAINTS
+
+
+def test_magnitude_cost_is_the_normalized_excess():
+    g = np.full(len(CONSTRAINTS), -0.3)
+    assert magnitude_cost(g) == 0.0
+    g[CONSTRAINTS.index("joint_speed")] = 0.05  # 0.15 rad/s against 0.1
+    g[CONSTRAINTS.index("joint_limit")] = 0.2  # 2.2 rad against 2
+    assert magnitude_cost(g) == pytest.approx(0.05 / 0.1 + 0.2 / 2.0)
+    assert SCALES[CONSTRAINTS.index("joint_speed")] == load_parameters().limits.joint_speed
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ValueError, match="cost"):
+        CostSettings(kind="area")
+    with pytest.raises(ValueError, match="lr"):
+        CostSettings(lr=-1.0)
+
+
+def test_penalty_is_multiplier_times_each_robots_cost_and_the_dual_step_follows_it():
+    """Two identical batched envs under the same actions: the wrapped one's reward is the
+    other's minus lambda times each robot's magnitude cost; after the episodes end, one
+    dual step moves lambda by lr (mean episode cost - limit)."""
+    from uvms_env.vector import VectorEnv
+    from uvms_env.vector.sb3 import VectorVecEnv
+
+    def make():
+        return VectorVecEnv(VectorEnv("short", 2, dtype="float64", max_cycles=4), seed=7)
+
+    settings = CostSettings("magnitude", multiplier=0.7, cost_limit=0.5, lr=0.2)
+    wrapped, plain = CostPenalty(make(), settings), make()
+    wrapped.reset()
+    plain.reset()
+    rng = np.random.default_rng(3)
+    totals = np.zeros(4)
+    for _ in range(4):
+        actions = rng.uniform(-1, 1, (4, 8)).astype(np.float32)  # fast moves: violations
+        wrapped.step_async(actions)
+        plain.step_async(actions)
+        _, r_w, done, infos = wrapped.step_wait()
+        _, r_p, _, _ = plain.step_wait()
+        g = plain.last_infos["constraint_values"].reshape(4, -1)
+        cost = magnitude_cost(g)
+        np.testing.assert_allclose(r_p - r_w, 0.7 * cost, rtol=1e-5, atol=1e-6)
+        assert [i["constraint_cost"] for i in infos] == pytest.approx(cost)
+        totals += cost
+    assert done.all() and totals.max() > 0
+    mean = wrapped.update_multiplier()
+    assert mean == pytest.approx(totals.mean())
+    assert wrapped.multiplier == pytest.approx(max(0.0, 0.7 + 0.2 * (totals.mean() - 0.5)))
+    assert wrapped.update_multiplier() is None  # no episode ended since: no step

@@ -1,0 +1,330 @@
+"""Priors a user may switch on: what each robot can compute from its own observation and
+what it knows before the task, offered to learning as an action or observation option.
+
+``steady_inputs`` (a_ss, the expert's own input reference from
+``uvms_env.dynamics.local_model.build_steady_input``), ``featurize`` (76 numbers in the
+robot's own heading frame) and ``Priors`` (the options ``action_mode``,
+``observation_mode``, ``hold_stiffness``, ``hold_damping``). The single and the batched
+environment and the trained policies all call this class, so an option means the same
+everywhere.
+
+Why priors: a policy starting at zero torque drifts under weight and buoyancy, and the
+holding forces depend on the grasp geometry and load share through the arm's kinematics,
+which a network must otherwise learn from the geometries it happens to see. They are
+priors, not the task: the plain setting (torque, raw) stays the default.
+Reference: docs/environment.md ("Priors", "Memory"), docs/options.md.
+
+May import: numpy, casadi, ``uvms_env.dynamics`` and ``uvms_env.scenarios`` (the nominal
+arm pose).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as cs
+import numpy as np
+
+from uvms_env.dynamics import NU, ObjectModel
+from uvms_env.dynamics.compiled import BufferCall, compile_function
+from uvms_env.dynamics.local_model import build_local_model, build_steady_input
+from uvms_env.dynamics.payload import object_tag
+from uvms_env.dynamics.spatial import wrap_angle, wrap_angle_sx
+from uvms_env.dynamics.uvms import default_model
+from uvms_env.robot.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
+from uvms_env.scenarios.geometry import NOMINAL_ARM
+
+OBS_DIM = OBSERVATION_SIZE  # the raw observation
+ACT_DIM = NU  # the action
+BASE_FEATURES = 76  # featurize
+FEATURES_SIZE = BASE_FEATURES + ACT_DIM  # observation_mode="features": featurize and a_ss
+OBSTACLE_RANGE = 5.0  # m; obstacle offsets beyond this are scaled down to it
+# the arm's joint angles (q's last 4) and rates (zeta's last 4) in the observation
+_JOINTS = slice(OBSERVATION_STRUCTURE["q"].start + 6, OBSERVATION_STRUCTURE["q"].stop)
+_JOINT_RATES = slice(OBSERVATION_STRUCTURE["zeta"].start + 6, OBSERVATION_STRUCTURE["zeta"].stop)
+ACTION_MODES = ("torque", "residual")
+OBSERVATION_MODES = ("raw", "features", "memory")
+# observation_mode="memory": featurize, the robot's memory (uvms_env.robot.memory: the last
+# command and the disturbance estimate, 16), then a_ss (last, as in "features")
+MEMORY_BLOCK = 2 * ACT_DIM
+MEMORY_FEATURES_SIZE = BASE_FEATURES + MEMORY_BLOCK + ACT_DIM
+# Residual reach 0.3 of the saturation: enough to correct a_ss (the expert's inputs stay
+# within ~0.25 of it on the paper scenario) while a uniformly random residual still holds
+# the object (a_ss alone succeeds on short and random N = 2).
+DEFAULT_RESIDUAL_SCALE = 0.3
+
+
+def featurize(obs: np.ndarray) -> np.ndarray:
+    """(..., 79) observations -> (..., 76) float32 ``uvms-v1`` features (numpy)."""
+    o = np.asarray(obs, dtype=np.float64)
+    if o.shape[-1] != OBS_DIM:
+        raise ValueError(f"uvms-v1 features need {OBS_DIM}-number observations, got {o.shape}")
+    f = {name: o[..., sl] for name, sl in OBSERVATION_STRUCTURE.items()}
+    q, pose, twist = f["q"], f["object_pose"], f["object_twist"]
+    psi = q[..., 5]  # vehicle yaw
+    c, s = np.cos(psi), np.sin(psi)
+
+    def yaw_frame(v: np.ndarray) -> np.ndarray:  # (..., 3) NED -> heading frame
+        return np.stack(
+            [c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1], v[..., 2]], -1
+        )
+
+    wp, goal, nav = f["waypoint"], f["goal"], f["nav_velocity"]
+    obst = f["obstacles"].reshape(*o.shape[:-1], 3, 5)
+    present = (obst[..., 3] > 0).astype(np.float64)
+    dxy = obst[..., :2]
+    dist = np.linalg.norm(dxy, axis=-1, keepdims=True)
+    dxy = dxy * np.minimum(1.0, OBSTACLE_RANGE / np.maximum(dist, 1e-9))
+    cc, ss = c[..., None], s[..., None]
+    ob_body = np.stack(
+        [cc * dxy[..., 0] + ss * dxy[..., 1], -ss * dxy[..., 0] + cc * dxy[..., 1]], -1
+    )
+    obstacles = np.concatenate(
+        [ob_body * present[..., None], obst[..., 2:5] * present[..., None]], -1
+    ).reshape(*o.shape[:-1], 15)
+    parts = [
+        q[..., 2:5],  # vehicle depth, roll, pitch
+        q[..., 6:10],  # joint angles
+        f["zeta"],  # body twist and joint rates
+        pose[..., 2:5],  # object depth, roll, pitch
+        wrap_angle(pose[..., 5:6] - psi[..., None]),  # object yaw relative to the vehicle's
+        yaw_frame(twist[..., :3]),
+        yaw_frame(twist[..., 3:]),
+        yaw_frame(wp[..., :3] - pose[..., :3]),
+        wrap_angle(wp[..., 3:] - pose[..., 3:]),
+        yaw_frame(goal[..., :3] - pose[..., :3]),
+        wrap_angle(goal[..., 3:] - pose[..., 3:]),
+        yaw_frame(nav[..., :3]),
+        nav[..., 3:],
+        obstacles,
+        yaw_frame(q[..., 0:3] - pose[..., :3]),
+        f["load_share"],
+        f["grasp_offset"],
+        f["grasp_rotation"],
+    ]
+    return np.concatenate(parts, -1).astype(np.float32)
+
+
+def featurize_sx(o: cs.SX) -> cs.SX:
+    """(79,) observation -> (76,) ``uvms-v1`` features, symbolically (see network.py)."""
+    at = {name: sl.start for name, sl in OBSERVATION_STRUCTURE.items()}
+    q, pose, twist = at["q"], at["object_pose"], at["object_twist"]
+    psi = o[q + 5]  # vehicle yaw
+    c, s = cs.cos(psi), cs.sin(psi)
+
+    def heading(x: cs.SX, y: cs.SX) -> list[cs.SX]:
+        return [c * x + s * y, -s * x + c * y]
+
+    px, py, pz = o[pose], o[pose + 1], o[pose + 2]
+    f: list[cs.SX] = [o[q + k] for k in (2, 3, 4, 6, 7, 8, 9)]
+    f += [o[at["zeta"] + k] for k in range(10)]
+    f += [o[pose + 2], o[pose + 3], o[pose + 4], wrap_angle_sx(o[pose + 5] - psi)]
+    for i in (twist, twist + 3):
+        f += [*heading(o[i], o[i + 1]), o[i + 2]]
+    for i in (at["waypoint"], at["goal"]):
+        f += [*heading(o[i] - px, o[i + 1] - py), o[i + 2] - pz]
+        f += [wrap_angle_sx(o[i + 3 + k] - o[pose + 3 + k]) for k in range(3)]
+    nav = at["nav_velocity"]
+    f += [*heading(o[nav], o[nav + 1]), o[nav + 2], o[nav + 3], o[nav + 4], o[nav + 5]]
+    for i in range(at["obstacles"], at["obstacles"] + 15, 5):
+        present = o[i + 3] > 0
+        dist = cs.sqrt(o[i] ** 2 + o[i + 1] ** 2)
+        scale = cs.fmin(1.0, OBSTACLE_RANGE / cs.fmax(dist, 1e-9))
+        near = [*heading(o[i] * scale, o[i + 1] * scale), o[i + 2], o[i + 3], o[i + 4]]
+        f += [cs.if_else(present, v, 0.0) for v in near]
+    f += [*heading(o[q] - px, o[q + 1] - py), o[q + 2] - pz]
+    f += [o[k] for k in range(at["load_share"], at["time_fraction"])]
+    out = cs.vertcat(*f)
+    assert out.numel() == BASE_FEATURES
+    return out
+
+
+@functools.cache
+def _steady_input(ring_radius: float) -> cs.Function:
+    """The expert's a_ss(x, theta, v_d) for the object ``ring_radius`` (its key)."""
+    uvms, obj = default_model(), object_model(ring_radius)
+    return build_steady_input(uvms, obj, build_local_model(uvms, obj))
+
+
+def object_model(ring_radius: float) -> ObjectModel:
+    """The carried object by the compiled functions' name for it, its key
+    (``uvms_env.dynamics.payload.object_key``: a ring's radius, 0 for the parameter
+    file's bar, minus the length for another bar)."""
+    return ObjectModel.from_key(ring_radius)
+
+
+def own_model_inputs(o: cs.SX, ring_radius: float) -> tuple[cs.SX, cs.SX]:
+    """(x, theta) of the robot's local model from its observation ``o``: own q and zeta,
+    own grasp and load share and the object's nominal parameters (known before the task)."""
+    f = OBSERVATION_STRUCTURE
+    # the observation holds R_Oi row-major: this is R^T
+    r_t = cs.reshape(o[f["grasp_rotation"]], 3, 3)
+    theta = cs.vertcat(  # laid out as uvms_env.dynamics.local_model.ModelParams.pack
+        o[f["grasp_offset"]],
+        cs.reshape(r_t.T, 9, 1),  # R_Oi column-major
+        o[f["load_share"]],
+        cs.DM(object_model(ring_radius).nominal_parameters()),
+    )
+    return o[f["q"].start : f["zeta"].stop], theta
+
+
+def steady_sx(o: cs.SX, ring_radius: float) -> cs.SX:
+    """a_ss (8) of the robot in observation ``o``: own q and zeta, own grasp and share,
+    the object's nominal parameters, the observed navigation twist."""
+    own, theta = own_model_inputs(o, ring_radius)
+    return _steady_input(ring_radius)(own, theta, o[OBSERVATION_STRUCTURE["nav_velocity"]])
+
+
+@functools.cache
+def _steady_one(ring_radius: float) -> cs.Function:
+    """a_ss alone, compiled (the features come from the numpy ``featurize``)."""
+    o = cs.SX.sym("obs", OBS_DIM)
+    name = f"prior_steady_{object_tag(ring_radius)}"
+    return compile_function(cs.Function(name, [o], [steady_sx(o, ring_radius)]))
+
+
+@functools.cache
+def prior_functions(ring_radius: float) -> tuple[cs.Function, cs.Function]:
+    """(a_ss, features) of one (79,) observation as CasADi functions, for batched
+    kernels (the GPU backend evaluates them over every robot's column)."""
+    o = cs.SX.sym("obs", OBS_DIM)
+    tag = object_tag(ring_radius)
+    steady = cs.Function(f"prior_steady_{tag}", [o], [steady_sx(o, ring_radius)])
+    return steady, cs.Function("prior_features", [o], [featurize_sx(o)])
+
+
+@functools.lru_cache(maxsize=16)
+def _steady_call(ring_radius: float, count: int) -> BufferCall:
+    # The buffer interface: an ordinary call's conversions cost more than the evaluation.
+    return BufferCall(_steady_one(ring_radius).map(count))
+
+
+def steady_inputs(obs: np.ndarray, ring_radius: float) -> np.ndarray:
+    """(..., 79) observations of robots carrying one object -> (..., 8) float64 a_ss."""
+    o = np.asarray(obs, dtype=np.float64)
+    if o.shape[-1] != OBS_DIM:
+        raise ValueError(f"steady inputs need {OBS_DIM}-number observations, got {o.shape}")
+    flat = np.ascontiguousarray(o.reshape(-1, OBS_DIM))
+    out = _steady_call(float(ring_radius), len(flat))(flat)[0].copy()
+    return out.reshape(*o.shape[:-1], ACT_DIM)
+
+
+def check_mode(name: str, value: object, allowed: tuple[str, ...]) -> str:
+    if value not in allowed:
+        raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
+    return str(value)
+
+
+@dataclass(frozen=True)
+class Priors:
+    """The action and observation options. ``observe`` and ``command`` take (..., 79) raw
+    observations of any leading shape (robots, environments x robots) of robots that
+    carry one object (``ring_radius``: its key, ``Scenario.object_ring_radius``)."""
+
+    action_mode: str = "torque"
+    observation_mode: str = "raw"
+    residual_scale: float = DEFAULT_RESIDUAL_SCALE
+    hold_stiffness: float = 0.0
+    hold_damping: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_mode("action_mode", self.action_mode, ACTION_MODES)
+        check_mode("observation_mode", self.observation_mode, OBSERVATION_MODES)
+        if not (math.isfinite(self.residual_scale) and 0.0 < self.residual_scale <= 2.0):
+            raise ValueError(f"residual_scale must be in (0, 2], got {self.residual_scale!r}")
+        for name in ("hold_stiffness", "hold_damping"):
+            gain = getattr(self, name)
+            if not (math.isfinite(gain) and 0.0 <= gain <= 10.0):
+                raise ValueError(f"{name} must be in [0, 10], got {gain!r}")
+        if self.holds and self.action_mode != "residual":
+            raise ValueError("hold_stiffness and hold_damping act in action_mode='residual' only")
+
+    @property
+    def holds(self) -> bool:
+        return self.hold_stiffness > 0.0 or self.hold_damping > 0.0
+
+    @property
+    def plain(self) -> bool:
+        return self.action_mode == "torque" and self.observation_mode == "raw"
+
+    @property
+    def observation_size(self) -> int:
+        return {"features": FEATURES_SIZE, "memory": MEMORY_FEATURES_SIZE}.get(
+            self.observation_mode, OBS_DIM
+        )
+
+    @property
+    def remembers(self) -> bool:
+        """The observation carries the robot's memory (``uvms_env.robot.memory``)."""
+        return self.observation_mode == "memory"
+
+    @property
+    def needs_steady(self) -> bool:
+        return not self.plain
+
+    def observe(
+        self,
+        raw: np.ndarray,
+        ring_radius: float,
+        steady: np.ndarray | None = None,
+        memory: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """What the policy sees: the raw observation, or its features (with the robot's
+        ``memory`` block in the memory mode) and a_ss, float32. ``steady``: a_ss of ``raw``
+        when the caller has it already."""
+        if self.observation_mode == "raw":
+            return raw
+        if steady is None:
+            steady = steady_inputs(raw, ring_radius)
+        parts = [featurize(raw), steady]
+        if self.remembers:
+            if memory is None:
+                raise ValueError("observation_mode='memory' needs the robot's memory block")
+            parts.insert(1, memory)
+        return np.concatenate(parts, -1).astype(np.float32)
+
+    def command(
+        self,
+        raw: np.ndarray,
+        action: np.ndarray,
+        ring_radius: float,
+        steady: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """The normalized input for ``action`` of robots whose last observation is ``raw``:
+        the action itself (torque), or clip(a_ss + s clip(action, -1, 1), -1, 1)."""
+        if self.action_mode == "torque":
+            return action
+        if steady is None:
+            steady = steady_inputs(raw, ring_radius)
+        base = steady + self.joint_hold(raw) if self.holds else steady
+        return np.clip(base + self.residual_scale * np.clip(action, -1.0, 1.0), -1.0, 1.0)
+
+    def joint_hold(self, raw: np.ndarray) -> np.ndarray:
+        """h (..., 8): zero on the vehicle's four inputs (surge, sway, heave, yaw), the
+        joint hold on the arm's four.
+        Written with scalars and slices only, so that it runs on any array library
+        (numpy here, CuPy through the GPU backend)."""
+        q, rate = raw[..., _JOINTS], raw[..., _JOINT_RATES]
+        arm = [self._hold(q[..., j], rate[..., j], j) for j in range(4)]
+        zero = 0.0 * q[..., 0]
+        return np.stack([zero] * (ACT_DIM - 4) + arm, -1).astype(np.float64)
+
+    def _hold(self, q: Any, rate: Any, j: int) -> Any:
+        """h_j of arm joint j at angle ``q`` and rate ``rate`` (any array or CasADi type)."""
+        return -self.hold_stiffness * (q - float(NOMINAL_ARM[j])) - self.hold_damping * rate
+
+    def command_sx(self, o: cs.MX, action: cs.MX, steady: cs.MX) -> cs.MX:
+        """``command`` of one symbolic (79,) observation ``o`` with its a_ss ``steady``,
+        for compiled decisions (``baselines.rl.actor``); ``action`` is clipped here."""
+        a = cs.fmin(1.0, cs.fmax(-1.0, action))
+        if self.action_mode == "torque":
+            return a
+        base = steady
+        if self.holds:
+            q, rate = _JOINTS.start, _JOINT_RATES.start
+            arm = [self._hold(o[q + j], o[rate + j], j) for j in range(4)]
+            base = base + cs.vertcat(cs.MX.zeros(ACT_DIM - 4), *arm)
+        return cs.fmin(1.0, cs.fmax(-1.0, base + self.residual_scale * a))

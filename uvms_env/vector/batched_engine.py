@@ -1,0 +1,331 @@
+"""The physics of K environments for ``EnvCore``: compiled calls over all of them at once.
+
+``BatchedEngine`` is the engine ``VectorEnv`` runs (``uvms_env.env.core``, batch shape
+B = (K,)): the truth simulator batched (``BatchedSimulator``), the kinematics kernel of the
+single environment (``uvms_env.task.team_kernel.team_function``: observations, pose estimates,
+constraint values, team reductions), the navigation twist at each robot's active waypoint
+(``navigation.parametric``, one function for every geometry) and, when sampled, the
+internal wrench (the chain's own function). Each is a ``BatchedFunction`` (SIMD lanes,
+threads over cores) or, on the CUDA backend, a GPU kernel of the same generated source.
+Arrays are laid out (element, K padded), the environment index innermost, as the kernels
+read them; the ocean currents are the batched simulator's.
+
+May import: numpy, ``uvms_env`` below ``vector`` (the ``env`` kernels and constants it
+batches) and the sibling ``vector`` modules.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any
+
+import numpy as np
+
+from uvms_env.dynamics import NQ, NU
+from uvms_env.env.core import Engine
+from uvms_env.env.options import EnvSetup
+from uvms_env.robot.observation import OBSERVATION_SIZE
+from uvms_env.robot.priors import BASE_FEATURES, Priors
+from uvms_env.scenarios import Scenario, max_waypoints
+from uvms_env.scenarios.bank import NAV_PARAMETERS, navigation_table
+from uvms_env.sim.period import ENVELOPE, INACCURATE, MAX_REFINEMENTS, OK
+from uvms_env.task.conditions import Conditions
+from uvms_env.task.team_kernel import (
+    BATCH_CYLINDERS,
+    BATCH_SPHERES,
+    NK,
+    obstacle_inputs,
+    segment_inputs,
+)
+from uvms_env.vector.kernel_list import kernel_functions
+from uvms_env.vector.kernels import BatchedFunction
+from uvms_env.vector.simulator import BatchedSimulator
+
+DIVERGED_REASONS = {
+    INACCURATE: (
+        f"a 1/{2**MAX_REFINEMENTS} part of the period still drifted from the grasps beyond "
+        "the error control's tolerance"
+    ),
+    ENVELOPE: "a speed went beyond the model's physical envelope (SPEED_LIMITS)",
+}
+
+
+class BatchedEngine(Engine):
+    """K environments' physics on one backend (module docstring)."""
+
+    def __init__(
+        self,
+        setup: EnvSetup,
+        num_envs: int,
+        backend: str,
+        dtype: str,
+        threads: int,
+        lanes: int | None,
+        device: int | str,
+    ) -> None:
+        base = setup.scenario
+        self.setup = setup
+        self.k = k = num_envs
+        self.n = n = base.n_agents
+        self.backend, self.dtype, self.threads = backend, dtype, threads
+        self.device = device if backend == "cuda" else "cpu"
+        self.sim = BatchedSimulator(base, k, backend, dtype, threads, lanes, device)
+        self.xp = xp = self.sim.xp  # numpy, or CuPy on a GPU: the per-step arrays live there
+        self._lanes = self.sim._fn.lanes if backend == "cpu" else 1
+        self._kp = self.sim._kp
+        self._real = self.sim._real
+        self.noisy = base.sensor_noise > 0
+        self.tau_max = xp.asarray(self.sim.tau_max)  # the saturations, where the step runs
+        segments = self.sim.object.segments
+        self._n_seg = len(segments)
+        # the priors' a_ss and features: host calls on the CPU backend (the single env's),
+        # kernels of the same CasADi expressions on the GPU, over the K N robots' columns
+        priors = backend == "cuda" and setup.priors.needs_steady
+        fns = kernel_functions(
+            n,
+            self._n_seg,
+            self.noisy,
+            self.sim.chain,
+            wrench=setup.internal_wrench_every > 0,
+            priors_ring=base.object_ring_radius if priors else None,
+        )
+        self._kinematics = self._kernel(fns["kinematics"])
+        self._navigation = self._kernel(fns["navigation"])
+        self._wrench = self._kernel(fns["wrench"]) if "wrench" in fns else None
+        self._prior_kernels = None
+        if priors:
+            self._prior_kernels = (
+                self._kernel(fns["prior_steady"]),
+                self._kernel(fns["prior_features"]),
+            )
+        self._inputs(segments)
+        self._nav_table = xp.zeros((k, max_waypoints(setup.family, base), NAV_PARAMETERS))
+        self._nav_tables: dict[int, np.ndarray] = {}  # id(scenario) -> navigation table
+        self._scenarios: list[Scenario] = [base] * k  # kept: their ids key the tables
+        self._code = xp.zeros(k, np.int64)
+
+    def _inputs(self, segments: Any) -> None:
+        """The kinematics kernel's per-environment inputs, (nnz, K padded)."""
+        xp, n, kp, real = self.xp, self.n, self._kp, self._real
+        z = lambda rows: xp.zeros((rows, kp), real)  # noqa: E731
+        self._a = z(NU * n)
+        self._q_meas, self._zeta_meas = z(NQ * n), z(NQ * n)
+        self._static, self._waypoint_in = z(13 * n), z(6 * n)
+        self._goal, self._time_fraction = z(6), z(1)
+        self._segments = z(6 * self._n_seg)
+        self._cylinders, self._spheres = z(4 * BATCH_CYLINDERS), z(5 * BATCH_SPHERES)
+        self._workspace = z(4)
+        self._segments[:] = xp.asarray(segment_inputs(segments, self._n_seg).reshape(-1, 1))
+        self._kin_out = [xp.zeros((m, kp), real) for m in self._kinematics.signature.nnz_out]
+
+    # -- backends -----------------------------------------------------------------------
+    def _kernel(self, fn: Any) -> Any:
+        """``fn`` batched for this backend: CPU lanes and threads, or a CUDA kernel (on a
+        GPU, or with ``device="cpu"`` its source compiled for the host)."""
+        if self.backend == "cpu":
+            return BatchedFunction(fn, self.dtype, self._lanes)
+        from uvms_env.vector.kernels_cuda import cuda_function
+
+        return cuda_function(fn, self.dtype, self.device, self.threads)
+
+    def _call(self, kernel: Any, inputs: list, out: list | None = None) -> list:
+        if self.backend == "cpu":
+            return kernel(inputs, self.threads, out=out)
+        return kernel(inputs, out=out)
+
+    def _on_device(self, ids: Any) -> Any:
+        """Host indices as the step's arrays take them (slices pass through)."""
+        return ids if isinstance(ids, slice) or self.xp is np else self.xp.asarray(ids)
+
+    # -- geometry and episodes ----------------------------------------------------------
+    def set_geometry(self, rows: list[int], scenarios: list[Scenario]) -> None:
+        """Kernel inputs, navigation parameters and simulator grasps of ``rows`` (gathered
+        on the host, written with one copy per array: one transfer on a GPU)."""
+        m, n = len(rows), self.n
+        nav = np.zeros((m, self._nav_table.shape[1], NAV_PARAMETERS))
+        cylinders, spheres = np.zeros((4 * BATCH_CYLINDERS, m)), np.zeros((5 * BATCH_SPHERES, m))
+        workspace, goal, static = np.zeros((4, m)), np.zeros((6, m)), np.zeros((13 * n, m))
+        for row, (i, s) in enumerate(zip(rows, scenarios, strict=True)):
+            self.sim.set_scenario([i], s)
+            self._scenarios[i] = s
+            nav[row, : len(s.waypoints)] = self._navigation_table_of(s)
+            cyl, sph = obstacle_inputs(s, BATCH_CYLINDERS, BATCH_SPHERES)
+            cylinders[:, row], spheres[:, row] = cyl.reshape(-1), sph.reshape(-1)
+            workspace[:, row] = [*s.workspace.center, s.workspace.radius]
+            goal[:, row] = s.waypoints[-1]
+            grasps = np.asarray(s.grasp_rotations).reshape(n, 9)
+            static[:, row] = np.hstack(
+                [np.asarray(s.load_shares)[:, None], s.grasp_offsets, grasps]
+            ).reshape(-1)
+        xp, real = self.xp, self._real
+        cols = self._on_device(np.array(rows))
+        self._nav_table[cols] = xp.asarray(nav)
+        for target, values in (
+            (self._cylinders, cylinders),
+            (self._spheres, spheres),
+            (self._workspace, workspace),
+            (self._goal, goal),
+            (self._static, static),
+        ):
+            target[:, cols] = xp.asarray(values, real)
+        self._fill_padding()
+
+    def _navigation_table_of(self, s: Scenario) -> np.ndarray:
+        table = self.setup.navigation(s)
+        if table is not None:
+            return table
+        if id(s) not in self._nav_tables:  # scenarios are kept in _scenarios: ids stay
+            self._nav_tables[id(s)] = navigation_table(s)
+        return self._nav_tables[id(s)]
+
+    def _fill_padding(self) -> None:
+        k = self.k
+        for a in (
+            self._static,
+            self._goal,
+            self._cylinders,
+            self._spheres,
+            self._workspace,
+            self._waypoint_in,
+        ):
+            a[:, k:] = a[:, :1]
+
+    def reset(
+        self, rows: list[int], sim_seeds: list[int], conditions: list[Conditions] | None = None
+    ) -> None:
+        mismatch = current = None
+        if conditions is not None:
+            mismatch = [c.mismatch for c in conditions]
+            current = [c.current for c in conditions]
+        self.sim.reset(np.array(rows), sim_seeds, mismatch, current)
+        self._a[:, self._on_device(np.array(rows))] = 0.0
+
+    def step(self, tau: Any) -> Any:
+        self._code = self.sim.step(tau)
+        return self._code != OK
+
+    def diverged_reasons(self, rows: list[int]) -> list[str]:
+        codes = self._code[self._on_device(np.array(rows))]
+        codes = codes if self.xp is np else self.xp.asnumpy(codes)
+        return [DIVERGED_REASONS.get(int(c), "") for c in codes.tolist()]
+
+    # -- the per-step kernels -----------------------------------------------------------
+    def set_waypoints(self, ids: Any, waypoints: Any) -> None:
+        self._waypoint_in[:, ids] = waypoints.reshape(waypoints.shape[0], self.n * 6).T
+        self._waypoint_in[:, self.k :] = self._waypoint_in[:, :1]  # padding lanes
+
+    def measure(self, ids: Any, q_noise: Any, zeta_noise: Any) -> None:
+        x, n, m = self.sim.x, self.n, q_noise.shape[0]
+        self._q_meas[:, ids] = q_noise.reshape(m, -1).T + x[: NQ * n, ids]
+        self._zeta_meas[:, ids] = zeta_noise.reshape(m, -1).T + x[NQ * n : 2 * NQ * n, ids]
+
+    def evaluate(self, ids: Any, action: Any, time_fraction: Any, measured: bool = True) -> tuple:
+        xp, n, k = self.xp, self.n, self.k
+        if action is not None:
+            self._a[:, ids] = action.reshape(-1, n * NU).T
+        self._time_fraction[0, ids] = time_fraction
+        x = self.sim.x
+        q, zeta = x[: NQ * n], x[NQ * n : 2 * NQ * n]
+        q_meas, zeta_meas = (self._q_meas, self._zeta_meas) if measured else (q, zeta)
+        inputs = [
+            self._a,
+            q,
+            zeta,
+            q_meas,
+            zeta_meas,
+            x[2 * NQ * n : 2 * NQ * n + 6],
+            self.sim.grasp,
+            self._static,
+            self._waypoint_in,
+            self._goal,
+            self._time_fraction,
+            self._segments,
+            self._cylinders,
+            self._spheres,
+            self._workspace,
+        ]
+        if isinstance(ids, slice):
+            out = self._call(self._kinematics, inputs, out=self._kin_out)
+            m = k
+        else:
+            m = len(ids)
+            cols = _padded_columns(ids, self._kinematics.padded(m), xp)
+            out = self._call(self._kinematics, [xp.ascontiguousarray(a[:, cols]) for a in inputs])
+            for full_out, part in zip(self._kin_out, out, strict=True):
+                full_out[:, ids] = part[:, :m]
+        f64 = np.float64
+        obs = out[0][:, :m].reshape(n, OBSERVATION_SIZE, m).transpose(2, 0, 1).astype(f64)
+        pose = out[1][:, :m].reshape(n, 6, m).transpose(2, 0, 1).astype(f64)  # (m, N, 6)
+        team = out[4][:, :m].astype(f64)
+        g = out[2][:, :m].reshape(n, NK, m).transpose(2, 0, 1).astype(f64)
+        cost = out[3][:, :m].reshape(n, 6, m)[:, 4].T.astype(np.int64)
+        return obs, pose, team, g, cost
+
+    def nav_twist(self, ids: Any, index: Any, pose: Any) -> Any:
+        """(m, N, 6): one batched call over the m N robots."""
+        xp = self.xp
+        m, n = index.shape
+        cols = m * n
+        cp = self._navigation.padded(cols)
+        env_rows = xp.arange(self.k)[ids]
+        params = self._nav_table[env_rows[:, None], index].reshape(cols, NAV_PARAMETERS)
+        x = pose.reshape(cols, 6)
+        if cp > cols:
+            params = xp.concatenate([params, xp.repeat(params[:1], cp - cols, axis=0)])
+            x = xp.concatenate([x, xp.repeat(x[:1], cp - cols, axis=0)])
+        x_in = xp.ascontiguousarray(x.T, self._real)
+        p = xp.ascontiguousarray(params.T, self._real)
+        bounds = np.cumsum([0, *self._navigation.signature.nnz_in[1:]]).tolist()
+        inputs = [x_in] + [xp.ascontiguousarray(p[a:b]) for a, b in itertools.pairwise(bounds)]
+        twist = self._call(self._navigation, inputs)[0]
+        return twist[:, :cols].T.reshape(m, n, 6)
+
+    def wrench_sq(self, sampled: Any) -> Any:
+        assert self._wrench is not None
+        s = self.sim
+        out = self._call(
+            self._wrench, [s.x, s._tau, s._vc, s.parameters, s.object_parameters, s.grasp]
+        )[0][:, : self.k].astype(np.float64)
+        return self.xp.where(sampled, self.xp.einsum("ij,ij->j", out, out), 0.0)
+
+    def object_pose(self, ids: Any) -> Any:
+        n = self.n
+        return self.sim.x[2 * NQ * n : 2 * NQ * n + 6, ids].T.astype(np.float64)
+
+    def robots(self) -> tuple[Any, Any]:
+        n, k, x = self.n, self.k, self.sim.x
+        q = x[: NQ * n, :k].T.reshape(k, n, NQ).astype(np.float64)
+        zeta = x[NQ * n : 2 * NQ * n, :k].T.reshape(k, n, NQ).astype(np.float64)
+        return q, zeta
+
+    def flat_state(self) -> Any:
+        return self.sim.x[:, : self.k].T.astype(np.float64)
+
+    # -- the priors on the device -------------------------------------------------------------
+    def steady(self, raw: Any, ring: float) -> Any:
+        if self._prior_kernels is None:
+            return super().steady(raw, ring)
+        return self._robot_columns(self._prior_kernels[0], raw, NU)
+
+    def features(
+        self, raw: Any, steady: Any, priors: Priors, ring: float, memory: Any = None
+    ) -> Any:
+        if self._prior_kernels is None:
+            return super().features(raw, steady, priors, ring, memory)
+        features = self._robot_columns(self._prior_kernels[1], raw, BASE_FEATURES)
+        parts = [features, steady] if memory is None else [features, memory, steady]
+        return self.xp.concatenate(parts, -1).astype(np.float32)
+
+    def _robot_columns(self, kernel: Any, raw: Any, size: int) -> Any:
+        """(m, N, size) float64: a prior's kernel over the m N robots' observations."""
+        m = raw.shape[0]
+        columns = self.xp.ascontiguousarray(raw.reshape(m * self.n, -1).T, self._real)
+        out = self._call(kernel, [columns])[0]
+        return out.T.reshape(m, self.n, size).astype(np.float64)
+
+
+def _padded_columns(ids: Any, padded: int, xp: Any = np) -> Any:
+    ids = xp.asarray(ids)
+    if padded == len(ids):
+        return ids
+    return xp.concatenate([ids, xp.full(padded - len(ids), ids[0])])
