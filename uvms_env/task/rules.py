@@ -1,17 +1,18 @@
 """The task's rules, written once: array code over K environments, any array namespace.
 
-``Task`` holds the episode bookkeeping of K environments as arrays of the namespace
-``xp`` it is given (numpy, or CuPy on a GPU) and applies the rules of the task to them:
-waypoint sequencing, constraint bookkeeping, success and episode ends, the shared reward
-(``uvms_env.task.reward``), the metrics (``uvms_env.task.metrics``) and the resets.
+``Task`` applies the rules of the task to K environments, as arrays of the namespace
+``xp`` it is given (numpy, or CuPy on a GPU), one part per concern: the waypoint
+sequencing (``Sequencing``, ``uvms_env.task.sequencing``), the metrics' tallies
+(``Tally``, ``uvms_env.task.tally``), and here the constraint bookkeeping, success and
+episode ends, and the shared reward (``uvms_env.task.reward``).
 Reference: docs/environment.md, "The task and its driver" and "Extension points".
 
 ``parallel_env`` runs one for a single environment without the batch axis
 (``num_envs=None``: the same code, on numpy scalars rather than 1-element arrays, which
 cost several times more per operation). Nothing here is per-environment Python.
 
-May import: numpy, ``uvms_env.dynamics.spatial`` and the ``env`` modules of constants and
-formulas it applies (constraints, metrics, reward, observation).
+May import: numpy, ``uvms_env.dynamics`` (compiled, spatial) and the other modules of
+``uvms_env.task`` except ``team_kernel``.
 """
 
 from __future__ import annotations
@@ -26,17 +27,13 @@ import numpy as np
 from uvms_env.dynamics import NU
 from uvms_env.dynamics.compiled import NamespacePickled
 from uvms_env.dynamics.spatial import wrap_angle
-from uvms_env.navigation.task_navigator import WAYPOINT_TOLERANCE
 from uvms_env.task.constraints import CONSTRAINTS, HARD_CONSTRAINTS
-from uvms_env.task.metrics import episode_result
 from uvms_env.task.reward import REWARD_TERMS, RewardWeights
+from uvms_env.task.sequencing import Sequencing
+from uvms_env.task.tally import Tally
+from uvms_env.task.team_rows import ACTION_SQ, ALL, KINDS, VIOLATED
 
-NK = len(CONSTRAINTS)
 HARD_KINDS = [CONSTRAINTS.index(c) for c in HARD_CONSTRAINTS]  # indices of HARD_CONSTRAINTS
-# Rows of the kinematics kernel's team output (``TeamKinematics.team_rows``), (T,) + B.
-CLEARANCE, MANIPULABILITY, GRASP_ERROR, WAYPOINT_DISTANCE2, VIOLATED, ACTION_SQ = range(6)
-KINDS = slice(6, 6 + NK)
-ALL = ...  # every environment, as an index (also of a single environment's 0-d arrays)
 
 TaskFunction = Callable[["TaskArrays", Any], Any]
 
@@ -112,9 +109,11 @@ class Task(NamespacePickled):
     ``xp``: numpy or CuPy. ``num_envs``: K, or None for one environment without a batch
     axis: the batch shape B is (K,) or (), and every array and result has it in front
     (B = (): numpy scalars). ``w_max``: room for waypoints per environment.
-    Arrays: ``waypoints`` B + (W, 6), ``team_waypoint`` and ``goal`` B + (6,),
-    ``robot_index`` B + (N,), ``robot_waypoint`` B + (N, 6), ``steps`` B and the metrics'
-    accumulators. Inputs are in the same shapes: ``team`` (T,) + B, ``x_o`` B + (6,).
+    Parts: ``sequencing`` (waypoints, the team's and each robot's sequencer; its arrays
+    ``waypoints``, ``robot_index``, ``robot_waypoint``, ``team_waypoint`` and ``goal`` are
+    read here too) and ``tally`` (the metrics' accumulators); here ``steps`` B and the
+    reward's ``potential`` B. Inputs are in the same shapes: ``team`` (T,) + B, ``x_o``
+    B + (6,).
 
     Calls, in an episode's order: ``set_geometry`` (when a geometry changes), ``reset``
     (bookkeeping), then per evaluation of the kinematics kernel ``observe`` (state metrics)
@@ -144,7 +143,7 @@ class Task(NamespacePickled):
         self.xp = xp
         self.num_envs = num_envs
         self.batch = b = () if num_envs is None else (num_envs,)
-        self.n = n = n_agents
+        self.n = n_agents
         self.weights = weights
         self.terminate = constraint_mode == "terminate"
         self.max_cycles = max_cycles
@@ -159,118 +158,65 @@ class Task(NamespacePickled):
         self.reward_terms = REWARD_TERMS + tuple(self.reward_fns)
         self.constraints = CONSTRAINTS + tuple(self.constraint_fns)
         self.extended = bool(self.reward_fns or self.constraint_fns)
-        # numpy: skip the rare branches (a waypoint reached, the goal near) with one host
-        # test; on a GPU that test would cost a synchronization, so they always run
-        self._host_tests = xp is np
+        self.sequencing = Sequencing(xp, b, n_agents, w_max)
+        self.tally = Tally(xp, b, len(self.constraints))
+        self._host_tests = self.sequencing.host_tests
         self._hard_many = len(HARD_KINDS) > 1
         self._hard = HARD_KINDS if self._hard_many else HARD_KINDS[0]
-        self._rows = xp.arange(num_envs) if b else None
-        self.waypoints = xp.zeros((*b, w_max, 6))
-        self.waypoint_count = xp.ones(b, np.int64)
-        # the team's active waypoint and the goal side by side: one difference serves both
-        self.targets = xp.zeros((*b, 2, 6))
-        self.has_obstacles = xp.zeros(b, bool)
         self.steps = xp.zeros(b, np.int64)
-        self.team_index = xp.zeros(b, np.int64)
-        self.team_done = xp.zeros(b, bool)
         self.potential = xp.zeros(b)
-        self.robot_index = xp.zeros((*b, n), np.int64)
-        self.robot_done = xp.zeros((*b, n), bool)
-        self.robot_waypoint = xp.zeros((*b, n, 6))
-        self.min_clearance = xp.zeros(b)
-        self.min_manipulability = xp.zeros(b)
-        self.grasp_drift = xp.zeros(b)
-        self.violations = xp.zeros((*b, len(self.constraints)), np.int64)
-        self.effort = xp.zeros(b)
-        self.wrench_sq = xp.zeros(b)
-        self.wrench_samples = xp.zeros(b, np.int64)
 
     def _any(self, mask: Any) -> bool:
         """A host test of a mask of shape B (B = (): a numpy scalar, tested as one)."""
-        return bool(mask.any()) if self.batch else bool(mask)
+        return self.sequencing.any(mask)
+
+    # the sequencing's arrays the episode's flow reads (views, not copies)
+    @property
+    def waypoints(self) -> Any:
+        return self.sequencing.waypoints
+
+    @property
+    def robot_index(self) -> Any:
+        return self.sequencing.robot_index
+
+    @property
+    def robot_waypoint(self) -> Any:
+        return self.sequencing.robot_waypoint
 
     @property
     def team_waypoint(self) -> Any:
-        """B + (6,): the team's active waypoint (a view)."""
-        return self.targets[..., 0, :]
+        return self.sequencing.team_waypoint
 
     @property
     def goal(self) -> Any:
-        """B + (6,): the final waypoint (a view)."""
-        return self.targets[..., 1, :]
-
-    def _waypoint_at(self, ids: Any, index: Any) -> Any:
-        """The waypoints of environments ``ids`` at ``index`` (shape B' or B' + (N,))."""
-        if not self.batch:
-            return self.waypoints[index]
-        rows = self._rows[ids]
-        return self.waypoints[rows[:, None] if index.ndim == 2 else rows, index]
+        return self.sequencing.goal
 
     # -- geometry and resets -------------------------------------------------------------
     def set_geometry(self, ids: Any, waypoints: Any, counts: Any, has_obstacles: Any) -> None:
         """Environments ``ids`` take these waypoints (B' + (W, 6), zeros beyond each one's
         ``counts`` B') and obstacle flags B': host or device arrays."""
-        xp = self.xp
-        self.waypoints[ids] = xp.asarray(waypoints)
-        self.waypoint_count[ids] = xp.asarray(counts)
-        self.has_obstacles[ids] = xp.asarray(has_obstacles)
-        self.goal[ids] = self._waypoint_at(ids, self.waypoint_count[ids] - 1)
+        self.sequencing.set_geometry(ids, waypoints, counts, has_obstacles)
 
     def reset(self, ids: Any) -> None:
         """New episodes in ``ids``: time, metrics, every robot back to its first waypoint."""
         self.steps[ids] = 0
-        self.min_clearance[ids] = np.inf
-        self.min_manipulability[ids] = np.inf
-        self.grasp_drift[ids] = 0.0
-        self.violations[ids] = 0
-        self.effort[ids] = 0.0
-        self.wrench_sq[ids] = 0.0
-        self.wrench_samples[ids] = 0
-        self.robot_index[ids] = 0
-        self.robot_done[ids] = False
-        self.robot_waypoint[ids] = self.waypoints[ids][..., :1, :]
-        self.team_index[ids] = 0
-        self.team_done[ids] = False
+        self.tally.reset(ids)
+        self.sequencing.reset(ids)
 
     def start(self, ids: Any, x_o: Any) -> None:
         """After a reset's first evaluation: the team's sequencer sees the true object
         ``x_o`` B' + (6,) and the reward's potential starts there."""
-        self.team_waypoint[ids] = self.waypoints[ids][..., 0, :]
-        self._advance_team(ids, self._distances(x_o, ids)[1][..., 0])
-        self.potential[ids] = self._potential(*self._distances(x_o, ids))
+        self.sequencing.start(ids, x_o)
+        self.potential[ids] = self._potential(*self.sequencing.distances(x_o, ids))
 
     # -- evaluation of the state --------------------------------------------------------
     def observe(self, ids: Any, team: Any) -> None:
         """The state metrics, from the kinematics kernel's team rows (T,) + B' of ``ids``."""
-        xp = self.xp
-        clearance = xp.where(self.has_obstacles[ids], team[CLEARANCE], np.inf)
-        self.min_clearance[ids] = xp.minimum(self.min_clearance[ids], clearance)
-        self.min_manipulability[ids] = xp.minimum(
-            self.min_manipulability[ids], team[MANIPULABILITY]
-        )
-        self.grasp_drift[ids] = xp.maximum(self.grasp_drift[ids], team[GRASP_ERROR])
+        self.tally.observe(ids, team, self.sequencing.has_obstacles[ids])
 
     def advance_robots(self, ids: Any, pose: Any, team: Any) -> bool:
-        """Each robot's sequencer on its own object estimate ``pose`` B' + (N, 6): passes its
-        waypoint within ``WAYPOINT_TOLERANCE``. False when no robot's waypoint changed
-        (numpy: then ``robot_waypoint`` needs no copy into the kernel's inputs)."""
-        xp = self.xp
-        # the kernel's smallest squared distance: a cheap host test that no robot is near
-        if self._host_tests and not self._any(
-            team[WAYPOINT_DISTANCE2] < 1.01 * WAYPOINT_TOLERANCE**2
-        ):
-            return False
-        index, done = self.robot_index[ids], self.robot_done[ids]
-        d = pose[..., :3] - self.robot_waypoint[ids][..., :3]
-        near = ~done & (xp.sqrt((d * d).sum(axis=-1)) < WAYPOINT_TOLERANCE)
-        if self._host_tests and not near.any():  # B + (N,): an array even for B = ()
-            return False
-        last = index + 1 >= self.waypoint_count[ids][..., None]
-        index = index + (near & ~last)
-        self.robot_index[ids] = index
-        self.robot_done[ids] = done | (near & last)
-        self.robot_waypoint[ids] = self._waypoint_at(ids, index)
-        return True
+        """Each robot's sequencer on its own object estimate (``Sequencing``)."""
+        return self.sequencing.advance_robots(ids, pose, team)
 
     def tick(self, diverged: Any) -> Any:
         """A period passed in every environment (before the step's evaluation); returns
@@ -316,20 +262,18 @@ class Task(NamespacePickled):
         failed = diverged | collision
         if self.terminate:
             failed = failed | (n_violated > 0)
-        d, dist = self._distances(x_o)
+        d, dist = self.sequencing.distances(x_o)
         success = self._success(d, dist, failed)
         terminated = success | failed
         truncated = (self.steps >= self.max_cycles) & ~terminated
-
-        # metrics
         action_sq = team[ACTION_SQ]
-        self.effort += action_sq * self.period
-        self.violations += kinds
-        if wrench_sq is not None:
-            self.wrench_sq += wrench_sq
-            self.wrench_samples += sampled
-
-        terms = self._reward_terms(x_o, d, dist, success, failed, n_violated, action_sq, state)
+        self.tally.add_step(kinds, action_sq * self.period, sampled, wrench_sq)
+        # the potential towards the waypoint before the team's sequencer moves on
+        potential = self._potential(d, dist)
+        passed = self.sequencing.advance_team(ALL, dist[..., 0])
+        terms = self._reward_terms(
+            x_o, potential, passed, success, failed, n_violated, action_sq, state
+        )
         values = iter(terms.values())
         reward = next(values)
         for value in values:  # in order: REWARD_TERMS, then the extra terms
@@ -349,23 +293,23 @@ class Task(NamespacePickled):
     def _reward_terms(
         self,
         x_o: Any,
-        d: Any,
-        dist: Any,
+        potential: Any,
+        passed: Any,
         success: Any,
         failed: Any,
         n_violated: Any,
         action_sq: Any,
         state: TaskArrays | None,
     ) -> dict[str, Any]:
-        """The shared reward's terms (``uvms_env.task.reward``), then the extra ones; moves
-        the team's sequencer and the potential on."""
+        """The shared reward's terms (``uvms_env.task.reward``), then the extra ones, given
+        the potential towards the waypoint the team held and where the team's sequencer
+        passed one this step (None: nowhere); moves the potential on."""
         xp, w = self.xp, self.weights
         # potential-based progress towards the team's waypoint
-        potential = self._potential(d, dist)
         progress = w.progress * (self.potential - potential)
-        passed = self._advance_team(ALL, dist[..., 0])
         if passed is not None:
-            potential = xp.where(passed, self._potential(*self._distances(x_o)), potential)
+            after = self._potential(*self.sequencing.distances(x_o))
+            potential = xp.where(passed, after, potential)
             waypoint = passed * w.waypoint
         else:
             waypoint = xp.zeros(self.batch)
@@ -404,37 +348,14 @@ class Task(NamespacePickled):
             axis=-1,
         )
 
-    def _distances(self, x_o: Any, ids: Any = ALL) -> tuple[Any, Any]:
-        """Pose differences B' + (2, 6) of the true object ``x_o`` B' + (6,) to the team's
-        active waypoint and to the goal, and their position distances B' + (2,)."""
-        d = x_o[..., None, :] - self.targets[ids]
-        p = d[..., :3]
-        return d, self.xp.sqrt((p * p).sum(axis=-1))
-
     def _potential(self, d: Any, dist: Any) -> Any:
-        """Phi = |p_O - p_wp| + w_attitude |wrap(Theta_O - Theta_wp)| (``_distances``)."""
+        """Phi = |p_O - p_wp| + w_attitude |wrap(Theta_O - Theta_wp)| (``distances``)."""
         att = wrap_angle(d[..., 0, 3:], self.xp)
         return dist[..., 0] + self.weights.attitude * self.xp.sqrt((att * att).sum(axis=-1))
 
-    def _advance_team(self, ids: Any, dist: Any) -> Any:
-        """The team's sequencer passes its waypoint where the true object is within the
-        tolerance (``dist`` to the active one); returns where an intermediate waypoint was
-        passed, or None when (numpy, checked on the host) none was near."""
-        near = dist < WAYPOINT_TOLERANCE
-        if self._host_tests and not self._any(near):
-            return None
-        near = near & ~self.team_done[ids]
-        index = self.team_index[ids]
-        last = index + 1 >= self.waypoint_count[ids]
-        passed = near & ~last
-        self.team_index[ids] = index = index + passed
-        self.team_done[ids] = self.team_done[ids] | (near & last)
-        self.team_waypoint[ids] = self._waypoint_at(ids, index)
-        return passed
-
     def _success(self, d: Any, dist: Any, failed: Any) -> Any:
         """Where the true object is at the goal (position and attitude tolerances) and the
-        step did not fail (``_distances``)."""
+        step did not fail (``distances``)."""
         near = dist[..., 1] < self.pos_tol
         if self._host_tests and not self._any(near):  # the common case, decided cheaply
             return near
@@ -444,43 +365,9 @@ class Task(NamespacePickled):
     # -- ended episodes ---------------------------------------------------------------------
     def results(self, ids: Any, x_o: Any, success: Any) -> list[dict[str, Any]]:
         """The metrics dicts of the episodes ``ids`` that ended at poses ``x_o`` B' + (6,)."""
-        rows = [
-            self._host(a)
-            for a in (
-                self.steps[ids],
-                x_o,
-                self.goal[ids],
-                self.min_clearance[ids],
-                self.min_manipulability[ids],
-                self.violations[ids],
-                self.wrench_sq[ids],
-                self.wrench_samples[ids],
-                self.effort[ids],
-                self.grasp_drift[ids],
-                success,
-            )
-        ]
-        if not self.batch:  # one environment: a batch of one
-            rows = [r[None] for r in rows]
-        steps, pose, goal, clearance, manip, violations, wrench, samples, effort, drift, ok = rows
-        return [
-            episode_result(
-                self.period,
-                steps[j],
-                pose[j].tolist(),
-                goal[j].tolist(),
-                bool(ok[j]),
-                clearance[j],
-                manip[j],
-                violations[j].tolist(),
-                wrench[j],
-                samples[j],
-                effort[j],
-                drift[j],
-                self.constraints,
-            )
-            for j in range(len(steps))
-        ]
+        return self.tally.results(
+            ids, self.steps[ids], x_o, self.goal[ids], success, self.period, self.constraints
+        )
 
     def end_kinds(self, ids: Any, out: StepOutcome, diverged: Any) -> list[str]:
         """``episode_end`` of the environments ``ids``, from one host copy of the flags."""

@@ -34,7 +34,6 @@ from uvms_env.navigation import Cylinder
 from uvms_env.sim.chain import NG  # grasp per robot: offset l_i (3), R_Oi column-major (9)
 from uvms_env.sim.simulator import grasp_parameters
 from uvms_env.task.constraints import (
-    CONSTRAINTS,
     PAD_CYLINDER,
     PAD_SPHERE,
     ball_excess,
@@ -55,7 +54,6 @@ PADDED_SIZES = (0, 2, 5)
 BATCH_CYLINDERS = 5
 BATCH_SPHERES = 5
 NS = 13  # per robot, known a priori: load share, grasp offset, R_Oi row-major
-NK = len(CONSTRAINTS)
 Layout = tuple[tuple[str, int], ...]  # the observation's (name, size) blocks, in order
 
 

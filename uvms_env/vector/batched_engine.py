@@ -33,10 +33,10 @@ from uvms_env.task.conditions import Conditions
 from uvms_env.task.team_kernel import (
     BATCH_CYLINDERS,
     BATCH_SPHERES,
-    NK,
     obstacle_inputs,
     segment_inputs,
 )
+from uvms_env.task.team_rows import NK
 from uvms_env.vector.kernel_list import kernel_functions
 from uvms_env.vector.kernels import BatchedFunction
 from uvms_env.vector.simulator import BatchedSimulator
