@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from features_reference import featurize_reference
 from gymnasium.spaces import Box
 
 from baselines.imitation import bc, dataset
@@ -88,6 +89,7 @@ def test_compiled_features_agree_with_numpy_and_are_yaw_invariant():
     single = np.stack([unscaled(o)[:FEATURE_DIM].copy() for o in obs])
     assert batched.shape == (200, FEATURE_DIM)
     assert np.allclose(batched, single, atol=1e-5)
+    assert np.allclose(batched, featurize_reference(obs), atol=1e-5)  # written apart
     # rotate the whole world about the vertical by 0.7 rad and shift it: same features
     th, shift = 0.7, np.array([3.0, -2.0])
     rot = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])

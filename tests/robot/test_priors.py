@@ -8,13 +8,14 @@ import json
 
 import numpy as np
 import pytest
+from features_reference import featurize_reference
 
 import uvms_env
 from uvms_env.dynamics import ObjectModel
 from uvms_env.dynamics.local_model import ModelParams, build_local_model, build_steady_input
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.policy import AgentSpec
-from uvms_env.robot.priors import FEATURES_SIZE, Priors, featurize, steady_inputs
+from uvms_env.robot.priors import FEATURES_SIZE, Priors, steady_inputs
 
 MODES = {"action_mode": "residual", "observation_mode": "features"}
 
@@ -47,7 +48,8 @@ def _experts_steady(env, raw: np.ndarray) -> np.ndarray:
 def test_residual_and_features_are_the_plain_env_driven_through_a_ss():
     """The options change what the policy sees and how its action becomes the input,
     nothing else: a residual env and a plain env fed clip(a_ss + 0.3 clip(r)) stay in the
-    same state, and the features are featurize and a_ss of the plain observation."""
+    same state, and the features are the plain observation's (the numpy reference) and
+    its a_ss."""
     with_priors = uvms_env.parallel_env("short", internal_wrench_every=0, **MODES)
     plain = uvms_env.parallel_env("short", internal_wrench_every=0)
     obs_p, _ = with_priors.reset(seed=3)
@@ -57,7 +59,7 @@ def test_residual_and_features_are_the_plain_env_driven_through_a_ss():
     for _ in range(12):
         raw, seen = _stack(obs_0, plain), _stack(obs_p, with_priors)
         steady = _experts_steady(plain, raw)
-        assert np.allclose(seen[:, :76], featurize(raw), atol=1e-6)
+        assert np.allclose(seen[:, :76], featurize_reference(raw), atol=1e-6)
         assert np.allclose(seen[:, 76:], steady, atol=1e-6)
         assert all(with_priors.observation_space(a).contains(obs_p[a]) for a in obs_p)
         r = rng.uniform(-1.3, 1.3, (2, 8))

@@ -32,7 +32,7 @@ from uvms_env.dynamics import NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall, compile_function
 from uvms_env.dynamics.local_model import build_local_model, build_steady_input
 from uvms_env.dynamics.payload import object_tag
-from uvms_env.dynamics.spatial import wrap_angle, wrap_angle_sx
+from uvms_env.dynamics.spatial import wrap_angle_sx
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.robot.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
 from uvms_env.scenarios.geometry import NOMINAL_ARM
@@ -58,54 +58,16 @@ DEFAULT_RESIDUAL_SCALE = 0.3
 
 
 def featurize(obs: np.ndarray) -> np.ndarray:
-    """(..., 79) observations -> (..., 76) float32 ``uvms-v1`` features (numpy)."""
+    """(..., 79) observations -> (..., 76) float32 ``uvms-v1`` features: ``featurize_sx``
+    compiled, the one implementation (the batched kernels evaluate the same expression)."""
     o = np.asarray(obs, dtype=np.float64)
     if o.shape[-1] != OBS_DIM:
         raise ValueError(f"uvms-v1 features need {OBS_DIM}-number observations, got {o.shape}")
-    f = {name: o[..., sl] for name, sl in OBSERVATION_STRUCTURE.items()}
-    q, pose, twist = f["q"], f["object_pose"], f["object_twist"]
-    psi = q[..., 5]  # vehicle yaw
-    c, s = np.cos(psi), np.sin(psi)
-
-    def yaw_frame(v: np.ndarray) -> np.ndarray:  # (..., 3) NED -> heading frame
-        return np.stack(
-            [c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1], v[..., 2]], -1
-        )
-
-    wp, goal, nav = f["waypoint"], f["goal"], f["nav_velocity"]
-    obst = f["obstacles"].reshape(*o.shape[:-1], 3, 5)
-    present = (obst[..., 3] > 0).astype(np.float64)
-    dxy = obst[..., :2]
-    dist = np.linalg.norm(dxy, axis=-1, keepdims=True)
-    dxy = dxy * np.minimum(1.0, OBSTACLE_RANGE / np.maximum(dist, 1e-9))
-    cc, ss = c[..., None], s[..., None]
-    ob_body = np.stack(
-        [cc * dxy[..., 0] + ss * dxy[..., 1], -ss * dxy[..., 0] + cc * dxy[..., 1]], -1
-    )
-    obstacles = np.concatenate(
-        [ob_body * present[..., None], obst[..., 2:5] * present[..., None]], -1
-    ).reshape(*o.shape[:-1], 15)
-    parts = [
-        q[..., 2:5],  # vehicle depth, roll, pitch
-        q[..., 6:10],  # joint angles
-        f["zeta"],  # body twist and joint rates
-        pose[..., 2:5],  # object depth, roll, pitch
-        wrap_angle(pose[..., 5:6] - psi[..., None]),  # object yaw relative to the vehicle's
-        yaw_frame(twist[..., :3]),
-        yaw_frame(twist[..., 3:]),
-        yaw_frame(wp[..., :3] - pose[..., :3]),
-        wrap_angle(wp[..., 3:] - pose[..., 3:]),
-        yaw_frame(goal[..., :3] - pose[..., :3]),
-        wrap_angle(goal[..., 3:] - pose[..., 3:]),
-        yaw_frame(nav[..., :3]),
-        nav[..., 3:],
-        obstacles,
-        yaw_frame(q[..., 0:3] - pose[..., :3]),
-        f["load_share"],
-        f["grasp_offset"],
-        f["grasp_rotation"],
-    ]
-    return np.concatenate(parts, -1).astype(np.float32)
+    flat = np.ascontiguousarray(o.reshape(-1, OBS_DIM))
+    if not len(flat):
+        return np.zeros((*o.shape[:-1], BASE_FEATURES), dtype=np.float32)
+    out = _features_call(len(flat))(flat)[0]
+    return out.reshape(*o.shape[:-1], BASE_FEATURES).astype(np.float32)
 
 
 def featurize_sx(o: cs.SX) -> cs.SX:
@@ -180,10 +142,21 @@ def steady_sx(o: cs.SX, ring_radius: float) -> cs.SX:
 
 @functools.cache
 def _steady_one(ring_radius: float) -> cs.Function:
-    """a_ss alone, compiled (the features come from the numpy ``featurize``)."""
+    """a_ss alone, compiled (the features are ``featurize``'s own call)."""
     o = cs.SX.sym("obs", OBS_DIM)
     name = f"prior_steady_{object_tag(ring_radius)}"
     return compile_function(cs.Function(name, [o], [steady_sx(o, ring_radius)]))
+
+
+@functools.cache
+def _features_one() -> cs.Function:
+    o = cs.SX.sym("obs", OBS_DIM)
+    return compile_function(cs.Function("prior_features", [o], [featurize_sx(o)]))
+
+
+@functools.lru_cache(maxsize=16)
+def _features_call(count: int) -> BufferCall:
+    return BufferCall(_features_one().map(count))
 
 
 @functools.cache
