@@ -117,8 +117,8 @@ def plot_groups(groups: dict[str, list[Path]], out: Path) -> None:
     panels = [
         ("training episodes: mean return", "return"),
         ("training episodes: constraint cost per robot", "cost"),
-        ("evaluation: success (training rung)", "rate"),
-        ("evaluation: clean success (training rung)", "rate"),
+        ("evaluation: success (training rungs)", "rate"),
+        ("evaluation: clean success (training rungs)", "rate"),
     ]
     fig, axes = pyplot().subplots(2, 2, figsize=(9, 5.5))
     for k, (name, runs) in enumerate(groups.items()):
@@ -130,7 +130,8 @@ def plot_groups(groups: dict[str, list[Path]], out: Path) -> None:
             for j, key in enumerate(("episode_return_mean", "episode_cost_mean")):
                 if t is not None and key in p:
                     ok = np.isfinite(p[key])
-                    series[j].append((t[ok], p[key][ok]))
+                    if ok.any():  # a run without a cost records none
+                        series[j].append((t[ok], p[key][ok]))
             e = _rung_evaluations(run)
             if e is not None:
                 series[2].append((e["robot_steps"], e["success_rate"]))
@@ -215,7 +216,8 @@ def plot_seed_curves(groups: dict[str, list[Path]], out: Path) -> None:
 
 
 def _rung_evaluations(run: Path) -> dict[str, np.ndarray] | None:
-    """The evaluations on the run's training rung (the first rung of a ladder)."""
+    """The evaluations on the run's training rung (the first rung of a ladder), or for a
+    run over a distribution evaluated on the ladder the mean over every rung."""
     path = run / "evaluations.csv"
     if not path.exists():
         return None
@@ -224,6 +226,16 @@ def _rung_evaluations(run: Path) -> dict[str, np.ndarray] | None:
     if not rows or "clean_success_rate" not in rows[0]:
         return None
     config = json.loads((run / "config.json").read_text()) if (run / "config.json").exists() else {}
+    keys = ("robot_steps", "success_rate", "clean_success_rate")
+    if config.get("eval_ladder") and (config.get("team_sizes") or config.get("objects")):
+        steps = sorted({_num(r["robot_steps"]) for r in rows})
+        table = {k: [] for k in keys}
+        for step in steps:
+            at = [r for r in rows if _num(r["robot_steps"]) == step]
+            table["robot_steps"].append(step)
+            for k in keys[1:]:
+                table[k].append(float(np.mean([_num(r[k]) for r in at])))
+        return {k: np.array(v) for k, v in table.items()}
     rung = _training_rung(config, rows[0].get("rung"))
     # a run evaluated without --eval-ladder labels its rows with the scenario's name
     rows = [r for r in rows if r.get("rung") == rung] or [
@@ -231,7 +243,6 @@ def _rung_evaluations(run: Path) -> dict[str, np.ndarray] | None:
     ]
     if not rows:
         return None
-    keys = ("robot_steps", "success_rate", "clean_success_rate")
     return {k: np.array([_num(r[k]) for r in rows]) for k in keys}
 
 
