@@ -52,6 +52,8 @@ LADDER = (
     "student:pretrained+filter",
     "student:expert",  # the same recipe and budget with the distributed expert as teacher
     "student:expert+filter",
+    "ppo:scratch",  # MAPPO from scratch over the distribution (rings and bars), with the priors
+    "ppo:scratch+filter",
 )
 TEAM_SIZES = (2, 3, 4, 5, 6)
 CONDITIONS = {"current": "mild", "mismatch": 0.1}

@@ -95,3 +95,28 @@ def test_the_robots_of_a_committed_model_share_one_loaded_network():
         net = "model" if text.startswith("ppo") else "net"
         assert getattr(first, net) is getattr(second, net), text
     assert loaded_policy.PRIOR_OPTIONS[:2] == ("action_mode", "observation_mode")
+
+
+def test_the_committed_from_scratch_model_is_a_rung_and_acts_on_a_bar():
+    """``ppo:scratch`` (MAPPO from scratch over rings and bars: its critic reads the team's
+    padded state, its actor one robot's observation) is found by its bare word, sits on
+    the ladder alone and in the filter, and decides bounded inputs for each robot of a
+    three-robot bar, from that robot's observation only."""
+    import numpy as np
+
+    import uvms_env
+    from baselines.ladder import LADDER
+    from baselines.loaders.sources import PolicySource
+    from uvms_env.episode import build_policies
+
+    assert SB3Policy.locate("ppo", "scratch") == PRETRAINED / "ppo_scratch" / "model.zip"
+    assert {"ppo:scratch", "ppo:scratch+filter"} <= set(LADDER)
+    env = uvms_env.parallel_env("random", n_agents=3, object="bar", course="mixed")
+    obs, _ = env.reset(seed=4)
+    policies = build_policies(env, PolicySource.parse("ppo:scratch").factory(0))
+    for _ in range(5):
+        actions = {agent: policies[agent].act(obs[agent]) for agent in env.agents}
+        for action in actions.values():
+            assert action.shape == (8,) and np.all(np.abs(action) <= 1.0)
+        obs, _, terminated, truncated, _ = env.step(actions)
+        assert not any(terminated.values()) and not any(truncated.values())
