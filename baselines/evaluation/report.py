@@ -112,9 +112,11 @@ def write_plots(rows: Sequence[Row], summaries: Sequence[Row], out: Path) -> Non
 
 
 def success_plot(summaries: Sequence[Row], policies: list[str], path: Path) -> None:
+    """A bar per policy and scenario: the success rate with its Wilson interval, and
+    inside it (hatched) the clean success rate, the part with no violation period."""
     plt = pyplot()
     scenarios = sorted({s["scenario"] for s in summaries})
-    fig, ax = plt.subplots(figsize=(6, 3.5))
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(scenarios) + 2.0), 3.8))
     width = 0.8 / max(1, len(policies))
     for k, policy in enumerate(policies):
         for j, scen in enumerate(scenarios):
@@ -124,14 +126,19 @@ def success_plot(summaries: Sequence[Row], policies: list[str], path: Path) -> N
             if s is None:
                 continue
             lo, hi = s["success_ci95"]
-            rate = s["success_rate"]
-            ax.bar(j + k * width, rate, width, color=f"C{k}", label=policy if j == 0 else None)
+            rate, x = s["success_rate"], j + k * width
+            ax.bar(x, rate, width, color=f"C{k}", alpha=0.45, label=policy if j == 0 else None)
+            clean = s.get("clean_success_rate")
+            if clean is not None:
+                ax.bar(x, clean, width, color=f"C{k}", hatch="//", edgecolor="k", linewidth=0)
             yerr = [[max(0.0, rate - lo)], [max(0.0, hi - rate)]]  # rounding: never < 0
-            ax.errorbar(j + k * width, rate, yerr=yerr, color="k", capsize=3)
-    ax.set_xticks(np.arange(len(scenarios)) + width * (len(policies) - 1) / 2, scenarios)
-    ax.set_ylabel("success rate (Wilson 95%)")
+            ax.errorbar(x, rate, yerr=yerr, color="k", capsize=3)
+    ticks = np.arange(len(scenarios)) + width * (len(policies) - 1) / 2
+    long = len(scenarios) > 4 or max((len(s) for s in scenarios), default=0) > 12
+    ax.set_xticks(ticks, scenarios, rotation=30 if long else 0, ha="right" if long else "center")
+    ax.set_ylabel("success rate (Wilson 95%);\nhatched: clean success")
     ax.set_ylim(0, 1.05)
-    ax.legend()
+    ax.legend(fontsize=8)
     save(fig, path)
 
 
