@@ -32,6 +32,7 @@ METRICS = {
     "success": "success rate",
     "clean_success": "clean success rate",
     "violation_periods": "median violation periods per episode",
+    "return": "mean return per episode",
 }
 
 
@@ -56,6 +57,8 @@ def score_matrix(
                 continue
             if metric == "violation_periods":
                 table[i, j] = float(np.median([float(r[metric] or 0.0) for r in mine]))
+            elif metric == "return":
+                table[i, j] = float(np.mean([float(r[metric]) for r in mine]))
             else:
                 table[i, j] = float(np.mean([bool(r[metric]) for r in mine]))
     missing = [policies[i] for i in range(len(policies)) if np.isnan(table[i]).all()]

@@ -306,7 +306,8 @@ def test_seed_aggregate_is_rliables_iqm_of_the_seed_by_case_scores(tmp_path):
             for e, w in enumerate(wins):
                 rows.append({"policy": f"p{s}", "scenario": case, "episode": e,
                              "success": w, "clean_success": False,
-                             "violation_periods": 10 * s + e})  # fmt: skip
+                             "violation_periods": 10 * s + e,
+                             "return": -100.0 * s + e})  # fmt: skip
     paths = [tmp_path / "a.csv", tmp_path / "b.csv"]  # runs played apart, read as one
     for path, part in zip(paths, (rows[:20], rows[20:]), strict=True):
         with open(path, "w", newline="") as fh:
@@ -321,6 +322,7 @@ def test_seed_aggregate_is_rliables_iqm_of_the_seed_by_case_scores(tmp_path):
     assert point == pytest.approx(stats.trim_mean(rates.reshape(-1), 0.25))
     assert low <= point <= high
     assert summary["metrics"]["violation_periods"]["per_seed"][2] == [24.5, 24.5]
+    assert summary["metrics"]["return"]["per_seed"][1] == [-95.5, -95.5]  # mean of -100 + e
     assert summary["cases"] == ["random N=2", "paper"]
     from baselines.stats import iqm_and_mean
 
