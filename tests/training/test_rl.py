@@ -99,6 +99,7 @@ def test_cli_records_the_env_settings(tmp_path):
 
 COMMITTED = [
     ("ppo", "ppo"),  # the DAgger clone fine-tuned over the ladder's distribution
+    ("ppo", "ppo_scratch"),  # MAPPO from scratch over the distribution (its central critic)
 ]
 
 
