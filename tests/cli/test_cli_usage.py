@@ -180,7 +180,7 @@ class _Fails:
 
 
 def test_the_evaluator_writes_every_output_when_every_episode_fails(tmp_path, capsys):
-    policy = "tests.test_cli_usage:failing_factory"
+    policy = "tests.cli.test_cli_usage:failing_factory"
     out = tmp_path / "eval"
     argv = ["--policy", policy, "--scenario", "short", "--episodes", "2", "--workers", "1"]
     evaluate.main([*argv, "--max-cycles", "3", "--out", str(out)])

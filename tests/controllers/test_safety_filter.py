@@ -238,10 +238,10 @@ def test_filter_suffix_parsing():
     )
     assert PolicySource.parse("random+filter").filtered
     assert not PolicySource.parse("ppo:pretrained").filtered
-    mod = PolicySource.parse("tests.test_evaluate:raising_factory+filter")
+    mod = PolicySource.parse("tests.evaluation.test_evaluate:raising_factory+filter")
     assert (mod.name, mod.arg, mod.filtered) == (
         "module",
-        "tests.test_evaluate:raising_factory",
+        "tests.evaluation.test_evaluate:raising_factory",
         True,
     )
     with pytest.raises(ValueError, match="unknown policy"):

@@ -63,7 +63,7 @@ def test_deterministic_policy_gives_identical_results_with_1_and_2_workers():
 
 def test_a_raising_policy_is_a_failed_episode_not_a_crash(tmp_path):
     rows = evaluate(
-        ["tests.test_evaluate:raising_factory", "zero"],
+        ["tests.evaluation.test_evaluate:raising_factory", "zero"],
         ["short"],
         1,
         0,
