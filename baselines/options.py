@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from uvms_env.scenarios.families import FAMILIES
-from uvms_env.scenarios.overrides import CURRENT_PRESETS, SCENARIO_OVERRIDES, Option
+from uvms_env.scenarios.overrides import CURRENT_PRESETS, SCENARIO_OVERRIDES, Option, option_type
 
 SCENARIOS = tuple(FAMILIES)  # ``--scenario``'s choices
 
@@ -55,30 +55,7 @@ def usage_errors(
         ap.error(str(exc))
 
 
-# -- argparse types: a value is checked as it is parsed ----------------------------------
-def option_type(option: Option) -> Callable[[str], Any]:
-    """An argparse ``type`` that reads a number and checks it against ``option`` (the
-    environment's ``Option`` or one made here): out of range, argparse names the flag and
-    what it accepts (``argument --robot-steps: expected int >= 1 (...), got -5``)."""
-
-    kind = int if option.kind == "int" else float
-
-    def parse(text: str) -> Any:
-        try:
-            value: Any = kind(text)
-        except ValueError:
-            value = text
-        try:
-            return option.check("value", value)
-        except (TypeError, ValueError):
-            doc = f" ({option.doc})" if option.doc else ""
-            raise argparse.ArgumentTypeError(
-                f"expected {option.describe()}{doc}, got {text!r}"
-            ) from None
-
-    return parse
-
-
+# -- argparse types: a value is checked as it is parsed (``option_type``) ----------------
 positive_int = option_type(Option("int", "", low=1))
 # 0: "none" where a flag says so; seeds too (the environment takes none below 0)
 non_negative_int = option_type(Option("int", "", low=0))

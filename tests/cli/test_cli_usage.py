@@ -318,3 +318,23 @@ def test_a_rounded_budget_is_announced_and_the_build_timed_apart(tmp_path, monke
     assert whole.begin(4096) == 8192 and whole.begin(None) == 8192
     whole.close_bar()
     assert "rounds up" not in capsys.readouterr().out
+
+
+# -- the geometry bank's builder ---------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("argv", "named"),
+    [
+        (["random", "--n-agent", "3"], ["unrecognized arguments: --n-agent"]),
+        (["random", "--n-agents", "7"], ["--n-agents", "2..6", "'7'"]),
+        (["random", "--workers", "0"], ["--workers", "int >= 1"]),
+        (["random", "--seeds", "5:2"], ["--seeds", "START < STOP"]),
+        (["random", "--seeds", "a:b"], ["--seeds", "START:STOP"]),
+        (["nope"], ["family", "'nope'"]),
+    ],
+)
+def test_the_bank_builder_refuses_a_bad_value_naming_the_option(argv, named, capsys):
+    from uvms_env.scenarios import bank
+
+    err = usage_error(bank.main, argv, capsys)
+    assert all(n in err for n in named), err
+    assert "usage: python -m uvms_env.vector.build_bank" in err

@@ -46,7 +46,14 @@ from uvms_env.scenarios.families import (
     make,
     replace,
 )
-from uvms_env.scenarios.overrides import FAMILY_OPTIONS, RANDOM_COURSES, RANDOM_OBJECTS
+from uvms_env.scenarios.overrides import (
+    FAMILY_OPTIONS,
+    RANDOM_COURSES,
+    RANDOM_OBJECTS,
+    SCENARIO_OVERRIDES,
+    Option,
+    option_type,
+)
 
 # The geometry options a bank is kept per (besides the team size), with their defaults:
 # a bank of the defaults keeps its folder name.
@@ -210,21 +217,32 @@ def _progress(total: int, what: str) -> Any:
 
 
 def _seed_range(text: str) -> range:
-    start, _, stop = text.partition(":")
-    if not stop:
-        return range(int(start), int(start) + 1)
-    return range(int(start), int(stop))
+    """``START:STOP`` (STOP excluded) or one seed ``START``; seeds are >= 0."""
+    start, sep, stop = text.partition(":")
+    try:
+        first = int(start)
+        last = int(stop) if sep else first + 1
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected START:STOP or SEED, got {text!r}") from None
+    if first < 0 or last <= first:
+        raise argparse.ArgumentTypeError(f"expected 0 <= START < STOP, got {text!r}")
+    return range(first, last)
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         prog="python -m uvms_env.vector.build_bank",
         description="Build the geometries of a seeded scenario family ahead of training.",
+        allow_abbrev=False,
     )
     parser.add_argument("family", choices=SEEDED_FAMILIES)
-    parser.add_argument("--n-agents", type=int, default=2)
-    parser.add_argument("--seeds", type=_seed_range, default=range(0, 256), help="start:stop")
-    parser.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)))
+    parser.add_argument("--n-agents", type=option_type(SCENARIO_OVERRIDES["n_agents"]), default=2)
+    parser.add_argument("--seeds", type=_seed_range, default=range(0, 256), help="START:STOP")
+    parser.add_argument(
+        "--workers",
+        type=option_type(Option("int", "", low=1)),
+        default=len(os.sched_getaffinity(0)),
+    )
     parser.add_argument("--object", choices=RANDOM_OBJECTS, default=RANDOM_DEFAULT_OBJECT)
     parser.add_argument("--course", choices=RANDOM_COURSES, default=RANDOM_DEFAULT_COURSE)
     args = parser.parse_args(argv)

@@ -2,9 +2,11 @@
 
 ``SCENARIO_OVERRIDES`` lists the overrides of ``make`` (and of ``parallel_env``);
 ``validate_overrides`` checks and normalizes them, and ``Scenario``'s own validation checks
-its fields with the same entries, so a range is written once. Wrong types raise
-TypeError, values out of range ValueError; both name the key and state what is allowed,
-and unknown keys raise ValueError listing every allowed key with its range. Other option
+its fields with the same entries, so a range is written once; ``option_type`` reads a
+command-line value against an entry (an argparse ``type``, for every command line).
+Wrong types raise TypeError, values out of range ValueError; both name the key and state
+what is allowed, and unknown keys raise ValueError listing every allowed key with its
+range. Other option
 groups (the environment's) build their tables from ``Option`` too.
 
 No bools where numbers are expected (``True`` is not a team size) and no strings where
@@ -14,9 +16,10 @@ Python ``int``, ``float`` and ``bool``; floats must be finite.
 
 from __future__ import annotations
 
+import argparse
 import math
 import numbers
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -182,6 +185,29 @@ SCENARIO_OVERRIDES: dict[str, Option] = {
 FAMILY_OPTIONS = ("n_agents", "object", "course")
 # The overrides that are Scenario fields.
 SCENARIO_FIELDS = tuple(k for k in SCENARIO_OVERRIDES if k not in FAMILY_OPTIONS)
+
+
+def option_type(option: Option) -> Callable[[str], Any]:
+    """An argparse ``type`` that reads a number and checks it against ``option`` (the
+    environment's ``Option`` or one made here): out of range, argparse names the flag and
+    what it accepts (``argument --robot-steps: expected int >= 1 (...), got -5``)."""
+
+    kind = int if option.kind == "int" else float
+
+    def parse(text: str) -> Any:
+        try:
+            value: Any = kind(text)
+        except ValueError:
+            value = text
+        try:
+            return option.check("value", value)
+        except (TypeError, ValueError):
+            doc = f" ({option.doc})" if option.doc else ""
+            raise argparse.ArgumentTypeError(
+                f"expected {option.describe()}{doc}, got {text!r}"
+            ) from None
+
+    return parse
 
 
 def describe_options(table: Mapping[str, Option]) -> str:
