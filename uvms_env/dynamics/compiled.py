@@ -236,6 +236,10 @@ class NamespacePickled:
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update({**state, "xp": importlib.import_module(state["xp"])})
 
+    def host(self, a: Any) -> np.ndarray:
+        """A numpy array of ``a`` (a copy off the device where ``xp`` is not numpy)."""
+        return np.asarray(a) if self.xp is np else self.xp.asnumpy(a)
+
 
 class RebuiltOnUnpickle:
     """Pickling and deep copies for objects that hold compiled CasADi functions.

@@ -195,10 +195,6 @@ class EnvCore(NamespacePickled):
             return self.all  # every environment: the kernels' full path, no gathering
         return rows if self.xp is np else self.xp.asarray(rows)
 
-    def host(self, a: Any) -> np.ndarray:
-        """A numpy copy of a step array."""
-        return np.asarray(a) if self.xp is np else self.xp.asnumpy(a)
-
     # -- geometry, seeds and resets -------------------------------------------------------
     def set_geometry(self, rows: list[int], scenarios: Sequence[Scenario]) -> None:
         """Environments ``rows`` take these scenarios' geometries (the task's waypoints,

@@ -372,13 +372,10 @@ class Task(NamespacePickled):
     def end_kinds(self, ids: Any, out: StepOutcome, diverged: Any) -> list[str]:
         """``episode_end`` of the environments ``ids``, from one host copy of the flags."""
         xp = self.xp
-        flags = self._host(
+        flags = self.host(
             xp.stack([out.success[ids], diverged[ids], out.collision[ids], out.failed[ids]])
         ).reshape(4, -1)
         return [episode_end(*(bool(f) for f in col)) for col in flags.T.tolist()]
-
-    def _host(self, a: Any) -> np.ndarray:
-        return np.asarray(a) if self.xp is np else self.xp.asnumpy(a)
 
 
 def _functions(

@@ -77,7 +77,7 @@ class Tally(NamespacePickled):
         """The metrics dicts of the episodes ``ids`` that ended after ``steps`` B' at poses
         ``x_o`` B' + (6,), with their goals B' + (6,) and ``success`` B'."""
         rows = [
-            self._host(a)
+            self.host(a)
             for a in (
                 steps,
                 x_o,
@@ -113,6 +113,3 @@ class Tally(NamespacePickled):
             )
             for j in range(len(steps))
         ]
-
-    def _host(self, a: Any) -> np.ndarray:
-        return np.asarray(a) if self.xp is np else self.xp.asnumpy(a)
