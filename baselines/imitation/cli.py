@@ -61,14 +61,9 @@ from baselines.runs import (
 def env_overrides(scenario: str, args: argparse.Namespace) -> dict[str, Any]:
     """Environment options from the command line: the conditions (``--current``,
     ``--mismatch``: one value an override, several a per-episode draw) and
-    ``--constraint-mode``; the team sizes are the job's (``rollout_job``); ``--max-cycles``
-    is applied as a cap."""
+    ``--constraint-mode``; the team sizes and objects are the job's (``rollout_job``);
+    ``--max-cycles`` is applied as a cap."""
     out: dict[str, Any] = condition_overrides(args)
-    kinds = objects(args)
-    if len(kinds) > 1:  # a rollout job cycles team sizes, not objects: refused, not dropped
-        raise ValueError(f"--object takes one object here, got {list(kinds)}")
-    if kinds:
-        out["object"] = kinds[0]
     if getattr(args, "constraint_mode", None):
         out["constraint_mode"] = args.constraint_mode
     return training_env_options(out)
@@ -78,12 +73,14 @@ def rollout_job(scenario: str, args: argparse.Namespace, **labelling: Any) -> Ro
     """The rollouts of ``scenario`` the command line asks for (``--n-agents`` for the
     random family only: the fixed scenarios have their own teams)."""
     sizes = team_sizes(args) if scenario == "random" else ()
+    kinds = tuple(objects(args)) if scenario == "random" else ()
     return RolloutJob(
         scenario,
         env_overrides(scenario, args),
         sizes,
         args.max_cycles,
         args.expert,
+        objects=kinds,
         **labelling,
     )
 
@@ -98,9 +95,11 @@ def _env_spec(job: RolloutJob):
     """The Gymnasium ``EnvSpec`` the data came from (for Minari's ``recover_environment``):
     the scenario, its overrides and the episode length actually used; None where the
     episodes had several team sizes (no one environment made them)."""
-    if len(job.n_agents) > 1:
+    if len(job.n_agents) > 1 or len(job.objects) > 1:
         return None
     kwargs = dict(job.overrides)
+    if job.objects:
+        kwargs["object"] = job.objects[0]
     if job.n_agents:
         kwargs["n_agents"] = job.n_agents[0]
     if job.cap:
@@ -391,11 +390,16 @@ def dagger_rungs(args: argparse.Namespace, scenarios: list[str]) -> dict[str, tu
         scenario, _ = _scenario_episodes(entry, 1)
         job = rollout_job(scenario, args)
         keep = {k: v for k, v in job.overrides.items() if k in EVAL_KEEP}
+        kinds: tuple[str | None, ...] = job.objects or (None,)
         if len(job.n_agents) > 1 or (job.n_agents and scenario == "random"):
-            for n in job.n_agents:
-                rungs[f"{scenario}_n{n}"] = (scenario, {**keep, "n_agents": n})
+            for kind in kinds:
+                tag = f"_{kind}" if len(kinds) > 1 else ""
+                extra = {} if kind is None else {"object": kind}
+                for n in job.n_agents:
+                    rungs[f"{scenario}{tag}_n{n}"] = (scenario, {**keep, **extra, "n_agents": n})
         else:
-            rungs[scenario] = (scenario, keep)
+            extra = {} if len(kinds) != 1 or kinds[0] is None else {"object": kinds[0]}
+            rungs[scenario] = (scenario, {**keep, **extra})
     return rungs
 
 
@@ -689,6 +693,8 @@ def _check_rollouts(args: argparse.Namespace, entries: list[str], seed: int) -> 
     from baselines.evaluation.runner import Case, UsageError, preflight
 
     scenarios = [_scenario_episodes(e, 1)[0] for e in entries]
+    if objects(args) and "random" not in scenarios:
+        raise ValueError(f"--object: only the random family draws an object, not {scenarios[0]}")
     sizes = team_sizes(args)
     if sizes and "random" not in scenarios:
         # the fixed scenarios keep their own team: a size they do not have is refused
@@ -703,10 +709,14 @@ def _check_rollouts(args: argparse.Namespace, entries: list[str], seed: int) -> 
     cases = []
     for scenario in dict.fromkeys(scenarios):
         job = rollout_job(scenario, args)
-        for n in job.n_agents or (None,):
-            overrides = dict(job.overrides) | ({} if n is None else {"n_agents": n})
-            label = scenario if n is None else f"{scenario} --n-agents {n}"
-            cases.append(Case(label, scenario, tuple(overrides.items())))
+        for kind in job.objects or (None,):
+            for n in job.n_agents or (None,):
+                overrides = dict(job.overrides) | ({} if n is None else {"n_agents": n})
+                label = scenario if n is None else f"{scenario} --n-agents {n}"
+                if kind is not None:
+                    overrides["object"] = kind
+                    label += f" --object {kind}"
+                cases.append(Case(label, scenario, tuple(overrides.items())))
     try:
         preflight([], cases, seed, {}, args.max_cycles, progress=False)
     except UsageError as exc:

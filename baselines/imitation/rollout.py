@@ -193,7 +193,9 @@ class RolloutJob:
     """What ``parallel_rollouts`` plays, by names and paths (it is pickled to the workers):
     ``scenario`` with environment ``overrides`` (``randomize`` included), each episode's
     team size drawn from ``n_agents`` (random family; cycled: episode e plays
-    ``n_agents[e % len]``; empty: the overrides'), episodes capped at ``cap`` periods,
+    ``n_agents[e % len]``; empty: the overrides') and its object from ``objects`` (cycled
+    over whole rounds of team sizes, so that every size meets every object), episodes
+    capped at ``cap`` periods,
     labelled by ``expert`` (an evaluator policy source, a team one included), the ``learner`` a
     clone's ``policy.pt`` (None: demonstrations) with ``beta``, ``noise`` and ``gate`` as
     in ``rollouts``."""
@@ -207,6 +209,7 @@ class RolloutJob:
     beta: float = 1.0
     noise: float = 0.0
     gate: float | None = None
+    objects: tuple[str, ...] = ()
 
     def env(self, seed: int, episode: int) -> Any:
         """The environment of episode ``episode`` (geometry ``seed`` for seeded families)."""
@@ -215,6 +218,9 @@ class RolloutJob:
         overrides = dict(self.overrides)
         if self.n_agents:
             overrides["n_agents"] = self.n_agents[episode % len(self.n_agents)]
+        if self.objects:
+            rounds = episode // max(len(self.n_agents), 1)
+            overrides["object"] = self.objects[rounds % len(self.objects)]
         env = uvms_env.parallel_env(scenario=self.scenario, seed=seed, **overrides)
         if self.cap:
             env.max_cycles = min(env.max_cycles, self.cap)

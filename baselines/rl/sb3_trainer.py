@@ -462,10 +462,24 @@ class Trainer:
         return model, venv
 
     def learn(self) -> int:
-        remaining = max(0, self.run.settings.robot_steps - self.model.num_timesteps)
+        from stable_baselines3.common.callbacks import CheckpointCallback
+
+        s = self.run.settings
+        remaining = max(0, s.robot_steps - self.model.num_timesteps)
+        callbacks = [_progress_callback(self)]
+        if s.checkpoint_every > 0:  # SB3's own files: what ``find_resume`` reads back
+            every = max(1, s.checkpoint_every // self.model.n_envs)  # env.step calls
+            callbacks.append(
+                CheckpointCallback(
+                    every,
+                    str(self.run.folder / "checkpoints"),
+                    save_replay_buffer=self.algo == "sac",
+                    save_vecnormalize=True,
+                )
+            )
         self.model.learn(
             total_timesteps=remaining,
-            callback=_progress_callback(self),
+            callback=callbacks,
             reset_num_timesteps=self.run.settings.resume is None,
             progress_bar=False,
         )
@@ -479,15 +493,7 @@ class Trainer:
             self.model.save_replay_buffer(folder / "replay_buffer.pkl")
 
     def checkpoint(self, robot_steps: int) -> None:
-        folder = self.run.folder / "checkpoints"
-        folder.mkdir(parents=True, exist_ok=True)
-        self.model.save(folder / f"rl_model_{robot_steps}_steps.zip")
-        norm = folder / f"rl_model_vecnormalize_{robot_steps}_steps.pkl"
-        self.model.get_vec_normalize_env().save(str(norm))
-        if self.algo == "sac":
-            self.model.save_replay_buffer(
-                folder / f"rl_model_replay_buffer_{robot_steps}_steps.pkl"
-            )
+        """Nothing here: SB3's ``CheckpointCallback`` (``learn``) writes the checkpoints."""
 
     def results(self) -> dict[str, Any]:
         return {}

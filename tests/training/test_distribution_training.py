@@ -255,6 +255,28 @@ def test_parallel_rollouts_equal_one_process_and_cycle_the_team_sizes():
         assert len(a.memory) == len(a.observations)
 
 
+def test_a_rollout_job_meets_every_team_size_with_every_object():
+    from baselines.imitation.rollout import RolloutJob
+
+    job = RolloutJob("random", {"internal_wrench_every": 0}, (2, 3), objects=("ring", "bar"))
+    played = [job.env(100 + e, e) for e in range(8)]
+    kinds = [(env.n, env.scenario.object_shape) for env in played]
+    assert kinds[:4] == [(2, "ring"), (3, "ring"), (2, "bar"), (3, "bar")]
+    assert kinds[4:] == kinds[:4]  # then again, in the same order
+
+
+def test_imitation_refuses_an_object_for_a_scenario_that_keeps_its_own(capsys):
+    from baselines.imitation.cli import main as imitate
+
+    with pytest.raises(SystemExit) as refused:
+        imitate(["collect", "--scenario", "paper", "--object", "bar", "--episodes", "1",
+                 "--out", "unused"])  # fmt: skip
+    assert refused.value.code == 2
+    assert "--object: only the random family draws an object, not paper" in (
+        capsys.readouterr().err
+    )
+
+
 def test_imitation_cli_collects_and_clones_memory_over_the_distribution(tmp_path):
     pytest.importorskip("minari")
     import uvms_env
