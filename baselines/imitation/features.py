@@ -171,7 +171,7 @@ def prepare(
     if ring_radius is None:
         raise ValueError(f"{features} features need the object (its object_ring_radius)")
     single = obs.ndim == 1
-    o2 = np.atleast_2d(obs).astype(np.float64)
+    o2 = np.atleast_2d(obs)  # steady_inputs converts it chunk by chunk
     rings = np.broadcast_to(np.asarray(ring_radius, dtype=np.float64), (len(o2),))
     if np.isnan(rings).any():
         raise ValueError(

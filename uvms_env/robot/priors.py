@@ -55,19 +55,29 @@ MEMORY_FEATURES_SIZE = BASE_FEATURES + MEMORY_BLOCK + ACT_DIM
 # within ~0.25 of it on the paper scenario) while a uniformly random residual still holds
 # the object (a_ss alone succeeds on short and random N = 2).
 DEFAULT_RESIDUAL_SCALE = 0.3
+# Rows per compiled call over a dataset (``_rows``): the call's buffers stay ~5 MB.
+ROW_CHUNK = 8192
 
 
 def featurize(obs: np.ndarray) -> np.ndarray:
     """(..., 79) observations -> (..., 76) float32 ``uvms-v1`` features: ``featurize_sx``
     compiled, the one implementation (the batched kernels evaluate the same expression)."""
-    o = np.asarray(obs, dtype=np.float64)
+    o = np.asarray(obs)  # converted to float64 chunk by chunk (``_rows``)
     if o.shape[-1] != OBS_DIM:
         raise ValueError(f"uvms-v1 features need {OBS_DIM}-number observations, got {o.shape}")
-    flat = np.ascontiguousarray(o.reshape(-1, OBS_DIM))
-    if not len(flat):
-        return np.zeros((*o.shape[:-1], BASE_FEATURES), dtype=np.float32)
-    out = _features_call(len(flat))(flat)[0]
-    return out.reshape(*o.shape[:-1], BASE_FEATURES).astype(np.float32)
+    out = _rows(_features_call, o.reshape(-1, OBS_DIM), BASE_FEATURES, np.float32)
+    return out.reshape(*o.shape[:-1], BASE_FEATURES)
+
+
+def _rows(call: Any, flat: np.ndarray, width: int, dtype: Any) -> np.ndarray:
+    """A compiled row function over every row of ``flat`` (M, 79), ``ROW_CHUNK`` rows per
+    call (``call(count)``: the cached call of ``count`` rows): a dataset of millions of
+    rows needs no buffers of its size, and the cache holds calls of bounded size."""
+    out = np.empty((len(flat), width), dtype)
+    for start in range(0, len(flat), ROW_CHUNK):
+        part = np.ascontiguousarray(flat[start : start + ROW_CHUNK], dtype=np.float64)
+        out[start : start + len(part)] = call(len(part))(part)[0]
+    return out
 
 
 def featurize_sx(o: cs.SX) -> cs.SX:
@@ -177,12 +187,11 @@ def _steady_call(ring_radius: float, count: int) -> BufferCall:
 
 def steady_inputs(obs: np.ndarray, ring_radius: float) -> np.ndarray:
     """(..., 79) observations of robots carrying one object -> (..., 8) float64 a_ss."""
-    o = np.asarray(obs, dtype=np.float64)
+    o = np.asarray(obs)
     if o.shape[-1] != OBS_DIM:
         raise ValueError(f"steady inputs need {OBS_DIM}-number observations, got {o.shape}")
-    flat = np.ascontiguousarray(o.reshape(-1, OBS_DIM))
-    out = _steady_call(float(ring_radius), len(flat))(flat)[0].copy()
-    return out.reshape(*o.shape[:-1], ACT_DIM)
+    call = functools.partial(_steady_call, float(ring_radius))
+    return _rows(call, o.reshape(-1, OBS_DIM), ACT_DIM, np.float64).reshape(*o.shape[:-1], ACT_DIM)
 
 
 def check_mode(name: str, value: object, allowed: tuple[str, ...]) -> str:
