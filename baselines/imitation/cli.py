@@ -544,6 +544,8 @@ def _dagger_settings(args: argparse.Namespace, scenarios: list[str]) -> dict[str
         "max_cycles": args.max_cycles,
         "constraint_mode": args.constraint_mode,
         "n_agents": args.n_agents,
+        "object": getattr(args, "object", None),
+        "course": getattr(args, "course", None),
         "current": args.current,
         "mismatch": args.mismatch,
         "workers": args.workers,

@@ -154,7 +154,12 @@ class ObjectModel:
             )
             + obj.tube_radius
         )
+        self._build_functions(prm.water_density, prm.gravity)
 
+    def _build_functions(self, rho: float, g: float) -> None:
+        """The object's compiled-graph functions: ``dynamics`` (mass matrix and bias in
+        the world frame), ``energy`` and ``pose_rate``."""
+        coef = self.coef
         x, v = cs.SX.sym("x_O", 6), cs.SX.sym("v_O", 6)
         v_c, p = cs.SX.sym("v_c", 3), cs.SX.sym("p_O", NPO)
         mass = p[OBJECT_PARAMETER_LAYOUT["mass"]]
