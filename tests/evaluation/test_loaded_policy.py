@@ -102,44 +102,41 @@ def test_the_committed_from_scratch_model_is_a_rung_and_acts_on_a_bar():
     padded state, its actor one robot's observation) is found by its bare word, sits on
     the ladder alone and in the filter, and decides bounded inputs for each robot of a
     three-robot bar, from that robot's observation only."""
-    import numpy as np
 
     import uvms_env
     from baselines.ladder import LADDER
-    from baselines.loaders.sources import PolicySource
-    from uvms_env.episode import build_policies
 
     assert SB3Policy.locate("ppo", "scratch") == PRETRAINED / "ppo_scratch" / "model.zip"
     assert {"ppo:scratch", "ppo:scratch+filter"} <= set(LADDER)
     env = uvms_env.parallel_env("random", n_agents=3, object="bar", course="mixed")
-    obs, _ = env.reset(seed=4)
-    policies = build_policies(env, PolicySource.parse("ppo:scratch").factory(0))
-    for _ in range(5):
-        actions = {agent: policies[agent].act(obs[agent]) for agent in env.agents}
-        for action in actions.values():
-            assert action.shape == (8,) and np.all(np.abs(action) <= 1.0)
-        obs, _, terminated, truncated, _ = env.step(actions)
-        assert not any(terminated.values()) and not any(truncated.values())
+    _acts_within_bounds(env, "ppo:scratch", seed=4)
 
 
 def test_the_clone_over_rings_and_bars_is_a_rung_and_acts_on_the_papers_team():
     """``dagger:bars`` (DAgger over the random family's rings and bars, the paper held out)
     is found by its bare word, sits on the ladder alone and in the filter, and decides
     bounded inputs for both robots of the paper's bar from each one's own observation."""
-    import numpy as np
 
     import uvms_env
     from baselines.ladder import LADDER
-    from baselines.loaders.sources import PolicySource
-    from uvms_env.episode import build_policies
 
     assert ClonedPolicy.locate("dagger", "bars") == PRETRAINED / "dagger_bars" / "policy.pt"
     assert {"dagger:bars", "dagger:bars+filter"} <= set(LADDER)
     card = json.loads((PRETRAINED / "dagger_bars" / "info.json").read_text())
     assert "--scenario paper" not in " ".join(card["commands"])  # never trained on it
-    env = uvms_env.parallel_env("paper")
-    obs, _ = env.reset(seed=3)
-    policies = build_policies(env, PolicySource.parse("dagger:bars").factory(0))
+    _acts_within_bounds(uvms_env.parallel_env("paper"), "dagger:bars", seed=3)
+
+
+def _acts_within_bounds(env, policy: str, seed: int) -> None:
+    """Five steps of ``policy`` on ``env``: every robot's action (8,) within [-1, 1], from
+    its own observation, and the episode still running."""
+    import numpy as np
+
+    from baselines.loaders.sources import PolicySource
+    from uvms_env.episode import build_policies
+
+    obs, _ = env.reset(seed=seed)
+    policies = build_policies(env, PolicySource.parse(policy).factory(0))
     for _ in range(5):
         actions = {agent: policies[agent].act(obs[agent]) for agent in env.agents}
         for action in actions.values():
