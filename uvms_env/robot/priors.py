@@ -73,6 +73,8 @@ def _rows(call: Any, flat: np.ndarray, width: int, dtype: Any) -> np.ndarray:
     """A compiled row function over every row of ``flat`` (M, 79), ``ROW_CHUNK`` rows per
     call (``call(count)``: the cached call of ``count`` rows): a dataset of millions of
     rows needs no buffers of its size, and the cache holds calls of bounded size."""
+    if 0 < len(flat) <= ROW_CHUNK:  # one call (a step's robots): no loop, one copy out
+        return call(len(flat))(np.ascontiguousarray(flat, dtype=np.float64))[0].astype(dtype)
     out = np.empty((len(flat), width), dtype)
     for start in range(0, len(flat), ROW_CHUNK):
         part = np.ascontiguousarray(flat[start : start + ROW_CHUNK], dtype=np.float64)
