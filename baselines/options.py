@@ -164,6 +164,19 @@ def objects(args: argparse.Namespace) -> tuple[str, ...]:
     return tuple(dict.fromkeys([value] if isinstance(value, str) else value))
 
 
+def team_variants(sizes: tuple[int, ...], kinds: tuple[str, ...]) -> list[dict[str, Any]]:
+    """The environment keywords of each team size and object of a run, team size outer
+    (``n_agents``, ``object``; one empty dict where neither was given)."""
+    out = []
+    for n in sizes or (None,):
+        for kind in kinds or (None,):
+            variant: dict[str, Any] = {} if n is None else {"n_agents": n}
+            if kind is not None:
+                variant["object"] = kind
+            out.append(variant)
+    return out
+
+
 def condition_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """Environment keywords of ``--course``, ``--current`` and ``--mismatch``: one value an
     override, several a ``randomize`` draw (``uvms_env.task.conditions``). ValueError,

@@ -46,6 +46,7 @@ from baselines.evaluation.during_training import (
 )
 from baselines.lagrangian import CostSettings
 from baselines.loaders.saved import CONFIG_FILE, read_config
+from baselines.options import team_variants
 from baselines.registry import policy_spec
 
 PROGRESS_FILE = "progress.csv"
@@ -161,16 +162,7 @@ class RunSettings:
         """The groups of env copies the run trains on, each its environment options: one
         per team size and object where several are given (``team_sizes`` x ``objects``),
         else one. Every library's trainer builds its env copies from these."""
-        out = []
-        for n in self.team_sizes or (None,):
-            for kind in self.objects or (None,):
-                group = self.env_options()
-                if n is not None:
-                    group["n_agents"] = n
-                if kind is not None:
-                    group["object"] = kind
-                out.append(group)
-        return out
+        return [self.env_options() | v for v in team_variants(self.team_sizes, self.objects)]
 
     def rungs(self) -> dict[str, tuple[str, dict[str, Any]]]:
         """The evaluation's rungs: the benchmark's ladder (``baselines.ladder``'s cases

@@ -48,6 +48,7 @@ from baselines.options import (
     positive_float,
     positive_int,
     team_sizes,
+    team_variants,
     usage_errors,
 )
 from baselines.runs import (
@@ -384,22 +385,16 @@ def _resume_record(args: argparse.Namespace, memory: bool) -> tuple[dict[str, An
 
 def dagger_rungs(args: argparse.Namespace, scenarios: list[str]) -> dict[str, tuple[str, dict]]:
     """The periodic evaluations' rungs of a DAgger run: each scenario it rolls out on,
-    under its conditions, the random family once per team size."""
+    under its conditions, the random family once per team size and object."""
     rungs: dict[str, tuple[str, dict]] = {}
     for entry in scenarios:
         scenario, _ = _scenario_episodes(entry, 1)
         job = rollout_job(scenario, args)
         keep = {k: v for k, v in job.overrides.items() if k in EVAL_KEEP}
-        kinds: tuple[str | None, ...] = job.objects or (None,)
-        if len(job.n_agents) > 1 or (job.n_agents and scenario == "random"):
-            for kind in kinds:
-                tag = f"_{kind}" if len(kinds) > 1 else ""
-                extra = {} if kind is None else {"object": kind}
-                for n in job.n_agents:
-                    rungs[f"{scenario}{tag}_n{n}"] = (scenario, {**keep, **extra, "n_agents": n})
-        else:
-            extra = {} if len(kinds) != 1 or kinds[0] is None else {"object": kinds[0]}
-            rungs[scenario] = (scenario, {**keep, **extra})
+        for variant in team_variants(job.n_agents, job.objects):
+            tag = f"_{variant['object']}" if len(job.objects) > 1 else ""
+            size = f"_n{variant['n_agents']}" if "n_agents" in variant else ""
+            rungs[f"{scenario}{tag}{size}"] = (scenario, {**keep, **variant})
     return rungs
 
 
@@ -544,8 +539,8 @@ def _dagger_settings(args: argparse.Namespace, scenarios: list[str]) -> dict[str
         "max_cycles": args.max_cycles,
         "constraint_mode": args.constraint_mode,
         "n_agents": args.n_agents,
-        "object": getattr(args, "object", None),
-        "course": getattr(args, "course", None),
+        "object": args.object,
+        "course": args.course,
         "current": args.current,
         "mismatch": args.mismatch,
         "workers": args.workers,
@@ -711,14 +706,10 @@ def _check_rollouts(args: argparse.Namespace, entries: list[str], seed: int) -> 
     cases = []
     for scenario in dict.fromkeys(scenarios):
         job = rollout_job(scenario, args)
-        for kind in job.objects or (None,):
-            for n in job.n_agents or (None,):
-                overrides = dict(job.overrides) | ({} if n is None else {"n_agents": n})
-                label = scenario if n is None else f"{scenario} --n-agents {n}"
-                if kind is not None:
-                    overrides["object"] = kind
-                    label += f" --object {kind}"
-                cases.append(Case(label, scenario, tuple(overrides.items())))
+        for variant in team_variants(job.n_agents, job.objects):
+            flags = "".join(f" --{k.replace('_', '-')} {v}" for k, v in variant.items())
+            overrides = dict(job.overrides) | variant
+            cases.append(Case(scenario + flags, scenario, tuple(overrides.items())))
     try:
         preflight([], cases, seed, {}, args.max_cycles, progress=False)
     except UsageError as exc:

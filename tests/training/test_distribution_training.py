@@ -265,6 +265,22 @@ def test_a_rollout_job_meets_every_team_size_with_every_object():
     assert kinds[4:] == kinds[:4]  # then again, in the same order
 
 
+def test_dagger_evaluates_every_team_size_with_every_object():
+    import argparse
+
+    from baselines.imitation.cli import dagger_rungs
+
+    args = argparse.Namespace(n_agents=[2, 3], object=["ring", "bar"], course=None, current=None,
+                              mismatch=None, constraint_mode=None, max_cycles=None,
+                              expert="nmpc")  # fmt: skip
+    rungs = dagger_rungs(args, ["random:4", "paper:1"])
+    assert set(rungs) == {"random_ring_n2", "random_bar_n2", "random_ring_n3",
+                          "random_bar_n3", "paper"}  # fmt: skip
+    assert rungs["random_bar_n3"][1]["object"] == "bar"
+    assert rungs["random_bar_n3"][1]["n_agents"] == 3
+    assert "object" not in rungs["paper"][1] and "n_agents" not in rungs["paper"][1]
+
+
 def test_imitation_refuses_an_object_for_a_scenario_that_keeps_its_own(capsys):
     from baselines.imitation.cli import main as imitate
 
