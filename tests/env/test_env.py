@@ -19,6 +19,7 @@ from pettingzoo.test import parallel_api_test, parallel_seed_test
 
 import uvms_env
 from uvms_env.dynamics import NU
+from uvms_env.dynamics.compiled import BufferCall
 from uvms_env.env import (
     CONSTRAINTS,
     ENV_ID,
@@ -36,7 +37,6 @@ from uvms_env.navigation import Cylinder, Sphere
 from uvms_env.robot.observation import FAR_OBSTACLE, NOISE_STD_Q
 from uvms_env.scenarios import replace
 from uvms_env.sim.simulator import SimulationDiverged
-from uvms_env.sim.wrench import InternalWrench
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -454,7 +454,7 @@ def test_divergence_ends_the_episode_gracefully(env, monkeypatch):
     def boom(tau):
         raise SimulationDiverged("the simulation diverged (non-finite state)")
 
-    monkeypatch.setattr(env.sim, "step", boom)
+    monkeypatch.setattr(env.sim, "advance", boom)  # the engine's call into the simulator
     obs, _, term, _, infos = env.step(holding(env))
     assert term["uvms_0"] and infos["uvms_0"]["episode_end"] == "diverged"
     assert infos["uvms_0"]["diverged_reason"] == "the simulation diverged (non-finite state)"
@@ -488,19 +488,42 @@ def test_both_engines_implement_the_engine_protocol(env):
             assert hasattr(engine, attribute), (cls.__name__, attribute)
 
 
+@pytest.mark.parametrize("every, calls", [(0, 2), (1, 3)])
+def test_a_step_makes_one_compiled_call_for_the_physics_and_one_after_it(monkeypatch, every, calls):
+    """The period step, then the kinematics kernel (observations with the robots'
+    sequencing and navigation twists, constraints, team rows); the internal wrench is one
+    more call where it is sampled."""
+    env = uvms_env.parallel_env("paper", internal_wrench_every=every, sensor_noise=1.0)
+    env.reset(seed=0)
+    names: list[str] = []
+    call = BufferCall.__call__
+
+    def counted(self, *args):
+        names.append(self.fn.name())
+        return call(self, *args)
+
+    monkeypatch.setattr(BufferCall, "__call__", counted)
+    for _ in range(3):
+        names.clear()
+        env.step({a: np.full(8, 0.2) for a in env.agents})
+        assert len(names) == calls, names
+        assert names[0].startswith("chain_step") and names[1].startswith("env_kernel")
+
+
 def test_internal_wrench_matches_the_simulator(env):
     env.reset(seed=0)
-    probe = InternalWrench(env.sim)
     rng = np.random.default_rng(3)
     for _ in range(10):
-        info = env.sim.step(rng.uniform(-1, 1, (2, 8)) * env.sim.tau_max)
-    norm_sq = probe(info.tau_applied)
+        env.step({a: rng.uniform(-1, 1, 8) for a in env.agents})
+    squeeze = env.sim.internal_wrench()  # the last period's inputs, at the state after it
     # independent: pseudo-inverse projection of the grasp wrenches onto null(G^T)
     lam = env.sim.wrenches().reshape(-1)
     g_t = env.sim.grasp_matrix_t()
     exact = (lam - np.linalg.pinv(g_t) @ (g_t @ lam)).reshape(-1, 6)
-    assert np.allclose(probe.value, exact, atol=1e-9)
-    assert norm_sq == pytest.approx(float(np.sum(exact**2)), rel=1e-9)
+    assert np.allclose(squeeze, exact, atol=1e-9)
+    # the metric's sample of the step: the same squeeze's squared norm
+    sampled = env._core.engine.wrench_sq(np.bool_(True))
+    assert sampled == pytest.approx(float(np.sum(exact**2)), rel=1e-9)
 
 
 # -- seeded geometry -----------------------------------------------------------------------------

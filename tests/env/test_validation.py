@@ -229,6 +229,27 @@ def test_real_actions_of_any_float_or_int_dtype_are_accepted(paper_env):
         run(lambda v, dtype=dtype: np.zeros(8, dtype=dtype))
 
 
+@pytest.mark.parametrize(
+    "filtered, message",
+    [
+        (lambda c: c * np.nan, "NaN or inf"),
+        (lambda c: c[:1], r"shape \(1, 8\)"),
+        (lambda c: None, "shape NoneType"),
+    ],
+)
+def test_a_command_filters_bad_commands_raise_before_the_simulator(paper_env, filtered, message):
+    """The filter's commands reach the simulator without the adapter's check: they get
+    their own, and the refused step leaves the episode as it was."""
+    paper_env.reset(seed=0)
+    paper_env.command_filter = lambda raw, commands, first: filtered(commands)
+    state = paper_env.state().copy()
+    with pytest.raises(ValueError, match=f"command filter must return finite.*{message}"):
+        paper_env.step(holding(paper_env))
+    assert np.array_equal(paper_env.state(), state)
+    paper_env.command_filter = None
+    paper_env.step(holding(paper_env))
+
+
 # -- determinism of construction -------------------------------------------------------------
 def test_random_family_defaults_to_two_agents_whatever_the_seed():
     assert make("random", seed=5).n_agents == 2

@@ -25,12 +25,13 @@ from nmpc_expert import NMPCPolicy, NMPCSettings, SafetyFilter
 from nmpc_expert.ocp import CONSTRAINT_NAMES, NC, WEIGHT_OFFSETS
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.models import Limits, load_parameters, parameters
+from uvms_env.navigation.parametric import NAV_PARAMETERS
 from uvms_env.policy import AgentSpec
 from uvms_env.robot.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT
 from uvms_env.scenarios import make
 from uvms_env.task import constraints
 from uvms_env.task.constraints import CONSTRAINTS
-from uvms_env.task.team_kernel import team_function
+from uvms_env.task.team_kernel import WAYPOINT_SLOTS, team_function
 
 # (the limit, where it is defined, its tightened value from the current one, the env's
 # constraint kind, the OCP rows bounded by it, the state entry put at the current limit
@@ -126,7 +127,9 @@ def _env_constraints(q: np.ndarray, zeta: np.ndarray) -> np.ndarray:
         np.zeros(6),  # object pose
         grasp,
         static,
-        np.zeros(6),  # waypoint
+        np.zeros(2),  # the robot's sequencer: its first waypoint
+        cs.DM(NAV_PARAMETERS, WAYPOINT_SLOTS),  # the waypoints' navigation (all zero)
+        np.ones(1),  # one waypoint
         np.zeros(6),  # goal
         np.zeros(1),  # time fraction
         np.array([-0.9, 0.0, 0.0, 0.9, 0.0, 0.0]),  # one object segment

@@ -34,7 +34,7 @@ needs_wheels = pytest.mark.skipif(
     TOOLS is None,
     reason="NVIDIA's NVRTC and ptxas wheels absent (pip install -e '.[cuda-check]')",
 )
-SMALL = ("navigation", "prior_features")  # under a second each; the others take minutes
+SMALL = ("prior_features",)  # under a second; the others take seconds to minutes
 
 
 def _kernel(role: str):
@@ -46,7 +46,6 @@ def test_the_check_lists_every_kernel_the_backend_compiles():
     assert roles == [
         "period step",
         "kinematics",
-        "navigation",
         "wrench",
         "prior_steady",
         "prior_features",
@@ -75,7 +74,7 @@ def test_small_kernels_compile_for_an_h100_within_a_block_and_a_static_stack(dty
 def test_nvrtc_refuses_a_host_function_called_from_the_kernel_the_host_build_accepts():
     """What the emulated backend cannot see: a generated function left without
     ``__device__`` compiles for the host, and NVRTC refuses the kernel that calls it."""
-    source, _ = cuda_source(_kernel("navigation").fn, "double")
+    source, _ = cuda_source(_kernel("prior_features").fn, "double")
     ptx = compile_ptx(TOOLS[0], source, nvrtc_options("90"))
     assert ".entry uvms_batch_kernel" in ptx
     marked = [line for line in source.split("\n") if line.startswith("__device__ static int")]
@@ -165,7 +164,7 @@ def test_the_backend_hands_nvrtc_the_checked_source_and_options_and_sets_no_stac
     monkeypatch.setitem(sys.modules, "cupy", _cupy_stand_in(calls))
     monkeypatch.setattr(kernels_cuda.shutil, "which", lambda name: None)  # no nvcc: NVRTC
     monkeypatch.setenv("UVMS_ENV_CACHE", str(tmp_path))
-    kernel = _kernel("navigation")
+    kernel = _kernel("prior_features")
     bf = kernels_cuda.cuda_function(kernel.fn, "float32", 0)
     assert len(calls) == 1 and calls[0]["path"] is None
     assert calls[0]["code"] == cuda_source(kernel.fn, "float", None)[0]

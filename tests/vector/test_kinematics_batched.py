@@ -39,7 +39,7 @@ class Env:
     scene: Scenario
     segments: list
     kin: TeamKinematics  # the per-scenario kernel (the single environment's)
-    state: tuple[np.ndarray, ...]  # action, q, zeta, q_meas, zeta_meas, x_O
+    state: tuple[np.ndarray, ...]  # action, q, zeta, q_meas, zeta_meas, x_O, sequencers
 
 
 def _shared(noisy: bool = False) -> ca.Function:
@@ -53,8 +53,8 @@ def _shared(noisy: bool = False) -> ca.Function:
 def envs() -> list[Env]:
     """Random scenes (ring, 1..3 waypoints; cylinders only, spheres only, both) and short
     ones (bar, no obstacle), each after a few random simulator steps, with random
-    requested actions (some beyond the saturation), measurements, active waypoints and
-    time fractions."""
+    requested actions (some beyond the saturation), measurements, sequencers (waypoint
+    index and done flag) and time fractions."""
     rng = np.random.default_rng(0)
     scenes = [make("random", n_agents=N, seed=i) for i in range(7)]
     scenes += [make("short", seed=i) for i in range(K - 7)]
@@ -65,8 +65,8 @@ def envs() -> list[Env]:
             sim.step(rng.uniform(-1.0, 1.0, (N, NU)) * sim.tau_max)
         st = sim.state
         kin = TeamKinematics(scene, sim.object.segments, OBSERVATION_LAYOUT, FAR_OBSTACLE)
-        kin.waypoint[:] = np.asarray(scene.waypoints)[rng.integers(len(scene.waypoints), size=N)]
         kin.time_fraction[0] = rng.uniform()
+        sequencers = np.c_[rng.integers(len(scene.waypoints), size=N), rng.integers(2, size=N)]
         q, zeta = st.q.copy(), st.zeta.copy()
         state = (
             rng.uniform(-1.5, 1.5, (N, NU)),
@@ -75,13 +75,14 @@ def envs() -> list[Env]:
             q + rng.normal(0.0, 0.01, q.shape),
             zeta + rng.normal(0.0, 0.01, zeta.shape),
             st.x_O.copy(),
+            sequencers.astype(float),
         )
         out.append(Env(scene, sim.object.segments, kin, state))
     return out
 
 
 def _inputs(env: Env, padded: bool) -> list[np.ndarray]:
-    """The kernel's 15 inputs in TeamKinematics' layout (C-contiguous transposes of
+    """The kernel's 17 inputs in TeamKinematics' layout (C-contiguous transposes of
     CasADi's shapes): its own padding, or the shared one (5 + 5 obstacle slots, 24
     segments)."""
     kin = env.kin
@@ -89,8 +90,8 @@ def _inputs(env: Env, padded: bool) -> list[np.ndarray]:
     if padded:
         seg = segment_inputs(env.segments, N_SEG)
         cyl, sph = obstacle_inputs(env.scene, BATCH_CYLINDERS, BATCH_SPHERES)
-    fixed = [kin.grasp, kin.static, kin.waypoint, kin.goal, kin.time_fraction]
-    inputs = [*env.state, *fixed, seg, cyl, sph, kin.workspace]
+    fixed = [kin.grasp, kin.static, env.state[6], kin.waypoints, kin.count, kin.goal]
+    inputs = [*env.state[:6], *fixed, kin.time_fraction, seg, cyl, sph, kin.workspace]
     return [np.ascontiguousarray(x, dtype=float) for x in inputs]
 
 
@@ -155,7 +156,7 @@ def test_fixed_padding_equals_the_per_scenario_padding(envs, noisy):
             rows[absent, dim] = junk.uniform(0.1, 2.0, m)
         assert np.array_equal(_symbolic(shared, inputs), ref)
         if not env.scene.obstacles:
-            assert np.isinf(ref[-16])  # the team's clearance: no obstacle at all
+            assert np.isinf(ref[-16 - 2 * N])  # the team's clearance: no obstacle at all
 
 
 def test_one_batched_call_evaluates_different_geometries(envs):

@@ -33,7 +33,6 @@ from uvms_env.robot.observation import (
     NOISE_STD_Q,
     NOISE_STD_ZETA,
     OBSERVATION_SIZE,
-    OBSERVATION_STRUCTURE,
 )
 from uvms_env.robot.priors import Priors, steady_inputs
 from uvms_env.scenarios import Scenario, max_waypoints
@@ -44,8 +43,6 @@ from uvms_env.task.rules import Task, TaskArrays
 # Action dtype kinds accepted: float, signed and unsigned int (not bool, complex, str, object).
 ACTION_KINDS = "fiu"
 SEED_LIMIT = 2**63
-_WAYPOINT = OBSERVATION_STRUCTURE["waypoint"]
-_NAV = OBSERVATION_STRUCTURE["nav_velocity"]
 
 
 class Engine(Protocol):
@@ -78,18 +75,14 @@ class Engine(Protocol):
     def measure(self, ids: Any, q_noise: Any, zeta_noise: Any) -> None:
         """The sensors of ``ids`` read the true state plus this noise, B' + (N, 10) each."""
 
-    def evaluate(self, ids: Any, action: Any, time_fraction: Any, measured: bool = True) -> tuple:
-        """The kinematics kernel on the actions B' + (N, 8) (None: zeros) and the sensors'
-        readings (``measured=False``: the true state): observations B' + (N, 79), own
-        object estimates B' + (N, 6), team rows (T,) + B', constraint values B' + (N, 8) and
-        costs B' + (N,)."""
-
-    def set_waypoints(self, ids: Any, waypoints: Any) -> None:
-        """Each robot's active waypoint B' + (N, 6), as the kinematics kernel reads it."""
-
-    def nav_twist(self, ids: Any, index: Any, pose: Any) -> Any:
-        """B' + (N, 6) navigation twists towards waypoints ``index`` B' + (N,) from the
-        object estimates ``pose`` B' + (N, 6)."""
+    def evaluate(
+        self, ids: Any, action: Any, time_fraction: Any, robots: Any, measured: bool = True
+    ) -> tuple:
+        """The kinematics kernel on the actions B' + (N, 8) (None: zeros), the robots'
+        sequencers ``robots`` B' + (N, 2) and the sensors' readings (``measured=False``: the
+        true state): observations B' + (N, 79) (waypoint and navigation twist after
+        sequencing), team rows (T,) + B', constraint values B' + (N, 8), costs B' + (N,)
+        and the sequencers after this evaluation B' + (N, 2)."""
 
     def wrench_sq(self, sampled: Any) -> Any:
         """B: the internal wrench's squared norm after the step where ``sampled``."""
@@ -257,7 +250,6 @@ class EnvCore(NamespacePickled):
         ids = self.ids_of(rows)
         self.task.max_cycles = self.max_cycles
         self.task.reset(ids)
-        self.engine.set_waypoints(ids, self.task.robot_waypoint[ids])
         self.evaluate(ids, rows, None)
         if self.memory is not None:
             self.memory.reset(ids)
@@ -313,7 +305,7 @@ class EnvCore(NamespacePickled):
             a = self.xp.ascontiguousarray(a[..., :NU])  # the kernels read it as one block
         command = self.priors.command(self.obs, a, self.ring, self.steady)
         if self.command_filter is not None:
-            command = self.command_filter(self.obs, command, task.steps == 0)
+            command = self._filtered(command)
         diverged = engine.step(command * engine.tau_max)
         task.max_cycles = self.max_cycles  # an attribute a user may change
         sampled = task.tick(diverged)
@@ -332,6 +324,19 @@ class EnvCore(NamespacePickled):
         out = task.step(x_o, team, self.g, self.cost, diverged, sampled, wrench_sq, state)
         return out, diverged
 
+    def _filtered(self, command: Any) -> Any:
+        """The command filter's commands, checked as an action is (they bypass the
+        adapter's check): the simulator takes them as they are."""
+        out = self.command_filter(self.obs, command, self.task.steps == 0)
+        shape = command.shape
+        wrong = getattr(out, "shape", None) != shape
+        if wrong or not bool(self.xp.isfinite(out).all()):
+            got = f"shape {getattr(out, 'shape', type(out).__name__)}" if wrong else "NaN or inf"
+            raise ValueError(
+                f"the command filter must return finite commands of shape {shape}; got {got}"
+            )
+        return out.astype(np.float64, copy=False)
+
     def _transmit(self, a: Any) -> None:
         """The channel's period: the messages of actions ``a``, sent from where the
         vehicles are at the start of the step."""
@@ -342,19 +347,18 @@ class EnvCore(NamespacePickled):
         self.channel.step(t, part, pos)
 
     def evaluate(self, ids: Any, rows: list[int], action: Any) -> Any:
-        """Measure, run the kinematics kernel, note the state metrics, sequence each
-        robot's waypoints, add the navigation twists: the raw observations of ``ids`` land
-        in ``obs`` (their a_ss in ``steady``); returns the kernel's team rows."""
+        """Measure, run the kinematics kernel (it sequences each robot's waypoints on its
+        own estimate), note the state metrics: the raw observations of ``ids`` land in
+        ``obs`` (their a_ss in ``steady``); returns the kernel's team rows."""
         task, engine = self.task, self.engine
         if engine.noisy:
             self._measure(ids, rows)
-        obs, pose, team, g, cost = engine.evaluate(ids, action, task.time_fraction(ids))
+        robots = task.sequencing.robots
+        obs, team, g, cost, robots[ids] = engine.evaluate(
+            ids, action, task.time_fraction(ids), robots[ids]
+        )
         self.g, self.cost = g, cost
         task.observe(ids, team)
-        if task.advance_robots(ids, pose, team):  # each robot on its own estimate
-            engine.set_waypoints(ids, task.robot_waypoint[ids])
-        obs[..., _WAYPOINT] = task.robot_waypoint[ids]
-        obs[..., _NAV] = engine.nav_twist(ids, task.robot_index[ids], pose)
         self.obs[ids] = obs
         if self.steady is not None:  # from the float32 observations the robots see
             self.steady[ids] = engine.steady(self.obs[ids], self.ring)
@@ -402,7 +406,8 @@ class EnvCore(NamespacePickled):
         """B + (N, C): the constraint values of the current true state with zero actions
         (no measurement, no sequencing, the episode does not advance)."""
         engine, task = self.engine, self.task
-        g = engine.evaluate(self.all, None, task.time_fraction(), measured=False)[3]
+        robots = task.sequencing.robots
+        g = engine.evaluate(self.all, None, task.time_fraction(), robots, measured=False)[2]
         if task.constraint_fns:
             zero = self.xp.zeros((*g.shape[:-1], NU))
             extra = task.extra_constraint_values(

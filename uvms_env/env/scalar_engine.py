@@ -2,13 +2,14 @@
 
 ``ScalarEngine`` is the engine ``parallel_env`` runs (``uvms_env.env.core``, batch shape
 B = ()): the truth simulator (``uvms_env.sim.Simulator``), the kinematics kernel
-(``TeamKinematics``), the navigation twists of every robot towards every waypoint in one
-call, and the internal wrench. The same CasADi graphs as the batched engine's, compiled
-for one environment (no C compiler needed). One set of compiled objects per geometry,
-the last ``GEOMETRY_CACHE_SIZE`` kept (a seeded family changes geometry with the seed).
+(``TeamKinematics``: observations with each robot's waypoint sequencing and navigation
+twist, constraints, team rows) and the internal wrench. The same CasADi graphs as the
+batched engine's, compiled for one environment (no C compiler needed). One set of
+compiled objects per geometry, the last ``GEOMETRY_CACHE_SIZE`` kept (a seeded family
+changes geometry with the seed).
 
-May import: numpy, casadi, ``uvms_env`` below ``env`` and the ``env`` modules of the
-kinematics, the observation and the internal wrench.
+May import: numpy, ``uvms_env`` below ``env`` (the simulator, the team kernel, the
+observation's layout) and ``uvms_env.env.core`` (the protocol it implements).
 """
 
 from __future__ import annotations
@@ -17,46 +18,17 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
-import casadi as cs
 import numpy as np
 
 from uvms_env.dynamics import NQ
-from uvms_env.dynamics.compiled import BufferCall, RebuiltOnUnpickle
 from uvms_env.env.core import Engine
 from uvms_env.env.options import GEOMETRY_CACHE_SIZE
-from uvms_env.navigation import WaypointNavigator
-from uvms_env.robot.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT, make_navigator
+from uvms_env.robot.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT
 from uvms_env.scenarios import Scenario
 from uvms_env.sim import Simulator
-from uvms_env.sim.simulator import SimulationDiverged, StepInfo
-from uvms_env.sim.wrench import InternalWrench
+from uvms_env.sim.simulator import SimulationDiverged
 from uvms_env.task.conditions import Conditions
 from uvms_env.task.team_kernel import TeamKinematics
-
-
-def _nav_function(navigator: WaypointNavigator, n: int) -> cs.Function:
-    """All robots' desired twists towards every waypoint in one SX call: (6, N) -> (6, W N),
-    column w N + i for waypoint w at robot i's estimate."""
-    x = cs.SX.sym("x_O", 6, n)
-    fns = [navigator.casadi_function(k) for k in range(len(navigator.sequencer))]
-    return cs.Function(
-        "nav_twists", [x], [cs.horzcat(*[f(x[:, i]) for f in fns for i in range(n)])]
-    )
-
-
-class Navigation(RebuiltOnUnpickle):
-    """The navigation twists of a scenario's robots (``_nav_function``)."""
-
-    _rebuilt = ("_call",)
-
-    def __init__(self, scenario: Scenario) -> None:
-        self._init_args = (scenario,)
-        self.n = scenario.n_agents
-        self._call = BufferCall(_nav_function(make_navigator(scenario), self.n))
-        self._robots = np.arange(self.n)
-
-    def __call__(self, index: np.ndarray, pose: np.ndarray) -> np.ndarray:
-        return self._call(pose)[0][index * self.n + self._robots]
 
 
 @dataclass
@@ -66,8 +38,6 @@ class World:
     scenario: Scenario
     sim: Simulator
     kinematics: TeamKinematics
-    navigation: Navigation
-    wrench: InternalWrench
 
 
 class ScalarEngine(Engine):
@@ -79,7 +49,6 @@ class ScalarEngine(Engine):
     def __init__(self, scenario: Scenario) -> None:
         self.noisy = scenario.sensor_noise > 0
         self._worlds: OrderedDict[int, World] = OrderedDict()
-        self._info: StepInfo | None = None
         self._reason = ""
         self.set_geometry([0], [scenario])
         self.tau_max = self.sim.tau_max
@@ -96,7 +65,7 @@ class ScalarEngine(Engine):
         else:
             sim = Simulator(s)
             kin = TeamKinematics(s, sim.object.segments, OBSERVATION_LAYOUT, FAR_OBSTACLE)
-            self._worlds[key] = World(s, sim, kin, Navigation(s), InternalWrench(sim))
+            self._worlds[key] = World(s, sim, kin)
             while len(self._worlds) > GEOMETRY_CACHE_SIZE:
                 self._worlds.popitem(last=False)
         self.bind(self._worlds[key])
@@ -109,7 +78,9 @@ class ScalarEngine(Engine):
         self._q = x[: NQ * n].reshape(n, NQ)
         self._zeta = x[NQ * n : 2 * NQ * n].reshape(n, NQ)
         self._x_o = x[2 * NQ * n : 2 * NQ * n + 6]
-        self._zero = np.zeros((n, 8))
+        # the kernel's action and sequencers inputs: buffers bound once (a new array each
+        # call would be re-bound, which costs more than the copy)
+        self._a, self._robots = np.zeros((n, 8)), np.zeros((n, 2))
         self._q_meas, self._zeta_meas = self._q, self._zeta
 
     def reset(
@@ -119,11 +90,10 @@ class ScalarEngine(Engine):
             self.sim.reset(seed=sim_seeds[0])
         else:
             self.sim.reset(sim_seeds[0], conditions[0].current, conditions[0].mismatch)
-        self._info = None
 
     def step(self, tau: np.ndarray) -> np.bool_:
         try:
-            self._info = self.sim.step(tau)  # it saturates: clip(a) tau_max
+            self.sim.advance(tau)  # checked at the adapter; it saturates
         except SimulationDiverged as exc:
             self._reason = str(exc)  # the simulator kept the last valid state
             return np.bool_(True)
@@ -136,29 +106,26 @@ class ScalarEngine(Engine):
         self._q_meas = q_noise + self._q
         self._zeta_meas = zeta_noise + self._zeta
 
-    def evaluate(self, ids: Any, action: Any, time_fraction: Any, measured: bool = True) -> tuple:
+    def evaluate(
+        self, ids: Any, action: Any, time_fraction: Any, robots: Any, measured: bool = True
+    ) -> tuple:
         kin = self.kin
         kin.time_fraction[0] = time_fraction
+        self._robots[:] = robots
+        self._a[:] = 0.0 if action is None else action
         q, zeta = (self._q_meas, self._zeta_meas) if measured else (self._q, self._zeta)
-        a = self._zero if action is None else action
-        kin(a, self._q, self._zeta, q, zeta, self._x_o)
+        kin(self._a, self._q, self._zeta, q, zeta, self._x_o, self._robots)
         return (
             kin.observation,
-            kin.pose_estimate,
             kin.team_rows(),
             kin.constraints,
             kin.violated_count,
+            kin.sequencers,
         )
 
-    def set_waypoints(self, ids: Any, waypoints: np.ndarray) -> None:
-        self.kin.waypoint[:] = waypoints
-
-    def nav_twist(self, ids: Any, index: np.ndarray, pose: np.ndarray) -> np.ndarray:
-        return self.world.navigation(index, pose)
-
     def wrench_sq(self, sampled: Any) -> float:
-        assert self._info is not None
-        return self.world.wrench(self._info.tau_applied)
+        squeeze = self.sim.internal_wrench()  # the last period's applied inputs
+        return float(np.einsum("ij,ij->", squeeze, squeeze))
 
     def object_pose(self, ids: Any) -> np.ndarray:
         return self._x_o
@@ -175,7 +142,7 @@ class ScalarEngine(Engine):
         state = dict(self.__dict__)
         key = id(self.world.scenario)
         state["_worlds"] = OrderedDict([(key, self.world)])
-        for view in ("_q", "_zeta", "_x_o", "_q_meas", "_zeta_meas", "sim", "kin"):
+        for view in ("_q", "_zeta", "_x_o", "_q_meas", "_zeta_meas", "sim", "kin", "_a", "_robots"):
             state.pop(view, None)
         return state
 

@@ -40,9 +40,11 @@ from .waypoints import WaypointNavigator
 parametric_velocity = scene_velocity  # the name this module exports
 
 __all__ = [
+    "NAV_PARAMETERS",
     "N_CYLINDERS",
     "N_SPHERES",
     "field_parameters",
+    "parameter_row",
     "parametric_twist_function",
     "parametric_velocity",
     "twist_parameters",
@@ -52,6 +54,10 @@ __all__ = [
 #: obstacles (cylinders or spheres), the paper scenario has three cylinders.
 N_CYLINDERS = 5
 N_SPHERES = 5
+#: Entries of one waypoint's parameters as one row (:func:`parameter_row`): the inputs
+#: after ``x``, matrices column-major: goal 6, workspace 4, cylinders 4 x 5, spheres
+#: 5 x 5, gains 5.
+NAV_PARAMETERS = 6 + 4 + 4 * N_CYLINDERS + 5 * N_SPHERES + 5
 
 FloatArray = NDArray[np.float64]
 
@@ -124,3 +130,23 @@ def twist_parameters(
         [field.k, field.gain, field.max_speed, navigator.att_gain, navigator.max_att_rate]
     )
     return [goal, workspace, cylinders, spheres, gains]
+
+
+def parameter_row(navigator: WaypointNavigator, index: int) -> FloatArray:
+    """(NAV_PARAMETERS,): :func:`twist_parameters` of waypoint ``index`` with the default
+    slots, as one row (matrices column-major), the layout a table of waypoints holds."""
+    parts = twist_parameters(navigator, index)
+    return np.concatenate([np.ravel(p, order="F") for p in parts])
+
+
+def twist_of_row(x: ca.SX, row: ca.SX) -> ca.SX:
+    """The twist (6, 1) at pose ``x`` (6, 1) towards the waypoint whose
+    :func:`parameter_row` is ``row`` (NAV_PARAMETERS, 1): the shared function's expression,
+    for a larger SX graph (the team kernel's)."""
+    fn = parametric_twist_function()
+    parts, start = [], 0
+    for k in range(1, fn.n_in()):
+        rows, cols = fn.size_in(k)
+        parts.append(ca.reshape(row[start : start + rows * cols], rows, cols))
+        start += rows * cols
+    return fn(x, *parts)

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .field import PAPER_K, Obstacle, Workspace, choose_k
+from .parametric import parameter_row
 from .waypoints import WaypointNavigator
 
 # A robot (on its own object estimate) and the team (on the true object) pass a waypoint
@@ -58,3 +59,12 @@ def _navigator(
     wps = np.frombuffer(waypoints).reshape(count, 6)
     k = navigation_gain(wps, workspace, obstacles, team_radius)
     return WaypointNavigator(wps, workspace, obstacles, team_radius, k=k)
+
+
+def waypoint_table(
+    waypoints: ArrayLike, workspace: Workspace, obstacles: Sequence[Obstacle], team_radius: float
+) -> np.ndarray:
+    """(waypoints, NAV_PARAMETERS): each waypoint's ``parameter_row`` of the scene's
+    ``task_navigator``, the table the team kernel sequences and navigates from."""
+    nav = task_navigator(waypoints, workspace, obstacles, team_radius)
+    return np.array([parameter_row(nav, i) for i in range(len(nav.sequencer))])

@@ -284,7 +284,13 @@ class Priors:
         if steady is None:
             steady = steady_inputs(raw, ring_radius)
         base = steady + self.joint_hold(raw) if self.holds else steady
-        return np.clip(base + self.residual_scale * np.clip(action, -1.0, 1.0), -1.0, 1.0)
+        return self._residual(base, action, np.minimum, np.maximum)
+
+    def _residual(self, base: Any, action: Any, fmin: Any, fmax: Any) -> Any:
+        """clip(base + s clip(action, -1, 1), -1, 1) with the namespace's own min and max
+        (numpy's and CuPy's arrays, CasADi's symbols): the one writing of the transform."""
+        a = fmin(1.0, fmax(-1.0, action))
+        return fmin(1.0, fmax(-1.0, base + self.residual_scale * a))
 
     def joint_hold(self, raw: np.ndarray) -> np.ndarray:
         """h (..., 8): zero on the vehicle's four inputs (surge, sway, heave, yaw), the
@@ -303,12 +309,11 @@ class Priors:
     def command_sx(self, o: cs.MX, action: cs.MX, steady: cs.MX) -> cs.MX:
         """``command`` of one symbolic (79,) observation ``o`` with its a_ss ``steady``,
         for compiled decisions (``baselines.rl.actor``); ``action`` is clipped here."""
-        a = cs.fmin(1.0, cs.fmax(-1.0, action))
         if self.action_mode == "torque":
-            return a
+            return cs.fmin(1.0, cs.fmax(-1.0, action))
         base = steady
         if self.holds:
             q, rate = _JOINTS.start, _JOINT_RATES.start
             arm = [self._hold(o[q + j], o[rate + j], j) for j in range(4)]
             base = base + cs.vertcat(cs.MX.zeros(ACT_DIM - 4), *arm)
-        return cs.fmin(1.0, cs.fmax(-1.0, base + self.residual_scale * a))
+        return self._residual(base, action, cs.fmin, cs.fmax)

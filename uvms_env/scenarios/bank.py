@@ -36,8 +36,7 @@ from typing import Any
 import numpy as np
 
 from uvms_env.dynamics.compiled import cache_dir, exclusive
-from uvms_env.navigation.parametric import N_CYLINDERS, N_SPHERES, twist_parameters
-from uvms_env.navigation.task_navigator import task_navigator
+from uvms_env.navigation.task_navigator import waypoint_table
 from uvms_env.scenarios.config import Scenario
 from uvms_env.scenarios.families import (
     RANDOM_DEFAULT_COURSE,
@@ -59,11 +58,6 @@ from uvms_env.scenarios.overrides import (
 # a bank of the defaults keeps its folder name.
 GEOMETRY_OPTIONS = {"object": RANDOM_DEFAULT_OBJECT, "course": RANDOM_DEFAULT_COURSE}
 
-#: Entries of one waypoint's navigation parameters (``parametric_twist_function``'s inputs
-#: after ``x``, matrices column-major): goal 6, workspace 4, cylinders 4 x 5, spheres
-#: 5 x 5, gains 5.
-NAV_PARAMETERS = 6 + 4 + 4 * N_CYLINDERS + 5 * N_SPHERES + 5
-
 
 @dataclass(frozen=True)
 class Geometry:
@@ -82,14 +76,8 @@ class Geometry:
 def navigation_table(scenario: Scenario) -> np.ndarray:
     """(waypoints, NAV_PARAMETERS): each waypoint's parameters of the shared navigation
     function, from the navigator every robot of ``scenario`` uses."""
-    nav = task_navigator(
-        scenario.waypoints, scenario.workspace, scenario.obstacles, scenario.team_radius
-    )
-    rows = []
-    for i in range(len(scenario.waypoints)):
-        parts = twist_parameters(nav, i, N_CYLINDERS, N_SPHERES)
-        rows.append(np.concatenate([np.ravel(p, order="F") for p in parts]))
-    return np.array(rows)
+    s = scenario
+    return waypoint_table(s.waypoints, s.workspace, s.obstacles, s.team_radius)
 
 
 def build_geometry(

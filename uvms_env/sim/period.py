@@ -135,8 +135,14 @@ class PeriodControl:
         if bool(ok.all()):
             return x_next, ok, 0
         bad = self.xp.flatnonzero(~ok)
-        x_next[:, bad], ok[bad] = self._halves(evaluate, bad, x0[:, bad], h, 1)
+        x_next[:, bad], ok[bad] = self.refine(evaluate, bad, x0[:, bad], h)
         return x_next, ok, len(bad)
+
+    def refine(self, evaluate: Evaluate, ids: Any, x0: Any, h: float) -> tuple[Any, Any]:
+        """The periods of environments ``ids`` from ``x0`` that their one call refused,
+        integrated again in halves (what ``integrate`` does after that call; a caller that
+        makes the first call itself comes here only when it fails). -> (x_end, ok)."""
+        return self._halves(evaluate, ids, x0, h, 1)
 
     def _evaluate(self, evaluate: Evaluate, ids: Any, x0: Any, h: float, m: int) -> tuple[Any, Any]:
         x_next, drift, error = evaluate(ids, x0, h)

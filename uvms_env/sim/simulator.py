@@ -172,6 +172,7 @@ class Simulator(RebuiltOnUnpickle):
         self._outputs = tuple(out.reshape(-1, 1) for out in self._step.outputs)
         self._drift = self._step.outputs[1]
         self._x_part = np.zeros_like(self._x)  # start of a refined part of a period
+        self._ids = np.zeros(1, np.int64)  # the one environment, as the refinement indexes
         self._h = np.array([s.period])
         self.refinements = 0  # periods integrated in parts (diagnostics)
         self.control = PeriodControl(self.n)
@@ -240,6 +241,14 @@ class Simulator(RebuiltOnUnpickle):
             bad = np.argwhere(~np.isfinite(tau))[0]
             raise ValueError(f"tau contains NaN or inf (robot {bad[0]}, input {bad[1]})")
         saturated = np.abs(tau) > self.tau_max
+        self.advance(tau, current)
+        return StepInfo(self._tau.copy(), saturated, self._vc.copy())
+
+    def advance(self, tau: np.ndarray, current: np.ndarray | None = None) -> None:
+        """``step`` on inputs already checked (finite float64 (N, 8)), without its record:
+        for a caller that checks them itself, the environment's adapter. The period is one
+        compiled call; only a period it integrated inaccurately goes on to the refinement in
+        halves."""
         # clip(tau) for finite tau, without np.clip's dispatch (a hot path)
         np.minimum(np.maximum(tau, self._tau_min, out=self._tau), self.tau_max, out=self._tau)
         period = self.scenario.period
@@ -248,30 +257,32 @@ class Simulator(RebuiltOnUnpickle):
             self._vc[:] = 0.0 if drawn is None else drawn[0]
         else:
             self._vc[:] = current
-        x_next, ok, refined = self.control.integrate(self._evaluate, self._x_column, period, 1)
-        self.refinements += refined
+        x_next, drift, error = self._period(self._x, period)
+        ok = self.control.accurate(drift, error, x_next)
+        if not ok[0]:
+            x_next, ok = self.control.refine(self._evaluate, self._ids, self._x_column, period)
+            self.refinements += 1
         code = self.control.verdict(ok, x_next)[0]
         if code != OK:
             raise SimulationDiverged(self._refusal(code, x_next[:, 0]))
         self._x[:] = x_next[:, 0]
         self.t += period
-        return StepInfo(self._tau.copy(), saturated, self._vc.copy())
 
-    def _evaluate(self, ids: object, x0: np.ndarray, h: float) -> tuple[np.ndarray, ...]:
-        """The period routine's compiled call (``uvms_env.sim.period.Evaluate``): part ``h``
-        from ``x0`` (nx, 1), into the call's buffers; a refined part's state is copied out,
-        the next part's call rewrites them."""
+    def _period(self, x: np.ndarray, h: float) -> tuple[np.ndarray, ...]:
+        """The compiled period step of length ``h`` from ``x`` under the inputs set:
+        (x_next, drift, error) as (element, 1) views of its buffers."""
         self._h[0] = h
-        if ids is None:  # the period from the state itself: bound once, no re-binding
-            x = self._x
-        else:
-            x = self._x_part
-            x[:] = x0[:, 0]
         self._step(
             x, self._tau, self._vc, self.parameters, self.object_parameters, self._grasp, self._h
         )
-        x_next, drift, error = self._outputs
-        return (x_next if ids is None else x_next.copy()), drift, error
+        return self._outputs
+
+    def _evaluate(self, ids: object, x0: np.ndarray, h: float) -> tuple[np.ndarray, ...]:
+        """A refined part (``uvms_env.sim.period.Evaluate``): part ``h`` from ``x0``
+        (nx, 1); its state is copied out, the next part's call rewrites the buffers."""
+        self._x_part[:] = x0[:, 0]
+        x_next, drift, error = self._period(self._x_part, h)
+        return x_next.copy(), drift, error
 
     @property
     def last_drift(self) -> float:

@@ -116,12 +116,12 @@ class Task(NamespacePickled):
     B + (6,).
 
     Calls, in an episode's order: ``set_geometry`` (when a geometry changes), ``reset``
-    (bookkeeping), then per evaluation of the kinematics kernel ``observe`` (state metrics)
-    and ``advance_robots``; ``start`` after the first one (the team's sequencing, the
-    reward's potential); per step ``tick`` (before the kernel: time advances; it says
-    where the internal wrench is sampled), ``step`` (after it) and ``results`` and
-    ``end_kinds`` for the episodes that ended. ``ids``: a slice or an index array of
-    the namespace."""
+    (bookkeeping), then per evaluation of the kinematics kernel ``observe`` (state metrics;
+    the kernel itself advances each robot's sequencer, ``sequencing.robots``); ``start``
+    after the first one (the team's sequencing, the reward's potential); per step ``tick``
+    (before the kernel: time advances; it says where the internal wrench is sampled),
+    ``step`` (after it) and ``results`` and ``end_kinds`` for the episodes that ended.
+    ``ids``: a slice or an index array of the namespace."""
 
     def __init__(
         self,
@@ -213,10 +213,6 @@ class Task(NamespacePickled):
     def observe(self, ids: Any, team: Any) -> None:
         """The state metrics, from the kinematics kernel's team rows (T,) + B' of ``ids``."""
         self.tally.observe(ids, team, self.sequencing.has_obstacles[ids])
-
-    def advance_robots(self, ids: Any, pose: Any, team: Any) -> bool:
-        """Each robot's sequencer on its own object estimate (``Sequencing``)."""
-        return self.sequencing.advance_robots(ids, pose, team)
 
     def tick(self, diverged: Any) -> Any:
         """A period passed in every environment (before the step's evaluation); returns

@@ -5,7 +5,8 @@ robot's on its own estimate of it.
 as arrays of the namespace ``xp`` (numpy, or CuPy); ``uvms_env.task.rules.Task`` calls it
 at the points of an episode its docstring lists. The team's sequencer is the task's
 (it moves the reward's potential and decides the goal); each robot's is what that robot
-can know (its observation's waypoint and navigation twist).
+can know (its observation's waypoint and navigation twist): the team kernel advances it
+(``uvms_env.task.team_kernel``), here is only where it stands.
 
 May import: numpy, ``uvms_env.dynamics.compiled``, ``uvms_env.navigation.task_navigator``
 and ``uvms_env.task.team_rows``.
@@ -19,14 +20,15 @@ import numpy as np
 
 from uvms_env.dynamics.compiled import NamespacePickled
 from uvms_env.navigation.task_navigator import WAYPOINT_TOLERANCE
-from uvms_env.task.team_rows import ALL, WAYPOINT_DISTANCE2
+from uvms_env.task.team_rows import ALL
 
 
 class Sequencing(NamespacePickled):
     """Waypoints B + (W, 6) (zeros beyond each environment's ``waypoint_count`` B), the
     team's active waypoint and the goal side by side in ``targets`` B + (2, 6) (one
-    difference serves both), ``team_index``/``team_done`` B, ``robot_index``/``robot_done``
-    B + (N,) and ``robot_waypoint`` B + (N, 6).
+    difference serves both), ``team_index``/``team_done`` B and each robot's sequencer as
+    the team kernel reads and writes it, ``robots`` B + (N, 2) float64 (waypoint index,
+    done flag; ``robot_index``, ``robot_done`` and ``robot_waypoint`` read it).
 
     ``host_tests``: skip the rare branches (a waypoint near) with one host test; on a GPU
     that test would cost a synchronization, so there they always run."""
@@ -42,9 +44,7 @@ class Sequencing(NamespacePickled):
         self.has_obstacles = xp.zeros(b, bool)
         self.team_index = xp.zeros(b, np.int64)
         self.team_done = xp.zeros(b, bool)
-        self.robot_index = xp.zeros((*b, n_agents), np.int64)
-        self.robot_done = xp.zeros((*b, n_agents), bool)
-        self.robot_waypoint = xp.zeros((*b, n_agents, 6))
+        self.robots = xp.zeros((*b, n_agents, 2))
 
     def any(self, mask: Any) -> bool:
         """A host test of a mask of shape B (B = (): a numpy scalar, tested as one)."""
@@ -54,6 +54,21 @@ class Sequencing(NamespacePickled):
     def team_waypoint(self) -> Any:
         """B + (6,): the team's active waypoint (a view)."""
         return self.targets[..., 0, :]
+
+    @property
+    def robot_index(self) -> Any:
+        """B + (N,) int64: each robot's active waypoint."""
+        return self.robots[..., 0].astype(np.int64)
+
+    @property
+    def robot_done(self) -> Any:
+        """B + (N,) bool: the robot has passed its last waypoint."""
+        return self.robots[..., 1] > 0.0
+
+    @property
+    def robot_waypoint(self) -> Any:
+        """B + (N, 6): each robot's active waypoint (a copy)."""
+        return self._waypoint_at(ALL, self.robot_index)
 
     @property
     def goal(self) -> Any:
@@ -78,9 +93,7 @@ class Sequencing(NamespacePickled):
 
     def reset(self, ids: Any) -> None:
         """Every robot of ``ids`` back to its first waypoint, the team's sequencer too."""
-        self.robot_index[ids] = 0
-        self.robot_done[ids] = False
-        self.robot_waypoint[ids] = self.waypoints[ids][..., :1, :]
+        self.robots[ids] = 0.0
         self.team_index[ids] = 0
         self.team_done[ids] = False
 
@@ -95,28 +108,6 @@ class Sequencing(NamespacePickled):
         d = x_o[..., None, :] - self.targets[ids]
         p = d[..., :3]
         return d, self.xp.sqrt((p * p).sum(axis=-1))
-
-    def advance_robots(self, ids: Any, pose: Any, team: Any) -> bool:
-        """Each robot's sequencer on its own object estimate ``pose`` B' + (N, 6): passes its
-        waypoint within ``WAYPOINT_TOLERANCE``. False when no robot's waypoint changed
-        (numpy: then ``robot_waypoint`` needs no copy into the kernel's inputs)."""
-        xp = self.xp
-        # the kernel's smallest squared distance: a cheap host test that no robot is near
-        if self.host_tests and not self.any(
-            team[WAYPOINT_DISTANCE2] < 1.01 * WAYPOINT_TOLERANCE**2
-        ):
-            return False
-        index, done = self.robot_index[ids], self.robot_done[ids]
-        d = pose[..., :3] - self.robot_waypoint[ids][..., :3]
-        near = ~done & (xp.sqrt((d * d).sum(axis=-1)) < WAYPOINT_TOLERANCE)
-        if self.host_tests and not near.any():  # B + (N,): an array even for B = ()
-            return False
-        last = index + 1 >= self.waypoint_count[ids][..., None]
-        index = index + (near & ~last)
-        self.robot_index[ids] = index
-        self.robot_done[ids] = done | (near & last)
-        self.robot_waypoint[ids] = self._waypoint_at(ids, index)
-        return True
 
     def advance_team(self, ids: Any, dist: Any) -> Any:
         """The team's sequencer passes its waypoint where the true object is within the

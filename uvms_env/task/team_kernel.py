@@ -4,7 +4,10 @@ Per robot and per step: the object pose and twist estimated from the robot's own
 (measured) kinematics, the nearest obstacles relative to that estimate, the
 manipulability, the grasp error and the constraint values of the true state, a few
 team-wide reductions of them, and the observation rows themselves, called through the
-zero-copy ``BufferCall``. Python then only adds the navigation twist.
+zero-copy ``BufferCall``. Each robot's waypoint sequencer runs inside too (on its own
+estimate: it passes its waypoint within ``WAYPOINT_TOLERANCE``), and the navigation twist
+towards its waypoint after that (``navigation.parametric``, the scene's parameters as an
+input table): the observation comes out whole, and nothing of it is written twice.
 
 The scenario geometry enters as inputs, so a new random scenario with the same team size
 reuses the compiled function. Padding and branch-free code (docs/batched.md, "One kernel
@@ -13,7 +16,8 @@ for every geometry"): an obstacle row with ``present == 0`` changes nothing (see
 ``if_else``, so it also compiles for SIMD lanes or CUDA (``uvms_env.vector.kernels``).
 
 May import: numpy, casadi, ``uvms_env.dynamics``, ``uvms_env.navigation`` (obstacle
-types), ``uvms_env.scenarios`` (types), ``uvms_env.sim`` and ``uvms_env.task.constraints``.
+types, the parametric twist, the tolerance), ``uvms_env.scenarios`` (types), ``uvms_env.sim``
+and ``uvms_env.task.constraints``.
 """
 
 from __future__ import annotations
@@ -31,6 +35,8 @@ from uvms_env.dynamics.local_model import euler_zyx
 from uvms_env.dynamics.spatial import rot_zyx
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.navigation import Cylinder
+from uvms_env.navigation.parametric import NAV_PARAMETERS, twist_of_row
+from uvms_env.navigation.task_navigator import WAYPOINT_TOLERANCE, waypoint_table
 from uvms_env.sim.chain import NG  # grasp per robot: offset l_i (3), R_Oi column-major (9)
 from uvms_env.sim.simulator import grasp_parameters
 from uvms_env.task.constraints import (
@@ -54,6 +60,9 @@ PADDED_SIZES = (0, 2, 5)
 BATCH_CYLINDERS = 5
 BATCH_SPHERES = 5
 NS = 13  # per robot, known a priori: load share, grasp offset, R_Oi row-major
+#: Waypoint slots of a kernel: the random family draws at most three, the paper has three;
+#: a scenario with more uses its own count.
+WAYPOINT_SLOTS = 3
 Layout = tuple[tuple[str, int], ...]  # the observation's (name, size) blocks, in order
 
 
@@ -141,6 +150,26 @@ def _body_clearance(
     return own, excess
 
 
+def _sequenced(pose: cs.SX, sequencer: cs.SX, table: cs.SX, count: cs.SX) -> tuple:
+    """One robot's waypoint sequencer on its estimate ``pose``: ``sequencer`` = [index,
+    done] (floats), the scene's waypoints as ``table`` (NAV_PARAMETERS, W) rows of
+    ``parameter_row``, ``count`` of them real. It passes its waypoint within the tolerance
+    (the last one: done). Returns the new [index, done], its waypoint (6,) and the
+    navigation twist towards it, branch-free (a selection is a sum of one-hot columns)."""
+    index, done = sequencer[0], sequencer[1]
+
+    def row(i: cs.SX) -> cs.SX:
+        return sum((cs.SX(float(w)) == i) * table[:, w] for w in range(table.shape[1]))
+
+    d = pose[:3] - row(index)[:3]
+    near = (1.0 - done) * (cs.dot(d, d) < WAYPOINT_TOLERANCE**2)
+    last = index + 1.0 >= count
+    index = index + near * (1.0 - last)
+    done = done + near * last
+    new = row(index)
+    return cs.vertcat(index, done), new[:6], twist_of_row(pose, new)
+
+
 def robot_function(
     uvms: UVMSModel,
     n_cyl: int,
@@ -148,6 +177,7 @@ def robot_function(
     layout: Layout,
     far: Sequence[float],
     noisy: bool,
+    w_slots: int = WAYPOINT_SLOTS,
 ) -> cs.Function:
     """Per-robot part of the kernel (SX; mapped over the team). Without noise the
     measurements are the true state: the measured inputs are ignored, so the estimate
@@ -157,7 +187,9 @@ def robot_function(
     qm, zm = cs.SX.sym("q_meas", NQ), cs.SX.sym("zeta_meas", NQ)
     x_o, grasp = cs.SX.sym("x_O", 6), cs.SX.sym("grasp", NG)
     static = cs.SX.sym("static", NS)
-    wp, goal, tf = cs.SX.sym("waypoint", 6), cs.SX.sym("goal", 6), cs.SX.sym("time_fraction")
+    seq = cs.SX.sym("sequencer", 2)
+    table, count = cs.SX.sym("waypoints", NAV_PARAMETERS, w_slots), cs.SX.sym("count")
+    goal, tf = cs.SX.sym("goal", 6), cs.SX.sym("time_fraction")
     cyl, sph = cs.SX.sym("cylinders", 4, n_cyl), cs.SX.sym("spheres", 5, n_sph)
     ws, obj = cs.SX.sym("workspace", 4), cs.SX.sym("object_terms", 2)
     offset, r_oi = grasp[:3], cs.reshape(grasp[3:], 3, 3)
@@ -171,6 +203,7 @@ def robot_function(
     v_ee = uvms.ee_jacobian(q_est) @ z_est
     twist = cs.vertcat(v_ee[:3] + cs.cross(arm, v_ee[3:]), v_ee[3:])
     observed = dict(layout)["obstacles"] // len(far)
+    seq_next, wp, nav = _sequenced(pose, seq, table, count)
     e_wp = pose[:3] - wp[:3]
     blocks = {
         "q": q_est,
@@ -178,6 +211,7 @@ def robot_function(
         "object_pose": pose,
         "object_twist": twist,
         "waypoint": wp,
+        "nav_velocity": nav,
         "goal": goal,
         "obstacles": _nearest(*_obstacle_features(pose, cyl, sph), observed, cs.DM(list(far))),
         "load_share": static[0],
@@ -212,8 +246,8 @@ def robot_function(
     )
     return cs.Function(
         "env_robot",
-        [a, q, zeta, qm, zm, x_o, grasp, static, wp, goal, tf, cyl, sph, ws, obj],
-        [obs, pose, g, scalars],
+        [a, q, zeta, qm, zm, x_o, grasp, static, seq, table, count, goal, tf, cyl, sph, ws, obj],
+        [obs, pose, g, scalars, seq_next],
         {"cse": True},
     )
 
@@ -248,6 +282,7 @@ def team_function(
     layout: Layout,
     far: tuple[float, ...],
     noisy: bool,
+    w_slots: int = WAYPOINT_SLOTS,
 ) -> cs.Function:
     """The symbolic kernel for n robots (MX around the per-robot SX function, mapped;
     branch-free, see the module doc): what ``team_kernel`` compiles, and what a batched
@@ -255,25 +290,29 @@ def team_function(
 
     Inputs, in order (CasADi shapes; ``TeamKinematics.__call__`` passes each as the
     C-contiguous transpose): a (8, n), q, zeta, q_meas, zeta_meas (10, n), x_O (6,),
-    grasp (12, n), static (13, n), waypoint (6, n), goal (6,), time_fraction (1,),
-    segments (6, n_seg), cylinders (4, n_cyl), spheres (5, n_sph), workspace (4,).
+    grasp (12, n), static (13, n), sequencers (2, n) (each robot's waypoint index and
+    done flag, as floats), waypoints (NAV_PARAMETERS, w_slots) (``parameter_row`` of each,
+    zeros beyond the count), count (1,), goal (6,), time_fraction (1,), segments
+    (6, n_seg), cylinders (4, n_cyl), spheres (5, n_sph), workspace (4,).
     Outputs: observation (size, n), pose (6, n), constraints (8, n), scalars (6, n),
-    team (16,)."""
+    team (16,), sequencers (2, n) after this evaluation."""
     uvms = default_model()
-    robot = robot_function(uvms, n_cyl, n_sph, layout, far, noisy).map(n, "serial")
+    robot = robot_function(uvms, n_cyl, n_sph, layout, far, noisy, w_slots).map(n, "serial")
     obj = object_function(uvms.params.object.tube_radius, n_seg, n_cyl, n_sph)
     a, q, zeta = cs.MX.sym("a", NU, n), cs.MX.sym("q", NQ, n), cs.MX.sym("zeta", NQ, n)
     qm, zm = cs.MX.sym("q_meas", NQ, n), cs.MX.sym("zeta_meas", NQ, n)
     x_o, grasp = cs.MX.sym("x_O", 6), cs.MX.sym("grasp", NG, n)
-    static, wp = cs.MX.sym("static", NS, n), cs.MX.sym("waypoint", 6, n)
+    static, seq = cs.MX.sym("static", NS, n), cs.MX.sym("sequencers", 2, n)
+    table, count = cs.MX.sym("waypoints", NAV_PARAMETERS, w_slots), cs.MX.sym("count")
     goal, tf = cs.MX.sym("goal", 6), cs.MX.sym("time_fraction")
     seg = cs.MX.sym("segments", 6, n_seg)
     cyl, sph = cs.MX.sym("cylinders", 4, n_cyl), cs.MX.sym("spheres", 5, n_sph)
     ws = cs.MX.sym("workspace", 4)
     obj_terms = obj(x_o, seg, cyl, sph, ws)
-    obs, pose, g, scalars = robot(
-        a, q, zeta, qm, zm, x_o, grasp, static, wp, goal, tf, cyl, sph, ws, obj_terms
-    )
+    obs, pose, g, scalars, seq_next = robot(
+        a, q, zeta, qm, zm, x_o, grasp, static, seq, table, count, goal, tf, cyl, sph, ws,
+        obj_terms,
+    )  # fmt: skip
     team = cs.vertcat(
         cs.fmin(cs.mmin(scalars[2, :]), obj_terms[0]),  # clearance of every body
         cs.mmin(scalars[0, :]),  # manipulability
@@ -285,9 +324,9 @@ def team_function(
         obj_terms,
     )
     return cs.Function(
-        f"env_kernel_n{n}_s{n_seg}_c{n_cyl}_p{n_sph}{'_noisy' if noisy else ''}",
-        [a, q, zeta, qm, zm, x_o, grasp, static, wp, goal, tf, seg, cyl, sph, ws],
-        [obs, pose, g, scalars, team],
+        f"env_kernel_n{n}_s{n_seg}_c{n_cyl}_p{n_sph}_w{w_slots}{'_noisy' if noisy else ''}",
+        [a, q, zeta, qm, zm, x_o, grasp, static, seq, table, count, goal, tf, seg, cyl, sph, ws],
+        [obs, pose, g, scalars, team, seq_next],
     )
 
 
@@ -336,15 +375,15 @@ class TeamKinematics(RebuiltOnUnpickle):
     """Evaluates the kernel for one scenario; outputs are views overwritten by each call.
 
     ``layout`` is the observation's (name, size) list: the kernel fills every block it
-    knows (q, zeta, object_pose, object_twist, waypoint, goal, obstacles, load_share,
-    grasp_offset, grasp_rotation, time_fraction) and leaves zeros in the others (the
-    caller fills nav_velocity). Inputs set by the owner: ``waypoint`` (N, 6), each
-    robot's active waypoint, and ``time_fraction`` (1,).
+    knows (q, zeta, object_pose, object_twist, waypoint, nav_velocity, goal, obstacles,
+    load_share, grasp_offset, grasp_rotation, time_fraction) and leaves zeros in the
+    others. Input set by the owner: ``time_fraction`` (1,); ``__call__`` takes the robots'
+    sequencers.
 
     After ``__call__``, per robot (rows): ``observation`` (N, size), ``pose_estimate``
     (N, 6), ``constraints`` (N, 8) in the order of ``CONSTRAINTS``, ``manipulability``,
-    ``grasp_error`` (m), ``clearance`` of the robot's own bodies (m), ``violated_count``.
-    Team: ``team()`` and ``team_rows()`` (see there).
+    ``grasp_error`` (m), ``clearance`` of the robot's own bodies (m), ``violated_count``,
+    ``sequencers`` (N, 2) after this evaluation. Team: ``team()`` and ``team_rows()``.
     """
 
     _rebuilt = ("_call",)
@@ -356,10 +395,12 @@ class TeamKinematics(RebuiltOnUnpickle):
         layout: Layout,
         far: Sequence[float],
         slots: tuple[int, int] | None = None,
+        waypoints: np.ndarray | None = None,
     ) -> None:
         """``slots``: (cylinders, spheres) of the kernel; default: the scenario's counts
-        padded to ``PADDED_SIZES`` (the results are the same with any padding)."""
-        self._init_args = (scenario, segments, layout, far, slots)
+        padded to ``PADDED_SIZES`` (the results are the same with any padding).
+        ``waypoints``: the scenario's ``waypoint_table`` when it is known already."""
+        self._init_args = (scenario, segments, layout, far, slots, waypoints)
         self.n = n = scenario.n_agents
         if slots is None:
             n_cyl = _padded(sum(isinstance(o, Cylinder) for o in scenario.obstacles))
@@ -368,7 +409,11 @@ class TeamKinematics(RebuiltOnUnpickle):
             n_cyl, n_sph = slots
         self.cylinders, self.spheres = obstacle_inputs(scenario, n_cyl, n_sph)
         noisy = scenario.sensor_noise > 0
-        kernel = team_kernel(n, len(segments), n_cyl, n_sph, layout, tuple(far), noisy)
+        s = scenario
+        if waypoints is None:
+            waypoints = waypoint_table(s.waypoints, s.workspace, s.obstacles, s.team_radius)
+        w = max(len(waypoints), WAYPOINT_SLOTS)
+        kernel = team_kernel(n, len(segments), n_cyl, n_sph, layout, tuple(far), noisy, w)
         self._call = BufferCall(kernel)
         self.segments = segment_inputs(segments, len(segments))
         self.workspace = np.array([*scenario.workspace.center, scenario.workspace.radius])
@@ -383,20 +428,22 @@ class TeamKinematics(RebuiltOnUnpickle):
             ),
             dtype=float,
         )
+        self.waypoints = np.zeros((w, waypoints.shape[1]))
+        self.waypoints[: len(waypoints)] = waypoints
+        self.count = np.array([float(len(waypoints))])
         self.goal = np.array(scenario.waypoints[-1], dtype=float)
-        self.waypoint = np.zeros((n, 6))
         self.time_fraction = np.zeros(1)
         out = self._call.outputs
         self.observation, self.pose_estimate, self.constraints = out[:3]
-        scalars, self._team = out[3], out[4].reshape(-1)
+        scalars, self._team, self.sequencers = out[3], out[4].reshape(-1), out[5]
         self.manipulability, self.grasp_error = scalars[:, 0], scalars[:, 1]
         self.clearance, self.violated_count = scalars[:, 2], scalars[:, 4]
 
     def team(self) -> list[float]:
         """[min_clearance (every body and the object, m), min_manipulability,
-        max_grasp_error (m), min_waypoint_distance2 (a robot's estimate to its active
-        waypoint, m^2), total_violated (constraints, all robots), action_sq (sum of the
-        squared clipped normalized actions)] as floats."""
+        max_grasp_error (m), min_waypoint_distance2 (a robot's estimate to its waypoint
+        after sequencing, m^2), total_violated (constraints, all robots), action_sq (sum of
+        the squared clipped normalized actions)] as floats."""
         return self._team[:6].tolist()
 
     def team_rows(self) -> np.ndarray:
@@ -412,9 +459,11 @@ class TeamKinematics(RebuiltOnUnpickle):
         q_meas: np.ndarray,
         zeta_meas: np.ndarray,
         x_o: np.ndarray,
+        sequencers: np.ndarray,
     ) -> None:
         """Evaluate on C-contiguous float64 arrays: action (N, 8) normalized as requested,
-        true q, zeta (N, 10), measured q, zeta (N, 10), true object pose (6,)."""
+        true q, zeta (N, 10), measured q, zeta (N, 10), true object pose (6,), each robot's
+        sequencer (N, 2): waypoint index and done flag."""
         self._call(
             action,
             q,
@@ -424,7 +473,9 @@ class TeamKinematics(RebuiltOnUnpickle):
             x_o,
             self.grasp,
             self.static,
-            self.waypoint,
+            sequencers,
+            self.waypoints,
+            self.count,
             self.goal,
             self.time_fraction,
             self.segments,

@@ -3,10 +3,11 @@
 ``BatchedEngine`` is the engine ``VectorEnv`` runs (``uvms_env.env.core``, batch shape
 B = (K,)): the truth simulator batched (``BatchedSimulator``), the kinematics kernel of the
 single environment (``uvms_env.task.team_kernel.team_function``: observations, pose estimates,
-constraint values, team reductions), the navigation twist at each robot's active waypoint
-(``navigation.parametric``, one function for every geometry) and, when sampled, the
-internal wrench (the chain's own function). Each is a ``BatchedFunction`` (SIMD lanes,
-threads over cores) or, on the CUDA backend, a GPU kernel of the same generated source.
+constraint values, team reductions, each robot's waypoint sequencing and navigation twist
+with the scene's navigation parameters as inputs: one function for every geometry) and,
+when sampled, the internal wrench (the chain's own function). Each is a
+``BatchedFunction`` (SIMD lanes, threads over cores) or, on the CUDA backend, a GPU kernel
+of the same generated source.
 Arrays are laid out (element, K padded), the environment index innermost, as the kernels
 read them; the ocean currents are the batched simulator's.
 
@@ -16,7 +17,6 @@ batches) and the sibling ``vector`` modules.
 
 from __future__ import annotations
 
-import itertools
 from typing import Any
 
 import numpy as np
@@ -24,15 +24,17 @@ import numpy as np
 from uvms_env.dynamics import NQ, NU
 from uvms_env.env.core import Engine
 from uvms_env.env.options import EnvSetup
+from uvms_env.navigation.parametric import NAV_PARAMETERS
 from uvms_env.robot.observation import OBSERVATION_SIZE
 from uvms_env.robot.priors import BASE_FEATURES, Priors
 from uvms_env.scenarios import Scenario, max_waypoints
-from uvms_env.scenarios.bank import NAV_PARAMETERS, navigation_table
+from uvms_env.scenarios.bank import navigation_table
 from uvms_env.sim.period import ENVELOPE, INACCURATE, MAX_REFINEMENTS, OK
 from uvms_env.task.conditions import Conditions
 from uvms_env.task.team_kernel import (
     BATCH_CYLINDERS,
     BATCH_SPHERES,
+    WAYPOINT_SLOTS,
     obstacle_inputs,
     segment_inputs,
 )
@@ -81,6 +83,7 @@ class BatchedEngine(Engine):
         # the priors' a_ss and features: host calls on the CPU backend (the single env's),
         # kernels of the same CasADi expressions on the GPU, over the K N robots' columns
         priors = backend == "cuda" and setup.priors.needs_steady
+        self._w = w = max(max_waypoints(setup.family, base), WAYPOINT_SLOTS)
         fns = kernel_functions(
             n,
             self._n_seg,
@@ -88,9 +91,9 @@ class BatchedEngine(Engine):
             self.sim.chain,
             wrench=setup.internal_wrench_every > 0,
             priors_ring=base.object_ring_radius if priors else None,
+            waypoints=w,
         )
         self._kinematics = self._kernel(fns["kinematics"])
-        self._navigation = self._kernel(fns["navigation"])
         self._wrench = self._kernel(fns["wrench"]) if "wrench" in fns else None
         self._prior_kernels = None
         if priors:
@@ -99,7 +102,6 @@ class BatchedEngine(Engine):
                 self._kernel(fns["prior_features"]),
             )
         self._inputs(segments)
-        self._nav_table = xp.zeros((k, max_waypoints(setup.family, base), NAV_PARAMETERS))
         self._nav_tables: dict[int, np.ndarray] = {}  # id(scenario) -> navigation table
         self._scenarios: list[Scenario] = [base] * k  # kept: their ids key the tables
         self._code = xp.zeros(k, np.int64)
@@ -110,7 +112,8 @@ class BatchedEngine(Engine):
         z = lambda rows: xp.zeros((rows, kp), real)  # noqa: E731
         self._a = z(NU * n)
         self._q_meas, self._zeta_meas = z(NQ * n), z(NQ * n)
-        self._static, self._waypoint_in = z(13 * n), z(6 * n)
+        self._static, self._robots = z(13 * n), z(2 * n)
+        self._waypoints, self._count = z(NAV_PARAMETERS * self._w), z(1)
         self._goal, self._time_fraction = z(6), z(1)
         self._segments = z(6 * self._n_seg)
         self._cylinders, self._spheres = z(4 * BATCH_CYLINDERS), z(5 * BATCH_SPHERES)
@@ -142,13 +145,14 @@ class BatchedEngine(Engine):
         """Kernel inputs, navigation parameters and simulator grasps of ``rows`` (gathered
         on the host, written with one copy per array: one transfer on a GPU)."""
         m, n = len(rows), self.n
-        nav = np.zeros((m, self._nav_table.shape[1], NAV_PARAMETERS))
+        nav, count = np.zeros((m, self._w, NAV_PARAMETERS)), np.zeros((1, m))
         cylinders, spheres = np.zeros((4 * BATCH_CYLINDERS, m)), np.zeros((5 * BATCH_SPHERES, m))
         workspace, goal, static = np.zeros((4, m)), np.zeros((6, m)), np.zeros((13 * n, m))
         for row, (i, s) in enumerate(zip(rows, scenarios, strict=True)):
             self.sim.set_scenario([i], s)
             self._scenarios[i] = s
             nav[row, : len(s.waypoints)] = self._navigation_table_of(s)
+            count[0, row] = len(s.waypoints)
             cyl, sph = obstacle_inputs(s, BATCH_CYLINDERS, BATCH_SPHERES)
             cylinders[:, row], spheres[:, row] = cyl.reshape(-1), sph.reshape(-1)
             workspace[:, row] = [*s.workspace.center, s.workspace.radius]
@@ -159,8 +163,9 @@ class BatchedEngine(Engine):
             ).reshape(-1)
         xp, real = self.xp, self._real
         cols = self._on_device(np.array(rows))
-        self._nav_table[cols] = xp.asarray(nav)
         for target, values in (
+            (self._waypoints, nav.reshape(m, -1).T),  # each column: (P, W) column-major
+            (self._count, count),
             (self._cylinders, cylinders),
             (self._spheres, spheres),
             (self._workspace, workspace),
@@ -186,7 +191,8 @@ class BatchedEngine(Engine):
             self._cylinders,
             self._spheres,
             self._workspace,
-            self._waypoint_in,
+            self._waypoints,
+            self._count,
         ):
             a[:, k:] = a[:, :1]
 
@@ -210,20 +216,19 @@ class BatchedEngine(Engine):
         return [DIVERGED_REASONS.get(int(c), "") for c in codes.tolist()]
 
     # -- the per-step kernels -----------------------------------------------------------
-    def set_waypoints(self, ids: Any, waypoints: Any) -> None:
-        self._waypoint_in[:, ids] = waypoints.reshape(waypoints.shape[0], self.n * 6).T
-        self._waypoint_in[:, self.k :] = self._waypoint_in[:, :1]  # padding lanes
-
     def measure(self, ids: Any, q_noise: Any, zeta_noise: Any) -> None:
         x, n, m = self.sim.x, self.n, q_noise.shape[0]
         self._q_meas[:, ids] = q_noise.reshape(m, -1).T + x[: NQ * n, ids]
         self._zeta_meas[:, ids] = zeta_noise.reshape(m, -1).T + x[NQ * n : 2 * NQ * n, ids]
 
-    def evaluate(self, ids: Any, action: Any, time_fraction: Any, measured: bool = True) -> tuple:
+    def evaluate(
+        self, ids: Any, action: Any, time_fraction: Any, robots: Any, measured: bool = True
+    ) -> tuple:
         xp, n, k = self.xp, self.n, self.k
         if action is not None:
             self._a[:, ids] = action.reshape(-1, n * NU).T
         self._time_fraction[0, ids] = time_fraction
+        self._robots[:, ids] = robots.reshape(-1, 2 * n).T
         x = self.sim.x
         q, zeta = x[: NQ * n], x[NQ * n : 2 * NQ * n]
         q_meas, zeta_meas = (self._q_meas, self._zeta_meas) if measured else (q, zeta)
@@ -236,7 +241,9 @@ class BatchedEngine(Engine):
             x[2 * NQ * n : 2 * NQ * n + 6],
             self.sim.grasp,
             self._static,
-            self._waypoint_in,
+            self._robots,
+            self._waypoints,
+            self._count,
             self._goal,
             self._time_fraction,
             self._segments,
@@ -255,30 +262,11 @@ class BatchedEngine(Engine):
                 full_out[:, ids] = part[:, :m]
         f64 = np.float64
         obs = out[0][:, :m].reshape(n, OBSERVATION_SIZE, m).transpose(2, 0, 1).astype(f64)
-        pose = out[1][:, :m].reshape(n, 6, m).transpose(2, 0, 1).astype(f64)  # (m, N, 6)
         team = out[4][:, :m].astype(f64)
         g = out[2][:, :m].reshape(n, NK, m).transpose(2, 0, 1).astype(f64)
         cost = out[3][:, :m].reshape(n, 6, m)[:, 4].T.astype(np.int64)
-        return obs, pose, team, g, cost
-
-    def nav_twist(self, ids: Any, index: Any, pose: Any) -> Any:
-        """(m, N, 6): one batched call over the m N robots."""
-        xp = self.xp
-        m, n = index.shape
-        cols = m * n
-        cp = self._navigation.padded(cols)
-        env_rows = xp.arange(self.k)[ids]
-        params = self._nav_table[env_rows[:, None], index].reshape(cols, NAV_PARAMETERS)
-        x = pose.reshape(cols, 6)
-        if cp > cols:
-            params = xp.concatenate([params, xp.repeat(params[:1], cp - cols, axis=0)])
-            x = xp.concatenate([x, xp.repeat(x[:1], cp - cols, axis=0)])
-        x_in = xp.ascontiguousarray(x.T, self._real)
-        p = xp.ascontiguousarray(params.T, self._real)
-        bounds = np.cumsum([0, *self._navigation.signature.nnz_in[1:]]).tolist()
-        inputs = [x_in] + [xp.ascontiguousarray(p[a:b]) for a, b in itertools.pairwise(bounds)]
-        twist = self._call(self._navigation, inputs)[0]
-        return twist[:, :cols].T.reshape(m, n, 6)
+        robots = out[5][:, :m].reshape(n, 2, m).transpose(2, 0, 1).astype(f64)
+        return obs, team, g, cost, robots
 
     def wrench_sq(self, sampled: Any) -> Any:
         assert self._wrench is not None

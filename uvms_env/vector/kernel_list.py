@@ -2,19 +2,23 @@
 the CUDA compile check (``kernels_check``), so that the check compiles exactly what a GPU
 would run.
 
-May import: casadi, ``uvms_env`` below ``vector`` (the ``env`` kernels, the navigation
-function, the period routine's error-control constants) and ``uvms_env.vector.kernels``.
+May import: casadi, ``uvms_env`` below ``vector`` (the ``env`` kernels, the period
+routine's error-control constants) and ``uvms_env.vector.kernels``.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from uvms_env.navigation.parametric import parametric_twist_function
 from uvms_env.robot.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT
 from uvms_env.robot.priors import prior_functions
 from uvms_env.sim import period
-from uvms_env.task.team_kernel import BATCH_CYLINDERS, BATCH_SPHERES, team_function
+from uvms_env.task.team_kernel import (
+    BATCH_CYLINDERS,
+    BATCH_SPHERES,
+    WAYPOINT_SLOTS,
+    team_function,
+)
 from uvms_env.vector.kernels import Refinement
 
 
@@ -25,16 +29,17 @@ def kernel_functions(
     chain: Any,
     wrench: bool,
     priors_ring: float | None,
+    waypoints: int = WAYPOINT_SLOTS,
 ) -> dict[str, Any]:
     """The CasADi functions ``BatchedEngine`` batches besides the period step, by role:
     the kinematics of ``n`` robots around an object of ``n_seg`` segments (with or without
-    sensor noise), the navigation twist, with ``wrench`` the chain's internal wrench and
+    sensor noise; ``waypoints`` slots for the robots' sequencing and navigation), with
+    ``wrench`` the chain's internal wrench and
     with ``priors_ring`` (the object's ring radius) the priors' a_ss and features. One
     list for the engine and for ``kernels_check``, which compiles them for a GPU."""
     layout = (OBSERVATION_LAYOUT, tuple(FAR_OBSTACLE), noisy)
     fns = {
-        "kinematics": team_function(n, n_seg, BATCH_CYLINDERS, BATCH_SPHERES, *layout),
-        "navigation": parametric_twist_function(BATCH_CYLINDERS, BATCH_SPHERES),
+        "kinematics": team_function(n, n_seg, BATCH_CYLINDERS, BATCH_SPHERES, *layout, waypoints)
     }
     if wrench:
         fns["wrench"] = chain.internal_wrench
