@@ -383,7 +383,7 @@ class TeamKinematics(RebuiltOnUnpickle):
     After ``__call__``, per robot (rows): ``observation`` (N, size), ``pose_estimate``
     (N, 6), ``constraints`` (N, 8) in the order of ``CONSTRAINTS``, ``manipulability``,
     ``grasp_error`` (m), ``clearance`` of the robot's own bodies (m), ``violated_count``,
-    ``sequencers`` (N, 2) after this evaluation. Team: ``team()`` and ``team_rows()``.
+    ``sequencers`` (N, 2) after this evaluation. Team: ``team_rows()``.
     """
 
     _rebuilt = ("_call",)
@@ -439,16 +439,12 @@ class TeamKinematics(RebuiltOnUnpickle):
         self.manipulability, self.grasp_error = scalars[:, 0], scalars[:, 1]
         self.clearance, self.violated_count = scalars[:, 2], scalars[:, 4]
 
-    def team(self) -> list[float]:
-        """[min_clearance (every body and the object, m), min_manipulability,
-        max_grasp_error (m), min_waypoint_distance2 (a robot's estimate to its waypoint
-        after sequencing, m^2), total_violated (constraints, all robots), action_sq (sum of
-        the squared clipped normalized actions)] as floats."""
-        return self._team[:6].tolist()
-
     def team_rows(self) -> np.ndarray:
-        """The whole team output (T,) float64 (a view): the rows ``team`` lists, then the
-        kinds violated (8), ...: the task's input (``uvms_env.task.rules``)."""
+        """The whole team output (T,) float64 (a view), the task's input: the rows of
+        ``uvms_env.task.team_rows`` (min clearance of every body and the object, min
+        manipulability, max grasp error, a robot estimate's min squared distance to its
+        waypoint after sequencing, total violated, the squared clipped actions' sum, the
+        kinds violated, the object's terms)."""
         return self._team
 
     def __call__(
