@@ -156,7 +156,7 @@ def test_fixed_padding_equals_the_per_scenario_padding(envs, noisy):
             rows[absent, dim] = junk.uniform(0.1, 2.0, m)
         assert np.array_equal(_symbolic(shared, inputs), ref)
         if not env.scene.obstacles:
-            assert np.isinf(ref[-16 - 2 * N])  # the team's clearance: no obstacle at all
+            assert np.isinf(ref[-15 - 2 * N])  # the team's clearance: no obstacle at all
 
 
 def test_one_batched_call_evaluates_different_geometries(envs):

@@ -110,7 +110,7 @@ class Task(NamespacePickled):
     axis: the batch shape B is (K,) or (), and every array and result has it in front
     (B = (): numpy scalars). ``w_max``: room for waypoints per environment.
     Parts: ``sequencing`` (waypoints, the team's and each robot's sequencer; its arrays
-    ``waypoints``, ``robot_index``, ``robot_waypoint``, ``team_waypoint`` and ``goal`` are
+    ``waypoints``, ``robot_index``, ``team_waypoint`` and ``goal`` are
     read here too) and ``tally`` (the metrics' accumulators); here ``steps`` B and the
     reward's ``potential`` B. Inputs are in the same shapes: ``team`` (T,) + B, ``x_o``
     B + (6,).
@@ -178,10 +178,6 @@ class Task(NamespacePickled):
     @property
     def robot_index(self) -> Any:
         return self.sequencing.robot_index
-
-    @property
-    def robot_waypoint(self) -> Any:
-        return self.sequencing.robot_waypoint
 
     @property
     def team_waypoint(self) -> Any:

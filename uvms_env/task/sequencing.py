@@ -28,7 +28,7 @@ class Sequencing(NamespacePickled):
     team's active waypoint and the goal side by side in ``targets`` B + (2, 6) (one
     difference serves both), ``team_index``/``team_done`` B and each robot's sequencer as
     the team kernel reads and writes it, ``robots`` B + (N, 2) float64 (waypoint index,
-    done flag; ``robot_index``, ``robot_done`` and ``robot_waypoint`` read it).
+    done flag; ``robot_index`` reads it).
 
     ``host_tests``: skip the rare branches (a waypoint near) with one host test; on a GPU
     that test would cost a synchronization, so there they always run."""
@@ -61,26 +61,15 @@ class Sequencing(NamespacePickled):
         return self.robots[..., 0].astype(np.int64)
 
     @property
-    def robot_done(self) -> Any:
-        """B + (N,) bool: the robot has passed its last waypoint."""
-        return self.robots[..., 1] > 0.0
-
-    @property
-    def robot_waypoint(self) -> Any:
-        """B + (N, 6): each robot's active waypoint (a copy)."""
-        return self._waypoint_at(ALL, self.robot_index)
-
-    @property
     def goal(self) -> Any:
         """B + (6,): the final waypoint (a view)."""
         return self.targets[..., 1, :]
 
     def _waypoint_at(self, ids: Any, index: Any) -> Any:
-        """The waypoints of environments ``ids`` at ``index`` (shape B' or B' + (N,))."""
+        """The waypoints of environments ``ids`` at ``index`` (shape B')."""
         if not self.batch:
             return self.waypoints[index]
-        rows = self._rows[ids]
-        return self.waypoints[rows[:, None] if index.ndim == 2 else rows, index]
+        return self.waypoints[self._rows[ids], index]
 
     def set_geometry(self, ids: Any, waypoints: Any, counts: Any, has_obstacles: Any) -> None:
         """Environments ``ids`` take these waypoints (B' + (W, 6), zeros beyond each one's

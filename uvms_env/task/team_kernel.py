@@ -63,6 +63,10 @@ NS = 13  # per robot, known a priori: load share, grasp offset, R_Oi row-major
 #: Waypoint slots of a kernel: the random family draws at most three, the paper has three;
 #: a scenario with more uses its own count.
 WAYPOINT_SLOTS = 3
+#: Rows of the per-robot ``scalars`` output: manipulability, grasp error, own clearance,
+#: violated constraints, squared clipped action.
+ROBOT_SCALARS = 5
+ROBOT_VIOLATED = 3
 Layout = tuple[tuple[str, int], ...]  # the observation's (name, size) blocks, in order
 
 
@@ -204,7 +208,6 @@ def robot_function(
     twist = cs.vertcat(v_ee[:3] + cs.cross(arm, v_ee[3:]), v_ee[3:])
     observed = dict(layout)["obstacles"] // len(far)
     seq_next, wp, nav = _sequenced(pose, seq, table, count)
-    e_wp = pose[:3] - wp[:3]
     blocks = {
         "q": q_est,
         "zeta": z_est,
@@ -240,7 +243,6 @@ def robot_function(
         manip,
         cs.sqrt(cs.dot(e, e)),
         own,
-        cs.dot(e_wp, e_wp),
         cs.sum1(g > 0.0),
         cs.dot(a_clip, a_clip),
     )
@@ -294,8 +296,8 @@ def team_function(
     done flag, as floats), waypoints (NAV_PARAMETERS, w_slots) (``parameter_row`` of each,
     zeros beyond the count), count (1,), goal (6,), time_fraction (1,), segments
     (6, n_seg), cylinders (4, n_cyl), spheres (5, n_sph), workspace (4,).
-    Outputs: observation (size, n), pose (6, n), constraints (8, n), scalars (6, n),
-    team (16,), sequencers (2, n) after this evaluation."""
+    Outputs: observation (size, n), pose (6, n), constraints (8, n), scalars (5, n),
+    team (15,), sequencers (2, n) after this evaluation."""
     uvms = default_model()
     robot = robot_function(uvms, n_cyl, n_sph, layout, far, noisy, w_slots).map(n, "serial")
     obj = object_function(uvms.params.object.tube_radius, n_seg, n_cyl, n_sph)
@@ -317,9 +319,8 @@ def team_function(
         cs.fmin(cs.mmin(scalars[2, :]), obj_terms[0]),  # clearance of every body
         cs.mmin(scalars[0, :]),  # manipulability
         cs.mmax(scalars[1, :]),  # grasp error
-        cs.mmin(scalars[3, :]),  # squared distance of an estimate to its waypoint
-        cs.sum2(scalars[4, :]),  # violated constraints, all robots
-        cs.sum2(scalars[5, :]),  # sum of squared clipped normalized actions
+        cs.sum2(scalars[3, :]),  # violated constraints, all robots
+        cs.sum2(scalars[4, :]),  # sum of squared clipped normalized actions
         cs.sum2(g > 0.0) > 0.0,  # per kind: violated by any robot
         obj_terms,
     )
@@ -395,12 +396,10 @@ class TeamKinematics(RebuiltOnUnpickle):
         layout: Layout,
         far: Sequence[float],
         slots: tuple[int, int] | None = None,
-        waypoints: np.ndarray | None = None,
     ) -> None:
         """``slots``: (cylinders, spheres) of the kernel; default: the scenario's counts
-        padded to ``PADDED_SIZES`` (the results are the same with any padding).
-        ``waypoints``: the scenario's ``waypoint_table`` when it is known already."""
-        self._init_args = (scenario, segments, layout, far, slots, waypoints)
+        padded to ``PADDED_SIZES`` (the results are the same with any padding)."""
+        self._init_args = (scenario, segments, layout, far, slots)
         self.n = n = scenario.n_agents
         if slots is None:
             n_cyl = _padded(sum(isinstance(o, Cylinder) for o in scenario.obstacles))
@@ -410,8 +409,7 @@ class TeamKinematics(RebuiltOnUnpickle):
         self.cylinders, self.spheres = obstacle_inputs(scenario, n_cyl, n_sph)
         noisy = scenario.sensor_noise > 0
         s = scenario
-        if waypoints is None:
-            waypoints = waypoint_table(s.waypoints, s.workspace, s.obstacles, s.team_radius)
+        waypoints = waypoint_table(s.waypoints, s.workspace, s.obstacles, s.team_radius)
         w = max(len(waypoints), WAYPOINT_SLOTS)
         kernel = team_kernel(n, len(segments), n_cyl, n_sph, layout, tuple(far), noisy, w)
         self._call = BufferCall(kernel)
@@ -437,14 +435,13 @@ class TeamKinematics(RebuiltOnUnpickle):
         self.observation, self.pose_estimate, self.constraints = out[:3]
         scalars, self._team, self.sequencers = out[3], out[4].reshape(-1), out[5]
         self.manipulability, self.grasp_error = scalars[:, 0], scalars[:, 1]
-        self.clearance, self.violated_count = scalars[:, 2], scalars[:, 4]
+        self.clearance, self.violated_count = scalars[:, 2], scalars[:, ROBOT_VIOLATED]
 
     def team_rows(self) -> np.ndarray:
         """The whole team output (T,) float64 (a view), the task's input: the rows of
         ``uvms_env.task.team_rows`` (min clearance of every body and the object, min
-        manipulability, max grasp error, a robot estimate's min squared distance to its
-        waypoint after sequencing, total violated, the squared clipped actions' sum, the
-        kinds violated, the object's terms)."""
+        manipulability, max grasp error, total violated, the squared clipped actions' sum,
+        the kinds violated, the object's terms)."""
         return self._team
 
     def __call__(

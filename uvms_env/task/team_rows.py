@@ -9,6 +9,6 @@ from __future__ import annotations
 from uvms_env.task.constraints import CONSTRAINTS
 
 NK = len(CONSTRAINTS)
-CLEARANCE, MANIPULABILITY, GRASP_ERROR, WAYPOINT_DISTANCE2, VIOLATED, ACTION_SQ = range(6)
-KINDS = slice(6, 6 + NK)  # per constraint kind: is it violated by any robot
+CLEARANCE, MANIPULABILITY, GRASP_ERROR, VIOLATED, ACTION_SQ = range(5)
+KINDS = slice(5, 5 + NK)  # per constraint kind: is it violated by any robot
 ALL = ...  # every environment, as an index (also of a single environment's 0-d arrays)

@@ -34,6 +34,8 @@ from uvms_env.task.conditions import Conditions
 from uvms_env.task.team_kernel import (
     BATCH_CYLINDERS,
     BATCH_SPHERES,
+    ROBOT_SCALARS,
+    ROBOT_VIOLATED,
     WAYPOINT_SLOTS,
     obstacle_inputs,
     segment_inputs,
@@ -264,7 +266,7 @@ class BatchedEngine(Engine):
         obs = out[0][:, :m].reshape(n, OBSERVATION_SIZE, m).transpose(2, 0, 1).astype(f64)
         team = out[4][:, :m].astype(f64)
         g = out[2][:, :m].reshape(n, NK, m).transpose(2, 0, 1).astype(f64)
-        cost = out[3][:, :m].reshape(n, 6, m)[:, 4].T.astype(np.int64)
+        cost = out[3][:, :m].reshape(n, ROBOT_SCALARS, m)[:, ROBOT_VIOLATED].T.astype(np.int64)
         robots = out[5][:, :m].reshape(n, 2, m).transpose(2, 0, 1).astype(f64)
         return obs, team, g, cost, robots
 
