@@ -9,7 +9,7 @@ without a channel (neither talks, and the channel changes no physics draw).
 Reference: docs/channel.md.
 
 May import: the standard library, numpy, ``uvms_env.robot.channel``, ``baselines.evaluation``,
-``baselines.options`` and ``baselines.ladder``.
+``baselines.command_line`` and ``baselines.ladder``.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from baselines.command_line import command_parser, usage_errors
 from baselines.evaluation.outputs import Play, run_and_write, write_result
 from baselines.evaluation.report import pyplot, save
 from baselines.evaluation.runner import Case, Settings, UsageError
@@ -39,7 +40,6 @@ from baselines.ladder import (
     rung_summary,
     settings_of,
 )
-from baselines.options import command_parser, usage_errors
 from uvms_env.robot.channel import ChannelSettings, channel_settings
 
 TALKER = "nmpc:comm"

@@ -6,7 +6,7 @@
 Every policy plays exactly the same episodes, and a result depends only on (policy,
 scenario, seed), never on the number of workers. Outputs and policies: docs/evaluation.md.
 
-May import: the standard library, ``baselines.evaluation``, ``baselines.options`` and
+May import: the standard library, ``baselines.evaluation``, ``baselines.command_line`` and
 ``baselines.evaluation.marl_eval``. The command line only: the evaluator's parts live in
 ``baselines.evaluation``.
 """
@@ -17,10 +17,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from baselines.evaluation.outputs import run_and_write
-from baselines.evaluation.report import markdown_table
-from baselines.evaluation.runner import BACKENDS, Settings, UsageError
-from baselines.options import (
+from baselines.command_line import (
     SCENARIOS,
     add_condition_arguments,
     command_parser,
@@ -28,6 +25,9 @@ from baselines.options import (
     positive_int,
     usage_errors,
 )
+from baselines.evaluation.outputs import run_and_write
+from baselines.evaluation.report import markdown_table
+from baselines.evaluation.runner import BACKENDS, Settings, UsageError
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -9,7 +9,7 @@ against ``nmpc:central``) on the paired episodes.
 ``--from EPISODES_CSV`` aggregates earlier runs instead of playing.
 Reference: docs/evaluation.md, docs/results.md.
 
-May import: the standard library, numpy, ``baselines.evaluation``, ``baselines.options`` and
+May import: the standard library, numpy, ``baselines.evaluation``, ``baselines.command_line`` and
 ``baselines.stats``.
 """
 
@@ -21,11 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.evaluation.outputs import read_episodes, run_and_write, write_result
-from baselines.evaluation.report import pyplot, save
-from baselines.evaluation.runner import Case, Settings, UsageError
-from baselines.evaluation.summary import metric_values, summarize
-from baselines.options import (
+from baselines.command_line import (
     CURRENT_PRESETS,
     command_parser,
     existing_path,
@@ -35,6 +31,10 @@ from baselines.options import (
     team_size,
     usage_errors,
 )
+from baselines.evaluation.outputs import read_episodes, run_and_write, write_result
+from baselines.evaluation.report import pyplot, save
+from baselines.evaluation.runner import Case, Settings, UsageError
+from baselines.evaluation.summary import metric_values, summarize
 from baselines.stats import bootstrap_mean_interval
 
 CENTRAL = "nmpc:central"

@@ -40,13 +40,13 @@ from typing import Any, Protocol
 import numpy as np
 from tqdm import tqdm
 
+from baselines.command_line import team_variants
 from baselines.evaluation.during_training import (
     evaluate_rungs,
     evaluation_score,
 )
 from baselines.lagrangian import CostSettings
 from baselines.loaders.saved import CONFIG_FILE, read_config
-from baselines.options import team_variants
 from baselines.registry import policy_spec
 
 PROGRESS_FILE = "progress.csv"

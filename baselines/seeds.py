@@ -12,7 +12,7 @@ score matrix is seeds x cases (the rows' ``scenario``); bootstrap intervals resa
 seeds within each case. Reference: docs/rl.md, docs/results.md.
 
 May import: the standard library, numpy, ``baselines.evaluation.outputs`` (the
-episodes.csv reader), ``baselines.options`` and ``baselines.stats`` (rliable's intervals).
+episodes.csv reader), ``baselines.command_line`` and ``baselines.stats`` (rliable's intervals).
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from baselines.command_line import command_parser, existing_path, usage_errors
 from baselines.evaluation.outputs import read_episodes
-from baselines.options import command_parser, existing_path, usage_errors
 from baselines.stats import iqm_and_mean
 
 METRICS = {

@@ -9,7 +9,7 @@ the flag's earlier name, still accepted. Every option is checked before the run 
 the env and the model (the environment's own checks, the library's: ``check_library``);
 a refusal is a usage error. Reference: docs/rl.md, docs/scale-out.md.
 
-May import: ``baselines.runs``, ``baselines.options``, ``baselines.lagrangian``,
+May import: ``baselines.runs``, ``baselines.command_line``, ``baselines.lagrangian``,
 ``baselines.registry`` and the trainer modules it names (imported on demand: a library
 loads only when it is chosen), and ``uvms_env`` (its checks of the environment options).
 """
@@ -21,8 +21,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from baselines.lagrangian import COSTS, CostSettings
-from baselines.options import (
+from baselines.command_line import (
     SCENARIOS,
     add_condition_arguments,
     add_evaluation_arguments,
@@ -38,6 +37,7 @@ from baselines.options import (
     team_sizes,
     usage_errors,
 )
+from baselines.lagrangian import COSTS, CostSettings
 from baselines.registry import DEFAULT_LIBRARY, LIBRARIES, library, trainer_module
 from baselines.runs import RunSettings
 

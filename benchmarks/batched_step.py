@@ -22,11 +22,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from baselines.options import non_negative_int, positive_int, script_parser, team_size
+from baselines.command_line import non_negative_int, positive_int, script_parser, team_size
 from uvms_env.scenarios import make
 from uvms_env.sim import Simulator
+from uvms_env.vector.batched_simulator import BatchedSimulator
 from uvms_env.vector.kernels import DTYPES
-from uvms_env.vector.simulator import BatchedSimulator
 
 
 def single_rate(scenario, periods: int, rng: np.random.Generator) -> float:

@@ -23,7 +23,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # BLAS threads collapse on shared
 import numpy as np
 
 import uvms_env
-from baselines.options import positive_int, script_parser, team_size
+from baselines.command_line import positive_int, script_parser, team_size
 from nmpc_expert import CentralNMPC, make_central_policy
 from uvms_env.episode import play_team
 

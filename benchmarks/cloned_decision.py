@@ -24,8 +24,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
+from baselines.command_line import non_negative_int, positive_int, script_parser
 from baselines.loaders.sources import PolicySource
-from baselines.options import non_negative_int, positive_int, script_parser
 from uvms_env.policy import AgentSpec, PolicyFactory
 
 NUMPY = "{} (numpy layers)"

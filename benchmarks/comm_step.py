@@ -22,7 +22,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
-from baselines.options import positive_int, script_parser
+from baselines.command_line import positive_int, script_parser
 from uvms_env.vector import VectorEnv
 
 

@@ -79,7 +79,7 @@ def run(way: str, scenario: str, steps: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from baselines.options import script_parser  # after OMP_NUM_THREADS is set
+    from baselines.command_line import script_parser  # after OMP_NUM_THREADS is set
 
     ap = script_parser(__file__, __doc__)
     ap.add_argument("--scenarios", nargs="+", choices=("paper", "random"), default=["paper"])

@@ -26,7 +26,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
-from baselines.options import positive_int, script_parser, team_size
+from baselines.command_line import positive_int, script_parser, team_size
 
 
 def env_rate(env, actions: list[dict[str, np.ndarray]]) -> float:

@@ -24,10 +24,10 @@ from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+from baselines.command_line import non_negative_int, positive_int, script_parser, team_size
 from baselines.evaluation.outputs import write_outputs
 from baselines.evaluation.runner import evaluate
 from baselines.evaluation.summary import VIOLATION_KINDS
-from baselines.options import non_negative_int, positive_int, script_parser, team_size
 
 PAPER_CASE = ("paper_mild_mismatch0.1", "paper", {"current": "mild", "mismatch": 0.1})
 

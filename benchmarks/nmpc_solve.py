@@ -24,7 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
-from baselines.options import positive_int, script_parser, team_size
+from baselines.command_line import positive_int, script_parser, team_size
 from nmpc_expert import CONTROLLERS, make_policy
 from uvms_env.policy import AgentSpec
 

@@ -17,7 +17,7 @@ import statistics
 import subprocess
 from pathlib import Path
 
-from baselines.options import positive_int, script_parser
+from baselines.command_line import positive_int, script_parser
 
 BROWSERS = ("chromium-headless-shell", "chromium", "chromium-browser", "google-chrome")
 FLAGS = (

@@ -24,7 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from baselines.options import positive_float, positive_int, script_parser, team_size
+from baselines.command_line import positive_float, positive_int, script_parser, team_size
 from baselines.rl.shield import Shield
 from uvms_env.vector import VectorEnv
 

@@ -15,7 +15,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from baselines.options import positive_int, script_parser
+from baselines.command_line import positive_int, script_parser
 from uvms_env.scenarios import make
 from uvms_env.sim import Simulator
 

@@ -24,7 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
-from baselines.options import non_negative_int, positive_int, script_parser
+from baselines.command_line import non_negative_int, positive_int, script_parser
 
 # (name, family, overrides, share of the step budget): one RK4 substep per period refines
 # every period (~20x slower), so that case gets a quarter share.

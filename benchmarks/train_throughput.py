@@ -34,7 +34,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from baselines import train as trainer
-from baselines.options import positive_int, script_parser, team_size
+from baselines.command_line import positive_int, script_parser, team_size
 from baselines.registry import trainer_module
 from baselines.runs import RunSettings
 from uvms_env.vector import VectorEnv

@@ -32,7 +32,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 import uvms_env
-from baselines.options import non_negative_int, positive_float, positive_int, script_parser
+from baselines.command_line import non_negative_int, positive_float, positive_int, script_parser
 from uvms_env.vector import VectorEnv
 from uvms_env.vector.kernels import DTYPES, available_cores
 

@@ -13,8 +13,8 @@ One NMPCPolicy per agent on the PettingZoo environment (``uvms_env.parallel_env`
 fed only its own observation. Every option is checked against the environment's own table
 before the controllers are built.
 
-May import: numpy, ``nmpc_expert`` (its rollout, settings and figures) and ``uvms_env``
-(the options' tables, the scenario families).
+May import: numpy, ``nmpc_expert`` (its ``distributed_episode``, settings and figures) and
+``uvms_env`` (the options' tables, the scenario families).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from nmpc_expert.rollout import run_episode
+from nmpc_expert.distributed_episode import run_episode
 from nmpc_expert.settings import CONTROLLERS, controller_settings
 from uvms_env.env.options import ENV_OPTIONS
 from uvms_env.scenarios import CURRENT_PRESETS, FAMILIES, make

@@ -27,7 +27,7 @@ import casadi as cs
 import numpy as np
 
 from nmpc_expert.local_controller import NMPCPolicy
-from nmpc_expert.observation import OBSERVATION_SIZE
+from nmpc_expert.observation_reader import OBSERVATION_SIZE
 from nmpc_expert.settings import NMPCSettings, controller_settings
 from uvms_env.dynamics import NU
 from uvms_env.dynamics.local_model import NX

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from nmpc_expert.observation import OBSERVATION_STRUCTURE, check_observation
+from nmpc_expert.observation_reader import OBSERVATION_STRUCTURE, check_observation
 from nmpc_expert.ocp import NC, WEIGHT_LAYOUT, ocp_functions, weight_vector
 from nmpc_expert.reference import GoalIntegral, HorizonReference
 from nmpc_expert.rti import ExtraRows, RTISolver

@@ -1,12 +1,12 @@
 """The evaluator by job, under ``python -m baselines.evaluate`` (its command line), the
 ladder (``baselines.ladder``) and the channel sweep (``baselines.comm_sweep``):
-``episode`` (one episode, one row), ``runner`` (cases, the preflight that builds each
+``episode_row`` (one episode, one row), ``runner`` (cases, the preflight that builds each
 case and policy once before any episode, seeded episodes, worker pool, ``Settings``),
 ``summary`` (the statistics every table reads, the failed episodes per policy), ``report``
 (Markdown table, the failures' lines and plots) and ``outputs`` (the files and the
 run-and-write sequence every command shares).
 
-Inside the package, ``outputs`` imports the others, ``runner`` imports ``episode``, and
+Inside the package, ``outputs`` imports the others, ``runner`` imports ``episode_row``, and
 ``report`` imports ``summary``; nothing here imports a command.
 
 May import: the standard library, numpy, tqdm, matplotlib, ``baselines.loaders.sources``,

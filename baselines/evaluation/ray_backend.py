@@ -1,7 +1,7 @@
 """Episodes of ``baselines.evaluate`` as Ray tasks: ``--backend ray [--address ADDR]``.
 
-Each episode job runs ``baselines.evaluation.episode.run_episode`` in a Ray worker, one CPU each,
-on a local Ray (``num_cpus`` = the evaluator's ``--workers``) or on the cluster at
+Each episode job runs ``baselines.evaluation.episode_row.run_episode`` in a Ray worker, one
+CPU each, on a local Ray (``num_cpus`` = the evaluator's ``--workers``) or on the cluster at
 ``address``. A row depends only on its job, so the rows equal the process pool's; the
 caller sorts them. Every node needs the project installed (same Python, same checkout):
 the tasks import it by name.

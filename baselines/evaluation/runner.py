@@ -11,7 +11,7 @@ a case the environment refuses or a policy that cannot be loaded is a ``UsageErr
 naming it, not a column of failed episodes. A policy that fails while it plays (a solver error)
 still ends its episodes as failures, each with its error.
 
-May import: the standard library, tqdm, ``baselines.evaluation.episode``,
+May import: the standard library, tqdm, ``baselines.evaluation.episode_row``,
 ``baselines.loaders.sources``, ``baselines.evaluation.ray_backend`` (``backend="ray"``) and
 ``uvms_env``.
 """
@@ -28,7 +28,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from baselines.evaluation.episode import EpisodeJob, run_episode
+from baselines.evaluation.episode_row import EpisodeJob, run_episode
 from baselines.loaders.sources import PolicySource
 from uvms_env.replay import replay_path
 

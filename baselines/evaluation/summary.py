@@ -1,7 +1,7 @@
 """The statistics of a group of episodes: ``summarize``, the one summary that the
 evaluator's table (``aggregate``), the ladder's rungs and the channel sweep all read.
 
-A group is one policy's episodes on one case: rows of ``baselines.evaluation.episode``,
+A group is one policy's episodes on one case: rows of ``baselines.evaluation.episode_row``,
 fresh or read back from ``episodes.csv``. Rates count the episodes within the current's
 reach, with Wilson 95% intervals; means come with seeded bootstrap 95% intervals
 (``baselines.stats``); decision times pool every decision of the episodes.

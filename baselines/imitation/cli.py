@@ -27,14 +27,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 from tqdm import tqdm
 
-from baselines.evaluation.during_training import evaluate_rungs
-from baselines.imitation import bc, dataset
-from baselines.imitation.dataset import AgentStream
-from baselines.imitation.features import FEATURES
-from baselines.imitation.network import MLPPolicyNet
-from baselines.imitation.rollout import RolloutJob, parallel_rollouts
-from baselines.loaders.sources import PolicySource
-from baselines.options import (
+from baselines.command_line import (
     SCENARIOS,
     add_condition_arguments,
     add_evaluation_arguments,
@@ -51,6 +44,13 @@ from baselines.options import (
     team_variants,
     usage_errors,
 )
+from baselines.evaluation.during_training import evaluate_rungs
+from baselines.imitation import bc, dataset
+from baselines.imitation.dataset import AgentStream
+from baselines.imitation.features import FEATURES
+from baselines.imitation.labelled_rollouts import RolloutJob, parallel_rollouts
+from baselines.imitation.network import MLPPolicyNet
+from baselines.loaders.sources import PolicySource
 from baselines.runs import (
     EVAL_KEEP,
     hardware,

@@ -4,5 +4,5 @@ of the constraint cost (``cost``), learning curves (``plot``), and trained model
 per-agent policies (``policy``, ``torchrl_policy``; PPO's decision compiled whole,
 ``actor``). May import: uvms_env, stable-baselines3, torch, torchrl, ``baselines.runs``,
 ``baselines.lagrangian``, ``baselines.loaders.saved``, ``baselines.registry``,
-``baselines.options``, ``baselines.evaluation.report`` (the figures) and
+``baselines.command_line``, ``baselines.evaluation.report`` (the figures) and
 ``baselines.imitation``'s compiled-network code."""

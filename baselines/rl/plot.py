@@ -11,7 +11,7 @@
 evaluations on every rung. Reference: docs/rl.md.
 
 May import: the standard library, numpy, ``baselines.evaluation.report`` (the figures'
-backend), ``baselines.options`` and ``baselines.stats``.
+backend), ``baselines.command_line`` and ``baselines.stats``.
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from baselines.command_line import command_parser
 from baselines.evaluation.report import pyplot, save
-from baselines.options import command_parser
 from baselines.stats import t_band
 
 

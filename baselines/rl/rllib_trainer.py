@@ -9,7 +9,7 @@ shared by all robots.
 the final ``checkpoint/``, which ``--resume`` restores. Reference: docs/scale-out.md.
 
 May import: ray (inside functions), torch, ``baselines.runs``, ``baselines.lagrangian``,
-``baselines.registry``, ``baselines.options`` (the flags' types), ``baselines.rl.rllib_env``
+``baselines.registry``, ``baselines.command_line`` (the flags' types), ``baselines.rl.rllib_env``
 and ``uvms_env``.
 """
 
@@ -21,9 +21,9 @@ import os
 from pathlib import Path
 from typing import Any
 
+from baselines.command_line import non_negative_int, positive_int
 from baselines.lagrangian import Lagrangian
 from baselines.loaders.rllib_policy import POLICY_ID
-from baselines.options import non_negative_int, positive_int
 from baselines.registry import LIBRARIES
 from baselines.runs import Run, seeded_pool
 

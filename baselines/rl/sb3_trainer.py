@@ -9,7 +9,7 @@ Flags and the modules behind them: docs/rl.md.
 
 May import: numpy, torch and stable-baselines3 (inside the trainer), ``baselines.runs``,
 ``baselines.lagrangian``, ``baselines.loaders.saved`` (a run's priors), ``baselines.rl``,
-``baselines.options`` (the flags' types) and ``uvms_env``.
+``baselines.command_line`` (the flags' types) and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from typing import TYPE_CHECKING, Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+from baselines.command_line import non_negative_float, non_negative_int
 from baselines.loaders.saved import priors_from_options
 from baselines.loaders.sb3_policy import ALGOS, algorithm_class
-from baselines.options import non_negative_float, non_negative_int
 from baselines.runs import (
     DEFAULT_DTYPE,
     DEFAULT_ENV_THREADS,

@@ -9,7 +9,7 @@ trainer (``HYPERPARAMETERS``); the actor keeps the observation statistics, so th
 Reference: docs/rl.md, "The torchrl trainer".
 
 May import: numpy, torch, tensordict and torchrl (inside the training functions),
-``baselines.runs``, ``baselines.lagrangian``, ``baselines.registry``, ``baselines.options``
+``baselines.runs``, ``baselines.lagrangian``, ``baselines.registry``, ``baselines.command_line``
 (the flags' types), ``baselines.loaders.torchrl_policy`` (the actor's network) and ``uvms_env``.
 """
 
@@ -29,6 +29,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from baselines.command_line import positive_int
 from baselines.lagrangian import Lagrangian
 from baselines.loaders.torchrl_policy import (
     ACTOR_FILE,
@@ -38,10 +39,9 @@ from baselines.loaders.torchrl_policy import (
     mlp,
     save_actor,
 )
-from baselines.options import positive_int
 from baselines.registry import LIBRARIES
 from baselines.runs import DTYPES, Run, add_step_arguments, seeded_pool
-from uvms_env.vector.simulator import BACKENDS
+from uvms_env.vector.batched_simulator import BACKENDS
 
 ALGOS = LIBRARIES["torchrl"].algos
 HYPERPARAMETERS: dict[str, Any] = {

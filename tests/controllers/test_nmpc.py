@@ -13,7 +13,7 @@ import pytest
 import uvms_env
 from nmpc_expert import NMPCPolicy, NMPCSettings, make_policy
 from nmpc_expert.local_controller import local_parameters
-from nmpc_expert.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
+from nmpc_expert.observation_reader import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
 from nmpc_expert.ocp import CONSTRAINT_NAMES, CONSTRAINT_STATE, NC, WEIGHT_LAYOUT, build_outputs
 from uvms_env.dynamics import ObjectModel
 from uvms_env.dynamics.local_model import NX, build_local_model
@@ -178,7 +178,7 @@ def test_bad_observations_raise(env, short_run):
 
 @pytest.mark.slow
 def test_paper_scenario_full():
-    from nmpc_expert.rollout import run_episode
+    from nmpc_expert.distributed_episode import run_episode
 
     m, _, _ = run_episode("paper", progress=False)
     assert m["success"] and m["waypoints_in_order"]

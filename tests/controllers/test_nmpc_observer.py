@@ -16,7 +16,7 @@ import pytest
 
 import uvms_env
 from nmpc_expert import NMPCPolicy, NMPCSettings, make_policy
-from nmpc_expert.observation import OBSERVATION_STRUCTURE
+from nmpc_expert.observation_reader import OBSERVATION_STRUCTURE
 from uvms_env.dynamics import NQ, NU, ObjectModel
 from uvms_env.dynamics.local_model import NTHETA, NX, local_terms
 from uvms_env.dynamics.uvms import default_model

@@ -95,7 +95,7 @@ def test_nmpc_settings_from_the_policy_name():
 
 
 def test_within_reach_follows_the_current_preset():
-    from baselines.evaluation.episode import within_reach
+    from baselines.evaluation.episode_row import within_reach
     from uvms_env.scenarios import make
 
     assert within_reach(make("paper"))  # no current

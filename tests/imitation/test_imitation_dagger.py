@@ -14,7 +14,7 @@ from script_loader import load_script
 import uvms_env
 from baselines.imitation.cli import main
 from baselines.imitation.dataset import read_dataset
-from baselines.imitation.rollout import rollouts
+from baselines.imitation.labelled_rollouts import rollouts
 
 pytest.importorskip("torch")
 pytest.importorskip("minari")

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from baselines.options import add_condition_arguments, condition_overrides, team_sizes
+from baselines.command_line import add_condition_arguments, condition_overrides, team_sizes
 from baselines.train import build_parser, main, settings_from
 
 pytest.importorskip("stable_baselines3")
@@ -235,7 +235,7 @@ def test_torchrl_trains_over_team_sizes(tmp_path, capsys):
 
 # -- imitation over the distribution --------------------------------------------------------
 def test_parallel_rollouts_equal_one_process_and_cycle_the_team_sizes():
-    from baselines.imitation.rollout import RolloutJob, parallel_rollouts
+    from baselines.imitation.labelled_rollouts import RolloutJob, parallel_rollouts
 
     job = RolloutJob(
         "random",
@@ -256,7 +256,7 @@ def test_parallel_rollouts_equal_one_process_and_cycle_the_team_sizes():
 
 
 def test_a_rollout_job_meets_every_team_size_with_every_object():
-    from baselines.imitation.rollout import RolloutJob
+    from baselines.imitation.labelled_rollouts import RolloutJob
 
     job = RolloutJob("random", {"internal_wrench_every": 0}, (2, 3), objects=("ring", "bar"))
     played = [job.env(100 + e, e) for e in range(8)]

@@ -17,7 +17,7 @@ from uvms_env.robot.observation import OBSERVATION_STRUCTURE
 from uvms_env.scenarios import Scenario, make, replace
 from uvms_env.sim.period import ENVELOPE, INACCURATE, OK, SPEED_LIMITS
 from uvms_env.vector import VectorEnv
-from uvms_env.vector.simulator import BatchedSimulator
+from uvms_env.vector.batched_simulator import BatchedSimulator
 
 torch = pytest.importorskip("torch")
 

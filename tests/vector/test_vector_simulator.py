@@ -9,7 +9,7 @@ import pytest
 from uvms_env.scenarios import make
 from uvms_env.sim import Simulator
 from uvms_env.sim.period import ENVELOPE, OK, SPEED_LIMITS
-from uvms_env.vector.simulator import BatchedSimulator
+from uvms_env.vector.batched_simulator import BatchedSimulator
 
 K = 13  # not a multiple of any lane count: the padding is exercised
 

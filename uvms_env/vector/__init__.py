@@ -2,17 +2,17 @@
 
 Built from the same CasADi graphs as the single environment (ARCHITECTURE: one graph,
 three targets): ``kernels`` compiles a generated function for K environments per call,
-``simulator`` steps K truth simulators of one team size and object through it, ``env``
-is the whole environment batched (``VectorEnv``), ``bank`` keeps the seeded families'
-geometries on disk, ``gym_vector`` and ``sb3`` adapt ``VectorEnv`` to Gymnasium's and
-stable-baselines3's vector APIs.
+``batched_simulator`` steps K truth simulators of one team size and object through it,
+``env`` is the whole environment batched (``VectorEnv``), ``bank`` keeps the seeded
+families' geometries on disk, ``gym_vector`` and ``sb3`` adapt ``VectorEnv`` to Gymnasium's
+and stable-baselines3's vector APIs.
 
 May import: numpy, casadi, gymnasium, and ``uvms_env`` below ``vector`` (dynamics, sim,
 navigation, scenarios, env); stable-baselines3 only in ``sb3``; CuPy only inside the
 CUDA backend, when asked for.
 """
 
+from uvms_env.vector.batched_simulator import BatchedSimulator
 from uvms_env.vector.env import VectorEnv
-from uvms_env.vector.simulator import BatchedSimulator
 
 __all__ = ["BatchedSimulator", "VectorEnv"]

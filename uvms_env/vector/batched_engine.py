@@ -41,9 +41,9 @@ from uvms_env.task.team_kernel import (
     segment_inputs,
 )
 from uvms_env.task.team_rows import NK
+from uvms_env.vector.batched_simulator import BatchedSimulator
 from uvms_env.vector.kernel_list import kernel_functions
 from uvms_env.vector.kernels import BatchedFunction
-from uvms_env.vector.simulator import BatchedSimulator
 
 DIVERGED_REASONS = {
     INACCURATE: (

@@ -41,8 +41,8 @@ from uvms_env.env.options import (
 from uvms_env.scenarios import Scenario
 from uvms_env.scenarios.overrides import Option
 from uvms_env.vector.batched_engine import DIVERGED_REASONS, BatchedEngine
+from uvms_env.vector.batched_simulator import BACKENDS, BatchedSimulator
 from uvms_env.vector.kernels import available_cores
-from uvms_env.vector.simulator import BACKENDS, BatchedSimulator
 
 ALL = slice(None)  # every environment, as an index
 VECTOR_OPTIONS: dict[str, Option] = {

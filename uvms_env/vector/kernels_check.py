@@ -9,7 +9,7 @@ error, an unbounded stack or registers beyond a block's register file. Why, the 
 and the measured table: docs/batched.md, "CUDA kernels: compile check".
 
 May import: numpy, casadi, ``uvms_env`` below ``vector`` (the functions the backend
-batches, as ``engine`` and ``simulator`` make them) and the sibling ``vector`` modules.
+batches, as ``engine`` and ``batched_simulator`` make them) and the sibling ``vector`` modules.
 """
 
 from __future__ import annotations
