@@ -27,7 +27,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from baselines.options import non_negative_int, positive_int, script_parser, team_size
+from baselines.command_line import non_negative_int, positive_int, script_parser, team_size
 from uvms_env.vector import VectorEnv
 from uvms_env.vector.kernels import DTYPES, BatchedFunction
 
