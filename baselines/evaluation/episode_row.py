@@ -23,6 +23,9 @@ from uvms_env.episode import decision_time_summary
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 from uvms_env.task.constraints import CONSTRAINTS
 
+# the ``episode_end`` of an episode that raised (the env's own kinds: EPISODE_ENDS)
+ERROR_END = "error"
+
 
 @dataclass(frozen=True)
 class EpisodeJob:
@@ -88,10 +91,12 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
             episode = play(env, checked(source, job.seed), job.seed, **hooks)
         env.close()
         row.update(flatten_metrics(episode.metrics))
+        row["episode_end"] = episode.end  # success, max_cycles, collision, ...
     except Exception as exc:  # a failing policy must not stop the evaluation
         row["error"] = f"{type(exc).__name__}: {exc}"
         row["traceback"] = traceback.format_exc(limit=5)
         row["success"] = False
+        row["episode_end"] = ERROR_END
     row["return"] = total_reward
     if row["error"]:  # no env metrics: the episode did not end
         row["violation_periods"] = 0

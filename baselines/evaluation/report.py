@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.evaluation.summary import VIOLATION_KINDS, failures
+from baselines.evaluation.summary import END_KINDS, VIOLATION_KINDS, failures
 
 Row = dict[str, Any]
 
@@ -30,9 +30,9 @@ def failure_lines(rows: Sequence[Row]) -> list[str]:
 
 
 def markdown_table(summaries: Sequence[Row], failed: Sequence[str] = ()) -> str:
-    """``results.md``: a row per summary (``aggregate``), then the violations per kind,
-    what ``information`` means when a team policy is among them and the ``failed`` lines
-    (``failure_lines``)."""
+    """``results.md``: a row per summary (``aggregate``), then the violations per kind and
+    how the episodes ended, what ``information`` means when a team policy is among them
+    and the ``failed`` lines (``failure_lines``)."""
 
     def fmt(x: Any, digits: int = 2) -> str:
         return (
@@ -67,6 +67,12 @@ def markdown_table(summaries: Sequence[Row], failed: Sequence[str] = ()) -> str:
     lines += ["", f"| policy | scenario | {kinds} |", "|---|---|" + "---|" * len(VIOLATION_KINDS)]
     for s in summaries:
         counts = " | ".join(str(s["violations"][k]) for k in VIOLATION_KINDS)
+        lines.append(f"| {s['policy']} | {s['scenario']} | {counts} |")
+    lines += ["", f"| policy | scenario | {' | '.join(END_KINDS)} |"]
+    lines.append("|---|---|" + "---|" * len(END_KINDS))
+    for s in summaries:
+        ends = s.get("episode_ends")
+        counts = " | ".join(str(ends[k]) if ends else "n/a" for k in END_KINDS)
         lines.append(f"| {s['policy']} | {s['scenario']} | {counts} |")
     if any(s.get("information") == "full" for s in summaries):
         lines += [

@@ -6,8 +6,9 @@ fresh or read back from ``episodes.csv``. Rates count the episodes within the cu
 reach, with Wilson 95% intervals; means come with seeded bootstrap 95% intervals
 (``baselines.stats``); decision times pool every decision of the episodes.
 
-May import: the standard library, numpy, ``baselines.stats`` and ``uvms_env`` (the metric
-and constraint names, the decision-time summary).
+May import: the standard library, numpy, ``baselines.stats``, ``baselines.evaluation.episode_row``
+(the error's end) and ``uvms_env`` (the metric, constraint and episode-end names, the
+decision-time summary).
 """
 
 from __future__ import annotations
@@ -17,14 +18,17 @@ from typing import Any
 
 import numpy as np
 
+from baselines.evaluation.episode_row import ERROR_END
 from baselines.stats import bootstrap_mean_interval, wilson_interval
 from uvms_env.episode import decision_time_summary
 from uvms_env.task.constraints import CONSTRAINTS
 from uvms_env.task.metrics import METRICS
+from uvms_env.task.rules import EPISODE_ENDS
 
 Row = dict[str, Any]
 
 VIOLATION_KINDS = CONSTRAINTS
+END_KINDS = (*EPISODE_ENDS, ERROR_END)  # how the episodes of a summary ended
 # numeric per-episode metrics averaged with bootstrap intervals (same names as the env's);
 # success and clean success are rates, the violations are counted per kind
 NOT_AVERAGED = ("success", "clean_success", "violations", "violation_periods", "policy_time_ms")
@@ -103,9 +107,10 @@ def summarize(
     * each of ``means``: its mean and bootstrap ``_ci95`` (None without a finite value),
       and ``violation_periods_median``, over every episode or, ``within_reach_only``,
       those within reach (the ladder compares rungs on the episodes they can win);
-    * ``violations`` (the total per constraint), ``intervention_rate`` and
-      ``intervention_mean`` (``interventions``) and ``policy_time_ms``
-      (``decision_times``), over every episode.
+    * ``violations`` (the total per constraint), ``episode_ends`` (how many ended each
+      way, ``END_KINDS``; None for rows that do not record it, as older episodes.csv
+      files), ``intervention_rate`` and ``intervention_mean`` (``interventions``) and
+      ``policy_time_ms`` (``decision_times``), over every episode.
     """
     reach = [r for r in rows if r.get("current_within_reach", True)]
     n = len(reach)
@@ -133,6 +138,8 @@ def summarize(
         kind: int(sum(r.get(f"violations_{kind}", 0) or 0 for r in rows))
         for kind in VIOLATION_KINDS
     }
+    ends = [r.get("episode_end") for r in rows]
+    out["episode_ends"] = {kind: ends.count(kind) for kind in END_KINDS} if all(ends) else None
     out.update(interventions(rows))
     out["policy_time_ms"] = decision_times(rows)
     return out

@@ -10,6 +10,7 @@ import numpy as np
 
 from baselines.evaluation.outputs import write_outputs
 from baselines.evaluation.runner import evaluate
+from uvms_env.task.rules import EPISODE_ENDS
 
 
 class _Raises:
@@ -73,14 +74,24 @@ def test_a_raising_policy_is_a_failed_episode_not_a_crash(tmp_path):
     )
     bad = [r for r in rows if r["policy"].startswith("tests.")]
     assert bad and "policy exploded" in bad[0]["error"] and bad[0]["success"] is False
+    # how each ended: the raising policy's episode an error, the zero policy's at the limit
+    assert [r["episode_end"] for r in rows] == ["error", "max_cycles"]
     summaries = write_outputs(rows, 0, tmp_path)
     assert (tmp_path / "episodes.csv").exists() and (tmp_path / "results.md").exists()
     assert json.loads((tmp_path / "results.json").read_text())[0]["errors"] == 1
     assert summaries[1]["errors"] == 0
+    ends = [s["episode_ends"] for s in summaries]
+    assert ends[0]["error"] == 1 and ends[1]["max_cycles"] == 1
+    assert all(sum(e.values()) == s["episodes"] for e, s in zip(ends, summaries, strict=True))
+    ends_table = (tmp_path / "results.md").read_text().split("| max_cycles | error |")[1]
+    assert "| zero | short | 0 | 0 | 0 | 0 | 1 | 0 |" in ends_table
 
 
 def test_random_policy_scores_lower_than_the_expert():
     rows = evaluate(["nmpc", "random"], ["short"], 2, 0, workers=2, progress=False)
+    # each episode's recorded end is the env's, and it says success exactly when it succeeded
+    assert all(r["episode_end"] in EPISODE_ENDS for r in rows)
+    assert all((r["episode_end"] == "success") == bool(r["success"]) for r in rows)
     rate = {
         p: np.mean([bool(r["success"]) for r in rows if r["policy"] == p])
         for p in ("nmpc", "random")

@@ -91,6 +91,11 @@ def resolve_function(name: str, fn: Any) -> TaskFunction:
     return out
 
 
+#: How an ended episode can end (``infos["episode_end"]``), in the order ``episode_end``
+#: tests them.
+EPISODE_ENDS = ("success", "diverged", "collision", "constraint", "max_cycles")
+
+
 def episode_end(success: bool, diverged: bool, collision: bool, failed: bool) -> str:
     """How an ended episode ended (``infos["episode_end"]``), the first that applies of
     success, diverged, collision, constraint (another failure), max_cycles."""
