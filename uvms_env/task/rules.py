@@ -97,15 +97,10 @@ EPISODE_ENDS = ("success", "diverged", "collision", "constraint", "max_cycles")
 
 
 def episode_end(success: bool, diverged: bool, collision: bool, failed: bool) -> str:
-    """How an ended episode ended (``infos["episode_end"]``), the first that applies of
-    success, diverged, collision, constraint (another failure), max_cycles."""
-    if success:
-        return "success"
-    if diverged:
-        return "diverged"
-    if collision:
-        return "collision"
-    return "constraint" if failed else "max_cycles"
+    """How an ended episode ended (``infos["episode_end"]``): the first of ``EPISODE_ENDS``
+    that applies, success, diverged, collision, constraint (another failure), max_cycles."""
+    flags = (success, diverged, collision, failed, True)
+    return next(kind for kind, flag in zip(EPISODE_ENDS, flags, strict=True) if flag)
 
 
 class Task(NamespacePickled):
