@@ -12,8 +12,9 @@ optional: nothing here is imported by the environment's step. Reference: docs/re
 (what the page shows, the display frame, decimation, the three.js subset).
 
 May import: numpy, casadi, ``uvms_env.dynamics``, ``uvms_env.navigation``,
-``uvms_env.scenarios`` and, to rebuild a recorded episode's geometry and constraints, the
-environment (``uvms_env.parallel_env``, lazily).
+``uvms_env.scenarios``, ``uvms_env.task.metrics`` (the metrics' names) and, to rebuild a
+recorded episode's geometry and constraints, the environment (``uvms_env.parallel_env``,
+lazily).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from uvms_env.dynamics.spatial import rot_zyx
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.navigation import Cylinder
 from uvms_env.scenarios import Scenario
+from uvms_env.task.metrics import METRICS
 
 # A page stays a few MB and plays smoothly up to this many frames; longer episodes are
 # decimated unless ``full_rate``.
@@ -42,18 +44,13 @@ MAX_FRAMES = 1500
 THREE_JS = "three-0.187.0.min.js"
 # NED -> display (x right, y up, z towards the viewer): (x, y, z) -> (x, -z, y), det +1.
 NED_TO_DISPLAY = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
-# The metrics the page lists (when the episode has them), in this order.
-SHOWN_METRICS = (
-    "episode_end",
-    "success",
-    "episode_steps",
-    "sim_time_s",
-    "final_pos_error_m",
-    "final_att_error_rad",
-    "min_obstacle_clearance_m",
-    "min_manipulability",
-    "internal_wrench_rms",
+# The metrics the page lists (when the episode has them), in ``METRICS``' order: how the
+# episode ended and every metric but the per-step bookkeeping a viewer does not read.
+NOT_SHOWN = frozenset(
+    "clean_success violations violation_periods control_effort policy_time_ms "
+    "grasp_drift_max_m".split()
 )
+SHOWN_METRICS = ("episode_end", *(m for m in METRICS if m not in NOT_SHOWN))
 
 
 @dataclass

@@ -30,6 +30,18 @@ from uvms_env.vector.torchrl_env import (
 CYCLES = 4
 
 
+def _replaying(actions: np.ndarray):
+    """A TorchRL policy that writes ``actions[t]`` at its t-th call."""
+    step = [0]
+
+    def policy(td):
+        td[GROUP, "action"] = torch.as_tensor(actions[step[0]])
+        step[0] += 1
+        return td
+
+    return policy
+
+
 def _actions(steps: int, n: int, k: int | None = None) -> np.ndarray:
     shape = (steps, n, 8) if k is None else (steps, k, n, 8)
     return np.random.default_rng(0).uniform(-1, 1, shape).astype(np.float32)
@@ -57,13 +69,7 @@ def test_pettingzoo_wrapper_rollout_carries_the_info_keys_and_their_values():
     assert {"constraint_collision", "reward_progress", "violations_collision"} <= keys
 
     actions = _actions(CYCLES, 2)
-    step = [0]
-
-    def policy(td):
-        td[GROUP, "action"] = torch.as_tensor(actions[step[0]])
-        step[0] += 1
-        return td
-
+    policy = _replaying(actions)
     env.set_seed(3)
     rollout = env.rollout(CYCLES, policy)
     info = rollout["next", GROUP, "info"]
@@ -96,13 +102,7 @@ def test_batched_view_carries_the_ended_episodes_values():
     check_env_specs(env)
     assert set(env.observation_spec[GROUP, "info"].keys()) == {"cost", *env.episode_keys}
     actions = _actions(steps, 2, k)
-    step = [0]
-
-    def policy(td):
-        td[GROUP, "action"] = torch.as_tensor(actions[step[0]])
-        step[0] += 1
-        return td
-
+    policy = _replaying(actions)
     env.set_seed(5)
     rollout = env.rollout(steps, policy, break_when_any_done=False)
     info = rollout["next", GROUP, "info"]

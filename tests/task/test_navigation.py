@@ -68,15 +68,7 @@ def _mixed_field(k: float) -> NavigationField:
 
 def _naive_phi(field: NavigationField, p: np.ndarray) -> float:
     gamma = float(np.sum((p - field.goal) ** 2))
-    c = np.asarray(field.workspace.center)
-    beta = (field.workspace.radius - field.team_radius) ** 2 - float(np.sum((p - c) ** 2))
-    for obs in field.obstacles:
-        if isinstance(obs, Cylinder):
-            d2 = (p[0] - obs.x) ** 2 + (p[1] - obs.y) ** 2
-        else:
-            d2 = float(np.sum((p - np.asarray(obs.center)) ** 2))
-        beta *= d2 - (obs.radius + field.team_radius) ** 2
-    return gamma / (gamma**field.k + beta) ** (1.0 / field.k)
+    return gamma / (gamma**field.k + _naive_beta(field, p)) ** (1.0 / field.k)
 
 
 def _central_diff(fun, points: np.ndarray, h: float = 1e-6) -> np.ndarray:

@@ -282,6 +282,7 @@ def test_nan_action_names_the_environment_and_agent(paper_venv):
         ({"num_envs": 2, "colour": 1}, ValueError, r"unknown option\(s\) \['colour'\]"),
         ({"num_envs": 2, "sensor_noise": -1.0}, ValueError, "sensor_noise"),
         ({"num_envs": 2, "backend": "tpu"}, ValueError, "backend"),
+        ({"num_envs": 2, "dtype": "float16"}, ValueError, "dtype must be one of"),
         ({"num_envs": 2, "geometry_pool": 4}, ValueError, "geometry_pool needs a seeded family"),
     ],
 )

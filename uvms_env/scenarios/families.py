@@ -179,22 +179,37 @@ def paper(**settings) -> Scenario:
     Grasps 1.6 m apart on the 1.8 m bar, both vehicles heading along the object's x
     axis; obstacles, start pose, waypoints and load shares as in the paper.
     """
+    _paper_team_only("paper", settings)
+    return _with_paper_team(
+        "paper",
+        waypoints=np.array(PAPER_WAYPOINTS, dtype=float),
+        obstacles=tuple(Cylinder(*c) for c in PAPER_CYLINDERS),
+        workspace=Workspace((5.5, 0.5, 0.75), 14.0),
+        **settings,
+    )
+
+
+def _paper_team_only(family: str, settings: dict) -> None:
+    """ValueError unless ``settings`` keep the paper's team: two robots, and neither the
+    object nor the course drawn."""
     n = settings.pop("n_agents", PAPER_AGENTS)
     if n != PAPER_AGENTS:
-        raise ValueError(f"the paper scenario has exactly 2 agents, got n_agents={n}")
-    _refuse_random_options("paper", settings)
+        raise ValueError(f"the {family} scenario has exactly 2 agents, got n_agents={n}")
+    _refuse_random_options(family, settings)
+
+
+def _with_paper_team(name: str, **course) -> Scenario:
+    """The paper's team at its start: the bar grasped side by side, equal shares; the
+    course (waypoints, obstacles, workspace) and settings as given."""
     return _configure(
-        "paper",
+        name,
         "bar",
         0.0,
         offsets=np.array(PAPER_OFFSETS),
         yaws=np.zeros(2),
         shares=np.array([0.5, 0.5]),
         start=np.array(PAPER_START),
-        waypoints=np.array(PAPER_WAYPOINTS, dtype=float),
-        obstacles=tuple(Cylinder(*c) for c in PAPER_CYLINDERS),
-        workspace=Workspace((5.5, 0.5, 0.75), 14.0),
-        **settings,
+        **course,
     )
 
 
@@ -479,10 +494,7 @@ def short(**settings) -> Scenario:
     random horizontal direction (depth and heading unchanged), no obstacles, 300 periods
     (36 s; the navigation reference needs ~12 s). The paper scenario's first leg takes
     ~45 s and passes an obstacle; this variant makes RL on 2 CPU cores feasible."""
-    n = settings.pop("n_agents", PAPER_AGENTS)
-    if n != PAPER_AGENTS:
-        raise ValueError(f"the short scenario has exactly 2 agents, got n_agents={n}")
-    _refuse_random_options("short", settings)
+    _paper_team_only("short", settings)
     rng = np.random.default_rng(settings.get("seed"))
     start = np.array(PAPER_START)
     heading = rng.uniform(-np.pi, np.pi)
@@ -490,14 +502,8 @@ def short(**settings) -> Scenario:
     goal[:2] += 2.0 * np.array([np.cos(heading), np.sin(heading)])
     goal[3:5] = 0.0
     settings.setdefault("max_steps", 300)
-    return _configure(
+    return _with_paper_team(
         "short",
-        "bar",
-        0.0,
-        offsets=np.array(PAPER_OFFSETS),
-        yaws=np.zeros(2),
-        shares=np.array([0.5, 0.5]),
-        start=start,
         waypoints=goal[None],
         obstacles=(),
         workspace=Workspace((-0.7, 0.0, 0.72), 8.0),

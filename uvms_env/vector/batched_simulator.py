@@ -39,6 +39,19 @@ if TYPE_CHECKING:
 BACKENDS = ("cpu", "cuda")
 
 
+def check_batch(num_envs: Any, backend: str, dtype: str) -> None:
+    """TypeError or ValueError naming the argument unless K = ``num_envs`` is an int >= 1
+    and ``backend`` and ``dtype`` are known: checked before anything is built."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if dtype not in DTYPES:
+        raise ValueError(f"dtype must be one of {sorted(DTYPES)}, got {dtype!r}")
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer):
+        raise TypeError(f"num_envs must be an int >= 1, got {num_envs!r}")
+    if num_envs < 1:
+        raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+
+
 class BatchedSimulator:
     """K truth simulators stepped together (see module docstring)."""
 
@@ -52,12 +65,7 @@ class BatchedSimulator:
         lanes: int | None = None,
         device: int | str = 0,
     ) -> None:
-        if backend not in BACKENDS:
-            raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-        if dtype not in DTYPES:
-            raise ValueError(f"dtype must be one of {sorted(DTYPES)}, got {dtype!r}")
-        if not isinstance(num_envs, int | np.integer) or num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        check_batch(num_envs, backend, dtype)
         self.scenario = s = scenario
         self.n = n = s.n_agents
         self.num_envs = k = int(num_envs)

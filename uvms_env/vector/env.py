@@ -41,7 +41,7 @@ from uvms_env.env.options import (
 from uvms_env.scenarios import Scenario
 from uvms_env.scenarios.overrides import Option
 from uvms_env.vector.batched_engine import DIVERGED_REASONS, BatchedEngine
-from uvms_env.vector.batched_simulator import BACKENDS, BatchedSimulator
+from uvms_env.vector.batched_simulator import BatchedSimulator, check_batch
 from uvms_env.vector.kernels import available_cores
 
 ALL = slice(None)  # every environment, as an index
@@ -131,12 +131,7 @@ class VectorEnv(CoreViews):
         device: int | str = 0,
         **overrides: Any,
     ) -> None:
-        if backend not in BACKENDS:
-            raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-        if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer):
-            raise TypeError(f"num_envs must be an int >= 1, got {num_envs!r}")
-        if num_envs < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        check_batch(num_envs, backend, dtype)
         self.backend, self.dtype = backend, dtype
         self.num_envs = k = int(num_envs)
         self.threads = int(threads) if threads is not None else available_cores()
