@@ -92,7 +92,12 @@ def rollout_job(scenario: str, args: argparse.Namespace, **labelling: Any) -> Ro
 
 
 def _write_dataset(
-    streams: list, job: RolloutJob, root: Path, name: str, algorithm: str, spec: bool = True
+    streams: list[AgentStream],
+    job: RolloutJob,
+    root: Path,
+    name: str,
+    algorithm: str,
+    spec: bool = True,
 ) -> str:
     """``streams`` as Minari dataset ``root/NAME`` in one robot's spaces of ``job``'s
     environment. With ``spec``, the Gymnasium ``EnvSpec`` the data came from (for Minari's
