@@ -118,9 +118,6 @@ def fit(
     xv, yv, sv = x[val_idx], y[val_idx], samples[val_idx]
     x, y, samples = x[train_idx], y[train_idx], samples[train_idx]
 
-    def weighted_mse(pred: torch.Tensor, target: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
-        return ((pred - target) ** 2 * weight * s).mean()
-
     losses: list[float] = []
     rows = []
     bar = tqdm(total=epochs, desc=stage, disable=not progress, unit="epoch")
@@ -131,7 +128,7 @@ def fit(
         val = float("nan")
         if n_val:
             with torch.no_grad():
-                val = weighted_mse(net(xv), yv, sv).item()
+                val = ((net(xv) - yv) ** 2 * weight * sv).mean().item()
         rows.append([stage, epoch, len(x), losses[-1], val])
         bar.update()
         bar.set_postfix(loss=f"{losses[-1]:.3g}", val=f"{val:.3g}")

@@ -14,7 +14,6 @@ scenario and team size and the teacher (``--expert``) are built once, ``--init``
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import platform
@@ -51,15 +50,22 @@ from baselines.imitation.features import FEATURES
 from baselines.imitation.labelled_rollouts import RolloutJob, parallel_rollouts
 from baselines.imitation.network import MLPPolicyNet
 from baselines.loaders.sources import PolicySource
-from baselines.runs import (
-    EVAL_KEEP,
-    hardware,
-    training_env_options,
-    write_json,
-)
+from baselines.runs import EVAL_KEEP, hardware, training_env_options, write_json
+
+# ``--expert`` value of safe distillation: the safety filter around the current network
+SELF_FILTER = "self+filter"
+# the options every fit of the command line passes to ``bc.fit`` (and train.json records)
+FIT_OPTIONS = ("epochs", "hidden", "lr", "batch_size", "loss_scale", "lr_schedule", "margin_weight")
+# what a DAgger run's train.json records of its options, in this order (``_dagger_settings``)
+DAGGER_SETTINGS = (
+    "scenarios iterations warm_start_epochs save_data episodes_per_iteration beta_schedule "
+    "rollout_noise gate max_cycles constraint_mode n_agents object course current mismatch "
+    "workers expert init"
+).split()
+Samples = tuple[np.ndarray, np.ndarray, np.ndarray]  # observations, labels, ring radii
 
 
-def env_overrides(scenario: str, args: argparse.Namespace) -> dict[str, Any]:
+def env_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """Environment options from the command line: the conditions (``--current``,
     ``--mismatch``: one value an override, several a per-episode draw) and
     ``--constraint-mode``; the team sizes and objects are the job's (``rollout_job``);
@@ -73,47 +79,51 @@ def env_overrides(scenario: str, args: argparse.Namespace) -> dict[str, Any]:
 def rollout_job(scenario: str, args: argparse.Namespace, **labelling: Any) -> RolloutJob:
     """The rollouts of ``scenario`` the command line asks for (``--n-agents`` for the
     random family only: the fixed scenarios have their own teams)."""
-    sizes = team_sizes(args) if scenario == "random" else ()
-    kinds = tuple(objects(args)) if scenario == "random" else ()
+    drawn = scenario == "random"
     return RolloutJob(
         scenario,
-        env_overrides(scenario, args),
-        sizes,
+        env_overrides(args),
+        team_sizes(args) if drawn else (),
         args.max_cycles,
-        args.expert,
-        objects=kinds,
+        labelling.pop("expert", args.expert),
+        objects=tuple(objects(args)) if drawn else (),
         **labelling,
     )
 
 
-def _spaces(job: RolloutJob):
+def _write_dataset(
+    streams: list[AgentStream],
+    job: RolloutJob,
+    root: Path,
+    name: str,
+    algorithm: str,
+    spec: bool = True,
+) -> str:
+    """``streams`` as Minari dataset ``root/NAME`` in one robot's spaces of ``job``'s
+    environment. With ``spec``, the Gymnasium ``EnvSpec`` the data came from (for Minari's
+    ``recover_environment``): the scenario, its overrides and the episode length actually
+    used; none where the episodes had several team sizes (no one environment made them)."""
     env = job.env(0, 0)
     agent = env.possible_agents[0]
-    return env.observation_space(agent), env.action_space(agent)
-
-
-def _env_spec(job: RolloutJob):
-    """The Gymnasium ``EnvSpec`` the data came from (for Minari's ``recover_environment``):
-    the scenario, its overrides and the episode length actually used; None where the
-    episodes had several team sizes (no one environment made them)."""
-    if len(job.n_agents) > 1 or len(job.objects) > 1:
-        return None
-    kwargs = dict(job.overrides)
-    if job.objects:
-        kwargs["object"] = job.objects[0]
-    if job.n_agents:
-        kwargs["n_agents"] = job.n_agents[0]
-    if job.cap:
-        kwargs["max_cycles"] = job.env(0, 0).max_cycles
-    return dataset.env_spec(job.scenario, **kwargs)
+    env_spec = None
+    if spec and len(job.n_agents) <= 1 and len(job.objects) <= 1:
+        kwargs = dict(job.overrides)
+        if job.objects:
+            kwargs["object"] = job.objects[0]
+        if job.n_agents:
+            kwargs["n_agents"] = job.n_agents[0]
+        if job.cap:
+            kwargs["max_cycles"] = env.max_cycles
+        env_spec = dataset.env_spec(job.scenario, **kwargs)
+    spaces = env.observation_space(agent), env.action_space(agent)
+    return dataset.write_dataset(streams, root, name, *spaces, algorithm, spec=env_spec)
 
 
 def _summary(metrics: list[dict]) -> dict[str, Any]:
-    wins = sum(bool(m.get("success")) for m in metrics)
     steps = [m.get("episode_steps") for m in metrics if m.get("episode_steps") is not None]
     return {
         "episodes": len(metrics),
-        "success": wins,
+        "success": sum(bool(m.get("success")) for m in metrics),
         "mean_steps": float(np.mean(steps)) if steps else None,
     }
 
@@ -125,36 +135,29 @@ def collect(args: argparse.Namespace) -> None:
         job, args.episodes, args.seed, workers=args.workers, desc="collect"
     )
     root, name = dataset.split_path(args.out)
-    obs_space, act_space = _spaces(job)
     algorithm = f"expert {args.expert}" + (f", DART noise {args.noise}" if args.noise else "")
-    dataset_id = dataset.write_dataset(
-        streams, root, name, obs_space, act_space, algorithm, spec=_env_spec(job)
-    )
+    dataset_id = _write_dataset(streams, job, root, name, algorithm)
     summary = _summary(metrics)
     steps = sum(len(s.actions) for s in streams)
+    # the teacher's time per control period, its robots together: a team teacher's whole
+    # decision is timed on its first robot, a per-robot expert's on each
+    periods: dict[int, np.ndarray] = {}
+    for s in streams:
+        periods[s.seed] = periods.get(s.seed, 0.0) + np.asarray(s.solve_ms)
+    period_ms = np.concatenate(list(periods.values())) if periods else np.zeros(0)
     print(
         f"wrote Minari dataset {dataset_id} under {args.out}: {len(streams)} robot streams, "
         f"{steps} steps, expert success {summary['success']}/{summary['episodes']}, "
-        f"expert time per period (all robots) median {np.median(_period_ms(streams)):.3f} ms, "
+        f"expert time per period (all robots) median {np.median(period_ms):.3f} ms, "
         f"{time.time() - start:.0f} s"
     )
 
 
-def _period_ms(streams: list[AgentStream]) -> np.ndarray:
-    """The teacher's time per control period, its robots together: a team teacher's whole
-    decision is timed on its first robot, a per-robot expert's on each."""
-    episodes: dict[int, np.ndarray] = {}
-    for s in streams:
-        episodes[s.seed] = episodes.get(s.seed, 0.0) + np.asarray(s.solve_ms)
-    return np.concatenate(list(episodes.values())) if episodes else np.zeros(0)
-
-
 def _common(args: argparse.Namespace) -> dict[str, Any]:
-    fit = _fit_arguments(args)
-    del fit["val_fraction"]
+    """What train.json records of every fit."""
     return {
         "data": [str(p) for p in args.data or []],
-        **fit,
+        **{k: getattr(args, k) for k in FIT_OPTIONS},
         "hidden": list(args.hidden),
         "features": args.features,
         "seed": args.seed,
@@ -180,41 +183,40 @@ def scenario_entry(text: str) -> str:
     return text
 
 
-def _fit_arguments(args: argparse.Namespace) -> dict[str, Any]:
-    """What every fit of the command line shares (``bc.fit``'s keywords)."""
-    return {
-        "epochs": args.epochs,
-        "hidden": tuple(args.hidden),
-        "lr": args.lr,
-        "batch_size": args.batch_size,
-        "loss_scale": args.loss_scale,
-        "lr_schedule": args.lr_schedule,
-        "margin_weight": args.margin_weight,
-        "val_fraction": 0.05,
-    }
-
-
-def _rmse(net, obs: np.ndarray, act: np.ndarray, ring: np.ndarray) -> list[float]:
-    """Per-component RMSE of ``net`` against the (clipped) expert labels."""
-    err = net.predict(obs, ring) - np.clip(act, -1, 1)
-    return [round(float(v), 4) for v in np.sqrt(np.mean(err**2, axis=0))]
+def _fit(
+    args: argparse.Namespace,
+    samples: Samples,
+    stage: str,
+    seed: int,
+    net: MLPPolicyNet | None = None,
+    epochs: int | None = None,
+) -> tuple[MLPPolicyNet, list[float]]:
+    """``bc.fit`` with the command line's options, logged as ``stage`` in the run's
+    ``{bc,dagger}_loss.csv``: from ``net`` when given (``epochs``, where given, instead of
+    ``--epochs``), else a new network on ``--features``."""
+    obs, act, ring = samples
+    fit = {k: getattr(args, k) for k in FIT_OPTIONS} | {"hidden": tuple(args.hidden)}
+    if epochs is not None:
+        fit["epochs"] = epochs
+    return bc.fit(
+        obs,
+        act,
+        ring_radius=ring,
+        net=net,
+        features=args.features if net is None else net.features,
+        seed=seed,
+        log_path=args.out / f"{args.command}_loss.csv",
+        stage=stage,
+        val_fraction=0.05,
+        **fit,
+    )
 
 
 def train_bc(args: argparse.Namespace) -> None:
     start = time.time()
     obs, act, ring, n_streams = dataset.read_many(args.data, memory=args.features == "memory")
-    log = args.out / "bc_loss.csv"
-    log.unlink(missing_ok=True)
-    net, losses = bc.fit(
-        obs,
-        act,
-        ring_radius=ring,
-        features=args.features,
-        seed=args.seed,
-        log_path=log,
-        stage="bc",
-        **_fit_arguments(args),
-    )
+    (args.out / "bc_loss.csv").unlink(missing_ok=True)
+    net, losses = _fit(args, (obs, act, ring), "bc", args.seed)
     info = {
         "method": "bc",
         **_common(args),
@@ -226,10 +228,6 @@ def train_bc(args: argparse.Namespace) -> None:
     net.save(args.out / "policy.pt", info)
     write_json(args.out / "train.json", info)  # net.save made the folder
     print(f"bc: {len(obs)} samples, final loss {losses[-1]:.4g}; saved {args.out / 'policy.pt'}")
-
-
-# ``--expert`` value of safe distillation: the safety filter around the current network
-SELF_FILTER = "self+filter"
 
 
 def _init_network(source: str) -> MLPPolicyNet:
@@ -246,87 +244,118 @@ def _init_network(source: str) -> MLPPolicyNet:
         raise ValueError(f"--init {source}: {exc}") from exc
 
 
+def _joined(*parts: Samples | None) -> Samples | None:
+    """Sample sets one after the other (None: no samples)."""
+    given = [p for p in parts if p is not None]
+    if not given:
+        return None
+    obs, act, ring = (np.concatenate(column) for column in zip(*given, strict=True))
+    return obs, act, ring
+
+
 def train_dagger(args: argparse.Namespace) -> None:
     start = time.time()
     if args.resume is not None:
         args.out = args.resume
-    obs = act = ring = None
-    n_streams = 0
-    memory = (args.features if args.init is None else _init_network(args.init).features) == "memory"
-    if args.data:
-        obs, act, ring, n_streams = dataset.read_many(args.data, memory=memory)
-    scenarios = args.scenario or ["short"]
-    log = args.out / "dagger_loss.csv"
-    done = _resumed(args, memory)
-    if done is not None:
-        net, history, first, before = done
-        if history[-1]["iteration"] >= 1:  # the rollouts of the iterations done so far
+    init = _init_network(args.init) if args.init is not None else None
+    memory = (args.features if init is None else init.features) == "memory"
+    demos = dataset.read_many(args.data, memory=memory) if args.data else None
+    n_streams, samples = (demos[3], demos[:3]) if demos else (0, None)
+    if args.resume is not None:
+        info, net = _resume_record(args, memory)
+        history = info["history"]
+        first = history[-1]["iteration"] + 1
+        print(f"resuming {args.resume} after iteration {first - 1}")
+        if first > 1:  # the rollouts of the iterations done so far (--save-data)
             paths = [args.out / "data" / f"iter_{k}" for k in range(1, first)]
-            old_obs, old_act, old_ring, _ = dataset.read_many(paths, memory=memory)
-            obs = old_obs if obs is None else np.concatenate([obs, old_obs])
-            act = old_act if act is None else np.concatenate([act, old_act])
-            ring = old_ring if ring is None else np.concatenate([ring, old_ring])
-        start -= before
-    elif args.init is None:
-        log.unlink(missing_ok=True)
-        net, losses = _dagger_fit(args, log, obs, act, ring, 0)
-        history: list[dict[str, Any]] = [
-            {"iteration": 0, "beta": 1.0, "samples": len(obs), "loss": losses[-1]}
-        ]
-        _evaluate_iteration(args, net, 0, len(obs), start)
-        first = 1
+            samples = _joined(samples, dataset.read_many(paths, memory=memory)[:3])
+        start -= float(info.get("train_wall_s", 0.0))
     else:
-        log.unlink(missing_ok=True)
-        net = _init_network(args.init)
-        history = [{"iteration": 0, "init": args.init, "samples": 0 if obs is None else len(obs)}]
+        (args.out / "dagger_loss.csv").unlink(missing_ok=True)
         first = 1
-    distill = args.expert == SELF_FILTER
+        if init is None:
+            assert samples is not None  # check_dagger: --data or --init
+            net, losses = _fit(args, samples, "dagger_0", args.seed)
+            row = {"iteration": 0, "beta": 1.0, "samples": len(samples[0]), "loss": losses[-1]}
+            _evaluate_iteration(args, net, 0, len(samples[0]), start)
+        else:
+            net = init
+            row = {"iteration": 0, "init": args.init, "samples": _count(samples)}
+        history = [row]
     bar = tqdm(
         total=args.iterations, initial=first - 1, desc="dagger", unit="iteration", leave=True
     )
     for k in range(first, args.iterations + 1):
-        path = (args.out / f"iter_{k - 1}" / "policy.pt").resolve()
-        net.save(path, {"method": "dagger", "iteration": k - 1})
-        # safe distillation: the teacher is the safety filter around the network itself
-        expert = f"dagger:{path}+filter" if distill else args.expert
-        row: dict[str, Any] = {"iteration": k, "beta": args.beta**k}
-        new_streams = _dagger_rollouts(args, k, expert, path, scenarios, row)
-        new_obs, new_act, new_ring, acted = _stacked(new_streams, memory)
-        learner_share = np.mean(acted)
-        # the quantity DAgger drives down: the current network's error on the states it
-        # visits itself (before they join the training data)
-        if acted.any():
-            row["learner_state_rmse"] = _rmse(net, new_obs[acted], new_act[acted], new_ring[acted])
-        if obs is None:
-            obs, act, ring = new_obs, new_act, new_ring
-        else:
-            obs, act = np.concatenate([obs, new_obs]), np.concatenate([act, new_act])
-            ring = np.concatenate([ring, new_ring])
-        warm = args.init is not None or args.warm_start is not None
-        net, losses = _dagger_fit(args, log, obs, act, ring, k, net if warm else None)
-        row.update(
-            samples=len(obs),
-            new_samples=len(new_obs),
-            learner_share=float(learner_share),
-            loss=losses[-1],
-            wall_s=round(time.time() - start, 1),
-        )
-        evaluated = _evaluate_iteration(args, net, k, len(obs), start)
+        net, samples, row = _dagger_iteration(args, net, k, samples, start)
+        evaluated = _evaluate_iteration(args, net, k, _count(samples), start)
         history.append(row)
         bar.write(json.dumps(row))
         # after every iteration: what --resume continues from
-        _save_dagger(args, net, scenarios, n_streams, len(obs), history, start)
-        bar.set_postfix(_evaluation_postfix(evaluated, row), refresh=False)
+        _save_dagger(args, net, n_streams, _count(samples), history, start)
+        postfix = {"loss": f"{row['loss']:.3g}"}  # and the evaluation's means over the rungs
+        if evaluated:
+            postfix["success"] = f"{np.mean([r['success_rate'] for r in evaluated]):.2f}"
+            postfix["clean"] = f"{np.mean([r['clean_success_rate'] for r in evaluated]):.2f}"
+        bar.set_postfix(postfix, refresh=False)
         bar.update()
     bar.close()
-    info = _save_dagger(args, net, scenarios, n_streams, len(obs), history, start)
-    print(f"saved {args.out / 'policy.pt'} ({len(obs)} samples, {info['train_wall_s']} s)")
+    info = _save_dagger(args, net, n_streams, _count(samples), history, start)
+    print(f"saved {args.out / 'policy.pt'} ({_count(samples)} samples, {info['train_wall_s']} s)")
+
+
+def _count(samples: Samples | None) -> int:
+    return 0 if samples is None else len(samples[0])
+
+
+def _dagger_iteration(
+    args: argparse.Namespace, net: MLPPolicyNet, k: int, samples: Samples | None, start: float
+) -> tuple[MLPPolicyNet, Samples, dict[str, Any]]:
+    """Iteration ``k``: the network so far saved as ``iter_{k-1}``, its rollouts labelled,
+    joined to the aggregate and fitted; (the new network, the aggregate, its history row)."""
+    path = (args.out / f"iter_{k - 1}" / "policy.pt").resolve()
+    net.save(path, {"method": "dagger", "iteration": k - 1})
+    # safe distillation: the teacher is the safety filter around the network itself
+    expert = f"dagger:{path}+filter" if args.expert == SELF_FILTER else args.expert
+    row: dict[str, Any] = {"iteration": k, "beta": args.beta**k}
+    streams = _dagger_rollouts(args, k, expert, path, row)
+    new_obs, new_act, new_ring, acted = _stacked(streams, net.features == "memory")
+    # the quantity DAgger drives down: the current network's error on the states it
+    # visits itself (before they join the training data), per component, against the
+    # (clipped) expert labels
+    if acted.any():
+        err = net.predict(new_obs[acted], new_ring[acted]) - np.clip(new_act[acted], -1, 1)
+        row["learner_state_rmse"] = [round(float(v), 4) for v in np.sqrt(np.mean(err**2, axis=0))]
+    samples = _joined(samples, (new_obs, new_act, new_ring))
+    assert samples is not None
+    # from the previous network with --init or --warm-start (its epochs), else a new one
+    warm = args.init is not None or args.warm_start is not None
+    net, losses = _fit(
+        args, samples, f"dagger_{k}", args.seed + k, net if warm else None, args.warm_start
+    )
+    row.update(
+        samples=len(samples[0]),
+        new_samples=len(new_obs),
+        learner_share=float(np.mean(acted)),
+        loss=losses[-1],
+        wall_s=round(time.time() - start, 1),
+    )
+    return net, samples, row
+
+
+def _dagger_settings(args: argparse.Namespace) -> dict[str, Any]:
+    """The options a DAgger run's train.json records (``DAGGER_SETTINGS``)."""
+    options = vars(args) | {
+        "scenarios": args.scenario or ["short"],
+        "warm_start_epochs": args.warm_start,
+        "beta_schedule": f"beta_k = {args.beta}**k",
+        "rollout_noise": args.noise,
+    }
+    return {key: options[key] for key in DAGGER_SETTINGS}
 
 
 def _save_dagger(
     args: argparse.Namespace,
     net: MLPPolicyNet,
-    scenarios: list[str],
     n_streams: int,
     samples: int,
     history: list[dict[str, Any]],
@@ -336,7 +365,7 @@ def _save_dagger(
     info = {
         "method": "dagger",
         **_common(args),
-        **_dagger_settings(args, scenarios),
+        **_dagger_settings(args),
         "demo_robot_streams": n_streams,
         "samples": samples,
         "history": history,
@@ -347,24 +376,11 @@ def _save_dagger(
     return info
 
 
-def _resumed(
-    args: argparse.Namespace, memory: bool
-) -> tuple[MLPPolicyNet, list[dict[str, Any]], int, float] | None:
-    """``--resume RUN``: (its network, its history, the next iteration, its wall time so
-    far), from the ``policy.pt`` and ``train.json`` written after each iteration; the
-    iterations' rollouts must have been saved (``--save-data``). None without --resume."""
-    if args.resume is None:
-        return None
-    info, net = _resume_record(args, memory)
-    history = info["history"]
-    last = history[-1]["iteration"]
-    print(f"resuming {args.resume} after iteration {last}")
-    return net, history, last + 1, float(info.get("train_wall_s", 0.0))
-
-
 def _resume_record(args: argparse.Namespace, memory: bool) -> tuple[dict[str, Any], MLPPolicyNet]:
-    """``--resume RUN``'s train.json and network; ValueError naming the option where the
-    run cannot be continued (``memory``: this command's features have the memory block)."""
+    """``--resume RUN``'s train.json and network, written after each iteration; ValueError
+    naming the option where the run cannot be continued: the iterations' rollouts must have
+    been saved (``--save-data``), its features have the memory block where this command's
+    do (``memory``)."""
     info_path = args.resume / "train.json"
     if not info_path.exists() or not (args.resume / "policy.pt").exists():
         raise ValueError(
@@ -408,13 +424,12 @@ def _evaluate_iteration(
         return []
     path = (args.out / f"iter_{k}" / "policy.pt").resolve()
     net.save(path, {"method": "dagger", "iteration": k})
-    seed = args.eval_seed if args.eval_seed is not None else args.seed
     rows = evaluate_rungs(
         args.out,
         dagger_rungs(args, args.scenario or ["short"]),
         f"dagger:{path}",
         args.eval_episodes,
-        seed,
+        args.eval_seed if args.eval_seed is not None else args.seed,
         samples,
         algorithm="dagger",
         training_seed=args.seed,
@@ -430,61 +445,18 @@ def _evaluate_iteration(
     return rows
 
 
-def _evaluation_postfix(rows: list[dict[str, Any]], row: dict[str, Any]) -> dict[str, str]:
-    """The DAgger bar's postfix: the fit's loss and the evaluation's success and clean
-    success (means over the rungs)."""
-    out = {"loss": f"{row['loss']:.3g}"}
-    if rows:
-        out["success"] = f"{np.mean([r['success_rate'] for r in rows]):.2f}"
-        out["clean"] = f"{np.mean([r['clean_success_rate'] for r in rows]):.2f}"
-    return out
-
-
-def _dagger_fit(
-    args: argparse.Namespace,
-    log: Path,
-    obs: np.ndarray,
-    act: np.ndarray,
-    ring: np.ndarray,
-    k: int,
-    start_net: MLPPolicyNet | None = None,
-) -> tuple[MLPPolicyNet, list[float]]:
-    """Iteration ``k``'s fit on the aggregate (its own seed and loss-log stage), from
-    ``start_net`` when given (``--warm-start`` epochs, where given), else from scratch."""
-    fit = _fit_arguments(args)
-    if start_net is not None and k > 0 and args.warm_start is not None:
-        fit["epochs"] = args.warm_start
-    return bc.fit(
-        obs,
-        act,
-        ring_radius=ring,
-        net=start_net,
-        features=args.features if start_net is None else start_net.features,
-        seed=args.seed + k,
-        log_path=log,
-        stage=f"dagger_{k}",
-        **fit,
-    )
-
-
 def _dagger_rollouts(
-    args: argparse.Namespace,
-    k: int,
-    expert: str,
-    path: Path,
-    scenarios: list[str],
-    row: dict[str, Any],
+    args: argparse.Namespace, k: int, expert: str, path: Path, row: dict[str, Any]
 ) -> list[AgentStream]:
     """Iteration ``k``'s rollouts of the clone saved at ``path`` on every scenario, labelled
     by ``expert`` (a policy source) with the iteration's ``row["beta"]`` (the summaries go
     into ``row``), on ``--workers`` processes; written as a dataset with --save-data."""
     streams: list[AgentStream] = []
     jobs = []
-    for j, entry in enumerate(scenarios):
+    for j, entry in enumerate(args.scenario or ["short"]):
         scenario, episodes = _scenario_episodes(entry, args.episodes_per_iteration)
-        job = rollout_job(scenario, args, learner=path, beta=row["beta"], noise=args.noise,
-                          gate=args.gate)  # fmt: skip
-        job = dataclasses.replace(job, expert=expert)
+        job = rollout_job(scenario, args, expert=expert, learner=path, beta=row["beta"],
+                          noise=args.noise, gate=args.gate)  # fmt: skip
         new, metrics = parallel_rollouts(
             job,
             episodes,
@@ -496,17 +468,9 @@ def _dagger_rollouts(
         jobs.append(job)
         row[f"rollouts_{scenario}"] = _summary(metrics)
     if args.save_data:
-        obs_space, act_space = _spaces(jobs[0])
-        dataset.write_dataset(
-            streams,
-            args.out / "data",
-            f"iter_{k}",
-            obs_space,
-            act_space,
-            algorithm=f"DAgger iteration {k}, labels {args.expert}",
-            # one environment to recover only when the rollouts had one scenario
-            spec=_env_spec(jobs[0]) if len(jobs) == 1 else None,
-        )
+        # one environment to recover only when the rollouts had one scenario
+        algorithm = f"DAgger iteration {k}, labels {args.expert}"
+        _write_dataset(streams, jobs[0], args.out / "data", f"iter_{k}", algorithm, len(jobs) == 1)
     return streams
 
 
@@ -524,29 +488,6 @@ def _stacked(
     ring = np.concatenate([np.full(len(s.actions), s.object_ring_radius) for s in streams])
     acted = np.concatenate([s.learner_acted for s in streams])
     return obs, act, ring, acted
-
-
-def _dagger_settings(args: argparse.Namespace, scenarios: list[str]) -> dict[str, Any]:
-    return {
-        "scenarios": scenarios,
-        "iterations": args.iterations,
-        "warm_start_epochs": args.warm_start,
-        "save_data": args.save_data,
-        "episodes_per_iteration": args.episodes_per_iteration,
-        "beta_schedule": f"beta_k = {args.beta}**k",
-        "rollout_noise": args.noise,
-        "gate": args.gate,
-        "max_cycles": args.max_cycles,
-        "constraint_mode": args.constraint_mode,
-        "n_agents": args.n_agents,
-        "object": args.object,
-        "course": args.course,
-        "current": args.current,
-        "mismatch": args.mismatch,
-        "workers": args.workers,
-        "expert": args.expert,
-        "init": args.init,
-    }
 
 
 def _add_env_args(p: argparse.ArgumentParser) -> None:
@@ -600,22 +541,7 @@ def _add_train_args(p: argparse.ArgumentParser, epochs: int, data_required: bool
     p.add_argument("--seed", type=non_negative_int, default=0)
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = command_parser("baselines.imitate", __doc__)
-    sub = ap.add_subparsers(dest="command", required=True)
-    c = sub.add_parser(
-        "collect", help="expert demonstrations to a Minari dataset", allow_abbrev=False
-    )
-    c.add_argument("--scenario", choices=SCENARIOS, default="paper")
-    c.add_argument("--episodes", type=positive_int, default=4)
-    c.add_argument("--seed", type=non_negative_int, default=0)
-    c.add_argument("--out", type=Path, required=True, help="data/NAME")
-    _add_env_args(c)
-    b = sub.add_parser("bc", help="behaviour cloning", allow_abbrev=False)
-    _add_train_args(b, epochs=50)
-    b.add_argument("--out", type=Path, default=Path("runs/bc"))
-    d = sub.add_parser("dagger", help="DAgger with the expert relabelling", allow_abbrev=False)
-    _add_train_args(d, epochs=30, data_required=False)
+def _add_dagger_args(d: argparse.ArgumentParser) -> None:
     d.add_argument(
         "--init", default=None, help="start from this clone (dagger:pretrained, bc:PATH, ...)"
     )
@@ -654,21 +580,12 @@ def main(argv: list[str] | None = None) -> None:
     add_evaluation_arguments(
         d, 0, "after each fit, evaluate the network on every rung this many episodes (0: none)"
     )
-    d.add_argument("--out", type=Path, default=Path("runs/dagger"))
-    _add_env_args(d)
-    args = ap.parse_args(argv)
-    check = {"collect": check_collect, "bc": None, "dagger": check_dagger}[args.command]
-    if check is not None:
-        parser = {"collect": c, "dagger": d}[args.command]
-        with usage_errors(parser, (ValueError,)):  # before any rollout, fit or file
-            check(args)
-    {"collect": collect, "bc": train_bc, "dagger": train_dagger}[args.command](args)
 
 
 def check_collect(args: argparse.Namespace) -> None:
     """``collect``'s options: ValueError naming the one the environment or the teacher
     refuses."""
-    env_overrides(args.scenario, args)
+    env_overrides(args)
     _check_rollouts(args, [args.scenario], args.seed)
 
 
@@ -676,33 +593,39 @@ def check_dagger(args: argparse.Namespace) -> None:
     """``dagger``'s options: ValueError naming the one that cannot be honoured."""
     if not args.data and args.init is None:
         raise ValueError("dagger needs --data (demonstrations) or --init (a clone to start from)")
-    env_overrides("random", args)
+    env_overrides(args)
     features = args.features if args.init is None else _init_network(args.init).features
     if args.resume is not None:
         _resume_record(args, features == "memory")
     _check_rollouts(args, args.scenario or ["short"], args.seed)
 
 
+def _preflight(option: str, policies: list[str], cases: list, seed: int, cap: int | None) -> None:
+    """The evaluator's ``preflight``, its refusal a ValueError naming ``option``."""
+    from baselines.evaluation.runner import UsageError, preflight
+
+    try:
+        preflight(policies, cases, seed, {}, cap, progress=False)
+    except UsageError as exc:
+        raise ValueError(f"{option}: {exc}") from exc
+
+
 def _check_rollouts(args: argparse.Namespace, entries: list[str], seed: int) -> None:
     """The environment of every scenario (each of its team sizes) and the teacher
     (``--expert``; not ``self+filter``, the network itself) built once, through the
     evaluator's ``preflight``; ``--n-agents`` that no scenario would use is refused."""
-    from baselines.evaluation.runner import Case, UsageError, preflight
+    from baselines.evaluation.runner import Case
 
     scenarios = [_scenario_episodes(e, 1)[0] for e in entries]
     if objects(args) and "random" not in scenarios:
         raise ValueError(f"--object: only the random family draws an object, not {scenarios[0]}")
-    sizes = team_sizes(args)
-    if sizes and "random" not in scenarios:
+    if "random" not in scenarios:
         # the fixed scenarios keep their own team: a size they do not have is refused
         for scenario in scenarios:
-            for n in sizes:
-                overrides = {**env_overrides(scenario, args), "n_agents": n}
+            for n in team_sizes(args):
+                overrides = {**env_overrides(args), "n_agents": n}
                 case = Case(scenario, scenario, tuple(overrides.items()))
-                try:
-                    preflight([], [case], seed, {}, progress=False)
-                except UsageError as exc:
-                    raise ValueError(f"--n-agents {n}: {exc}") from exc
+                _preflight(f"--n-agents {n}", [], [case], seed, None)
     cases = []
     for scenario in dict.fromkeys(scenarios):
         job = rollout_job(scenario, args)
@@ -710,15 +633,41 @@ def _check_rollouts(args: argparse.Namespace, entries: list[str], seed: int) -> 
             flags = "".join(f" --{k.replace('_', '-')} {v}" for k, v in variant.items())
             overrides = dict(job.overrides) | variant
             cases.append(Case(scenario + flags, scenario, tuple(overrides.items())))
-    try:
-        preflight([], cases, seed, {}, args.max_cycles, progress=False)
-    except UsageError as exc:
-        raise ValueError(f"--scenario: {exc}") from exc
+    _preflight("--scenario", [], cases, seed, args.max_cycles)
     if args.expert != SELF_FILTER:
-        try:
-            preflight([args.expert], cases[:1], seed, {}, args.max_cycles, progress=False)
-        except UsageError as exc:
-            raise ValueError(f"--expert: {exc}") from exc
+        _preflight("--expert", [args.expert], cases[:1], seed, args.max_cycles)
+
+
+# each subcommand: its help, its check of the options (before any rollout, fit or file)
+# and what it runs
+COMMANDS = {
+    "collect": ("expert demonstrations to a Minari dataset", check_collect, collect),
+    "bc": ("behaviour cloning", None, train_bc),
+    "dagger": ("DAgger with the expert relabelling", check_dagger, train_dagger),
+}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = command_parser("baselines.imitate", __doc__)
+    sub = ap.add_subparsers(dest="command", required=True)
+    c, b, d = (sub.add_parser(n, help=h, allow_abbrev=False) for n, (h, *_) in COMMANDS.items())
+    c.add_argument("--scenario", choices=SCENARIOS, default="paper")
+    c.add_argument("--episodes", type=positive_int, default=4)
+    c.add_argument("--seed", type=non_negative_int, default=0)
+    c.add_argument("--out", type=Path, required=True, help="data/NAME")
+    _add_env_args(c)
+    _add_train_args(b, epochs=50)
+    b.add_argument("--out", type=Path, default=Path("runs/bc"))
+    _add_train_args(d, epochs=30, data_required=False)
+    _add_dagger_args(d)
+    d.add_argument("--out", type=Path, default=Path("runs/dagger"))
+    _add_env_args(d)
+    args = ap.parse_args(argv)
+    _, check, run = COMMANDS[args.command]
+    if check is not None:
+        with usage_errors(sub.choices[args.command], (ValueError,)):
+            check(args)
+    run(args)
 
 
 if __name__ == "__main__":

@@ -55,13 +55,12 @@ class AgentStream:
         )  # fmt: skip
 
 
-def _dataset_id(name: str) -> str:
-    return f"{NAMESPACE}/{name}-v0"
-
-
-def _use_root(root: Path) -> None:
-    root.mkdir(parents=True, exist_ok=True)
-    os.environ["MINARI_DATASETS_PATH"] = str(root.resolve())
+def _use_root(own: Path) -> str:
+    """Dataset folder ``data/NAME`` made Minari's root (a root of its own); the id of the
+    dataset in it."""
+    own.mkdir(parents=True, exist_ok=True)
+    os.environ["MINARI_DATASETS_PATH"] = str(own.resolve())
+    return f"{NAMESPACE}/{own.name}-v0"
 
 
 def env_spec(scenario: str, **kwargs: Any):
@@ -109,8 +108,7 @@ def write_dataset(
     from minari.data_collector import EpisodeBuffer
 
     own = Path(root) / name
-    _use_root(own)
-    dataset_id = _dataset_id(name)
+    dataset_id = _use_root(own)
     # no minari.list_local_datasets(): it parses every folder under the root as an id
     if (own / NAMESPACE / f"{name}-v0").exists():
         shutil.rmtree(own / NAMESPACE / f"{name}-v0")
@@ -173,8 +171,7 @@ def load(path: Path):
     import minari
 
     root, name = split_path(path)
-    _use_root(Path(root) / name)
-    return minari.load_dataset(_dataset_id(name))
+    return minari.load_dataset(_use_root(Path(root) / name))
 
 
 def read_dataset(root: Path, name: str) -> tuple[np.ndarray, np.ndarray, list]:

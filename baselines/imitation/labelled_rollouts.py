@@ -108,24 +108,20 @@ def rollouts(
     return streams, metrics
 
 
+@dataclass
 class _Labelling:
     """One episode's per-robot streams: the expert labels, the executed action is drawn
     from the expert's and the learner's (module docstring)."""
 
-    def __init__(
-        self,
-        ep_seed: int,
-        rng: np.random.Generator,
-        learner: PolicyFactory | None,
-        beta: float,
-        noise: float,
-        gate: float | None,
-    ) -> None:
-        self.ep_seed, self.rng, self.learner = ep_seed, rng, learner
-        self.beta, self.noise, self.gate = beta, noise, gate
-        self.streams: dict[str, AgentStream] = {}
-        self.stream_list: list[AgentStream] = []
-        self.learners: list[Policy] | None = None
+    ep_seed: int
+    rng: np.random.Generator
+    learner: PolicyFactory | None
+    beta: float
+    noise: float
+    gate: float | None
+    streams: dict[str, AgentStream] = field(default_factory=dict)
+    stream_list: list[AgentStream] = field(default_factory=list)
+    learners: list[Policy] | None = None
 
     def start(self, env: Any, obs: dict[str, np.ndarray]) -> None:
         agents = env.possible_agents
@@ -238,21 +234,19 @@ def _play_block(
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     source = PolicySource.parse(job.expert)
     expert = (source.team_factory if source.team else source.factory)(seed + first)
-    learner = None
-    if job.learner is not None:
-        path = job.learner
-        learner = lambda spec: ClonedPolicy(spec, path)  # noqa: E731
+    path = job.learner
+    learner = None if path is None else lambda spec: ClonedPolicy(spec, path)
     return rollouts(
         lambda s: job.env(s, s - seed),
         expert,
         count,
         seed + first,
-        learner=learner,
-        beta=job.beta,
-        progress=progress,
-        desc=desc,
-        noise=job.noise,
-        gate=job.gate,
+        learner,
+        job.beta,
+        progress,
+        desc,
+        job.noise,
+        job.gate,
     )
 
 
@@ -277,16 +271,11 @@ def parallel_rollouts(
     for e in range(min(episodes, max(1, len(job.n_agents)))):
         _play_block(warm, e, 1, seed, desc, progress=False)
     bounds = np.linspace(0, episodes, workers + 1).astype(int)
-    streams: list[AgentStream] = []
-    metrics: list[dict] = []
+    blocks = [
+        (job, int(a), int(b - a), seed, f"{desc} [{w}]", progress)
+        for w, (a, b) in enumerate(itertools.pairwise(bounds))
+        if b > a
+    ]
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = [
-            pool.submit(_play_block, job, int(a), int(b - a), seed, f"{desc} [{w}]", progress)
-            for w, (a, b) in enumerate(itertools.pairwise(bounds))
-            if b > a
-        ]
-        for fut in futures:
-            new, done = fut.result()
-            streams += new
-            metrics += done
-    return streams, metrics
+        done = list(pool.map(_play_block, *zip(*blocks, strict=True)))
+    return [s for new, _ in done for s in new], [m for _, ms in done for m in ms]
