@@ -31,13 +31,15 @@ from uvms_env.scenarios.overrides import CURRENT_PRESETS, SCENARIO_OVERRIDES, Op
 SCENARIOS = tuple(FAMILIES)  # ``--scenario``'s choices
 
 
-def command_parser(prog: str, doc: str) -> argparse.ArgumentParser:
+def command_parser(
+    prog: str, doc: str | None, command: str = "python -m "
+) -> argparse.ArgumentParser:
     """The parser of ``python -m PROG``: its module docstring ``doc`` as the description,
     as written, up to its "May import" line; a flag must be spelt out (``--n-agent`` is
     no ``--n-agents``)."""
     return argparse.ArgumentParser(
-        prog=f"python -m {prog}",
-        description=doc.split("May import")[0],
+        prog=f"{command}{prog}",
+        description=(doc or "").split("May import")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
         allow_abbrev=False,
     )
@@ -81,17 +83,10 @@ def key_value(text: str) -> str:
 
 
 def script_parser(path: str, doc: str | None) -> argparse.ArgumentParser:
-    """The parser of a script run as ``python FOLDER/NAME.py`` (the benchmarks): its
-    docstring as the description, up to any "May import" line; no abbreviations."""
-    from pathlib import Path
-
+    """The parser of a script run as ``python FOLDER/NAME.py`` (the benchmarks): as
+    ``command_parser``'s."""
     here = Path(path)
-    return argparse.ArgumentParser(
-        prog=f"python {here.parent.name}/{here.name}",
-        description=(doc or "").split("May import")[0],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        allow_abbrev=False,
-    )
+    return command_parser(f"{here.parent.name}/{here.name}", doc, command="python ")
 
 
 def key_value_pairs(items: list[str]) -> dict[str, Any]:
@@ -149,19 +144,21 @@ def add_condition_arguments(g: Any, draws: bool = True) -> None:
 
 def team_sizes(args: argparse.Namespace) -> tuple[int, ...]:
     """The team sizes of ``--n-agents`` (empty: the scenario's own)."""
-    value = getattr(args, "n_agents", None)
-    if value is None:
-        return ()
-    sizes = (value,) if isinstance(value, int) else tuple(value)
-    return tuple(dict.fromkeys(int(n) for n in sizes))
+    return tuple(dict.fromkeys(int(n) for n in _given(args, "n_agents")))
 
 
 def objects(args: argparse.Namespace) -> tuple[str, ...]:
     """The objects of ``--object`` (empty: the scenario's own)."""
-    value = getattr(args, "object", None)
+    return _given(args, "object")
+
+
+def _given(args: argparse.Namespace, name: str) -> tuple[Any, ...]:
+    """The values of a condition flag that takes one value or several, once each, in the
+    order given (empty: not given)."""
+    value = getattr(args, name, None)
     if value is None:
         return ()
-    return tuple(dict.fromkeys([value] if isinstance(value, str) else value))
+    return tuple(dict.fromkeys(value if isinstance(value, list | tuple) else [value]))
 
 
 def team_variants(sizes: tuple[int, ...], kinds: tuple[str, ...]) -> list[dict[str, Any]]:

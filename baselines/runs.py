@@ -41,10 +41,7 @@ import numpy as np
 from tqdm import tqdm
 
 from baselines.command_line import team_variants
-from baselines.evaluation.during_training import (
-    evaluate_rungs,
-    evaluation_score,
-)
+from baselines.evaluation.during_training import append_row, evaluate_rungs, evaluation_score
 from baselines.lagrangian import CostSettings
 from baselines.loaders.saved import CONFIG_FILE, read_config
 from baselines.registry import policy_spec
@@ -82,8 +79,6 @@ DEFAULT_ENV_THREADS = 1
 # conditions (the evaluation plays the plain environment otherwise: a policy applies its
 # own priors).
 EVAL_KEEP = ("n_agents", "object", "course", "comm", "current", "mismatch", "randomize")
-# what tells a run's groups of env copies apart (several team sizes, several objects)
-GROUP_KEYS = ("n_agents", "object")
 
 
 def add_step_arguments(g: Any) -> None:
@@ -282,18 +277,25 @@ class Run:
         self._postfix: dict[str, Any] = {}
         self._steps_at_start = self.config["robot_steps"]
         self._last_steps = self._steps_at_start
-        self._iteration = self._last_iteration()
-        self._next_eval = self._after(settings.eval_every, self._steps_at_start)
-        self._next_checkpoint = self._after(settings.checkpoint_every, self._steps_at_start)
+        # the next robot-steps at which each cadence of the settings is due (``due``)
+        self._next = {
+            every: self._after(getattr(settings, every), self._steps_at_start)
+            for every in ("eval_every", "checkpoint_every")
+        }
         progress = self.folder / PROGRESS_FILE
-        if self.resumed and progress.exists() and _header(progress) != PROGRESS_COLUMNS:
-            # an earlier layout's file: kept aside, the run goes on in the schema
-            progress.rename(
-                self.folder
-                / f"progress.part{len(list(self.folder.glob('progress.part*.csv')))}.csv"
-            )
-        if not self.resumed or not progress.exists():
-            self._write_header(progress, PROGRESS_COLUMNS)
+        rows: list[dict[str, str]] = []
+        if self.resumed and progress.exists():  # the iterations go on from its last
+            with open(progress, newline="") as fh:
+                reader = csv.DictReader(fh)
+                rows = list(reader)
+            if tuple(reader.fieldnames or ()) != PROGRESS_COLUMNS:
+                # an earlier layout's file: kept aside, the run goes on in the schema
+                parts = len(list(self.folder.glob("progress.part*.csv")))
+                progress.rename(self.folder / f"progress.part{parts}.csv")
+        self._iteration = int(rows[-1]["iteration"]) if rows else 0
+        if not self.resumed or not progress.exists():  # a new run starts a new file
+            with open(progress, "w", newline="") as fh:
+                csv.writer(fh).writerow(PROGRESS_COLUMNS)
 
     @classmethod
     def start(
@@ -409,8 +411,7 @@ class Run:
             "wall_time_s": round(self._wall_before + now - self._start, 2),
             "robot_steps_per_s": round(steps / seconds, 1) if seconds > 0 else None,
         }
-        with open(self.folder / PROGRESS_FILE, "a", newline="") as fh:
-            csv.DictWriter(fh, fieldnames=PROGRESS_COLUMNS).writerow(row)
+        append_row(self.folder / PROGRESS_FILE, PROGRESS_COLUMNS, row)
         self._tick, self._last_steps = now, robot_steps
         if row["episode_return_mean"] is not None:
             self._postfix["return"] = f"{row['episode_return_mean']:.3g}"
@@ -424,14 +425,22 @@ class Run:
         evaluation of a fresh snapshot when due."""
         self.iteration(robot_steps, **stats)
         start = time.perf_counter()
-        if self.checkpoint_due(robot_steps):
+        if self.due("checkpoint_every", robot_steps):
             trainer.checkpoint(robot_steps)
-        if self.evaluation_due(robot_steps):
+        if self.due("eval_every", robot_steps):
             trainer.save(self.snapshot)
-            policy = self.policy_spec(self.snapshot)
-            rows = self.evaluate(robot_steps, policy)
+            rows = self.evaluate(robot_steps, self.policy_spec(self.snapshot))
             self.keep_best(robot_steps, rows)
-            self._show_evaluation(robot_steps, rows)
+            # success and clean success (means over the rungs): the bar's postfix and a line
+            success = float(np.mean([r["success_rate"] for r in rows]))
+            clean = float(np.mean([r["clean_success_rate"] for r in rows]))
+            self._postfix.update(success=f"{success:.2f}", clean=f"{clean:.2f}")
+            if self._bar is not None:
+                self._bar.set_postfix(self._postfix)
+                self._bar.write(
+                    f"evaluation at {robot_steps} robot-steps: success {success:.2f}, clean "
+                    f"success {clean:.2f} ({', '.join(r['rung'] for r in rows)})"
+                )
         # neither the rate nor the next iteration's time counts the checkpoint or evaluation
         now = time.perf_counter()
         self._eval_s += now - start
@@ -439,29 +448,14 @@ class Run:
         if self._bar is not None:
             self._bar.unpause()
 
-    def _show_evaluation(self, robot_steps: int, rows: list[dict[str, Any]]) -> None:
-        """The evaluation's success and clean success (means over the rungs) in the bar's
-        postfix, and on a line of its own."""
-        success = float(np.mean([r["success_rate"] for r in rows]))
-        clean = float(np.mean([r["clean_success_rate"] for r in rows]))
-        self._postfix.update(success=f"{success:.2f}", clean=f"{clean:.2f}")
-        if self._bar is not None:
-            self._bar.set_postfix(self._postfix)
-            self._bar.write(
-                f"evaluation at {robot_steps} robot-steps: success {success:.2f}, clean "
-                f"success {clean:.2f} ({', '.join(r['rung'] for r in rows)})"
-            )
-
-    def evaluation_due(self, robot_steps: int) -> bool:
-        if self.settings.eval_every <= 0 or robot_steps < self._next_eval:
+    def due(self, every: str, robot_steps: int) -> bool:
+        """Whether the cadence ``every`` of the settings (``eval_every``,
+        ``checkpoint_every``; 0: never) is due at ``robot_steps``; if so, its next time
+        moves on."""
+        cadence = getattr(self.settings, every)
+        if cadence <= 0 or robot_steps < self._next[every]:
             return False
-        self._next_eval = self._after(self.settings.eval_every, robot_steps)
-        return True
-
-    def checkpoint_due(self, robot_steps: int) -> bool:
-        if self.settings.checkpoint_every <= 0 or robot_steps < self._next_checkpoint:
-            return False
-        self._next_checkpoint = self._after(self.settings.checkpoint_every, robot_steps)
+        self._next[every] = self._after(cadence, robot_steps)
         return True
 
     def evaluate(self, robot_steps: int, policy: str) -> list[dict[str, Any]]:
@@ -592,19 +586,6 @@ class Run:
         """The first multiple of ``every`` above ``steps``."""
         return (steps // every + 1) * every if every > 0 else 0
 
-    def _last_iteration(self) -> int:
-        path = self.folder / PROGRESS_FILE
-        if not self.resumed or not path.exists():
-            return 0
-        with open(path, newline="") as fh:
-            rows = list(csv.DictReader(fh))
-        return int(rows[-1]["iteration"]) if rows else 0
-
-    @staticmethod
-    def _write_header(path: Path, columns: tuple[str, ...]) -> None:
-        with open(path, "w", newline="") as fh:
-            csv.DictWriter(fh, fieldnames=columns).writeheader()
-
 
 def previous_record(settings: RunSettings, library: str) -> dict[str, Any]:
     """The config.json of the run ``settings.resume`` continues ({} for a new run);
@@ -618,11 +599,6 @@ def previous_record(settings: RunSettings, library: str) -> dict[str, Any]:
     if trained_by != library:  # "engine": the key's earlier name
         raise ValueError(f"--resume {resume} was trained with {trained_by}, not {library}")
     return previous
-
-
-def _header(path: Path) -> tuple[str, ...]:
-    with open(path, newline="") as fh:
-        return tuple(next(csv.reader(fh), []))
 
 
 def _mean(values: list[float] | None) -> float | None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +36,7 @@ from baselines.command_line import (
     objects,
     positive_int,
     team_sizes,
+    team_variants,
     usage_errors,
 )
 from baselines.lagrangian import COSTS, CostSettings
@@ -179,7 +181,7 @@ def build_parser(name: str) -> argparse.ArgumentParser:
     return ap
 
 
-def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> Any:
+def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> RunSettings:
     """The run's settings from the parsed command line, checked against the environment
     (``check_environment``): ValueError or TypeError naming the option otherwise."""
     cost = _cost_settings(args)
@@ -188,49 +190,35 @@ def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> Any:
     dropped = [flag for flag, value in evaluation.items() if value is not None]
     if not args.eval_every and dropped:
         raise ValueError(f"{', '.join(dropped)} without --eval-every: no periodic evaluation")
-    pool = args.geometry_pool if args.geometry_pool is not None else defaults["geometry_pool"]
     overrides = key_value_pairs(args.env_option)
-    for key, value in condition_overrides(args).items():
-        if key in overrides and overrides[key] != value:
-            raise ValueError(f"--{key} contradicts --env-option {key}={overrides[key]!r}")
-        overrides[key] = value
     sizes, kinds = team_sizes(args), objects(args)
     for flag, key, values in (("--n-agents", "n_agents", sizes), ("--object", "object", kinds)):
         if values and key in overrides:
             raise ValueError(f"give the {key} once: {flag} or --env-option {key}")
-    if len(sizes) == 1:
-        overrides["n_agents"], sizes = sizes[0], ()
-    if len(kinds) == 1:
-        overrides["object"], kinds = kinds[0], ()
-    if args.comm is not None:
-        if "comm" in overrides and overrides["comm"] != args.comm:
-            raise ValueError(
-                f"--comm {args.comm} contradicts --env-option comm={overrides['comm']!r}"
-            )
-        overrides["comm"] = args.comm
+    # one team size or object is the env's own option; several: a group of env copies each
+    one = {key: v[0] for key, v in (("n_agents", sizes), ("object", kinds)) if len(v) == 1}
+    sizes, kinds = (v if len(v) > 1 else () for v in (sizes, kinds))
+    comm = {} if args.comm is None else {"comm": args.comm}
+    for key, value in (condition_overrides(args) | one | comm).items():
+        if key in overrides and overrides[key] != value:
+            raise ValueError(f"--{key} {value} contradicts --env-option {key}={overrides[key]!r}")
+        overrides[key] = value
     check_environment(args.scenario, overrides, sizes, kinds)
+    # the shared options named as RunSettings' fields, as given; the library's defaults
+    # (``defaults``: num_envs, geometry_pool) or the dataclass's where not given
+    given = {f.name: getattr(args, f.name, None) for f in fields(RunSettings)}
     return RunSettings(
-        scenario=args.scenario,
-        overrides=overrides,
-        robot_steps=args.robot_steps,
-        num_envs=args.num_envs if args.num_envs is not None else defaults["num_envs"],
-        seed=args.seed,
-        out=args.out if args.out is not None else Path(f"runs/{args.library}_{args.algo}"),
-        eval_every=args.eval_every,
-        eval_episodes=(
-            args.eval_episodes if args.eval_episodes is not None else RunSettings.eval_episodes
-        ),
-        eval_ladder=args.eval_ladder,
-        checkpoint_every=args.checkpoint_every,
-        resume=args.resume,
-        cost=cost,
-        geometry_pool=pool,
-        hyperparameters=key_value_pairs(args.hp),
-        progress=not args.no_progress,
-        team_sizes=sizes,
-        objects=kinds,
-        eval_seed=args.eval_seed,
-        eval_max_cycles=args.eval_max_cycles,
+        **defaults
+        | {key: value for key, value in given.items() if value is not None}
+        | {
+            "overrides": overrides,
+            "out": args.out or Path(f"runs/{args.library}_{args.algo}"),
+            "cost": cost,
+            "hyperparameters": key_value_pairs(args.hp),
+            "progress": not args.no_progress,
+            "team_sizes": sizes,
+            "objects": kinds,
+        }
     )
 
 
@@ -263,16 +251,12 @@ def check_environment(
     except (TypeError, ValueError) as exc:
         raise ValueError(f"--env-option: {exc}") from exc
     probe = {**overrides, "seed": 0, "reseed_geometry": False}
-    for n in sizes or (None,):
-        for kind in kinds or (None,):
-            group = {**probe, **({} if n is None else {"n_agents": n})}
-            group.update({} if kind is None else {"object": kind})
-            try:
-                resolve(scenario, group)
-            except (TypeError, ValueError) as exc:
-                team = "" if n is None else f" --n-agents {n}"
-                team += "" if kind is None else f" --object {kind}"
-                raise ValueError(f"--scenario {scenario}{team}: {exc}") from exc
+    for variant in team_variants(sizes, kinds):
+        try:
+            resolve(scenario, probe | variant)
+        except (TypeError, ValueError) as exc:
+            team = "".join(f" --{key.replace('_', '-')} {v}" for key, v in variant.items())
+            raise ValueError(f"--scenario {scenario}{team}: {exc}") from exc
 
 
 def check_library(name: str, algo: str, settings: Any, args: argparse.Namespace) -> None:
@@ -322,10 +306,10 @@ def train(
     module = trainer_module(name)
     if args is None:
         args = build_parser(name).parse_args(["--library", name])
-        for key, value in library_options.items():
-            if not hasattr(args, key):
-                raise ValueError(f"{name} has no option {key!r}")
-            setattr(args, key, value)
+        unknown = sorted(set(library_options) - set(vars(args)))
+        if unknown:
+            raise ValueError(f"{name} has no option {unknown[0]!r}")
+        vars(args).update(library_options)
     for key, default in module.DEFAULTS.items():
         if getattr(settings, key) is None:
             setattr(settings, key, default)

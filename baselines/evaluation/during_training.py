@@ -54,10 +54,6 @@ def evaluate_rungs(
     from baselines.evaluation.runner import evaluate
     from baselines.evaluation.summary import aggregate
 
-    path = Path(folder) / EVAL_FILE
-    if not path.exists():
-        with open(path, "w", newline="") as fh:
-            csv.writer(fh).writerow(EVAL_COLUMNS)
     out = []
     for rung, (scenario, overrides) in rungs.items():
         rows = evaluate(
@@ -90,8 +86,7 @@ def evaluate_rungs(
             "episode_steps": summary.get("episode_steps", math.nan),
             "errors": summary["errors"],
         }
-        with open(path, "a", newline="") as fh:
-            csv.DictWriter(fh, fieldnames=EVAL_COLUMNS).writerow(row)
+        append_row(Path(folder) / EVAL_FILE, EVAL_COLUMNS, row)
         marl_eval.write(
             Path(folder) / "marl_eval.json",
             rows,
@@ -103,6 +98,17 @@ def evaluate_rungs(
         )
         out.append(row)
     return out
+
+
+def append_row(path: Path, columns: tuple[str, ...], row: dict[str, Any]) -> None:
+    """Append ``row`` to the CSV file ``path`` of ``columns``, the header first where
+    there is no file yet (a training run's records: evaluations, progress, the shield's)."""
+    new = not path.exists()
+    with open(path, "a", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=columns)
+        if new:
+            writer.writeheader()
+        writer.writerow(row)
 
 
 def evaluation_score(rows: list[dict[str, Any]]) -> tuple[float, float, float]:

@@ -55,7 +55,11 @@ class CostPenalty(VecEnvWrapper):
 
 
 def find_layer(venv: Any, cls: type) -> Any:
-    """The wrapper of type ``cls`` inside the VecEnv stack, or None."""
+    """The layer of type ``cls`` inside the VecEnv stack (below a ``ConcatVecEnv`` of
+    several groups, in its first part), or None."""
     while venv is not None and not isinstance(venv, cls):
-        venv = getattr(venv, "venv", None)
+        if isinstance(venv, VecEnvWrapper):
+            venv = venv.venv
+        else:  # a ConcatVecEnv's first part; None at the stack's bottom
+            venv = next(iter(getattr(venv, "parts", [])), None)
     return venv

@@ -34,18 +34,14 @@ STATS_COUNT = 1e7
 INIT_LOG_STD = float(np.log(0.05))
 
 
-def clone_path(source: str) -> Any:
-    """``dagger:pretrained`` / ``bc:PATH`` -> the clone's ``policy.pt``."""
+def load_clone(source: str) -> MLPPolicyNet:
+    """The clone of ``dagger:pretrained`` / ``bc:PATH`` (its ``policy.pt``)."""
     from baselines.loaders.clone_policy import ClonedPolicy
 
     method, _, arg = source.partition(":")
     if method not in SOURCES:
         raise ValueError(f"--init-actor must be one of {SOURCES} with :pretrained or :PATH")
-    return ClonedPolicy.locate(method, arg or None)
-
-
-def load_clone(source: str) -> MLPPolicyNet:
-    net = MLPPolicyNet.load(clone_path(source))
+    net = MLPPolicyNet.load(ClonedPolicy.locate(method, arg or None))
     if net.features not in FEEDFORWARD or not net.residual:
         raise ValueError(
             f"--init-actor needs a clone on the 'features' or 'memory' inputs (a residual "

@@ -28,10 +28,16 @@ from baselines.evaluation.report import pyplot, save
 from baselines.stats import t_band
 
 
-def read_csv(path: Path) -> dict[str, np.ndarray]:
-    """The columns of a CSV as float arrays (missing or non-numeric cells: NaN)."""
+def read_rows(path: Path) -> list[dict[str, str]]:
+    """A CSV's rows (none where there is no file)."""
+    if not path.exists():
+        return []
     with open(path, newline="") as fh:
-        rows = list(csv.DictReader(fh))
+        return list(csv.DictReader(fh))
+
+
+def columns(rows: list[dict[str, str]]) -> dict[str, np.ndarray]:
+    """CSV rows as float columns (missing or non-numeric cells: NaN)."""
     keys = list(rows[0]) if rows else []
     return {k: np.array([_num(r.get(k)) for r in rows], dtype=float) for k in keys}
 
@@ -46,7 +52,7 @@ def _num(x: str | None) -> float:
 def progress(run: Path) -> dict[str, np.ndarray]:
     """progress.csv and the earlier parts kept by resumed runs, in timestep order."""
     parts = [*sorted(run.glob("progress.part*.csv")), run / "progress.csv"]
-    tables = [read_csv(p) for p in parts if p.exists() and p.stat().st_size > 0]
+    tables = [columns(read_rows(p)) for p in parts if p.exists() and p.stat().st_size > 0]
     out: dict[str, np.ndarray] = {}
     for key in {k for t in tables for k in t}:
         n = [len(next(iter(t.values()), [])) for t in tables]
@@ -160,16 +166,9 @@ SEED_PANELS = (
 
 def rung_table(run: Path) -> dict[str, dict[str, np.ndarray]]:
     """evaluations.csv by rung: rung -> column -> values, in robot-step order."""
-    path = run / "evaluations.csv"
-    if not path.exists():
-        return {}
-    with open(path, newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    out: dict[str, dict[str, np.ndarray]] = {}
-    for rung in dict.fromkeys(r.get("rung") or "" for r in rows):
-        mine = [r for r in rows if (r.get("rung") or "") == rung]
-        out[rung] = {k: np.array([_num(r.get(k)) for r in mine]) for k in mine[0]}
-    return out
+    rows = read_rows(run / "evaluations.csv")
+    rungs = dict.fromkeys(r.get("rung") or "" for r in rows)
+    return {rung: columns([r for r in rows if (r.get("rung") or "") == rung]) for rung in rungs}
 
 
 def plot_seed_curves(groups: dict[str, list[Path]], out: Path) -> None:
@@ -218,32 +217,22 @@ def plot_seed_curves(groups: dict[str, list[Path]], out: Path) -> None:
 def _rung_evaluations(run: Path) -> dict[str, np.ndarray] | None:
     """The evaluations on the run's training rung (the first rung of a ladder), or for a
     run over a distribution evaluated on the ladder the mean over every rung."""
-    path = run / "evaluations.csv"
-    if not path.exists():
-        return None
-    with open(path, newline="") as fh:
-        rows = list(csv.DictReader(fh))
+    rows = read_rows(run / "evaluations.csv")
     if not rows or "clean_success_rate" not in rows[0]:
         return None
     config = json.loads((run / "config.json").read_text()) if (run / "config.json").exists() else {}
     keys = ("robot_steps", "success_rate", "clean_success_rate")
     if config.get("eval_ladder") and (config.get("team_sizes") or config.get("objects")):
         steps = sorted({_num(r["robot_steps"]) for r in rows})
-        table = {k: [] for k in keys}
-        for step in steps:
-            at = [r for r in rows if _num(r["robot_steps"]) == step]
-            table["robot_steps"].append(step)
-            for k in keys[1:]:
-                table[k].append(float(np.mean([_num(r[k]) for r in at])))
-        return {k: np.array(v) for k, v in table.items()}
+        at = [columns([r for r in rows if _num(r["robot_steps"]) == step]) for step in steps]
+        means = {k: np.array([np.mean(table[k]) for table in at]) for k in keys[1:]}
+        return {"robot_steps": np.array(steps), **means}
     rung = _training_rung(config, rows[0].get("rung"))
     # a run evaluated without --eval-ladder labels its rows with the scenario's name
     rows = [r for r in rows if r.get("rung") == rung] or [
         r for r in rows if r.get("rung") == config.get("scenario")
     ]
-    if not rows:
-        return None
-    return {k: np.array([_num(r[k]) for r in rows]) for k in keys}
+    return {k: v for k, v in columns(rows).items() if k in keys} or None
 
 
 def _training_rung(config: dict, first: str | None) -> str | None:

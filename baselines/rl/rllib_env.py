@@ -11,7 +11,7 @@ runner, w = 0, counts as the first when there are no remote ones), episode e see
 
 With ``cost`` in the config, each step penalizes each robot's reward (PPO-Lagrangian);
 the driver collects the ended episodes' costs (``take_episode_costs``) and sets the new
-multiplier on every env (``set_multiplier``).
+multiplier on every env (``set_multiplier``), each through ``each_env``.
 
 May import: gymnasium, ray.rllib, numpy, ``baselines.lagrangian`` and ``uvms_env``; imported
 only where Ray is.
@@ -128,18 +128,8 @@ def runner_envs(runner: Any) -> list[UVMSMultiAgentEnv]:
     return [e.unwrapped for e in getattr(vector, "envs", [])]
 
 
-def take_episode_costs(runner: Any) -> list[float]:
-    """``EnvRunnerGroup.foreach_env_runner``: the runner's ended episodes' robot costs."""
-    return [c for env in runner_envs(runner) for c in env.take_episode_costs()]
-
-
-def take_episodes(runner: Any) -> list[tuple[float, int]]:
-    """``EnvRunnerGroup.foreach_env_runner``: the runner's ended episodes (team return,
-    length)."""
-    return [e for env in runner_envs(runner) for e in env.take_episodes()]
-
-
-def set_multiplier(runner: Any, value: float) -> None:
-    """``EnvRunnerGroup.foreach_env_runner``: the multiplier on each of the runner's envs."""
-    for env in runner_envs(runner):
-        env.set_multiplier(value)
+def each_env(runner: Any, method: str, args: tuple[Any, ...] = ()) -> list[Any]:
+    """``EnvRunnerGroup.foreach_env_runner`` (with ``functools.partial``): ``method`` of
+    ``UVMSMultiAgentEnv`` called on each of the runner's envs with ``args``, the lists it
+    returns joined (``take_episodes``, ``take_episode_costs``; ``set_multiplier``: [])."""
+    return [x for env in runner_envs(runner) for x in getattr(env, method)(*args) or ()]

@@ -61,18 +61,15 @@ SEVERAL_TEAM_SIZES = False
 
 
 def build_config(
-    scenario: str,
-    overrides: dict[str, Any],
+    settings: Any,
+    args: argparse.Namespace,
     seed: int,
-    num_env_runners: int,
     geometry_pool: int | None,
     hyperparameters: dict[str, Any],
-    rollout_fragment_length: int | str = "auto",
-    envs_per_runner: int = DEFAULTS["num_envs"],
-    cost: dict[str, Any] | None = None,
 ):
-    """RLlib's PPO config: one ``RLModule`` (``POLICY_ID``) for every robot; ``cost``:
-    ``baselines.lagrangian.CostSettings`` as a dict (None: no cost)."""
+    """RLlib's PPO config of a run's ``settings`` (``baselines.runs.RunSettings``) and
+    RLlib options ``args``: one ``RLModule`` (``POLICY_ID``) for every robot, its env copies
+    seeded from ``seed``."""
     from ray.rllib.algorithms.ppo import PPOConfig
     from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
     from ray.rllib.core.rl_module.multi_rl_module import MultiRLModuleSpec
@@ -83,22 +80,23 @@ def build_config(
 
     register_env(ENV_NAME, make_env)
     env_config = {
-        "scenario": scenario,
-        "overrides": overrides,
+        "scenario": settings.scenario,
+        "overrides": settings.env_options(),
         "seed": seed,
         "geometry_pool": geometry_pool,
-        "envs_per_runner": envs_per_runner,
-        "num_env_runners": num_env_runners,
-        "cost": cost,
+        "envs_per_runner": settings.num_envs,
+        "num_env_runners": args.num_env_runners,
+        "cost": settings.cost.as_dict() if settings.cost is not None else None,
     }
+    fragment = args.rollout_fragment_length
     return (
         PPOConfig()
         .environment(ENV_NAME, env_config=env_config, clip_actions=True)
         .env_runners(
-            num_env_runners=num_env_runners,
-            num_envs_per_env_runner=envs_per_runner,
+            num_env_runners=args.num_env_runners,
+            num_envs_per_env_runner=settings.num_envs,
             num_cpus_per_env_runner=1,
-            rollout_fragment_length=rollout_fragment_length,
+            rollout_fragment_length=fragment if fragment == "auto" else int(fragment),
         )
         .multi_agent(policies={POLICY_ID}, policy_mapping_fn=_shared)
         .rl_module(
@@ -212,19 +210,7 @@ class Trainer:
         init_ray(a.address, a.num_cpus if a.num_cpus is not None else max(2, a.num_env_runners))
         import ray
 
-        fragment = a.rollout_fragment_length
-        config = build_config(
-            s.scenario,
-            s.env_options(),
-            self.run.env_seed,
-            a.num_env_runners,
-            pool,
-            hp,
-            fragment if fragment == "auto" else int(fragment),
-            s.num_envs,
-            s.cost.as_dict() if s.cost is not None else None,
-        )
-        self.algorithm = config.build_algo()
+        self.algorithm = build_config(s, a, self.run.env_seed, pool, hp).build_algo()
         if s.resume is not None:
             from baselines.loaders.rllib_policy import RLlibPolicy
 
@@ -267,13 +253,7 @@ class Trainer:
         """The team returns (unpenalized) and lengths of the training episodes every env
         runner ended in the iteration, as the other trainers record them (RLlib's own
         means are smoothed over recent episodes and sum the robots' penalized rewards)."""
-        from baselines.rl.rllib_env import take_episodes
-
-        ended = [
-            e
-            for part in self.algorithm.env_runner_group.foreach_env_runner(take_episodes)
-            for e in part
-        ]
+        ended = [e for part in self._on_envs("take_episodes") for e in part]
         return [float(r) for r, _ in ended], [float(n) for _, n in ended]
 
     def dual_step(self) -> dict[str, Any]:
@@ -282,9 +262,7 @@ class Trainer:
         multiplier ({} without a cost)."""
         if self.lagrangian is None:
             return {}
-        from baselines.rl.rllib_env import take_episode_costs
-
-        for costs in self.algorithm.env_runner_group.foreach_env_runner(take_episode_costs):
+        for costs in self._on_envs("take_episode_costs"):
             self.lagrangian.add(costs)
         episode_cost = self.lagrangian.end_rollout()
         self.broadcast_multiplier()
@@ -292,13 +270,16 @@ class Trainer:
 
     def broadcast_multiplier(self) -> None:
         """Sets the multiplier on every env of every env runner."""
-        from baselines.rl.rllib_env import set_multiplier
-
         assert self.lagrangian is not None
-        value = self.lagrangian.multiplier
-        self.algorithm.env_runner_group.foreach_env_runner(
-            functools.partial(set_multiplier, value=value)
-        )
+        self._on_envs("set_multiplier", self.lagrangian.multiplier)
+
+    def _on_envs(self, method: str, *args: Any) -> list[list[Any]]:
+        """``method`` on every env of every env runner (``rllib_env.each_env``): a list
+        per runner."""
+        from baselines.rl.rllib_env import each_env
+
+        call = functools.partial(each_env, method=method, args=args)
+        return self.algorithm.env_runner_group.foreach_env_runner(call)
 
     def save(self, folder: Path) -> None:
         target = folder if folder != self.run.folder else folder / "checkpoint"

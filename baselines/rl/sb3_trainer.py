@@ -8,6 +8,7 @@ normalized (``VecNormalize``, saved with the model). The run folder also gets
 Flags and the modules behind them: docs/rl.md.
 
 May import: numpy, torch and stable-baselines3 (inside the trainer), ``baselines.runs``,
+``baselines.evaluation.during_training`` (the shield's records),
 ``baselines.lagrangian``, ``baselines.loaders.saved`` (a run's priors), ``baselines.rl``,
 ``baselines.command_line`` (the flags' types) and ``uvms_env``.
 """
@@ -265,23 +266,6 @@ def make_vec_env(
     return venv
 
 
-def central_layer(venv: Any) -> Any:
-    """The (first) ``CentralStateVecEnv`` inside a VecEnv stack, or None."""
-    from baselines.rl.mappo import CentralStateVecEnv
-    from uvms_env.vector.sb3 import ConcatVecEnv
-
-    while venv is not None and not isinstance(venv, CentralStateVecEnv):
-        venv = venv.parts[0] if isinstance(venv, ConcatVecEnv) else getattr(venv, "venv", None)
-    return venv
-
-
-def team_leaders(venv: Any) -> Any:
-    """Which sub-environments are each team's first robot (one per team episode)."""
-    while venv is not None and not hasattr(venv, "team_leaders"):
-        venv = getattr(venv, "venv", None)
-    return venv.team_leaders if venv is not None else None
-
-
 def find_resume(path: Path) -> tuple[Path, Path, Path | None]:
     """(model.zip, vecnormalize.pkl, replay buffer or None) to resume from ``path``: a run
     folder (its ``model.zip``, or its newest checkpoint when it has none or the
@@ -337,18 +321,13 @@ class Trainer:
         hyperparameters = dict(s.hyperparameters)
         hp = {**ALGO_DEFAULTS[algo], **hyperparameters}
         chosen_policy_kwargs, clone = self._policy_kwargs(hp)
-        env = {
-            "dtype": a.dtype,
-            "geometry_pool": s.geometry_pool,
-            "env_threads": a.env_threads,
-        }
-        settings = env_settings(s.scenario, overrides=s.overrides, **env)
+        settings = env_settings(s.scenario, a.dtype, s.geometry_pool, a.env_threads, s.overrides)
         venv = make_vec_env(
             s.scenario,
             s.num_envs,
             self.run.env_seed,
             s.groups(),
-            **env,
+            **settings,
             cost=s.cost,
             central_critic=a.central_critic,
             filter_penalty=filter_penalty(a),
@@ -448,10 +427,11 @@ class Trainer:
         policy: Any = "MlpLstmPolicy" if self.algo == "recurrent_ppo" else "MlpPolicy"
         kwargs = {"net_arch": NET, **policy_kwargs}
         if self.args.central_critic:
-            from baselines.rl.mappo import CentralCriticPolicy
+            from baselines.rl.cost import find_layer
+            from baselines.rl.mappo import CentralCriticPolicy, CentralStateVecEnv
 
             policy = CentralCriticPolicy
-            kwargs["local_dim"] = central_layer(venv).local_dim
+            kwargs["local_dim"] = find_layer(venv, CentralStateVecEnv).local_dim
         cls = algorithm_class(self.algo)
         model = cls(policy, venv, seed=s.seed, device="cpu", policy_kwargs=kwargs, verbose=0, **hp)
         if clone is not None:
@@ -522,7 +502,9 @@ def _progress_callback(trainer: Trainer) -> Any:
                 run.begin(n_envs, ("step of every robot sub-env", "steps of every robot sub-env"))
 
         def _init_callback(self) -> None:
-            leaders = team_leaders(self.training_env)
+            # each team's first robot: one per team episode (the wrappers' attribute look-up
+            # reaches down to the batched env's)
+            leaders = getattr(self.training_env, "team_leaders", None)
             self.leaders = leaders if leaders is not None else [True] * self.model.n_envs
             self.returns: list[float] = []
             self.lengths: list[float] = []
@@ -570,8 +552,9 @@ def _progress_callback(trainer: Trainer) -> Any:
             )
             self.returns, self.lengths = [], []
             if shield is not None:  # the correction penalty, its own record (shield.csv)
-                from baselines.rl.shield import write_summary
+                from baselines.evaluation.during_training import append_row
+                from baselines.rl.shield import SHIELD_COLUMNS, SHIELD_FILE
 
-                write_summary(run.folder, shield.summary(steps))
+                append_row(run.folder / SHIELD_FILE, SHIELD_COLUMNS, shield.summary(steps))
 
     return ProgressCallback()

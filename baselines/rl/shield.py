@@ -16,10 +16,8 @@ May import: numpy, stable-baselines3 (``ShieldPenalty``), ``nmpc_expert`` and ``
 
 from __future__ import annotations
 
-import csv
 import time
 import warnings
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -155,31 +153,14 @@ class Shield:
         return row
 
 
-def write_summary(folder: Path, row: dict[str, Any]) -> None:
-    """Append ``row`` to the run folder's ``shield.csv`` (header on first write)."""
-    path = Path(folder) / SHIELD_FILE
-    new = not path.exists()
-    with open(path, "a", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=SHIELD_COLUMNS)
-        if new:
-            writer.writeheader()
-        writer.writerow(row)
-
-
-def vector_env_of(venv: Any) -> Any:
-    """The ``VectorEnv`` under an SB3 VecEnv stack (its ``VectorVecEnv``'s), or None."""
-    while venv is not None and not hasattr(venv, "vector_env"):
-        venv = getattr(venv, "venv", None)
-    return None if venv is None else venv.vector_env
-
-
 class ShieldPenalty(VecEnvWrapper):
     """SB3 ``VecEnvWrapper`` over a ``VectorVecEnv`` stack: each robot sub-environment's
     reward minus its ``Shield.penalty`` this step (also ``infos[i]["filter_penalty"]``)."""
 
     def __init__(self, venv: Any, shield: Shield) -> None:
         super().__init__(venv)
-        if vector_env_of(venv) is not shield.env:
+        # the wrappers' attribute look-up reaches down to the VectorVecEnv's
+        if getattr(venv, "vector_env", None) is not shield.env:
             raise ValueError("ShieldPenalty needs the VecEnv stack over the shield's VectorEnv")
         self.shield = shield
 

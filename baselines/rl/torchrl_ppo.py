@@ -310,12 +310,20 @@ class Trainer:
         from torchrl.data import LazyTensorStorage, ReplayBuffer
         from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
 
+        from uvms_env.vector.sb3 import PART_SEED_STRIDE
+
         s, a, hp = self.run.settings, self.args, self.hp
         device = parse_device(a.device, a.backend)
         pool = seeded_pool(s.scenario, s.overrides, s.geometry_pool)
         torch.set_num_threads(a.torch_threads)
         torch.manual_seed(s.seed + self.run.config["resumes"])
-        envs = [self._group_env(j, g, device, pool) for j, g in enumerate(s.groups())]
+        envs = []  # one TorchRL env per group of env copies (``RunSettings.groups``)
+        for j, group in enumerate(s.groups()):
+            env = make_env(
+                s.scenario, s.num_envs, a.backend, device, a.dtype, pool, a.env_threads, group
+            )
+            env.set_seed(self.run.env_seed + j * PART_SEED_STRIDE)
+            envs.append(env)
         dev = self.dev = envs[0].device
         if s.cost is not None:
             self.costs = StepCosts(envs[0].vector_env)
@@ -369,18 +377,6 @@ class Trainer:
             "robot_steps_per_iteration": self.robot_steps_per_batch,
             "torch_threads": torch.get_num_threads(),
         }
-
-    def _group_env(self, j: int, group: dict[str, Any], device: str | int, pool: int | None):
-        """The TorchRL env of group ``j`` of env copies (``RunSettings.groups``: its
-        environment options)."""
-        from uvms_env.vector.sb3 import PART_SEED_STRIDE
-
-        s, a = self.run.settings, self.args
-        env = make_env(
-            s.scenario, s.num_envs, a.backend, device, a.dtype, pool, a.env_threads, group
-        )
-        env.set_seed(self.run.env_seed + j * PART_SEED_STRIDE)
-        return env
 
     def learn(self) -> int:
         from tensordict import TensorDict
