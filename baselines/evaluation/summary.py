@@ -145,14 +145,19 @@ def summarize(
     return out
 
 
+def groups(rows: Sequence[Row]) -> dict[tuple[str, str], list[Row]]:
+    """The rows by (policy, scenario), in the rows' order: the groups ``summarize`` takes."""
+    out: dict[tuple[str, str], list[Row]] = {}
+    for row in rows:
+        out.setdefault((row["policy"], row["scenario"]), []).append(row)
+    return out
+
+
 def aggregate(rows: Sequence[Row], seed: int) -> list[Row]:
     """The evaluator's table: ``summarize`` per (policy, scenario), sorted by both, less
     ``NOT_TABULATED`` and the metrics without a finite value."""
-    groups: dict[tuple[str, str], list[Row]] = {}
-    for row in rows:
-        groups.setdefault((row["policy"], row["scenario"]), []).append(row)
     out = []
-    for _, group in sorted(groups.items()):
+    for _, group in sorted(groups(rows).items()):
         summary = summarize(group, seed)
         gaps = {k for k in MEAN_METRICS if summary[k] is None}
         out.append(
