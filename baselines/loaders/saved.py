@@ -97,14 +97,17 @@ def comm_from_options(options: dict[str, Any]) -> ChannelSettings | None:
     return channel_settings(options.get("comm"))
 
 
+def nearest_config(saved: Path) -> dict[str, Any]:
+    """The config.json of the run that saved ``saved``: the nearest in the saved item's
+    folder or the two above it ({} without one)."""
+    configs = map(read_config, list(Path(saved).resolve().parents)[:3])
+    return next(filter(None, configs), {})
+
+
 def run_record(saved: Path) -> tuple[Priors, ChannelSettings | None]:
-    """The priors and the channel of the run that saved ``saved``: its nearest config.json
-    (in the saved item's folder or the two above it); plain and silent without one."""
-    config: dict[str, Any] = {}
-    for folder in list(Path(saved).resolve().parents)[:3]:
-        config = read_config(folder)
-        if config:
-            break
+    """The priors and the channel of the run that saved ``saved`` (``nearest_config``);
+    plain and silent without one."""
+    config = nearest_config(saved)
     options = {**config.get("env_options", {}), **config.get("overrides", {})}
     return priors_from_options(options), comm_from_options(options)
 
