@@ -103,17 +103,6 @@ def sweep_cases(base: list[Case], points: list[ChannelPoint]) -> list[Case]:
     ]
 
 
-def _split(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The rows with the case in ``scenario`` and the channel in the policy's name
-    (``nmpc:comm [channel]``), so that a talking run pairs with the references."""
-    out = []
-    for r in rows:
-        case, _, channel = r["scenario"].partition(SEPARATOR)
-        policy = f"{r['policy']} [{channel}]" if channel else r["policy"]
-        out.append({**r, "scenario": case, "policy": policy, "channel": channel or "none"})
-    return out
-
-
 def summarize(
     rows: list[dict[str, Any]], labels: list[str], points: list[ChannelPoint], seed: int
 ) -> dict[str, Any]:
@@ -121,7 +110,13 @@ def summarize(
     summary) and, for the talking expert and the bound, the ratios of means against the
     silent expert on the paired episodes; pooled over the cases, the clean success and
     the mean of the per-case ratios (each case counts once, whatever its scale)."""
-    split = _split(rows)
+    # the case in ``scenario`` and the channel in the policy's name (``nmpc:comm [channel]``),
+    # so that a talking run pairs with the references
+    split = []
+    for r in rows:
+        case, _, channel = r["scenario"].partition(SEPARATOR)
+        policy = f"{r['policy']} [{channel}]" if channel else r["policy"]
+        split.append({**r, "scenario": case, "policy": policy, "channel": channel or "none"})
     by = groups(split)
     # the runs in the tables' order, each with its channel point (None: no channel)
     runs = {EXPERT: None, CENTRAL: None, **{f"{TALKER} [{p.label}]": p for p in points}}
@@ -294,24 +289,14 @@ def numbers(kind: type) -> Any:
 def main(argv: list[str] | None = None) -> None:
     ap = command_parser("baselines.comm_sweep", __doc__)
     ap.add_argument("--preset", default=PRESET, help="the channel the grid varies")
-    ap.add_argument(
-        "--bit-rates",
-        type=numbers(float),
-        default=",".join(f"{r:g}" for r in BIT_RATES),
-        help="comma-separated, bit/s (inf: unlimited)",
-    )
-    ap.add_argument(
-        "--losses",
-        type=numbers(float),
-        default=",".join(f"{p:g}" for p in LOSSES),
-        help="loss floors p0",
-    )
-    ap.add_argument(
-        "--latencies",
-        type=numbers(int),
-        default=",".join(str(n) for n in LATENCIES),
-        help="modem latency, periods",
-    )
+    for flag, kind, values, what in (
+        ("--bit-rates", float, BIT_RATES, "comma-separated, bit/s (inf: unlimited)"),
+        ("--losses", float, LOSSES, "loss floors p0"),
+        ("--latencies", int, LATENCIES, "modem latency, periods"),
+    ):
+        ap.add_argument(
+            flag, type=numbers(kind), default=",".join(f"{v:g}" for v in values), help=what
+        )
     ap.add_argument("--no-references", action="store_true", help="no silent / central runs")
     add_case_arguments(ap, SWEEP_TEAM_SIZES, "runs/comm_sweep", bars=False)
     args = ap.parse_args(argv)

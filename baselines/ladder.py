@@ -265,17 +265,14 @@ def plot_prices(result: dict[str, Any], out: Path) -> None:
         for kind, style in PRICE_STYLES.items():
             by_rung: dict[str, list[tuple[int, float]]] = {}
             for p in result["prices"][kind]:
-                if not p["scenario"].startswith("random N=") or p[name] is None:
+                v, case = p[name], p["scenario"]
+                if not (case.startswith("random N=") and v and v["ratio"] is not None):
                     continue
-                if p[name]["ratio"] is None or p["paired_successes"] < MIN_PAIRED:
-                    continue
-                n = int(p["scenario"].split("=")[1])
-                by_rung.setdefault(f"{p['rung']} / {p['reference']}", []).append(
-                    (n, p[name]["ratio"])
-                )
+                if p["paired_successes"] >= MIN_PAIRED:
+                    point = (int(case.split("=")[1]), v["ratio"])
+                    by_rung.setdefault(f"{p['rung']} / {p['reference']}", []).append(point)
             for label, pts in by_rung.items():
-                pts.sort()
-                ax.plot(*zip(*pts, strict=True), style, label=label)
+                ax.plot(*zip(*sorted(pts), strict=True), style, label=label)
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set_title(name)
         ax.set_xlabel("robots N (random family)")
