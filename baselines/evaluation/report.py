@@ -125,11 +125,10 @@ def success_plot(summaries: Sequence[Row], policies: list[str], path: Path) -> N
     scenarios = sorted({s["scenario"] for s in summaries})
     fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(scenarios) + 2.0), 3.8))
     width = 0.8 / max(1, len(policies))
+    by = {(s["policy"], s["scenario"]): s for s in summaries}
     for k, policy in enumerate(policies):
         for j, scen in enumerate(scenarios):
-            s = next(
-                (x for x in summaries if x["policy"] == policy and x["scenario"] == scen), None
-            )
+            s = by.get((policy, scen))
             if s is None:
                 continue
             lo, hi = s["success_ci95"]
