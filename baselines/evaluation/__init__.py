@@ -7,8 +7,8 @@ case and policy once before any episode, seeded episodes, worker pool, ``Setting
 run-and-write sequence every command shares).
 
 Inside the package, ``outputs`` imports the others, ``runner`` and ``summary`` (the name of
-an episode that raised) import ``episode_row``, and ``report`` imports ``summary``; nothing
-here imports a command.
+an episode that raised) import ``episode_row``, and ``report`` and ``marl_eval`` (the rows'
+metrics, on use) import ``summary``; nothing here imports a command.
 
 May import: the standard library, numpy, tqdm, matplotlib, ``baselines.loaders.sources``,
 ``baselines.stats``, ``baselines.registry`` and ``uvms_env``; Ray only in ``ray_backend``
