@@ -147,19 +147,15 @@ def ladder(
     rungs = [rung_summary(by[p, c], seed) for p in policies for c in labels if (p, c) in by]
     distributed = [p for p in policies if p.startswith("nmpc") and p != CENTRAL]
     learned = [p for p in policies if not p.startswith("nmpc")]
+    # each kind of price: the rungs it prices and their reference (when it played)
+    kinds = {
+        "decentralization": (distributed, CENTRAL),
+        "learning": (learned, EXPERT),
+        "learning against the bound": (learned, CENTRAL),
+    }
     prices = {
-        "decentralization": [
-            price(rows, p, CENTRAL, c, seed)
-            for c in labels
-            for p in distributed
-            if CENTRAL in policies
-        ],
-        "learning": [
-            price(rows, p, EXPERT, c, seed) for c in labels for p in learned if EXPERT in policies
-        ],
-        "learning against the bound": [
-            price(rows, p, CENTRAL, c, seed) for c in labels for p in learned if CENTRAL in policies
-        ],
+        kind: [price(rows, p, ref, c, seed) for c in labels for p in priced if ref in policies]
+        for kind, (priced, ref) in kinds.items()
     }
     return {"rungs": rungs, "prices": prices}
 
