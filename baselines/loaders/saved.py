@@ -92,9 +92,10 @@ def priors_from_options(options: dict[str, Any]) -> Priors:
     return priors_of({k: ENV_OPTIONS[k].check(k, v) for k, v in mine.items()})
 
 
-def comm_from_options(options: dict[str, Any]) -> ChannelSettings | None:
-    """The acoustic channel among a run's recorded environment options (None: off)."""
-    return channel_settings(options.get("comm"))
+def options_record(options: dict[str, Any]) -> tuple[Priors, ChannelSettings | None]:
+    """The priors and the acoustic channel (None: off) among a run's recorded environment
+    options: what a saved policy applies around its network."""
+    return priors_from_options(options), channel_settings(options.get("comm"))
 
 
 def nearest_config(saved: Path) -> dict[str, Any]:
@@ -108,8 +109,7 @@ def run_record(saved: Path) -> tuple[Priors, ChannelSettings | None]:
     """The priors and the channel of the run that saved ``saved`` (``nearest_config``);
     plain and silent without one."""
     config = nearest_config(saved)
-    options = {**config.get("env_options", {}), **config.get("overrides", {})}
-    return priors_from_options(options), comm_from_options(options)
+    return options_record({**config.get("env_options", {}), **config.get("overrides", {})})
 
 
 # -- the robot's side of a network ----------------------------------------------------------
