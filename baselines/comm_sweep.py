@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import itertools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,8 +27,9 @@ import numpy as np
 
 from baselines.command_line import command_parser, usage_errors
 from baselines.evaluation.outputs import Play, run_and_write, write_result
-from baselines.evaluation.report import pyplot, save
+from baselines.evaluation.report import pyplot, save, table
 from baselines.evaluation.runner import Case, Settings, UsageError
+from baselines.evaluation.summary import groups
 from baselines.ladder import (
     CENTRAL,
     EXPERT,
@@ -79,17 +81,15 @@ def grid(
     if base is None or ideal is None:
         raise ValueError(f"the sweep needs a channel preset, got {preset!r}")
     points = [ChannelPoint(IDEAL, ideal, ideal.bit_rate_bps, 0.0, 0)]
-    for rate in bit_rates:
-        for loss in losses:
-            for latency in latencies:
-                s = dataclasses.replace(
-                    base,
-                    bit_rate_bps=float(rate),
-                    loss_probability=float(loss),
-                    modem_latency_periods=int(latency),
-                )
-                label = f"{rate:g} bit/s, loss {loss:g}, latency {latency}"
-                points.append(ChannelPoint(label, s, float(rate), float(loss), int(latency)))
+    for rate, loss, latency in itertools.product(bit_rates, losses, latencies):
+        s = dataclasses.replace(
+            base,
+            bit_rate_bps=float(rate),
+            loss_probability=float(loss),
+            modem_latency_periods=int(latency),
+        )
+        label = f"{rate:g} bit/s, loss {loss:g}, latency {latency}"
+        points.append(ChannelPoint(label, s, float(rate), float(loss), int(latency)))
     return points
 
 
@@ -103,17 +103,6 @@ def sweep_cases(base: list[Case], points: list[ChannelPoint]) -> list[Case]:
     ]
 
 
-def _split(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The rows with the case in ``scenario`` and the channel in the policy's name
-    (``nmpc:comm [channel]``), so that a talking run pairs with the references."""
-    out = []
-    for r in rows:
-        case, _, channel = r["scenario"].partition(SEPARATOR)
-        policy = f"{r['policy']} [{channel}]" if channel else r["policy"]
-        out.append({**r, "scenario": case, "policy": policy, "channel": channel or "none"})
-    return out
-
-
 def summarize(
     rows: list[dict[str, Any]], labels: list[str], points: list[ChannelPoint], seed: int
 ) -> dict[str, Any]:
@@ -121,13 +110,21 @@ def summarize(
     summary) and, for the talking expert and the bound, the ratios of means against the
     silent expert on the paired episodes; pooled over the cases, the clean success and
     the mean of the per-case ratios (each case counts once, whatever its scale)."""
-    split = _split(rows)
-    runs = [EXPERT, CENTRAL, *(f"{TALKER} [{p.label}]" for p in points)]
-    table, pooled = [], []
-    for run in runs:
+    # the case in ``scenario`` and the channel in the policy's name (``nmpc:comm [channel]``),
+    # so that a talking run pairs with the references
+    split = []
+    for r in rows:
+        case, _, channel = r["scenario"].partition(SEPARATOR)
+        policy = f"{r['policy']} [{channel}]" if channel else r["policy"]
+        split.append({**r, "scenario": case, "policy": policy, "channel": channel or "none"})
+    by = groups(split)
+    # the runs in the tables' order, each with its channel point (None: no channel)
+    runs = {EXPERT: None, CENTRAL: None, **{f"{TALKER} [{p.label}]": p for p in points}}
+    everything, pooled = [], []
+    for run, point in runs.items():
         per_case = []
         for case in labels:
-            group = [r for r in split if r["policy"] == run and r["scenario"] == case]
+            group = by.get((run, case))
             if not group:
                 continue
             s = rung_summary(group, seed)
@@ -140,7 +137,7 @@ def summarize(
             per_case.append(s)
         if not per_case:
             continue
-        table += per_case
+        everything += per_case
         n = sum(s["episodes"] - s["out_of_reach"] for s in per_case)
         entry: dict[str, Any] = {
             "run": run,
@@ -149,14 +146,12 @@ def summarize(
             "clean_success_rate": sum(s["clean_success"] for s in per_case) / n if n else None,
         }
         for key in PRICED.values():
-            ratios = [s.get(f"{key}_ratio") for s in per_case]
-            ok = [x for x in ratios if x is not None]
+            ok = [x for s in per_case if (x := s.get(f"{key}_ratio")) is not None]
             entry[f"{key}_ratio"] = 1.0 if run == EXPERT else (float(np.mean(ok)) if ok else None)
-        point = next((p for p in points if f"{TALKER} [{p.label}]" == run), None)
         if point is not None:
             entry.update(bit_rate=point.bit_rate, loss=point.loss, latency=point.latency)
         pooled.append(entry)
-    return {"per_case": table, "pooled": pooled}
+    return {"per_case": everything, "pooled": pooled}
 
 
 def markdown(result: dict[str, Any]) -> str:
@@ -164,21 +159,20 @@ def markdown(result: dict[str, Any]) -> str:
         "Pooled over the cases (ratios: the mean over the cases of each case's ratio of means "
         "against the silent expert on the episodes both succeeded in; < 1: better):",
         "",
-        "| run | clean success | completion time ratio | internal wrench ratio | "
-        "control effort ratio |",
-        "|---|---|---|---|---|",
-    ]
-    for e in result["pooled"]:
-        lines.append(
-            f"| `{e['run']}` | {fmt(e['clean_success_rate'])} | "
-            f"{fmt(e['completion_periods_ratio'], 3)} | {fmt(e['internal_wrench_rms_ratio'], 3)} | "
-            f"{fmt(e['control_effort_ratio'], 3)} |"
-        )
-    lines += [
+        *table(
+            "run | clean success | completion time ratio | internal wrench ratio | "
+            "control effort ratio",
+            (
+                [f"`{e['run']}`", fmt(e["clean_success_rate"])]
+                + [fmt(e[f"{key}_ratio"], 3) for key in PRICED.values()]
+                for e in result["pooled"]
+            ),
+        ),
         "",
-        "| case | run | clean success | completion periods | internal wrench rms N | "
-        "ratios vs silent: completion / wrench (paired) |",
-        "|---|---|---|---|---|---|",
+        *table(
+            "case | run | clean success | completion periods | internal wrench rms N | "
+            "ratios vs silent: completion / wrench (paired)"
+        ),
     ]
     for s in sorted(result["per_case"], key=case_order):
         n = s["episodes"] - s["out_of_reach"]
@@ -197,26 +191,15 @@ def markdown(result: dict[str, Any]) -> str:
 
 
 def write_csv(result: dict[str, Any], path: Path) -> None:
-    keys = [
-        "scenario",
-        "run",
-        "channel",
-        "episodes",
-        "clean_success",
-        "success",
-        "completion_periods",
-        "internal_wrench_rms",
-        "control_effort",
-        "completion_periods_ratio",
-        "internal_wrench_rms_ratio",
-        "control_effort_ratio",
-        "paired_successes",
-    ]
+    """``sweep.csv``: a row per (case, run) of ``per_case``, its counts, means and ratios
+    (empty where a run has none: the silent expert's ratios)."""
+    ratios = [f"{key}_ratio" for key in PRICED.values()]
+    keys = ["scenario", "run", "channel", "episodes", "clean_success", "success"]
+    keys += [*PRICED.values(), *ratios, "paired_successes"]
     with open(path, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
+        writer = csv.DictWriter(fh, fieldnames=keys, restval="", extrasaction="ignore")
         writer.writeheader()
-        for s in result["per_case"]:
-            writer.writerow({k: s.get(k, "") for k in keys})
+        writer.writerows(result["per_case"])
 
 
 def plot_curve(result: dict[str, Any], out: Path) -> None:
@@ -306,24 +289,14 @@ def numbers(kind: type) -> Any:
 def main(argv: list[str] | None = None) -> None:
     ap = command_parser("baselines.comm_sweep", __doc__)
     ap.add_argument("--preset", default=PRESET, help="the channel the grid varies")
-    ap.add_argument(
-        "--bit-rates",
-        type=numbers(float),
-        default=",".join(f"{r:g}" for r in BIT_RATES),
-        help="comma-separated, bit/s (inf: unlimited)",
-    )
-    ap.add_argument(
-        "--losses",
-        type=numbers(float),
-        default=",".join(f"{p:g}" for p in LOSSES),
-        help="loss floors p0",
-    )
-    ap.add_argument(
-        "--latencies",
-        type=numbers(int),
-        default=",".join(str(n) for n in LATENCIES),
-        help="modem latency, periods",
-    )
+    for flag, kind, values, what in (
+        ("--bit-rates", float, BIT_RATES, "comma-separated, bit/s (inf: unlimited)"),
+        ("--losses", float, LOSSES, "loss floors p0"),
+        ("--latencies", int, LATENCIES, "modem latency, periods"),
+    ):
+        ap.add_argument(
+            flag, type=numbers(kind), default=",".join(f"{v:g}" for v in values), help=what
+        )
     ap.add_argument("--no-references", action="store_true", help="no silent / central runs")
     add_case_arguments(ap, SWEEP_TEAM_SIZES, "runs/comm_sweep", bars=False)
     args = ap.parse_args(argv)

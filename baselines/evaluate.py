@@ -104,23 +104,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def env_overrides(ap: argparse.ArgumentParser, args: argparse.Namespace) -> dict[str, Any]:
     """The environment keywords of the command line (``ap.error`` on a malformed one)."""
-    overrides = {
-        k: v
-        for k, v in {
-            "n_agents": args.n_agents,
-            "object": args.object,
-            "course": args.course,
-            "current": args.current,
-            "mismatch": args.mismatch,
-            "comm": args.comm,
-        }.items()
-        if v is not None
-    }
-    for key, given in (
-        ("extra_reward_terms", args.extra_reward_term),
-        ("extra_constraints", args.extra_constraint),
-    ):
-        if given:
+    names = ("n_agents", "object", "course", "current", "mismatch", "comm")
+    overrides = {k: v for k in names if (v := getattr(args, k)) is not None}
+    for key in ("extra_reward_terms", "extra_constraints"):
+        if given := getattr(args, key[:-1]):  # --extra-reward-term, --extra-constraint
             if not all("=" in g for g in given):
                 ap.error(f"--{key.replace('_', '-')[:-1]}: expected NAME=MODULE:FUNCTION")
             overrides[key] = dict(g.split("=", 1) for g in given)

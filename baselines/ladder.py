@@ -32,9 +32,9 @@ from baselines.command_line import (
     usage_errors,
 )
 from baselines.evaluation.outputs import read_episodes, run_and_write, write_result
-from baselines.evaluation.report import pyplot, save
+from baselines.evaluation.report import pyplot, save, table
 from baselines.evaluation.runner import Case, Settings, UsageError
-from baselines.evaluation.summary import metric_values, summarize
+from baselines.evaluation.summary import groups, metric_values, summarize
 from baselines.stats import bootstrap_mean_interval
 
 CENTRAL = "nmpc:central"
@@ -112,34 +112,20 @@ def price(
     """``rung`` against ``reference`` on ``case``'s paired episodes: per priced metric the
     mean difference (rung minus reference) over the episodes both succeeded in, its
     bootstrap interval, and the ratio of the two means; and the success-rate difference."""
-    mine = {r["episode"]: r for r in rows if r["policy"] == rung and r["scenario"] == case}
-    ref = {r["episode"]: r for r in rows if r["policy"] == reference and r["scenario"] == case}
-    both = sorted(
-        k
-        for k in mine.keys() & ref.keys()
-        if mine[k].get("success")
-        and ref[k].get("success")
-        and mine[k].get("current_within_reach", True)
-    )
+    by = groups(rows)
+    mine, ref = ({r["episode"]: r for r in by.get((p, case), [])} for p in (rung, reference))
     reach = [k for k in mine.keys() & ref.keys() if mine[k].get("current_within_reach", True)]
+    both = sorted(k for k in reach if mine[k].get("success") and ref[k].get("success"))
+    wins = sum(bool(mine[k].get("success")) - bool(ref[k].get("success")) for k in reach)
     out: dict[str, Any] = {
         "rung": rung,
         "reference": reference,
         "scenario": case,
         "paired_successes": len(both),
-        "success_difference": (
-            (
-                sum(bool(mine[k].get("success")) for k in reach)
-                - sum(bool(ref[k].get("success")) for k in reach)
-            )
-            / len(reach)
-            if reach
-            else None
-        ),
+        "success_difference": wins / len(reach) if reach else None,
     }
     for name, key in PRICED.items():
-        a = metric_values([mine[k] for k in both], key)
-        b = metric_values([ref[k] for k in both], key)
+        a, b = (metric_values([d[k] for k in both], key) for d in (mine, ref))
         ok = np.isfinite(a) & np.isfinite(b)
         if not ok.any():
             out[name] = None
@@ -157,27 +143,19 @@ def ladder(
     rows: list[dict[str, Any]], policies: list[str], labels: list[str], seed: int
 ) -> dict[str, Any]:
     """The ladder's summaries and prices from the evaluator's rows."""
-    rungs = [
-        rung_summary(group, seed)
-        for p in policies
-        for c in labels
-        if (group := [r for r in rows if r["policy"] == p and r["scenario"] == c])
-    ]
+    by = groups(rows)
+    rungs = [rung_summary(by[p, c], seed) for p in policies for c in labels if (p, c) in by]
     distributed = [p for p in policies if p.startswith("nmpc") and p != CENTRAL]
     learned = [p for p in policies if not p.startswith("nmpc")]
+    # each kind of price: the rungs it prices and their reference (when it played)
+    kinds = {
+        "decentralization": (distributed, CENTRAL),
+        "learning": (learned, EXPERT),
+        "learning against the bound": (learned, CENTRAL),
+    }
     prices = {
-        "decentralization": [
-            price(rows, p, CENTRAL, c, seed)
-            for c in labels
-            for p in distributed
-            if CENTRAL in policies
-        ],
-        "learning": [
-            price(rows, p, EXPERT, c, seed) for c in labels for p in learned if EXPERT in policies
-        ],
-        "learning against the bound": [
-            price(rows, p, CENTRAL, c, seed) for c in labels for p in learned if CENTRAL in policies
-        ],
+        kind: [price(rows, p, ref, c, seed) for c in labels for p in priced if ref in policies]
+        for kind, (priced, ref) in kinds.items()
     }
     return {"rungs": rungs, "prices": prices}
 
@@ -194,33 +172,32 @@ def case_order(summary: dict[str, Any]) -> tuple[bool, str]:
     return (summary["scenario"] == "paper", summary["scenario"])
 
 
-def _mean_ci(s: dict[str, Any], key: str, digits: int) -> str:
-    ci = s.get(f"{key}_ci95")
-    if s.get(key) is None:
+def interval(x: Any, bounds: Any, digits: int = 2) -> str:
+    """A table cell: ``x [low, high]``; n/a without ``x``."""
+    if x is None:
         return "n/a"
-    return f"{fmt(s[key], digits)} [{fmt(ci[0], digits)}, {fmt(ci[1], digits)}]"
+    return f"{fmt(x, digits)} [{fmt(bounds[0], digits)}, {fmt(bounds[1], digits)}]"
 
 
 def markdown(result: dict[str, Any]) -> str:
-    lines = [
-        "| scenario | policy | information | success | clean success | completion periods "
+    lines = table(
+        "scenario | policy | information | success | clean success | completion periods "
         "| internal wrench rms N | control effort | violation periods / ep. mean (median) "
-        "| decision ms median / p95 |",
-        "|---|---|---|---|---|---|---|---|---|---|",
-    ]
+        "| decision ms median / p95"
+    )
     # grouped by case, rungs in ladder order within each
     for s in sorted(result["rungs"], key=case_order):
         n = s["episodes"] - s["out_of_reach"]
-        rate = (
-            f"{s['success']}/{n} [{fmt(s['success_ci95'][0])}, {fmt(s['success_ci95'][1])}]"
-            if n
-            else "n/a"
-        )
+        rate = interval(f"{s['success']}/{n}", s["success_ci95"]) if n else "n/a"
         clean = f"{s['clean_success']}/{n}" if n else "n/a"
+        means = [  # periods and effort in whole numbers, the wrench to 0.01 N
+            interval(s.get(k), s.get(f"{k}_ci95"), d)
+            for k, d in zip(PRICED.values(), (0, 2, 0), strict=True)
+        ]
         lines.append(
             f"| {s['scenario']} | `{s['policy']}` | {s['information']} | {rate} | {clean} | "
-            f"{_mean_ci(s, 'completion_periods', 0)} | {_mean_ci(s, 'internal_wrench_rms', 2)} | "
-            f"{_mean_ci(s, 'control_effort', 0)} | {fmt(s.get('violation_periods'), 1)} "
+            + " | ".join(means)
+            + f" | {fmt(s.get('violation_periods'), 1)} "
             f"({fmt(s.get('violation_periods_median'), 0)}) | "
             f"{fmt(s['decision_ms_median'], 3)} / {fmt(s['decision_ms_p95'], 3)} |"
         )
@@ -232,21 +209,17 @@ def markdown(result: dict[str, Any]) -> str:
             f"Price of {kind} (rung minus reference on the episodes both succeeded in: mean "
             "difference [95% CI], ratio of means):",
             "",
-            "| scenario | rung | reference | paired | success difference | "
-            + " | ".join(PRICED)
-            + " |",
-            "|---|---|---|---|---|" + "---|" * len(PRICED),
+            *table(
+                "scenario | rung | reference | paired | success difference | " + " | ".join(PRICED)
+            ),
         ]
         for p in rows:
-            cells = []
-            for name in PRICED:
-                v = p[name]
-                cells.append(
-                    "n/a"
-                    if v is None
-                    else f"{fmt(v['difference'])} [{fmt(v['difference_ci95'][0])}, "
-                    f"{fmt(v['difference_ci95'][1])}], x{fmt(v['ratio'])}"
-                )
+            cells = [
+                "n/a"
+                if (v := p[name]) is None
+                else f"{interval(v['difference'], v['difference_ci95'])}, x{fmt(v['ratio'])}"
+                for name in PRICED
+            ]
             lines.append(
                 f"| {p['scenario']} | `{p['rung']}` | `{p['reference']}` | "
                 f"{p['paired_successes']} | {fmt(p['success_difference'])} | "
@@ -263,22 +236,17 @@ def overview(result: dict[str, Any]) -> str:
     policies = list(dict.fromkeys(s["policy"] for s in result["rungs"]))
     by = {(s["policy"], s["scenario"]): s for s in result["rungs"]}
     head = " | ".join(f"`{c}`" if c == "paper" else c for c in labels)
-    lines = [
-        f"| rung | information | {head} | decision ms, median (slowest case) |",
-        "|---|---|" + "---|" * len(labels) + "---|",
-    ]
+    lines = table(f"rung | information | {head} | decision ms, median (slowest case)")
     for p in policies:
-        cells, times = [], []
-        for c in labels:
-            s = by.get((p, c))
-            if s is None:
-                cells.append("")
-                continue
-            n = s["episodes"] - s["out_of_reach"]
-            cells.append(f"{s['clean_success']} / {s['success']} / {n}")
-            if s["decision_ms_median"] is not None:
-                times.append(s["decision_ms_median"])
-        info = by[(p, labels[0])]["information"] if (p, labels[0]) in by else ""
+        mine = [by.get((p, c)) for c in labels]
+        cells = [
+            f"{s['clean_success']} / {s['success']} / {s['episodes'] - s['out_of_reach']}"
+            if s
+            else ""
+            for s in mine
+        ]
+        times = [s["decision_ms_median"] for s in mine if s and s["decision_ms_median"] is not None]
+        info = mine[0]["information"] if mine[0] else ""
         lines.append(
             f"| `{p}` | {info} | " + " | ".join(cells) + f" | {fmt(max(times, default=None), 2)} |"
         )
@@ -293,17 +261,14 @@ def plot_prices(result: dict[str, Any], out: Path) -> None:
         for kind, style in PRICE_STYLES.items():
             by_rung: dict[str, list[tuple[int, float]]] = {}
             for p in result["prices"][kind]:
-                if not p["scenario"].startswith("random N=") or p[name] is None:
+                v, case = p[name], p["scenario"]
+                if not (case.startswith("random N=") and v and v["ratio"] is not None):
                     continue
-                if p[name]["ratio"] is None or p["paired_successes"] < MIN_PAIRED:
-                    continue
-                n = int(p["scenario"].split("=")[1])
-                by_rung.setdefault(f"{p['rung']} / {p['reference']}", []).append(
-                    (n, p[name]["ratio"])
-                )
+                if p["paired_successes"] >= MIN_PAIRED:
+                    point = (int(case.split("=")[1]), v["ratio"])
+                    by_rung.setdefault(f"{p['rung']} / {p['reference']}", []).append(point)
             for label, pts in by_rung.items():
-                pts.sort()
-                ax.plot(*zip(*pts, strict=True), style, label=label)
+                ax.plot(*zip(*sorted(pts), strict=True), style, label=label)
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set_title(name)
         ax.set_xlabel("robots N (random family)")

@@ -11,8 +11,9 @@ Several episodes.csv (runs of the same seed played apart) are read as one. A gro
 score matrix is seeds x cases (the rows' ``scenario``); bootstrap intervals resample
 seeds within each case. Reference: docs/rl.md, docs/results.md.
 
-May import: the standard library, numpy, ``baselines.evaluation.outputs`` (the
-episodes.csv reader), ``baselines.command_line`` and ``baselines.stats`` (rliable's intervals).
+May import: the standard library, numpy, ``baselines.evaluation`` (the episodes.csv reader,
+the Markdown table), ``baselines.command_line`` and ``baselines.stats``
+(rliable's intervals).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import numpy as np
 
 from baselines.command_line import command_parser, existing_path, usage_errors
 from baselines.evaluation.outputs import read_episodes
+from baselines.evaluation.report import table
 from baselines.stats import iqm_and_mean
 
 METRICS = {
@@ -49,22 +51,22 @@ def score_matrix(
 ) -> tuple[np.ndarray, list[str]]:
     """(seeds x cases) scores of ``metric`` and the cases, in the rows' order."""
     cases = list(dict.fromkeys(r["scenario"] for r in rows if r["policy"] in policies))
-    table = np.full((len(policies), len(cases)), np.nan)
+    scores = np.full((len(policies), len(cases)), np.nan)
     for i, policy in enumerate(policies):
         for j, case in enumerate(cases):
             mine = [r for r in rows if r["policy"] == policy and r["scenario"] == case]
             if not mine:
                 continue
             if metric == "violation_periods":
-                table[i, j] = float(np.median([float(r[metric] or 0.0) for r in mine]))
+                scores[i, j] = float(np.median([float(r[metric] or 0.0) for r in mine]))
             elif metric == "return":
-                table[i, j] = float(np.mean([float(r[metric]) for r in mine]))
+                scores[i, j] = float(np.mean([float(r[metric]) for r in mine]))
             else:
-                table[i, j] = float(np.mean([bool(r[metric]) for r in mine]))
-    missing = [policies[i] for i in range(len(policies)) if np.isnan(table[i]).all()]
+                scores[i, j] = float(np.mean([bool(r[metric]) for r in mine]))
+    missing = [policies[i] for i in range(len(policies)) if np.isnan(scores[i]).all()]
     if missing:
         raise ValueError(f"--group: no episodes of {missing} in the episodes.csv given")
-    return table, cases
+    return scores, cases
 
 
 def report(rows: list[dict[str, Any]], groups: dict[str, list[str]]) -> dict[str, Any]:
@@ -72,21 +74,18 @@ def report(rows: list[dict[str, Any]], groups: dict[str, list[str]]) -> dict[str
     for name, policies in groups.items():
         entry: dict[str, Any] = {"policies": policies, "metrics": {}}
         for metric in METRICS:
-            table, cases = score_matrix(rows, policies, metric)
+            scores, cases = score_matrix(rows, policies, metric)
             entry["cases"] = cases
             entry["metrics"][metric] = {
-                **iqm_and_mean(table),
-                "per_seed": table.tolist(),
+                **iqm_and_mean(scores),
+                "per_seed": scores.tolist(),
             }
         out[name] = entry
     return out
 
 
 def markdown(summary: dict[str, Any]) -> str:
-    lines = [
-        "| group | metric | IQM [95% CI] | mean [95% CI] |",
-        "|---|---|---|---|",
-    ]
+    lines = table("group | metric | IQM [95% CI] | mean [95% CI]")
     for name, entry in summary.items():
         for metric, title in METRICS.items():
             m = entry["metrics"][metric]
@@ -97,12 +96,14 @@ def markdown(summary: dict[str, Any]) -> str:
             )
     for name, entry in summary.items():
         lines += ["", f"{name}, per seed (rows) and case (columns):", ""]
-        lines.append("| metric | seed | " + " | ".join(entry["cases"]) + " |")
-        lines.append("|---|---|" + "---|" * len(entry["cases"]))
-        for metric, title in METRICS.items():
-            for i, scores in enumerate(entry["metrics"][metric]["per_seed"]):
-                cells = " | ".join(f"{v:.3g}" for v in scores)
-                lines.append(f"| {title} | {i} | {cells} |")
+        lines += table(
+            "metric | seed | " + " | ".join(entry["cases"]),
+            (
+                [title, i, *(f"{v:.3g}" for v in scores)]
+                for metric, title in METRICS.items()
+                for i, scores in enumerate(entry["metrics"][metric]["per_seed"])
+            ),
+        )
     return "\n".join(lines) + "\n"
 
 

@@ -105,10 +105,11 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
     row["filtered_decisions"] = filtered
     row["intervention_rate"] = interventions / filtered if filtered else None
     row["intervention_mean"] = deviation / filtered if filtered else None
-    timing = decision_time_summary(np.concatenate(times) if times else np.zeros(0))
+    ms = np.concatenate(times) if times else np.zeros(0)
+    timing = decision_time_summary(ms)
     for key in ("median", "p95", "max"):
         row[f"policy_time_ms_{key}"] = timing[key] if timing else float("nan")
-    row["_decision_ms"] = np.concatenate(times).tolist() if times else []
+    row["_decision_ms"] = ms.tolist()
     row["_path"] = path
     return row
 

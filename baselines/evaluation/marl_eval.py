@@ -27,7 +27,7 @@ the same episodes in each, as marl-eval's per-run tables need.
 
 May import: the standard library, numpy, ``baselines.registry``, ``baselines.loaders.saved``
 and ``baselines.loaders.sources`` (names), and the loaders they name (on demand; no ray, no torch
-otherwise).
+otherwise); ``baselines.evaluation.summary`` (the rows' metric reader) when adding rows.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ import copy
 import json
 import math
 import pickle
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -89,19 +89,6 @@ class RunIdentity:
     seed: int | None
 
 
-def _nearest_config(saved: Path) -> dict[str, Any]:
-    """The config.json of the run that saved ``saved`` (its folder or the two above, as
-    ``baselines.loaders.saved.run_record`` looks); {} without one."""
-    from baselines.loaders.saved import read_config
-
-    for folder in [saved, *list(saved.resolve().parents)[:3]]:
-        if folder.is_dir():
-            config = read_config(folder)
-            if config:
-                return config
-    return {}
-
-
 @lru_cache(maxsize=64)
 def run_identity(policy: str) -> RunIdentity:
     """The algorithm and training seed of an evaluator ``--policy`` label: a saved policy's
@@ -128,19 +115,15 @@ def run_identity(policy: str) -> RunIdentity:
             return RunIdentity(algo_name(run.algorithm + suffix), int(run.seed))
     except (ImportError, ValueError, OSError, EOFError, pickle.UnpicklingError):
         return unknown  # not readable here: the evaluation still goes to the file
-    config = _nearest_config(Path(saved))
+    from baselines.loaders.saved import nearest_config, read_config
+
+    # a saved folder's own config.json first, then the loaders' rule (``run_record``'s)
+    config = read_config(saved) or nearest_config(saved)
     if config.get("seed") is None:
         return unknown
     algo = config.get("algo")
     trained = f"{config.get('library') or DEFAULT_LIBRARY}_{algo}" if algo else name
     return RunIdentity(algo_name(trained + suffix), int(config["seed"]))
-
-
-def metric_value(row: dict[str, Any], metric: str) -> float:
-    value = row.get(metric)
-    if value is None or value == "":
-        return math.nan
-    return float(value)
 
 
 def step_entry(
@@ -149,12 +132,14 @@ def step_entry(
     """One logging step. A metric no episode has (``min_obstacle_clearance_m`` without
     obstacles) is left out; one that only some lack (an episode whose policy raised) is
     NaN there, which Python's json, and so marl-eval, reads back as NaN."""
+    from baselines.evaluation.summary import metric_values  # here: merging stays light
+
     rows = [{**r, GROUP_RETURN: r.get("return")} for r in rows]
     kinds = sorted({k for r in rows for k in r if k.startswith(PER_KIND)})
     entry: dict[str, Any] = {"step_count": int(step_count), "elapsed_time": float(elapsed_time)}
     for metric in (*METRICS, *kinds):
-        values = [metric_value(r, metric) for r in rows]
-        if not all(math.isnan(v) for v in values):
+        values = metric_values(rows, metric).tolist()
+        if not all(map(math.isnan, values)):
             entry[metric] = values
     return entry
 
@@ -214,20 +199,26 @@ def _seed_order(key: str) -> tuple[int, int, str]:
     return (0, int(tail), "") if tail.isdigit() else (1, 0, key)
 
 
+def _runs(data: dict[str, Any]) -> Iterator[tuple[tuple[str, str, str, str], dict[str, Any]]]:
+    """Every run of a marl-eval dataset: (environment, task, algorithm, seed key), steps."""
+    for env, tasks in data.items():
+        for task, algos in tasks.items():
+            for algo, runs in algos.items():
+                for seed_key, run in runs.items():
+                    yield (env, task, algo, seed_key), run
+
+
 def final_only(data: dict[str, Any]) -> dict[str, Any]:
     """``data`` with each run's last logging step only, as ``step_0``, and
     ``absolute_metrics`` its per-episode values: every run then has the same steps, and the
     absolute metrics mean the same in BenchMARL's runs (there: each metric's maximum over
     the evaluations) and this module's (the latest evaluation)."""
     out: dict[str, Any] = copy.deepcopy(data)
-    for tasks in out.values():
-        for algos in tasks.values():
-            for runs in algos.values():
-                for seed_key, run in runs.items():
-                    steps = [k for k in run if k.startswith("step_")]
-                    last = run[max(steps, key=lambda k: int(k.removeprefix("step_")))]
-                    absolute = {m: v for m, v in last.items() if is_metric(m)}
-                    runs[seed_key] = {"step_0": last, ABSOLUTE: absolute}
+    for (env, task, algo, seed_key), run in _runs(out):
+        steps = [k for k in run if k.startswith("step_")]
+        last = run[max(steps, key=lambda k: int(k.removeprefix("step_")))]
+        absolute = {m: v for m, v in last.items() if is_metric(m)}
+        out[env][task][algo][seed_key] = {"step_0": last, ABSOLUTE: absolute}
     return out
 
 
@@ -241,22 +232,15 @@ def merge(*datas: dict[str, Any], final: bool = False) -> dict[str, Any]:
     evaluation. A logging step that two datasets give differently raises ValueError."""
     out: dict[str, Any] = {}
     for data in map(final_only, datas) if final else datas:
-        for env, tasks in data.items():
-            for task, algos in tasks.items():
-                for algo, runs in algos.items():
-                    for seed_key, steps in runs.items():
-                        run = (
-                            out.setdefault(env, {})
-                            .setdefault(task, {})
-                            .setdefault(algo, {})
-                            .setdefault(seed_key, {})
-                        )
-                        for name, entry in steps.items():
-                            if name != ABSOLUTE and name in run and run[name] != entry:
-                                where = f"{env}/{task}/{algo}/{seed_key}/{name}"
-                                raise ValueError(f"two different evaluations for {where}")
-                            run[name] = copy.deepcopy(entry)
-                        run[ABSOLUTE] = run.pop(ABSOLUTE, {})  # last, as the writers put it
+        for (env, task, algo, seed_key), steps in _runs(data):
+            run = out.setdefault(env, {}).setdefault(task, {}).setdefault(algo, {})
+            run = run.setdefault(seed_key, {})
+            for name, entry in steps.items():
+                if name != ABSOLUTE and name in run and run[name] != entry:
+                    where = f"{env}/{task}/{algo}/{seed_key}/{name}"
+                    raise ValueError(f"two different evaluations for {where}")
+                run[name] = copy.deepcopy(entry)
+            run[ABSOLUTE] = run.pop(ABSOLUTE, {})  # last, as the writers put it
     for tasks in out.values():
         for algos in tasks.values():
             entries = [e for runs in algos.values() for r in runs.values() for e in r.values()]

@@ -36,10 +36,9 @@ def write_outputs(rows: list[Row], seed: int, out: Path) -> list[Row]:
         dict.fromkeys(k for r in rows for k in r if not k.startswith("_") and k != "traceback")
     )
     with open(out / "episodes.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=keys)
+        writer = csv.DictWriter(fh, fieldnames=keys, restval="", extrasaction="ignore")
         writer.writeheader()
-        for r in rows:
-            writer.writerow({k: r.get(k, "") for k in keys})
+        writer.writerows(rows)
     (out / "results.json").write_text(json.dumps(summaries, indent=2))
     (out / "results.md").write_text(markdown_table(summaries, failure_lines(rows)))
     write_plots(rows, summaries, out)

@@ -8,7 +8,7 @@ chosen before pyplot loads), ``baselines.evaluation.summary`` and ``uvms_env.sce
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,13 @@ def failure_lines(rows: Sequence[Row]) -> list[str]:
     ]
 
 
+def table(head: str, rows: Iterable[Sequence[Any]] = ()) -> list[str]:
+    """A Markdown table's lines: ``head`` (its cells joined by " | "), the rule under it,
+    then a line per row of cells (each as ``str`` writes it). Every command's tables."""
+    rule = "|" + "---|" * (head.count(" | ") + 1)
+    return [f"| {head} |", rule, *("| " + " | ".join(map(str, r)) + " |" for r in rows)]
+
+
 def markdown_table(summaries: Sequence[Row], failed: Sequence[str] = ()) -> str:
     """``results.md``: a row per summary (``aggregate``), then the violations per kind and
     how the episodes ended, what ``information`` means when a team policy is among them
@@ -41,13 +48,15 @@ def markdown_table(summaries: Sequence[Row], failed: Sequence[str] = ()) -> str:
             else f"{x:.{digits}f}"
         )
 
-    lines = [
-        "| policy | information | scenario | episodes | current out of reach | "
+    def counts(s: Row, kinds: Sequence[str], of: dict[str, int] | None) -> list[Any]:
+        return [s["policy"], s["scenario"], *(of[k] if of else "n/a" for k in kinds)]
+
+    lines = table(
+        "policy | information | scenario | episodes | current out of reach | "
         "success [95% CI] | clean success | final pos. error m | min clearance m | "
         "internal wrench rms | control effort | violations (total) | violations / episode | "
-        "intervention rate | decision ms median / p95 | errors |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
+        "intervention rate | decision ms median / p95 | errors"
+    )
     for s in summaries:
         lo, hi = s["success_ci95"]
         t = s["policy_time_ms"]
@@ -63,17 +72,9 @@ def markdown_table(summaries: Sequence[Row], failed: Sequence[str] = ()) -> str:
             f"{fmt(s.get('intervention_rate'), 3)} | "
             f"{fmt(t['median'], 3)} / {fmt(t['p95'], 3)} | {s['errors']} |"
         )
-    kinds = " | ".join(VIOLATION_KINDS)
-    lines += ["", f"| policy | scenario | {kinds} |", "|---|---|" + "---|" * len(VIOLATION_KINDS)]
-    for s in summaries:
-        counts = " | ".join(str(s["violations"][k]) for k in VIOLATION_KINDS)
-        lines.append(f"| {s['policy']} | {s['scenario']} | {counts} |")
-    lines += ["", f"| policy | scenario | {' | '.join(END_KINDS)} |"]
-    lines.append("|---|---|" + "---|" * len(END_KINDS))
-    for s in summaries:
-        ends = s.get("episode_ends")
-        counts = " | ".join(str(ends[k]) if ends else "n/a" for k in END_KINDS)
-        lines.append(f"| {s['policy']} | {s['scenario']} | {counts} |")
+    for kinds, key in ((VIOLATION_KINDS, "violations"), (END_KINDS, "episode_ends")):
+        rows = (counts(s, kinds, s.get(key)) for s in summaries)
+        lines += ["", *table(f"policy | scenario | {' | '.join(kinds)}", rows)]
     if any(s.get("information") == "full" for s in summaries):
         lines += [
             "",
@@ -124,11 +125,10 @@ def success_plot(summaries: Sequence[Row], policies: list[str], path: Path) -> N
     scenarios = sorted({s["scenario"] for s in summaries})
     fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(scenarios) + 2.0), 3.8))
     width = 0.8 / max(1, len(policies))
+    by = {(s["policy"], s["scenario"]): s for s in summaries}
     for k, policy in enumerate(policies):
         for j, scen in enumerate(scenarios):
-            s = next(
-                (x for x in summaries if x["policy"] == policy and x["scenario"] == scen), None
-            )
+            s = by.get((policy, scen))
             if s is None:
                 continue
             lo, hi = s["success_ci95"]

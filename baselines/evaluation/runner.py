@@ -106,10 +106,21 @@ def evaluate(
     labels = [c.label for c in cases]
     if len(set(labels)) != len(labels):
         raise UsageError(f"two scenarios share a label: {labels}")
+    overrides = overrides or {}
     if check:
-        preflight(policies, cases, seed, overrides or {}, max_cycles, progress)
+        preflight(policies, cases, seed, overrides, max_cycles, progress)
     jobs = [
-        _job(p, c, k, seed, overrides or {}, max_cycles, replay_dir)
+        EpisodeJob(
+            p,
+            c.scenario,
+            k,
+            case_episode_seed(seed, c.scenario, k),
+            tuple(sorted({**overrides, **dict(c.overrides)}.items())),
+            max_cycles,
+            record_path=k == 0 and c.label == "paper",  # the object's path, for the paper's plot
+            replay=str(replay_path(replay_dir, p, c.label)) if replay_dir and k == 0 else None,
+            label=c.label,
+        )
         for p in policies
         for c in cases
         for k in range(episodes)
@@ -160,33 +171,6 @@ def preflight(
         finally:
             for env in envs:
                 env.close()
-
-
-def _job(
-    policy: str,
-    case: Case,
-    k: int,
-    seed: int,
-    overrides: dict[str, Any],
-    max_cycles: int | None,
-    replay_dir: Path | None,
-) -> EpisodeJob:
-    replay = (
-        replay_path(replay_dir, policy, case.label) if replay_dir is not None and k == 0 else None
-    )
-    trail = k == 0 and case.label == "paper"  # the object's path, for the paper's plot
-    items = tuple(sorted({**overrides, **dict(case.overrides)}.items()))
-    return EpisodeJob(
-        policy,
-        case.scenario,
-        k,
-        case_episode_seed(seed, case.scenario, k),
-        items,
-        max_cycles,
-        trail,
-        replay and str(replay),
-        case.label,
-    )
 
 
 def _play(
@@ -249,26 +233,10 @@ class Settings:
         self, policies: Sequence[str], cases: Sequence[str | Case]
     ) -> list[dict[str, Any]]:
         """``evaluate`` of the policies on the cases with these settings."""
-        return evaluate(
-            policies,
-            cases,
-            self.episodes,
-            self.seed,
-            self.workers,
-            self.conditions,
-            self.max_cycles,
-            self.progress,
-            self.backend,
-            self.address,
-            self.replay_dir,
-            self.check,
-        )
+        options = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        options["overrides"] = options.pop("conditions")
+        return evaluate(policies, cases, **options)
 
     def record(self) -> dict[str, Any]:
         """The settings a result records as its ``command``."""
-        return {
-            "episodes": self.episodes,
-            "seed": self.seed,
-            "conditions": self.conditions,
-            "max_cycles": self.max_cycles,
-        }
+        return {k: getattr(self, k) for k in ("episodes", "seed", "conditions", "max_cycles")}

@@ -38,25 +38,15 @@ TIMING = ("median", "p95", "max")
 NOT_TABULATED = ("success", "clean_success", "violation_periods_median")
 
 
-def completion_periods(row: Row) -> float:
-    """Periods to success; NaN for an episode that did not succeed."""
-    return float(row.get("episode_steps", np.nan)) if row.get("success") else float("nan")
-
-
 def metric_values(rows: Sequence[Row], key: str) -> np.ndarray:
     """``key`` of every row as floats, NaN where a row has none (an episode that did not
-    end, an empty cell of episodes.csv); ``completion_periods`` is derived per row."""
+    end, an empty cell of episodes.csv); ``completion_periods`` is derived per row: periods
+    to success, NaN for an episode that did not succeed."""
     if key == "completion_periods":
-        return np.array([completion_periods(r) for r in rows])
+        return np.array(
+            [float(r.get("episode_steps", np.nan)) if r.get("success") else np.nan for r in rows]
+        )
     return np.array([np.nan if r.get(key) in (None, "") else float(r[key]) for r in rows])
-
-
-def mean_interval(values: np.ndarray, seed: int) -> tuple[float | None, list[float] | None]:
-    """The mean (NaN: no value) and its bootstrap 95% interval; (None, None) without a
-    finite value."""
-    if not np.isfinite(values).any():
-        return None, None
-    return float(np.nanmean(values)), list(bootstrap_mean_interval(values, seed=seed))
 
 
 def decision_times(rows: Sequence[Row]) -> dict[str, float | None]:
@@ -128,8 +118,11 @@ def summarize(
         out[f"{name}_rate"] = k / n if n else float("nan")
         out[f"{name}_ci95"] = list(wilson_interval(k, n))
     counted = reach if within_reach_only else rows
-    for key in means:
-        out[key], out[f"{key}_ci95"] = mean_interval(metric_values(counted, key), seed)
+    for key in means:  # None each without a finite value
+        values = metric_values(counted, key)
+        finite = np.isfinite(values).any()
+        out[key] = float(np.nanmean(values)) if finite else None
+        out[f"{key}_ci95"] = list(bootstrap_mean_interval(values, seed=seed)) if finite else None
     periods = metric_values(counted, "violation_periods")
     periods = periods[np.isfinite(periods)]
     # the typical episode beside the mean, which a few run-aways dominate
@@ -145,14 +138,19 @@ def summarize(
     return out
 
 
+def groups(rows: Sequence[Row]) -> dict[tuple[str, str], list[Row]]:
+    """The rows by (policy, scenario), in the rows' order: the groups ``summarize`` takes."""
+    out: dict[tuple[str, str], list[Row]] = {}
+    for row in rows:
+        out.setdefault((row["policy"], row["scenario"]), []).append(row)
+    return out
+
+
 def aggregate(rows: Sequence[Row], seed: int) -> list[Row]:
     """The evaluator's table: ``summarize`` per (policy, scenario), sorted by both, less
     ``NOT_TABULATED`` and the metrics without a finite value."""
-    groups: dict[tuple[str, str], list[Row]] = {}
-    for row in rows:
-        groups.setdefault((row["policy"], row["scenario"]), []).append(row)
     out = []
-    for _, group in sorted(groups.items()):
+    for _, group in sorted(groups(rows).items()):
         summary = summarize(group, seed)
         gaps = {k for k in MEAN_METRICS if summary[k] is None}
         out.append(

@@ -28,12 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.loaders.saved import (
-    LoadedPolicy,
-    comm_from_options,
-    load_once,
-    priors_from_options,
-)
+from baselines.loaders.saved import LoadedPolicy, load_once, options_record
 from uvms_env.policy import AgentSpec
 
 INSTALL = (
@@ -118,8 +113,7 @@ class BenchMARLPolicy(LoadedPolicy):
         saved = self.find(path)
         run = load_once(read_config, saved)
         self.policy = load_once(load_policy, saved)
-        options = dict(run.task_config.get("options") or {})
-        super().__init__(spec, priors_from_options(options), comm_from_options(options))
+        super().__init__(spec, *options_record(dict(run.task_config.get("options") or {})))
         self.run = run
 
     @classmethod

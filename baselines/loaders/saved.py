@@ -92,21 +92,24 @@ def priors_from_options(options: dict[str, Any]) -> Priors:
     return priors_of({k: ENV_OPTIONS[k].check(k, v) for k, v in mine.items()})
 
 
-def comm_from_options(options: dict[str, Any]) -> ChannelSettings | None:
-    """The acoustic channel among a run's recorded environment options (None: off)."""
-    return channel_settings(options.get("comm"))
+def options_record(options: dict[str, Any]) -> tuple[Priors, ChannelSettings | None]:
+    """The priors and the acoustic channel (None: off) among a run's recorded environment
+    options: what a saved policy applies around its network."""
+    return priors_from_options(options), channel_settings(options.get("comm"))
+
+
+def nearest_config(saved: Path) -> dict[str, Any]:
+    """The config.json of the run that saved ``saved``: the nearest in the saved item's
+    folder or the two above it ({} without one)."""
+    configs = map(read_config, list(Path(saved).resolve().parents)[:3])
+    return next(filter(None, configs), {})
 
 
 def run_record(saved: Path) -> tuple[Priors, ChannelSettings | None]:
-    """The priors and the channel of the run that saved ``saved``: its nearest config.json
-    (in the saved item's folder or the two above it); plain and silent without one."""
-    config: dict[str, Any] = {}
-    for folder in list(Path(saved).resolve().parents)[:3]:
-        config = read_config(folder)
-        if config:
-            break
-    options = {**config.get("env_options", {}), **config.get("overrides", {})}
-    return priors_from_options(options), comm_from_options(options)
+    """The priors and the channel of the run that saved ``saved`` (``nearest_config``);
+    plain and silent without one."""
+    config = nearest_config(saved)
+    return options_record({**config.get("env_options", {}), **config.get("overrides", {})})
 
 
 # -- the robot's side of a network ----------------------------------------------------------

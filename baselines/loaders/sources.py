@@ -15,6 +15,7 @@ import ast
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -70,9 +71,12 @@ def _nmpc(arg: str | None, seed: int) -> PolicyFactory:
     solver, controller, talk = "rti", None, False
     settings: dict[str, Any] = {}
     for option in (arg or "").split(","):
-        if "=" in option:
-            name, value = option.split("=", 1)
-            settings[name.strip()] = _literal(value)
+        if "=" in option:  # VALUE a Python literal (0.3, None, (1.0, 0.8)), else the text
+            name, value = (part.strip() for part in option.split("=", 1))
+            try:
+                settings[name] = ast.literal_eval(value)
+            except (ValueError, SyntaxError):
+                settings[name] = value
         elif option in ("rti", "ipopt"):
             solver = option
         elif option in CONTROLLERS:
@@ -95,48 +99,18 @@ def _nmpc(arg: str | None, seed: int) -> PolicyFactory:
     return make_policy(solver, controller, **settings)
 
 
-def _literal(text: str) -> Any:
-    """A setting's value: a Python literal (``0.3``, ``None``, ``(1.0, 0.8)``) or, failing
-    that, the text itself."""
-    try:
-        return ast.literal_eval(text.strip())
-    except (ValueError, SyntaxError):
-        return text.strip()
-
-
-def _random(arg: str | None, seed: int) -> PolicyFactory:
-    return lambda spec: RandomPolicy(spec, seed)
-
-
-def _zero(arg: str | None, seed: int) -> PolicyFactory:
-    return ZeroPolicy
-
-
-def _saved(name: str) -> Callable[[str | None, int], PolicyFactory]:
+def _saved(name: str, arg: str | None, seed: int) -> PolicyFactory:
     """A saved network: its loader (``baselines.registry.LOADERS``) finds it now."""
-
-    def build(arg: str | None, seed: int) -> PolicyFactory:
-        return loader(name).factory(name, arg)
-
-    return build
+    return loader(name).factory(name, arg)
 
 
 # team policies (``uvms_env.team_policy``): name -> the option of ``nmpc`` that selects one
 TEAM_OPTIONS = {"nmpc": "central"}
-
-
-def _central(arg: str | None, seed: int) -> TeamPolicyFactory:
-    """``nmpc:central``: the centralized NMPC (a team policy; no further options)."""
-    from nmpc_expert import make_central_policy  # the expert is optional at import time
-
-    return make_central_policy()
-
-
 BUILTIN: dict[str, Callable[[str | None, int], PolicyFactory]] = {
     "nmpc": _nmpc,
-    "random": _random,
-    "zero": _zero,
-    **{name: _saved(name) for name in LOADERS},
+    "random": lambda arg, seed: lambda spec: RandomPolicy(spec, seed),
+    "zero": lambda arg, seed: ZeroPolicy,
+    **{name: partial(_saved, name) for name in LOADERS},
 }
 
 
@@ -218,7 +192,9 @@ class PolicySource:
         """The team policy's factory (``team`` sources only)."""
         if not self.team:
             raise TypeError(f"{self.label} is a per-robot policy; use factory()")
-        return _central(self.arg, episode_seed)
+        from nmpc_expert import make_central_policy  # the expert is optional at import time
+
+        return make_central_policy()  # ``nmpc:central``: no further options
 
 
 def check_policy(policy: Policy) -> None:
