@@ -127,6 +127,20 @@ def test_the_clone_over_rings_and_bars_is_a_rung_and_acts_on_the_papers_team():
     _acts_within_bounds(uvms_env.parallel_env("paper"), "dagger:bars", seed=3)
 
 
+def test_the_pair_specialist_continues_the_bar_clone_and_acts_on_the_papers_team():
+    """``dagger:bar2`` (``dagger:bars`` continued on two robots carrying a bar, the paper
+    held out) is found by its bare word, records the model it started from and a training
+    distribution of two-robot bars only, and decides bounded inputs on the paper's team."""
+    import uvms_env
+
+    assert ClonedPolicy.locate("dagger", "bar2") == PRETRAINED / "dagger_bar2" / "policy.pt"
+    card = json.loads((PRETRAINED / "dagger_bar2" / "info.json").read_text())
+    commands = " ".join(card["commands"])
+    assert "--init dagger:bars" in commands and "--scenario paper" not in commands
+    assert "--n-agents 2 --object bar" in commands
+    _acts_within_bounds(uvms_env.parallel_env("paper"), "dagger:bar2", seed=5)
+
+
 def _acts_within_bounds(env, policy: str, seed: int) -> None:
     """Five steps of ``policy`` on ``env``: every robot's action (8,) within [-1, 1], from
     its own observation, and the episode still running."""
