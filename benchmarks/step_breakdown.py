@@ -9,7 +9,8 @@ A full environment step (actions random in [-0.3, 0.3], the internal wrench ever
 as by default) timed as a whole, and every compiled call timed on its own, by function:
 the period step with its error control (``chain_step``: its calls per step are counted,
 since a period the error control rejects is integrated again in halves), the team
-kernel after it (``env_kernel``), the internal wrench and any other. ``--env vector``:
+kernel after it (``env_kernel``, with the internal wrench on the steps that sample it)
+and any other. ``--env vector``:
 ``VectorEnv`` with K = ``--num-envs`` (automatic resets; the batch kernels,
 ``BatchedFunction``); ``--env single``: ``parallel_env`` (``constraint_mode="penalize"``
 and no time limit, so that no episode ends inside the timed loop; the CasADi calls,
@@ -37,7 +38,7 @@ from uvms_env.dynamics.compiled import BufferCall
 from uvms_env.vector import VectorEnv
 from uvms_env.vector.kernels import DTYPES, BatchedFunction
 
-KERNELS = ("chain_step", "env_kernel", "chain_internal_wrench")
+KERNELS = ("chain_step", "env_kernel")
 
 
 def kernel_kind(name: str) -> str:

@@ -46,7 +46,7 @@ def test_the_check_lists_every_kernel_the_backend_compiles():
     assert roles == [
         "period step",
         "kinematics",
-        "wrench",
+        "kinematics_wrench",
         "prior_steady",
         "prior_features",
         "kinematics (noiseless)",

@@ -21,7 +21,12 @@ from uvms_env.navigation import (
     twist_parameters,
 )
 from uvms_env.scenarios import make
-from uvms_env.vector.kernels import BatchedFunction, cuda_source, generated_source
+from uvms_env.vector.kernels import (
+    ADDRESS_LISTS,
+    BatchedFunction,
+    cuda_source,
+    generated_source,
+)
 
 K = 13  # environments per batched call, not a multiple of any lane count
 TOL = 1e-12
@@ -146,6 +151,25 @@ def test_one_batched_call_evaluates_different_geometries(fn, scenes, lanes):
     padded = [np.ascontiguousarray(np.pad(a, ((0, 0), (0, k - K)), mode="edge")) for a in inputs]
     out = bf(padded)[0][:, :K]
     assert np.abs(out - ref).max() < TOL  # measured: 0
+
+
+def test_a_call_reads_the_arrays_it_is_given_now(fn, scenes):
+    """The batched call keeps the addresses of argument lists it saw (by the arrays'
+    identities): the same arrays with new contents, and new arrays, each give their own
+    results, also past the number of lists it keeps."""
+    bf = BatchedFunction(fn, "float64", lanes=1)
+    inputs, ref, _ = _batch(scenes, np.random.default_rng(3))
+    other, ref_other, _ = _batch(scenes, np.random.default_rng(4))
+    out = [np.zeros((6, K))]
+    assert np.abs(bf(inputs, out=out)[0] - ref).max() < TOL
+    for mine, theirs in zip(inputs, other, strict=True):
+        mine[...] = theirs  # in place: the same arrays, the list seen before
+    assert np.abs(bf(inputs, out=out)[0] - ref_other).max() < TOL
+    for _ in range(ADDRESS_LISTS + 2):
+        fresh = [a.copy() for a in other]
+        assert np.abs(bf(fresh)[0] - ref_other).max() < TOL
+        del fresh  # freed: a later list may reuse its identities
+    assert np.abs(bf(inputs, out=out)[0] - ref_other).max() < TOL
 
 
 @pytest.mark.skipif(shutil.which("nvcc") is None, reason="needs nvcc")

@@ -1,9 +1,10 @@
 """The physics of one environment for ``EnvCore``: the scalar compiled functions.
 
 ``ScalarEngine`` is the engine ``parallel_env`` runs (``uvms_env.env.core``, batch shape
-B = ()): the truth simulator (``uvms_env.sim.Simulator``), the kinematics kernel
-(``TeamKinematics``: observations with each robot's waypoint sequencing and navigation
-twist, constraints, team rows) and the internal wrench. The same CasADi graphs as the
+B = ()): the truth simulator (``uvms_env.sim.Simulator``, one compiled call per period)
+and the kinematics kernel (``TeamKinematics``: observations with each robot's waypoint
+sequencing and navigation twist, constraints, team rows, and the internal wrench where
+the step samples it: one compiled call after the period). The same CasADi graphs as the
 batched engine's, compiled for one environment (no C compiler needed). One set of
 compiled objects per geometry, the last ``GEOMETRY_CACHE_SIZE`` kept (a seeded family
 changes geometry with the seed).
@@ -37,7 +38,7 @@ class World:
 
     scenario: Scenario
     sim: Simulator
-    kinematics: TeamKinematics
+    kernels: dict[bool, TeamKinematics]  # by whether it samples the internal wrench
 
 
 class ScalarEngine(Engine):
@@ -46,8 +47,12 @@ class ScalarEngine(Engine):
 
     xp = np
 
-    def __init__(self, scenario: Scenario) -> None:
+    def __init__(self, scenario: Scenario, wrench_every: int) -> None:
+        """``wrench_every``: the internal wrench is sampled every this many steps (0:
+        never); at 1 the kernel with it is the only one (a reset's evaluation ignores it),
+        otherwise it is compiled besides the plain one, for the steps that sample."""
         self.noisy = scenario.sensor_noise > 0
+        self.wrench_every = wrench_every
         self._worlds: OrderedDict[int, World] = OrderedDict()
         self._reason = ""
         self.set_geometry([0], [scenario])
@@ -63,9 +68,7 @@ class ScalarEngine(Engine):
         if key in self._worlds and self._worlds[key].scenario is s:
             self._worlds.move_to_end(key)
         else:
-            sim = Simulator(s)
-            kin = TeamKinematics(s, sim.object.segments, OBSERVATION_LAYOUT, FAR_OBSTACLE)
-            self._worlds[key] = World(s, sim, kin)
+            self._worlds[key] = World(s, Simulator(s), {})
             while len(self._worlds) > GEOMETRY_CACHE_SIZE:
                 self._worlds.popitem(last=False)
         self.bind(self._worlds[key])
@@ -73,7 +76,7 @@ class ScalarEngine(Engine):
     def bind(self, world: World) -> None:
         """Views into the world's simulator state (kept: it is updated in place)."""
         self.world = world
-        self.sim, self.kin = world.sim, world.kinematics
+        self.sim = world.sim
         x, n = world.sim.flat_state, world.scenario.n_agents
         self._q = x[: NQ * n].reshape(n, NQ)
         self._zeta = x[NQ * n : 2 * NQ * n].reshape(n, NQ)
@@ -107,25 +110,42 @@ class ScalarEngine(Engine):
         self._zeta_meas = zeta_noise + self._zeta
 
     def evaluate(
-        self, ids: Any, action: Any, time_fraction: Any, robots: Any, measured: bool = True
+        self,
+        ids: Any,
+        action: Any,
+        time_fraction: Any,
+        robots: Any,
+        measured: bool = True,
+        sampled: Any = None,
     ) -> tuple:
-        kin = self.kin
+        wrench = self.wrench_every == 1 or bool(sampled)
+        kin = self.kernel(wrench)
         kin.time_fraction[0] = time_fraction
         self._robots[:] = robots
         self._a[:] = 0.0 if action is None else action
         q, zeta = (self._q_meas, self._zeta_meas) if measured else (self._q, self._zeta)
-        kin(self._a, self._q, self._zeta, q, zeta, self._x_o, self._robots)
+        extra = self.sim.wrench_inputs() if wrench else ()
+        kin(self._a, self._q, self._zeta, q, zeta, self._x_o, self._robots, *extra)
         return (
             kin.observation,
             kin.team_rows(),
             kin.constraints,
             kin.violated_count,
             kin.sequencers,
+            float(kin.wrench_sq[0]) if bool(sampled) else None,
         )
 
-    def wrench_sq(self, sampled: Any) -> float:
-        squeeze = self.sim.internal_wrench()  # the last period's applied inputs
-        return float(np.einsum("ij,ij->", squeeze, squeeze))
+    def kernel(self, wrench: bool) -> TeamKinematics:
+        """The current geometry's kinematics kernel, with or without the internal wrench
+        (compiled on first use)."""
+        kernels, s = self.world.kernels, self.world.scenario
+        if wrench not in kernels:
+            chain = self.sim.chain_key if wrench else None
+            segments = self.sim.object.segments
+            kernels[wrench] = TeamKinematics(
+                s, segments, OBSERVATION_LAYOUT, FAR_OBSTACLE, chain=chain
+            )
+        return kernels[wrench]
 
     def object_pose(self, ids: Any) -> np.ndarray:
         return self._x_o
@@ -142,7 +162,7 @@ class ScalarEngine(Engine):
         state = dict(self.__dict__)
         key = id(self.world.scenario)
         state["_worlds"] = OrderedDict([(key, self.world)])
-        for view in ("_q", "_zeta", "_x_o", "_q_meas", "_zeta_meas", "sim", "kin", "_a", "_robots"):
+        for view in ("_q", "_zeta", "_x_o", "_q_meas", "_zeta_meas", "sim", "_a", "_robots"):
             state.pop(view, None)
         return state
 

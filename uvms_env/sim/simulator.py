@@ -160,9 +160,8 @@ class Simulator(RebuiltOnUnpickle):
         self.n = s.n_agents
         self.uvms = default_model()
         self.object = ObjectModel(s.object_shape, s.ring_radius)
-        self.chain, step_fn = _chain(
-            self.n, s.object_shape, float(s.ring_radius), s.period, s.substeps
-        )
+        self.chain_key = (s.object_shape, float(s.ring_radius), s.period, s.substeps)
+        self.chain, step_fn = _chain(self.n, *self.chain_key)
         self._step = BufferCall(step_fn)
         self.tau_max = self.uvms.params.limits.tau_max
         self._tau_min = -self.tau_max
@@ -334,11 +333,7 @@ class Simulator(RebuiltOnUnpickle):
         (null space of the grasp matrix G^T = [J_O1^T ... J_ON^T]), under inputs ``tau``
         (default: the last applied) and the current of the last period. Compiled."""
         if self._internal is None:
-            s = self.scenario
-            fn = _internal_wrench_function(
-                self.n, s.object_shape, float(s.ring_radius), s.period, s.substeps
-            )
-            self._internal = BufferCall(fn)
+            self._internal = BufferCall(_internal_wrench_function(self.n, *self.chain_key))
         if tau is not None:  # into a fixed buffer: re-binding a new array costs
             np.clip(tau, -self.tau_max, self.tau_max, out=self._tau_wrench)
         else:
@@ -352,6 +347,13 @@ class Simulator(RebuiltOnUnpickle):
             self._grasp,
         )[0]
         return out.copy()
+
+    def wrench_inputs(self) -> tuple[np.ndarray, ...]:
+        """The internal wrench's inputs but the grasp, as the last period left them (the
+        state after it, its applied inputs and current, the truth parameters): for a
+        kernel that samples the wrench with the rest of the step
+        (``uvms_env.task.team_kernel``, ``chain`` = ``chain_key``)."""
+        return self._x, self._tau, self._vc, self.parameters, self.object_parameters
 
     def grasp_matrix_t(self) -> np.ndarray:
         """G^T (6 x 6N), maps stacked grasp wrenches to the object wrench at its centroid."""

@@ -38,7 +38,7 @@ from uvms_env.navigation import Cylinder
 from uvms_env.navigation.parametric import NAV_PARAMETERS, twist_of_row
 from uvms_env.navigation.task_navigator import WAYPOINT_TOLERANCE, waypoint_table
 from uvms_env.sim.chain import NG  # grasp per robot: offset l_i (3), R_Oi column-major (9)
-from uvms_env.sim.simulator import grasp_parameters
+from uvms_env.sim.simulator import compiled_chain, grasp_parameters
 from uvms_env.task.constraints import (
     PAD_CYLINDER,
     PAD_SPHERE,
@@ -285,6 +285,7 @@ def team_function(
     far: tuple[float, ...],
     noisy: bool,
     w_slots: int = WAYPOINT_SLOTS,
+    wrench: cs.Function | None = None,
 ) -> cs.Function:
     """The symbolic kernel for n robots (MX around the per-robot SX function, mapped;
     branch-free, see the module doc): what ``team_kernel`` compiles, and what a batched
@@ -297,7 +298,12 @@ def team_function(
     zeros beyond the count), count (1,), goal (6,), time_fraction (1,), segments
     (6, n_seg), cylinders (4, n_cyl), spheres (5, n_sph), workspace (4,).
     Outputs: observation (size, n), pose (6, n), constraints (8, n), scalars (5, n),
-    team (15,), sequencers (2, n) after this evaluation."""
+    team (15,), sequencers (2, n) after this evaluation.
+
+    With ``wrench`` (the closed chain's ``internal_wrench``, inputs x, tau, v_c, P, P_O,
+    grasp): its inputs but the grasp come after those, and one more output, the squeeze's
+    squared norm (1,): the metric's sample, in the same call as everything else the task
+    reads after the period."""
     uvms = default_model()
     robot = robot_function(uvms, n_cyl, n_sph, layout, far, noisy, w_slots).map(n, "serial")
     obj = object_function(uvms.params.object.tube_radius, n_seg, n_cyl, n_sph)
@@ -324,18 +330,25 @@ def team_function(
         cs.sum2(g > 0.0) > 0.0,  # per kind: violated by any robot
         obj_terms,
     )
-    return cs.Function(
-        f"env_kernel_n{n}_s{n_seg}_c{n_cyl}_p{n_sph}_w{w_slots}{'_noisy' if noisy else ''}",
-        [a, q, zeta, qm, zm, x_o, grasp, static, seq, table, count, goal, tf, seg, cyl, sph, ws],
-        [obs, pose, g, scalars, team, seq_next],
-    )
+    inputs = [a, q, zeta, qm, zm, x_o, grasp, static, seq, table, count, goal, tf, seg, cyl, sph]
+    inputs.append(ws)
+    outputs = [obs, pose, g, scalars, team, seq_next]
+    name = f"env_kernel_n{n}_s{n_seg}_c{n_cyl}_p{n_sph}_w{w_slots}{'_noisy' if noisy else ''}"
+    if wrench is not None:
+        chain_args = [cs.MX.sym(wrench.name_in(i), wrench.sparsity_in(i)) for i in range(5)]
+        outputs.append(cs.sumsqr(wrench(*chain_args, grasp)))
+        inputs += chain_args
+        name += f"_{wrench.name()}"
+    return cs.Function(name, inputs, outputs)
 
 
 @cache
-def team_kernel(*args: Any) -> cs.Function:
+def team_kernel(*args: Any, chain: tuple | None = None) -> cs.Function:
     """``team_function(*args)`` compiled (once per process and size; the library is
-    cached on disk): the kernel the single environment calls."""
-    return compile_function(team_function(*args))
+    cached on disk): the kernel the single environment calls. ``chain``: the simulator's
+    chain (object shape, size, period, substeps) whose internal wrench it also samples."""
+    wrench = None if chain is None else compiled_chain(args[0], *chain)[0].internal_wrench
+    return compile_function(team_function(*args, wrench=wrench))
 
 
 def _padded(count: int) -> int:
@@ -384,7 +397,9 @@ class TeamKinematics(RebuiltOnUnpickle):
     After ``__call__``, per robot (rows): ``observation`` (N, size), ``pose_estimate``
     (N, 6), ``constraints`` (N, 8) in the order of ``CONSTRAINTS``, ``manipulability``,
     ``grasp_error`` (m), ``clearance`` of the robot's own bodies (m), ``violated_count``,
-    ``sequencers`` (N, 2) after this evaluation. Team: ``team_rows()``.
+    ``sequencers`` (N, 2) after this evaluation. Team: ``team_rows()``. With ``chain``
+    (the simulator's ``chain_key``), ``__call__`` also takes the simulator's
+    ``wrench_inputs()`` and ``wrench_sq`` (1,) holds the internal wrench's squared norm.
     """
 
     _rebuilt = ("_call",)
@@ -396,10 +411,11 @@ class TeamKinematics(RebuiltOnUnpickle):
         layout: Layout,
         far: Sequence[float],
         slots: tuple[int, int] | None = None,
+        chain: tuple | None = None,
     ) -> None:
         """``slots``: (cylinders, spheres) of the kernel; default: the scenario's counts
         padded to ``PADDED_SIZES`` (the results are the same with any padding)."""
-        self._init_args = (scenario, segments, layout, far, slots)
+        self._init_args = (scenario, segments, layout, far, slots, chain)
         self.n = n = scenario.n_agents
         if slots is None:
             n_cyl = _padded(sum(isinstance(o, Cylinder) for o in scenario.obstacles))
@@ -411,7 +427,9 @@ class TeamKinematics(RebuiltOnUnpickle):
         s = scenario
         waypoints = waypoint_table(s.waypoints, s.workspace, s.obstacles, s.team_radius)
         w = max(len(waypoints), WAYPOINT_SLOTS)
-        kernel = team_kernel(n, len(segments), n_cyl, n_sph, layout, tuple(far), noisy, w)
+        kernel = team_kernel(
+            n, len(segments), n_cyl, n_sph, layout, tuple(far), noisy, w, chain=chain
+        )
         self._call = BufferCall(kernel)
         self.segments = segment_inputs(segments, len(segments))
         self.workspace = np.array([*scenario.workspace.center, scenario.workspace.radius])
@@ -436,6 +454,7 @@ class TeamKinematics(RebuiltOnUnpickle):
         scalars, self._team, self.sequencers = out[3], out[4].reshape(-1), out[5]
         self.manipulability, self.grasp_error = scalars[:, 0], scalars[:, 1]
         self.clearance, self.violated_count = scalars[:, 2], scalars[:, ROBOT_VIOLATED]
+        self.wrench_sq = out[6].reshape(-1) if chain is not None else None
 
     def team_rows(self) -> np.ndarray:
         """The whole team output (T,) float64 (a view), the task's input: the rows of
@@ -453,10 +472,12 @@ class TeamKinematics(RebuiltOnUnpickle):
         zeta_meas: np.ndarray,
         x_o: np.ndarray,
         sequencers: np.ndarray,
+        *wrench_inputs: np.ndarray,
     ) -> None:
         """Evaluate on C-contiguous float64 arrays: action (N, 8) normalized as requested,
         true q, zeta (N, 10), measured q, zeta (N, 10), true object pose (6,), each robot's
-        sequencer (N, 2): waypoint index and done flag."""
+        sequencer (N, 2): waypoint index and done flag; with a ``chain``, the simulator's
+        ``wrench_inputs()``."""
         self._call(
             action,
             q,
@@ -475,4 +496,5 @@ class TeamKinematics(RebuiltOnUnpickle):
             self.cylinders,
             self.spheres,
             self.workspace,
+            *wrench_inputs,
         )

@@ -4,8 +4,8 @@
 B = (K,)): the truth simulator batched (``BatchedSimulator``), the kinematics kernel of the
 single environment (``uvms_env.task.team_kernel.team_function``: observations, pose estimates,
 constraint values, team reductions, each robot's waypoint sequencing and navigation twist
-with the scene's navigation parameters as inputs: one function for every geometry) and,
-when sampled, the internal wrench (the chain's own function). Each is a
+with the scene's navigation parameters as inputs: one function for every geometry; on the
+steps that sample it, the chain's internal wrench in the same call). Each is a
 ``BatchedFunction`` (SIMD lanes, threads over cores) or, on the CUDA backend, a GPU kernel
 of the same generated source.
 Arrays are laid out (element, K padded), the environment index innermost, as the kernels
@@ -91,12 +91,16 @@ class BatchedEngine(Engine):
             self._n_seg,
             self.noisy,
             self.sim.chain,
-            wrench=setup.internal_wrench_every > 0,
+            setup.internal_wrench_every,
             priors_ring=base.object_ring_radius if priors else None,
             waypoints=w,
         )
-        self._kinematics = self._kernel(fns["kinematics"])
-        self._wrench = self._kernel(fns["wrench"]) if "wrench" in fns else None
+        # without the internal wrench (None where every step samples it) and with it
+        # (None where none does): the one a step calls is the one it needs
+        self._kinematics = self._kernel(fns["kinematics"]) if "kinematics" in fns else None
+        self._kinematics_wrench = (
+            self._kernel(fns["kinematics_wrench"]) if "kinematics_wrench" in fns else None
+        )
         self._prior_kernels = None
         if priors:
             self._prior_kernels = (
@@ -121,7 +125,12 @@ class BatchedEngine(Engine):
         self._cylinders, self._spheres = z(4 * BATCH_CYLINDERS), z(5 * BATCH_SPHERES)
         self._workspace = z(4)
         self._segments[:] = xp.asarray(segment_inputs(segments, self._n_seg).reshape(-1, 1))
-        self._kin_out = [xp.zeros((m, kp), real) for m in self._kinematics.signature.nnz_out]
+        # views of the true state made once: the kernels keep the addresses of the
+        # argument lists they see again (``BatchedFunction``), new views are new lists
+        x = self.sim.x
+        self._truth = (x[: NQ * n], x[NQ * n : 2 * NQ * n], x[2 * NQ * n : 2 * NQ * n + 6])
+        widest = self._kinematics_wrench or self._kinematics  # its outputs and one more
+        self._kin_out = [xp.zeros((m, kp), real) for m in widest.signature.nnz_out]
 
     # -- backends -----------------------------------------------------------------------
     def _kernel(self, fn: Any) -> Any:
@@ -224,15 +233,22 @@ class BatchedEngine(Engine):
         self._zeta_meas[:, ids] = zeta_noise.reshape(m, -1).T + x[NQ * n : 2 * NQ * n, ids]
 
     def evaluate(
-        self, ids: Any, action: Any, time_fraction: Any, robots: Any, measured: bool = True
+        self,
+        ids: Any,
+        action: Any,
+        time_fraction: Any,
+        robots: Any,
+        measured: bool = True,
+        sampled: Any = None,
     ) -> tuple:
-        xp, n, k = self.xp, self.n, self.k
+        xp, n, k, s = self.xp, self.n, self.k, self.sim
+        wrench = sampled is not None or self._kinematics is None
+        kernel = self._kinematics_wrench if wrench else self._kinematics
         if action is not None:
             self._a[:, ids] = action.reshape(-1, n * NU).T
         self._time_fraction[0, ids] = time_fraction
         self._robots[:, ids] = robots.reshape(-1, 2 * n).T
-        x = self.sim.x
-        q, zeta = x[: NQ * n], x[NQ * n : 2 * NQ * n]
+        q, zeta, x_o = self._truth
         q_meas, zeta_meas = (self._q_meas, self._zeta_meas) if measured else (q, zeta)
         inputs = [
             self._a,
@@ -240,8 +256,8 @@ class BatchedEngine(Engine):
             zeta,
             q_meas,
             zeta_meas,
-            x[2 * NQ * n : 2 * NQ * n + 6],
-            self.sim.grasp,
+            x_o,
+            s.grasp,
             self._static,
             self._robots,
             self._waypoints,
@@ -253,14 +269,16 @@ class BatchedEngine(Engine):
             self._spheres,
             self._workspace,
         ]
+        if wrench:  # the internal wrench's inputs but the grasp
+            inputs += [s.x, s._tau, s._vc, s.parameters, s.object_parameters]
         if isinstance(ids, slice):
-            out = self._call(self._kinematics, inputs, out=self._kin_out)
+            out = self._call(kernel, inputs, out=self._kin_out[: len(kernel.signature.nnz_out)])
             m = k
         else:
             m = len(ids)
-            cols = _padded_columns(ids, self._kinematics.padded(m), xp)
-            out = self._call(self._kinematics, [xp.ascontiguousarray(a[:, cols]) for a in inputs])
-            for full_out, part in zip(self._kin_out, out, strict=True):
+            cols = _padded_columns(ids, kernel.padded(m), xp)
+            out = self._call(kernel, [xp.ascontiguousarray(a[:, cols]) for a in inputs])
+            for full_out, part in zip(self._kin_out, out, strict=False):
                 full_out[:, ids] = part[:, :m]
         f64 = np.float64
         obs = out[0][:, :m].reshape(n, OBSERVATION_SIZE, m).transpose(2, 0, 1).astype(f64)
@@ -268,15 +286,10 @@ class BatchedEngine(Engine):
         g = out[2][:, :m].reshape(n, NK, m).transpose(2, 0, 1).astype(f64)
         cost = out[3][:, :m].reshape(n, ROBOT_SCALARS, m)[:, ROBOT_VIOLATED].T.astype(np.int64)
         robots = out[5][:, :m].reshape(n, 2, m).transpose(2, 0, 1).astype(f64)
-        return obs, team, g, cost, robots
-
-    def wrench_sq(self, sampled: Any) -> Any:
-        assert self._wrench is not None
-        s = self.sim
-        out = self._call(
-            self._wrench, [s.x, s._tau, s._vc, s.parameters, s.object_parameters, s.grasp]
-        )[0][:, : self.k].astype(np.float64)
-        return self.xp.where(sampled, self.xp.einsum("ij,ij->j", out, out), 0.0)
+        wrench_sq = None
+        if sampled is not None:  # a step's evaluation: every environment
+            wrench_sq = xp.where(sampled, out[6][0, :m].astype(f64), 0.0)
+        return obs, team, g, cost, robots, wrench_sq
 
     def object_pose(self, ids: Any) -> Any:
         n = self.n

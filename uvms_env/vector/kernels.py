@@ -224,6 +224,10 @@ def batch_entry(entry: ctypes._CFuncPtr, restype: type | None) -> ctypes._CFuncP
     return entry
 
 
+#: Argument lists whose addresses a ``BatchedFunction`` keeps (the oldest goes first).
+ADDRESS_LISTS = 8
+
+
 def pointers(arrays: list[np.ndarray]) -> ctypes.Array:
     """The data addresses of ``arrays``, as the batch loops take them."""
     return (ctypes.c_void_p * len(arrays))(*[a.ctypes.data for a in arrays])
@@ -247,6 +251,20 @@ class BatchedFunction:
             raise ValueError(f"lanes must be 1, 2, 4, 8 or 16, got {lanes}")
         self._lib = _build_cpu(generated_source(fn), self.signature, dtype, self.lanes)
         self._call = batch_entry(self._lib.uvms_batch, ctypes.c_int)
+        # the addresses of the argument lists seen last, by the arrays' identities: hot
+        # paths pass the same buffers every call, and reading 20-30 addresses costs more
+        # than the kernel of a small batch. Each entry holds its arrays, so that an
+        # identity stays theirs while it is a key.
+        self._addresses: dict[tuple[int, ...], tuple[list, ctypes.Array]] = {}
+
+    def _pointers(self, arrays: list[np.ndarray]) -> ctypes.Array:
+        key = tuple(map(id, arrays))
+        hit = self._addresses.get(key)
+        if hit is None:
+            if len(self._addresses) >= ADDRESS_LISTS:
+                del self._addresses[next(iter(self._addresses))]
+            hit = self._addresses[key] = (list(arrays), pointers(arrays))
+        return hit[1]
 
     def padded(self, k: int) -> int:
         return -(-k // self.lanes) * self.lanes
@@ -263,7 +281,7 @@ class BatchedFunction:
             raise ValueError(f"K = {k} must be a multiple of {self.lanes} lanes (pad it)")
         if out is None:
             out = [np.empty((nnz, k), self.np_dtype) for nnz in sig.nnz_out]
-        if self._call(pointers(inputs), pointers(out), k, int(threads)):
+        if self._call(self._pointers(inputs), self._pointers(out), k, int(threads)):
             raise RuntimeError(f"{sig.name} failed in its batched evaluation")
         return out
 
