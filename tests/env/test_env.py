@@ -488,11 +488,11 @@ def test_both_engines_implement_the_engine_protocol(env):
             assert hasattr(engine, attribute), (cls.__name__, attribute)
 
 
-@pytest.mark.parametrize("every", [0, 1, 2])
+@pytest.mark.parametrize("every", [0, 1, 3])
 def test_a_step_makes_one_compiled_call_for_the_physics_and_one_after_it(monkeypatch, every):
     """The period step, then the kinematics kernel (observations with the robots'
-    sequencing and navigation twists, constraints, team rows, and the internal wrench on
-    the steps that sample it)."""
+    sequencing and navigation twists, constraints, team rows, and the internal wrench
+    inside wherever its metric is on)."""
     env = uvms_env.parallel_env("paper", internal_wrench_every=every, sensor_noise=1.0)
     env.reset(seed=0)
     names: list[str] = []
@@ -503,13 +503,12 @@ def test_a_step_makes_one_compiled_call_for_the_physics_and_one_after_it(monkeyp
         return call(self, *args)
 
     monkeypatch.setattr(BufferCall, "__call__", counted)
-    for t in range(1, 5):
+    for _ in range(4):
         names.clear()
         env.step({a: np.full(8, 0.2) for a in env.agents})
         assert len(names) == 2, names
         assert names[0].startswith("chain_step") and names[1].startswith("env_kernel")
-        samples = every > 0 and t % every == 0
-        assert names[1].endswith("_wrench_n2") == (samples or every == 1), names
+        assert names[1].endswith("_chain_internal_wrench_n2") == (every > 0), names
 
 
 def test_internal_wrench_matches_the_simulator(env):
@@ -524,8 +523,25 @@ def test_internal_wrench_matches_the_simulator(env):
     exact = (lam - np.linalg.pinv(g_t) @ (g_t @ lam)).reshape(-1, 6)
     assert np.allclose(squeeze, exact, atol=1e-9)
     # the metric's sample of the step (the kinematics kernel's): the same squeeze's norm
-    sampled = env._core.evaluate(..., [0], None, np.bool_(True))[1]
+    sampled = env._core.engine.wrench_sq(np.bool_(True))
     assert sampled == pytest.approx(float(np.sum(exact**2)), rel=1e-9)
+
+
+def test_the_wrench_metric_samples_every_kth_step():
+    """``internal_wrench_every=3``: the kernel computes the wrench at every step, the
+    metric is the RMS over the 3rd and 6th steps' squeezes, as the simulator's own
+    projection gives them."""
+    env = uvms_env.parallel_env("paper", internal_wrench_every=3, max_cycles=7)
+    env.reset(seed=0)
+    rng = np.random.default_rng(5)
+    samples = []
+    for t in range(1, 8):
+        infos = env.step({a: rng.uniform(-0.5, 0.5, 8) for a in env.agents})[4]
+        if t % 3 == 0:
+            samples.append(float(np.sum(env.sim.internal_wrench() ** 2)))
+    metrics = infos[env.possible_agents[0]]["metrics"]
+    assert len(samples) == 2 and not env.agents  # ended by the time limit
+    assert metrics["internal_wrench_rms"] == pytest.approx(np.sqrt(np.mean(samples)), rel=1e-9)
 
 
 # -- seeded geometry -----------------------------------------------------------------------------

@@ -46,15 +46,15 @@ def test_the_check_lists_every_kernel_the_backend_compiles():
     assert roles == [
         "period step",
         "kinematics",
-        "kinematics_wrench",
         "prior_steady",
         "prior_features",
         "kinematics (noiseless)",
     ]
     step = backend_kernels(2)[0]
     assert step.refine == kernel_list.period_refinement(2)
-    assert backend_kernels(2)[1].fn.name().endswith("_noisy")
-    assert not backend_kernels(2)[-1].fn.name().endswith("_noisy")
+    # with noise and the internal wrench inside, and with neither: both variants compile
+    assert backend_kernels(2)[1].fn.name().endswith("_noisy_chain_internal_wrench_n2")
+    assert not backend_kernels(2)[-1].fn.name().endswith(("_noisy", "_wrench_n2"))
 
 
 @needs_wheels

@@ -76,21 +76,17 @@ class Engine(Protocol):
         """The sensors of ``ids`` read the true state plus this noise, B' + (N, 10) each."""
 
     def evaluate(
-        self,
-        ids: Any,
-        action: Any,
-        time_fraction: Any,
-        robots: Any,
-        measured: bool = True,
-        sampled: Any = None,
+        self, ids: Any, action: Any, time_fraction: Any, robots: Any, measured: bool = True
     ) -> tuple:
         """The kinematics kernel on the actions B' + (N, 8) (None: zeros), the robots'
         sequencers ``robots`` B' + (N, 2) and the sensors' readings (``measured=False``: the
         true state): observations B' + (N, 79) (waypoint and navigation twist after
-        sequencing), team rows (T,) + B', constraint values B' + (N, 8), costs B' + (N,),
-        the sequencers after this evaluation B' + (N, 2) and, where the step samples it
-        (``sampled`` B bool, after a step of every environment), the internal wrench's
-        squared norm B (0 where not sampled; None without ``sampled``)."""
+        sequencing), team rows (T,) + B', constraint values B' + (N, 8), costs B' + (N,)
+        and the sequencers after this evaluation B' + (N, 2)."""
+
+    def wrench_sq(self, sampled: Any) -> Any:
+        """B: the internal wrench's squared norm after the step where ``sampled``, from the
+        step's evaluation (its kernel samples the wrench wherever it is switched on)."""
 
     def object_pose(self, ids: Any) -> Any:
         """B' + (6,): the object's true pose."""
@@ -316,14 +312,15 @@ class EnvCore(NamespacePickled):
         sampled = task.tick(diverged)
         rows = list(range(self.k)) if engine.noisy else []
         previous = self.obs.copy() if self.memory is not None else None
-        if sampled is not None and not task._any(sampled):
-            sampled = None
         # the inputs measured (the input constraint, the effort term and metric, the extra
         # terms' action) are the ones applied: the priors' and the filter's command
-        team, wrench_sq = self.evaluate(self.all, rows, command, sampled)
+        team = self.evaluate(self.all, rows, command)
         if self.memory is not None:
             self.memory.update(self.all, previous, self.obs, command)
         x_o = engine.object_pose(self.all)
+        wrench_sq = None
+        if sampled is not None and task._any(sampled):
+            wrench_sq = engine.wrench_sq(sampled)
         state = self.task_arrays(x_o, command) if task.extended else None
         out = task.step(x_o, team, self.g, self.cost, diverged, sampled, wrench_sq, state)
         return out, diverged
@@ -350,24 +347,23 @@ class EnvCore(NamespacePickled):
             t, pos, part = t.reshape(1), pos[None], part[None]
         self.channel.step(t, part, pos)
 
-    def evaluate(self, ids: Any, rows: list[int], action: Any, sampled: Any = None) -> tuple:
+    def evaluate(self, ids: Any, rows: list[int], action: Any) -> Any:
         """Measure, run the kinematics kernel (it sequences each robot's waypoints on its
         own estimate), note the state metrics: the raw observations of ``ids`` land in
-        ``obs`` (their a_ss in ``steady``); returns the kernel's team rows and the internal
-        wrench's squared norm where ``sampled`` (None without it)."""
+        ``obs`` (their a_ss in ``steady``); returns the kernel's team rows."""
         task, engine = self.task, self.engine
         if engine.noisy:
             self._measure(ids, rows)
         robots = task.sequencing.robots
-        obs, team, g, cost, robots[ids], wrench_sq = engine.evaluate(
-            ids, action, task.time_fraction(ids), robots[ids], sampled=sampled
+        obs, team, g, cost, robots[ids] = engine.evaluate(
+            ids, action, task.time_fraction(ids), robots[ids]
         )
         self.g, self.cost = g, cost
         task.observe(ids, team)
         self.obs[ids] = obs
         if self.steady is not None:  # from the float32 observations the robots see
             self.steady[ids] = engine.steady(self.obs[ids], self.ring)
-        return team, wrench_sq
+        return team
 
     def _measure(self, ids: Any, rows: list[int]) -> None:
         """Sensor noise from each environment's own generator."""

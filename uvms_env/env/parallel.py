@@ -189,7 +189,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
             )
         self.render_mode = render_mode
         setup = resolve(scenario, overrides)
-        self._engine = ScalarEngine(setup.scenario, setup.internal_wrench_every)
+        self._engine = ScalarEngine(setup.scenario, setup.internal_wrench_every > 0)
         self._core = EnvCore(setup, self._engine, None, [setup.scenario.seed])
         self.n = n = setup.n_agents
         self.possible_agents = [f"uvms_{i}" for i in range(n)]

@@ -4,7 +4,7 @@
 B = ()): the truth simulator (``uvms_env.sim.Simulator``, one compiled call per period)
 and the kinematics kernel (``TeamKinematics``: observations with each robot's waypoint
 sequencing and navigation twist, constraints, team rows, and the internal wrench where
-the step samples it: one compiled call after the period). The same CasADi graphs as the
+it is switched on: one compiled call after the period). The same CasADi graphs as the
 batched engine's, compiled for one environment (no C compiler needed). One set of
 compiled objects per geometry, the last ``GEOMETRY_CACHE_SIZE`` kept (a seeded family
 changes geometry with the seed).
@@ -38,7 +38,7 @@ class World:
 
     scenario: Scenario
     sim: Simulator
-    kernels: dict[bool, TeamKinematics]  # by whether it samples the internal wrench
+    kinematics: TeamKinematics
 
 
 class ScalarEngine(Engine):
@@ -47,12 +47,11 @@ class ScalarEngine(Engine):
 
     xp = np
 
-    def __init__(self, scenario: Scenario, wrench_every: int) -> None:
-        """``wrench_every``: the internal wrench is sampled every this many steps (0:
-        never); at 1 the kernel with it is the only one (a reset's evaluation ignores it),
-        otherwise it is compiled besides the plain one, for the steps that sample."""
+    def __init__(self, scenario: Scenario, wrench: bool) -> None:
+        """``wrench``: the kinematics kernel samples the internal wrench (the variant with
+        the simulator's chain inside) at every evaluation."""
         self.noisy = scenario.sensor_noise > 0
-        self.wrench_every = wrench_every
+        self.wrench = wrench
         self._worlds: OrderedDict[int, World] = OrderedDict()
         self._reason = ""
         self.set_geometry([0], [scenario])
@@ -68,7 +67,12 @@ class ScalarEngine(Engine):
         if key in self._worlds and self._worlds[key].scenario is s:
             self._worlds.move_to_end(key)
         else:
-            self._worlds[key] = World(s, Simulator(s), {})
+            sim = Simulator(s)
+            chain = sim.chain_key if self.wrench else None
+            kin = TeamKinematics(
+                s, sim.object.segments, OBSERVATION_LAYOUT, FAR_OBSTACLE, chain=chain
+            )
+            self._worlds[key] = World(s, sim, kin)
             while len(self._worlds) > GEOMETRY_CACHE_SIZE:
                 self._worlds.popitem(last=False)
         self.bind(self._worlds[key])
@@ -76,7 +80,7 @@ class ScalarEngine(Engine):
     def bind(self, world: World) -> None:
         """Views into the world's simulator state (kept: it is updated in place)."""
         self.world = world
-        self.sim = world.sim
+        self.sim, self.kin = world.sim, world.kinematics
         x, n = world.sim.flat_state, world.scenario.n_agents
         self._q = x[: NQ * n].reshape(n, NQ)
         self._zeta = x[NQ * n : 2 * NQ * n].reshape(n, NQ)
@@ -110,21 +114,14 @@ class ScalarEngine(Engine):
         self._zeta_meas = zeta_noise + self._zeta
 
     def evaluate(
-        self,
-        ids: Any,
-        action: Any,
-        time_fraction: Any,
-        robots: Any,
-        measured: bool = True,
-        sampled: Any = None,
+        self, ids: Any, action: Any, time_fraction: Any, robots: Any, measured: bool = True
     ) -> tuple:
-        wrench = self.wrench_every == 1 or bool(sampled)
-        kin = self.kernel(wrench)
+        kin = self.kin
         kin.time_fraction[0] = time_fraction
         self._robots[:] = robots
         self._a[:] = 0.0 if action is None else action
         q, zeta = (self._q_meas, self._zeta_meas) if measured else (self._q, self._zeta)
-        extra = self.sim.wrench_inputs() if wrench else ()
+        extra = self.sim.wrench_inputs() if self.wrench else ()
         kin(self._a, self._q, self._zeta, q, zeta, self._x_o, self._robots, *extra)
         return (
             kin.observation,
@@ -132,20 +129,10 @@ class ScalarEngine(Engine):
             kin.constraints,
             kin.violated_count,
             kin.sequencers,
-            float(kin.wrench_sq[0]) if bool(sampled) else None,
         )
 
-    def kernel(self, wrench: bool) -> TeamKinematics:
-        """The current geometry's kinematics kernel, with or without the internal wrench
-        (compiled on first use)."""
-        kernels, s = self.world.kernels, self.world.scenario
-        if wrench not in kernels:
-            chain = self.sim.chain_key if wrench else None
-            segments = self.sim.object.segments
-            kernels[wrench] = TeamKinematics(
-                s, segments, OBSERVATION_LAYOUT, FAR_OBSTACLE, chain=chain
-            )
-        return kernels[wrench]
+    def wrench_sq(self, sampled: Any) -> float:
+        return float(self.kin.wrench_sq[0])  # the step's evaluation computed it
 
     def object_pose(self, ids: Any) -> np.ndarray:
         return self._x_o
@@ -162,7 +149,7 @@ class ScalarEngine(Engine):
         state = dict(self.__dict__)
         key = id(self.world.scenario)
         state["_worlds"] = OrderedDict([(key, self.world)])
-        for view in ("_q", "_zeta", "_x_o", "_q_meas", "_zeta_meas", "sim", "_a", "_robots"):
+        for view in ("_q", "_zeta", "_x_o", "_q_meas", "_zeta_meas", "sim", "kin", "_a", "_robots"):
             state.pop(view, None)
         return state
 

@@ -4,8 +4,8 @@
 B = (K,)): the truth simulator batched (``BatchedSimulator``), the kinematics kernel of the
 single environment (``uvms_env.task.team_kernel.team_function``: observations, pose estimates,
 constraint values, team reductions, each robot's waypoint sequencing and navigation twist
-with the scene's navigation parameters as inputs: one function for every geometry; on the
-steps that sample it, the chain's internal wrench in the same call). Each is a
+with the scene's navigation parameters as inputs: one function for every geometry; where
+the internal wrench is switched on, the chain's in the same call). Each is a
 ``BatchedFunction`` (SIMD lanes, threads over cores) or, on the CUDA backend, a GPU kernel
 of the same generated source.
 Arrays are laid out (element, K padded), the environment index innermost, as the kernels
@@ -91,16 +91,12 @@ class BatchedEngine(Engine):
             self._n_seg,
             self.noisy,
             self.sim.chain,
-            setup.internal_wrench_every,
+            setup.internal_wrench_every > 0,
             priors_ring=base.object_ring_radius if priors else None,
             waypoints=w,
         )
-        # without the internal wrench (None where every step samples it) and with it
-        # (None where none does): the one a step calls is the one it needs
-        self._kinematics = self._kernel(fns["kinematics"]) if "kinematics" in fns else None
-        self._kinematics_wrench = (
-            self._kernel(fns["kinematics_wrench"]) if "kinematics_wrench" in fns else None
-        )
+        self._kinematics = self._kernel(fns["kinematics"])
+        self._wrench = setup.internal_wrench_every > 0
         self._prior_kernels = None
         if priors:
             self._prior_kernels = (
@@ -129,8 +125,7 @@ class BatchedEngine(Engine):
         # argument lists they see again (``BatchedFunction``), new views are new lists
         x = self.sim.x
         self._truth = (x[: NQ * n], x[NQ * n : 2 * NQ * n], x[2 * NQ * n : 2 * NQ * n + 6])
-        widest = self._kinematics_wrench or self._kinematics  # its outputs and one more
-        self._kin_out = [xp.zeros((m, kp), real) for m in widest.signature.nnz_out]
+        self._kin_out = [xp.zeros((m, kp), real) for m in self._kinematics.signature.nnz_out]
 
     # -- backends -----------------------------------------------------------------------
     def _kernel(self, fn: Any) -> Any:
@@ -233,17 +228,9 @@ class BatchedEngine(Engine):
         self._zeta_meas[:, ids] = zeta_noise.reshape(m, -1).T + x[NQ * n : 2 * NQ * n, ids]
 
     def evaluate(
-        self,
-        ids: Any,
-        action: Any,
-        time_fraction: Any,
-        robots: Any,
-        measured: bool = True,
-        sampled: Any = None,
+        self, ids: Any, action: Any, time_fraction: Any, robots: Any, measured: bool = True
     ) -> tuple:
         xp, n, k, s = self.xp, self.n, self.k, self.sim
-        wrench = sampled is not None or self._kinematics is None
-        kernel = self._kinematics_wrench if wrench else self._kinematics
         if action is not None:
             self._a[:, ids] = action.reshape(-1, n * NU).T
         self._time_fraction[0, ids] = time_fraction
@@ -269,16 +256,16 @@ class BatchedEngine(Engine):
             self._spheres,
             self._workspace,
         ]
-        if wrench:  # the internal wrench's inputs but the grasp
+        if self._wrench:  # the internal wrench's inputs but the grasp
             inputs += [s.x, s._tau, s._vc, s.parameters, s.object_parameters]
         if isinstance(ids, slice):
-            out = self._call(kernel, inputs, out=self._kin_out[: len(kernel.signature.nnz_out)])
+            out = self._call(self._kinematics, inputs, out=self._kin_out)
             m = k
         else:
             m = len(ids)
-            cols = _padded_columns(ids, kernel.padded(m), xp)
-            out = self._call(kernel, [xp.ascontiguousarray(a[:, cols]) for a in inputs])
-            for full_out, part in zip(self._kin_out, out, strict=False):
+            cols = _padded_columns(ids, self._kinematics.padded(m), xp)
+            out = self._call(self._kinematics, [xp.ascontiguousarray(a[:, cols]) for a in inputs])
+            for full_out, part in zip(self._kin_out, out, strict=True):
                 full_out[:, ids] = part[:, :m]
         f64 = np.float64
         obs = out[0][:, :m].reshape(n, OBSERVATION_SIZE, m).transpose(2, 0, 1).astype(f64)
@@ -286,10 +273,11 @@ class BatchedEngine(Engine):
         g = out[2][:, :m].reshape(n, NK, m).transpose(2, 0, 1).astype(f64)
         cost = out[3][:, :m].reshape(n, ROBOT_SCALARS, m)[:, ROBOT_VIOLATED].T.astype(np.int64)
         robots = out[5][:, :m].reshape(n, 2, m).transpose(2, 0, 1).astype(f64)
-        wrench_sq = None
-        if sampled is not None:  # a step's evaluation: every environment
-            wrench_sq = xp.where(sampled, out[6][0, :m].astype(f64), 0.0)
-        return obs, team, g, cost, robots, wrench_sq
+        return obs, team, g, cost, robots
+
+    def wrench_sq(self, sampled: Any) -> Any:
+        sq = self._kin_out[6][0, : self.k].astype(np.float64)  # the step's evaluation's
+        return self.xp.where(sampled, sq, 0.0)
 
     def object_pose(self, ids: Any) -> Any:
         n = self.n

@@ -8,7 +8,6 @@ routine's error-control constants) and ``uvms_env.vector.kernels``.
 
 from __future__ import annotations
 
-from functools import partial
 from typing import Any
 
 from uvms_env.robot.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT
@@ -28,24 +27,23 @@ def kernel_functions(
     n_seg: int,
     noisy: bool,
     chain: Any,
-    wrench_every: int,
+    wrench: bool,
     priors_ring: float | None,
     waypoints: int = WAYPOINT_SLOTS,
 ) -> dict[str, Any]:
     """The CasADi functions ``BatchedEngine`` batches besides the period step, by role:
     the kinematics of ``n`` robots around an object of ``n_seg`` segments (with or without
-    sensor noise; ``waypoints`` slots for the robots' sequencing and navigation), without
-    the internal wrench ("kinematics", unless every step samples it: ``wrench_every`` 1)
-    and with the ``chain``'s in the same kernel ("kinematics_wrench", where ``wrench_every``
-    > 0); with ``priors_ring`` (the object's ring radius) the priors' a_ss and features.
-    One list for the engine and for ``kernels_check``, which compiles them for a GPU."""
+    sensor noise; ``waypoints`` slots for the robots' sequencing and navigation; with
+    ``wrench`` the ``chain``'s internal wrench inside, in the same call) and with
+    ``priors_ring`` (the object's ring radius) the priors' a_ss and features. One list for
+    the engine and for ``kernels_check``, which compiles them for a GPU."""
     layout = (OBSERVATION_LAYOUT, tuple(FAR_OBSTACLE), noisy)
-    kinematics = partial(team_function, n, n_seg, BATCH_CYLINDERS, BATCH_SPHERES, *layout)
-    fns = {}
-    if wrench_every != 1:
-        fns["kinematics"] = kinematics(waypoints)
-    if wrench_every > 0:
-        fns["kinematics_wrench"] = kinematics(waypoints, chain.internal_wrench)
+    sampled = chain.internal_wrench if wrench else None
+    fns = {
+        "kinematics": team_function(
+            n, n_seg, BATCH_CYLINDERS, BATCH_SPHERES, *layout, waypoints, sampled
+        )
+    }
     if priors_ring is not None:
         fns["prior_steady"], fns["prior_features"] = prior_functions(priors_ring)
     return fns

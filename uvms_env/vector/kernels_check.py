@@ -255,9 +255,9 @@ def backend_kernels(n_agents: int) -> tuple[Kernel, ...]:
     """Every kernel ``VectorEnv(backend="cuda")`` may compile for ``n_agents`` robots, as
     ``BatchedSimulator`` and ``BatchedEngine`` make them: the period step with the error
     control of ``period_refinement``, then ``kernel_list.kernel_functions`` with every
-    option that adds one on (sensor noise, the internal wrench sampled on some steps, the
-    priors) and the noiseless kinematics. The scenario is the one ``kernels_cuda``'s cubin
-    builder uses ("paper" for N = 2, else "random")."""
+    option that adds one on (sensor noise, the internal wrench inside the kinematics, the
+    priors) and the noiseless kinematics without the wrench. The scenario is the one
+    ``kernels_cuda``'s cubin builder uses ("paper" for N = 2, else "random")."""
     from uvms_env.dynamics import ObjectModel
     from uvms_env.scenarios import make
     from uvms_env.sim.simulator import _chain
@@ -269,8 +269,7 @@ def backend_kernels(n_agents: int) -> tuple[Kernel, ...]:
     kernels = [Kernel("period step", chain.step, period_refinement(n_agents))]
     for noisy in (True, False):
         ring = s.object_ring_radius if noisy else None
-        every = 2 if noisy else 0  # the kinematics with and without the internal wrench
-        fns = kernel_functions(n_agents, n_seg, noisy, chain, every, priors_ring=ring)
+        fns = kernel_functions(n_agents, n_seg, noisy, chain, wrench=noisy, priors_ring=ring)
         for role, fn in fns.items():
             name = f"{role} (noiseless)" if role == "kinematics" and not noisy else role
             if noisy or role == "kinematics":
