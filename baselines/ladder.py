@@ -54,8 +54,8 @@ LADDER = (
     "student:expert+filter",
     "ppo:scratch",  # MAPPO from scratch over the distribution (rings and bars), with the priors
     "ppo:scratch+filter",
-    "dagger:bars",  # DAgger over the random family's rings and bars, the paper held out
-    "dagger:bars+filter",
+    "dagger:mix",  # DAgger over rings and bars, more two-robot bars; the paper held out
+    "dagger:mix+filter",
 )
 TEAM_SIZES = (2, 3, 4, 5, 6)
 CONDITIONS = {"current": "mild", "mismatch": 0.1}

@@ -112,19 +112,35 @@ def test_the_committed_from_scratch_model_is_a_rung_and_acts_on_a_bar():
     _acts_within_bounds(env, "ppo:scratch", seed=4)
 
 
-def test_the_clone_over_rings_and_bars_is_a_rung_and_acts_on_the_papers_team():
+def test_the_clone_over_rings_and_bars_acts_on_the_papers_team():
     """``dagger:bars`` (DAgger over the random family's rings and bars, the paper held out)
-    is found by its bare word, sits on the ladder alone and in the filter, and decides
-    bounded inputs for both robots of the paper's bar from each one's own observation."""
-
+    is found by its bare word and decides bounded inputs for both robots of the paper's
+    bar from each one's own observation."""
     import uvms_env
-    from baselines.ladder import LADDER
 
     assert ClonedPolicy.locate("dagger", "bars") == PRETRAINED / "dagger_bars" / "policy.pt"
-    assert {"dagger:bars", "dagger:bars+filter"} <= set(LADDER)
     card = json.loads((PRETRAINED / "dagger_bars" / "info.json").read_text())
     assert "--scenario paper" not in " ".join(card["commands"])  # never trained on it
     _acts_within_bounds(uvms_env.parallel_env("paper"), "dagger:bars", seed=3)
+
+
+def test_the_mixed_clone_is_a_rung_trained_without_the_paper_and_acts_on_its_team():
+    """``dagger:mix`` (DAgger over rings and bars with more two-robot bars, the paper held
+    out) is found by its bare word, sits on the ladder alone and in the filter, records
+    the two-robot bar data it joined to the distribution's, and decides bounded inputs
+    on the paper's team and on a random ring."""
+    import uvms_env
+    from baselines.ladder import LADDER
+
+    assert ClonedPolicy.locate("dagger", "mix") == PRETRAINED / "dagger_mix" / "policy.pt"
+    assert {"dagger:mix", "dagger:mix+filter"} <= set(LADDER)
+    card = json.loads((PRETRAINED / "dagger_mix" / "info.json").read_text())
+    commands = " ".join(card["commands"])
+    assert "--scenario paper" not in commands  # never trained on it
+    assert "--data runs/data/distbar_n05 --data runs/data/bar2_turns_n05" in commands
+    assert card["committed_seed"] == "0" and len(card["seeds"]) == 3
+    _acts_within_bounds(uvms_env.parallel_env("paper"), "dagger:mix", seed=6)
+    _acts_within_bounds(uvms_env.parallel_env("random", n_agents=4, seed=2), "dagger:mix", seed=7)
 
 
 def test_the_pair_specialist_continues_the_bar_clone_and_acts_on_the_papers_team():
