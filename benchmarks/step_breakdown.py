@@ -9,7 +9,7 @@ A full environment step (actions random in [-0.3, 0.3], the internal wrench ever
 as by default) timed as a whole, and every compiled call timed on its own, by function:
 the period step with its error control (``chain_step``: its calls per step are counted,
 since a period the error control rejects is integrated again in halves), the team
-kernel after it (``env_kernel``, with the internal wrench on the steps that sample it)
+kernel after it (``env_kernel``, the internal wrench inside where its metric is on)
 and any other. ``--env vector``:
 ``VectorEnv`` with K = ``--num-envs`` (automatic resets; the batch kernels,
 ``BatchedFunction``); ``--env single``: ``parallel_env`` (``constraint_mode="penalize"``

@@ -86,17 +86,17 @@ class BatchedEngine(Engine):
         # kernels of the same CasADi expressions on the GPU, over the K N robots' columns
         priors = backend == "cuda" and setup.priors.needs_steady
         self._w = w = max(max_waypoints(setup.family, base), WAYPOINT_SLOTS)
+        self._wrench = setup.internal_wrench_every > 0  # the kernel samples it too
         fns = kernel_functions(
             n,
             self._n_seg,
             self.noisy,
             self.sim.chain,
-            setup.internal_wrench_every > 0,
+            self._wrench,
             priors_ring=base.object_ring_radius if priors else None,
             waypoints=w,
         )
         self._kinematics = self._kernel(fns["kinematics"])
-        self._wrench = setup.internal_wrench_every > 0
         self._prior_kernels = None
         if priors:
             self._prior_kernels = (
