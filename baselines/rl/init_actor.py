@@ -21,6 +21,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from stable_baselines3.common.running_mean_std import RunningMeanStd
 
 from baselines.imitation.features import FEEDFORWARD, INPUT_CLIP
 from baselines.imitation.network import MLPPolicyNet
@@ -126,3 +127,18 @@ def freeze_actor(policy: Any, frozen: bool) -> None:
         p.requires_grad_(not frozen)
         if frozen:
             p.grad = None
+
+
+class FrozenStatistics(RunningMeanStd):
+    """Running statistics that no longer move (``--obs-stats``): the actor keeps the
+    input mapping it was cloned with while VecNormalize would otherwise keep updating it."""
+
+    def update(self, arr: np.ndarray) -> None:
+        pass
+
+
+def freeze_statistics(venv: Any, frozen: bool) -> None:
+    """Stop (or restart) the updates of ``venv``'s observation statistics (a VecNormalize)
+    and nothing else: the reward's return statistics keep moving for the critic."""
+    # the class swap keeps the object (and every reference to it) and pickles as is
+    venv.obs_rms.__class__ = FrozenStatistics if frozen else RunningMeanStd

@@ -139,7 +139,18 @@ def add_arguments(g: Any) -> None:
         metavar="ROBOT_STEPS",
         help="PPO: the actor stays fixed for this many robot-steps while the critic learns",
     )
+    g.add_argument(
+        "--obs-stats",
+        choices=OBS_STATS,
+        default="moving",
+        help="with --init-actor: the observation statistics (VecNormalize's, the clone's at "
+        "the start) move with training (moving), are frozen with the actor during "
+        "--critic-warmup (warmup), or never move (frozen)",
+    )
 
+
+# --obs-stats: when VecNormalize's observation statistics move (baselines.rl.init_actor)
+OBS_STATS = ("moving", "warmup", "frozen")
 
 # what SB3's algorithms take that is no hyperparameter of ``--hp`` (the trainer sets them)
 NOT_HYPERPARAMETERS = ("self", "policy", "env", "seed", "device", "verbose", "_init_setup_model")
@@ -172,6 +183,11 @@ def check_options(settings: Any, algo: str, args: argparse.Namespace) -> None:
         raise ValueError("--anchor keeps PPO near its initial clone: give --init-actor")
     if getattr(args, "critic_warmup", 0) and algo not in ON_POLICY:
         raise ValueError(f"--critic-warmup holds PPO's actor: --algo {' or '.join(ON_POLICY)}")
+    obs_stats = getattr(args, "obs_stats", "moving")
+    if obs_stats != "moving" and not getattr(args, "init_actor", None):
+        raise ValueError(f"--obs-stats {obs_stats} keeps the clone's statistics: give --init-actor")
+    if obs_stats == "warmup" and not getattr(args, "critic_warmup", 0):
+        raise ValueError("--obs-stats warmup freezes them during --critic-warmup: give it")
     if getattr(args, "filter_penalty", None) is not None and not getattr(args, "filter", False):
         raise ValueError("--filter-penalty weighs the safety filter's corrections: give --filter")
     if getattr(args, "filter", False) and len(settings.groups()) > 1:
@@ -345,6 +361,13 @@ class Trainer:
         # SB3's own scalars go to tensorboard; the shared progress.csv is the run's
         model.set_logger(configure(str(self.run.folder), ["tensorboard"]))
         self.model, self.venv = model, venv
+        obs_stats = getattr(a, "obs_stats", "moving")
+        if obs_stats == "frozen" or (
+            obs_stats == "warmup" and model.num_timesteps < a.critic_warmup
+        ):  # before SB3's first reset updates them
+            from baselines.rl.init_actor import freeze_statistics
+
+            freeze_statistics(venv, True)
         self.penalty = find_layer(venv, CostPenalty)
         from baselines.rl.shield import ShieldPenalty
 
@@ -361,6 +384,7 @@ class Trainer:
             "filter": {"penalty": filter_penalty(a)} if self.shield is not None else None,
             "init_actor": getattr(a, "init_actor", None),
             "critic_warmup": getattr(a, "critic_warmup", 0),
+            "obs_stats": getattr(a, "obs_stats", "moving"),
             "anchor": getattr(a, "anchor", 0.0),
         }
 
@@ -530,6 +554,10 @@ def _progress_callback(trainer: Trainer) -> Any:
                 from baselines.rl.init_actor import freeze_actor
 
                 freeze_actor(self.model.policy, False)
+                if getattr(trainer.args, "obs_stats", "moving") == "warmup":
+                    from baselines.rl.init_actor import freeze_statistics
+
+                    freeze_statistics(self.model.get_vec_normalize_env(), False)
                 self.warmup = 0
             if trainer.algo == "sac" and steps - self.last < SAC_ROW_STEPS * self.model.n_envs:
                 return

@@ -101,3 +101,44 @@ def test_the_critic_warmup_keeps_the_actor_and_trains_the_critic(tmp_path):
     assert same(actor(kept), actor(start))
     assert not same(critic(kept), critic(start))
     assert not same(actor(moved), actor(start))
+
+
+def test_obs_stats_frozen_keeps_the_clones_statistics_and_moving_moves_them(tmp_path):
+    import pickle
+
+    from baselines.train import main
+
+    def stats(folder) -> tuple[np.ndarray, np.ndarray]:
+        with open(folder / "vecnormalize.pkl", "rb") as f:
+            rms = pickle.load(f).obs_rms
+        return rms.mean.copy(), rms.var.copy()
+
+    def run(name: str, extra: list[str]):
+        out = tmp_path / name
+        main(
+            [
+                "--library", "sb3", "--scenario", "random", "--env-option", "n_agents=2",
+                *PRIORS, "--init-actor", "dagger:pretrained", "--num-envs", "1",
+                "--hp", "n_steps=64", "--robot-steps", "256", "--checkpoint-every", "0",
+                "--no-progress", "--out", str(out), "--eval-max-cycles", "20", *extra,
+            ]
+        )  # fmt: skip
+        return stats(out)
+
+    _, init = _built(tmp_path, [*PRIORS, "--init-actor", "dagger:pretrained"])
+    start = stats(init)
+    for frozen in (run("frozen", ["--obs-stats", "frozen"]),
+                   run("warm", ["--obs-stats", "warmup", "--critic-warmup", "10000"])):  # fmt: skip
+        assert all(np.array_equal(a, b) for a, b in zip(frozen, start, strict=True))
+    moving = run("moving", [])
+    assert not np.array_equal(moving[0], start[0])
+    # after the warm-up they move again: a warm-up shorter than the run
+    after = run("after", ["--obs-stats", "warmup", "--critic-warmup", "64"])
+    assert not np.array_equal(after[0], start[0])
+
+
+def test_obs_stats_needs_the_clone_and_its_warmup(tmp_path):
+    with pytest.raises(ValueError, match="--init-actor"):
+        _built(tmp_path, [*PRIORS, "--obs-stats", "frozen"])
+    with pytest.raises(ValueError, match="--critic-warmup"):
+        _built(tmp_path, [*PRIORS, "--init-actor", "dagger:pretrained", "--obs-stats", "warmup"])
