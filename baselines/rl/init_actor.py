@@ -131,10 +131,15 @@ def freeze_actor(policy: Any, frozen: bool) -> None:
 
 class FrozenStatistics(RunningMeanStd):
     """Running statistics that no longer move (``--obs-stats``): the actor keeps the
-    input mapping it was cloned with while VecNormalize would otherwise keep updating it."""
+    input mapping it was cloned with while VecNormalize would otherwise keep updating it.
+    Saved (pickled) as SB3's plain ``RunningMeanStd``: a run's files load without this
+    class, and a resumed run freezes them again only when its options say so."""
 
     def update(self, arr: np.ndarray) -> None:
         pass
+
+    def __reduce_ex__(self, protocol: Any) -> tuple:
+        return object.__new__, (RunningMeanStd,), dict(self.__dict__)
 
 
 def freeze_statistics(venv: Any, frozen: bool) -> None:

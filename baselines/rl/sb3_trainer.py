@@ -362,12 +362,11 @@ class Trainer:
         model.set_logger(configure(str(self.run.folder), ["tensorboard"]))
         self.model, self.venv = model, venv
         obs_stats = getattr(a, "obs_stats", "moving")
-        if obs_stats == "frozen" or (
-            obs_stats == "warmup" and model.num_timesteps < a.critic_warmup
-        ):  # before SB3's first reset updates them
+        if obs_stats != "moving":  # before SB3's first reset updates them
             from baselines.rl.init_actor import freeze_statistics
 
-            freeze_statistics(venv, True)
+            warming = model.num_timesteps < getattr(a, "critic_warmup", 0)
+            freeze_statistics(venv, obs_stats == "frozen" or warming)
         self.penalty = find_layer(venv, CostPenalty)
         from baselines.rl.shield import ShieldPenalty
 

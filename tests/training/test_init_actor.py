@@ -106,11 +106,14 @@ def test_the_critic_warmup_keeps_the_actor_and_trains_the_critic(tmp_path):
 def test_obs_stats_frozen_keeps_the_clones_statistics_and_moving_moves_them(tmp_path):
     import pickle
 
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
+
     from baselines.train import main
 
     def stats(folder) -> tuple[np.ndarray, np.ndarray]:
         with open(folder / "vecnormalize.pkl", "rb") as f:
             rms = pickle.load(f).obs_rms
+        assert type(rms) is RunningMeanStd  # saved as SB3's own class, frozen or not
         return rms.mean.copy(), rms.var.copy()
 
     def run(name: str, extra: list[str]):
