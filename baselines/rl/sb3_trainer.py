@@ -361,12 +361,7 @@ class Trainer:
         # SB3's own scalars go to tensorboard; the shared progress.csv is the run's
         model.set_logger(configure(str(self.run.folder), ["tensorboard"]))
         self.model, self.venv = model, venv
-        obs_stats = getattr(a, "obs_stats", "moving")
-        if obs_stats != "moving":  # before SB3's first reset updates them
-            from baselines.rl.init_actor import freeze_statistics
-
-            warming = model.num_timesteps < getattr(a, "critic_warmup", 0)
-            freeze_statistics(venv, obs_stats == "frozen" or warming)
+        self._hold(model, venv)
         self.penalty = find_layer(venv, CostPenalty)
         from baselines.rl.shield import ShieldPenalty
 
@@ -386,6 +381,19 @@ class Trainer:
             "obs_stats": getattr(a, "obs_stats", "moving"),
             "anchor": getattr(a, "anchor", 0.0),
         }
+
+    def _hold(self, model: Any, venv: Any) -> None:
+        """What stays fixed from the start (before SB3's first reset, which would move the
+        statistics): the actor during ``--critic-warmup``, the observation statistics as
+        ``--obs-stats`` says; the progress callback releases both when the warm-up ends."""
+        from baselines.rl.init_actor import freeze_actor, freeze_statistics
+
+        warming = model.num_timesteps < getattr(self.args, "critic_warmup", 0)
+        if warming:
+            freeze_actor(model.policy, True)
+        obs_stats = getattr(self.args, "obs_stats", "moving")
+        if obs_stats != "moving":
+            freeze_statistics(venv, obs_stats == "frozen" or warming)
 
     def _policy_kwargs(self, hp: dict[str, Any]) -> tuple[dict[str, Any], Any]:
         """The policy's keyword arguments (taken out of ``hp``) and, with ``--init-actor``
@@ -534,10 +542,6 @@ def _progress_callback(trainer: Trainer) -> Any:
             self.last = self.model.num_timesteps
             on_policy = trainer.algo in ON_POLICY
             self.warmup = getattr(trainer.args, "critic_warmup", 0) if on_policy else 0
-            if self.warmup > self.model.num_timesteps:
-                from baselines.rl.init_actor import freeze_actor
-
-                freeze_actor(self.model.policy, True)
 
         def _on_step(self) -> bool:
             for i, info in enumerate(self.locals["infos"]):
@@ -550,12 +554,10 @@ def _progress_callback(trainer: Trainer) -> Any:
         def _on_rollout_end(self) -> None:
             steps = self.model.num_timesteps
             if self.warmup and steps >= self.warmup:  # the update that follows moves the actor
-                from baselines.rl.init_actor import freeze_actor
+                from baselines.rl.init_actor import freeze_actor, freeze_statistics
 
                 freeze_actor(self.model.policy, False)
                 if getattr(trainer.args, "obs_stats", "moving") == "warmup":
-                    from baselines.rl.init_actor import freeze_statistics
-
                     freeze_statistics(self.model.get_vec_normalize_env(), False)
                 self.warmup = 0
             if trainer.algo == "sac" and steps - self.last < SAC_ROW_STEPS * self.model.n_envs:
