@@ -128,6 +128,7 @@ def _env_constraints(q: np.ndarray, zeta: np.ndarray) -> np.ndarray:
         grasp,
         static,
         np.zeros(2),  # the robot's sequencer: its first waypoint
+        np.zeros(5),  # the team's sequencer and its tests' constants
         cs.DM(NAV_PARAMETERS, WAYPOINT_SLOTS),  # the waypoints' navigation (all zero)
         np.ones(1),  # one waypoint
         np.zeros(6),  # goal

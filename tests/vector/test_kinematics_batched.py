@@ -26,6 +26,7 @@ from uvms_env.task.team_kernel import (
     segment_inputs,
     team_function,
 )
+from uvms_env.task.team_rows import TEAM_ROWS
 from uvms_env.vector.kernels import BatchedFunction, cuda_source, generated_source
 
 K = 13  # environments per batched call
@@ -39,7 +40,7 @@ class Env:
     scene: Scenario
     segments: list
     kin: TeamKinematics  # the per-scenario kernel (the single environment's)
-    state: tuple[np.ndarray, ...]  # action, q, zeta, q_meas, zeta_meas, x_O, sequencers
+    state: tuple[np.ndarray, ...]  # action, q, zeta, q_meas, zeta_meas, x_O, sequencers, team
 
 
 def _shared(noisy: bool = False) -> ca.Function:
@@ -54,7 +55,7 @@ def envs() -> list[Env]:
     """Random scenes (ring, 1..3 waypoints; cylinders only, spheres only, both) and short
     ones (bar, no obstacle), each after a few random simulator steps, with random
     requested actions (some beyond the saturation), measurements, sequencers (waypoint
-    index and done flag) and time fractions."""
+    index and done flag; the team's with its tests' constants) and time fractions."""
     rng = np.random.default_rng(0)
     scenes = [make("random", n_agents=N, seed=i) for i in range(7)]
     scenes += [make("short", seed=i) for i in range(K - 7)]
@@ -68,6 +69,8 @@ def envs() -> list[Env]:
         kin.time_fraction[0] = rng.uniform()
         sequencers = np.c_[rng.integers(len(scene.waypoints), size=N), rng.integers(2, size=N)]
         q, zeta = st.q.copy(), st.zeta.copy()
+        tests = (rng.uniform(0.1, 1.0), scene.success_pos_tol, scene.success_att_tol)
+        team = np.r_[rng.integers(len(scene.waypoints)), rng.integers(2), tests]
         state = (
             rng.uniform(-1.5, 1.5, (N, NU)),
             q,
@@ -76,13 +79,14 @@ def envs() -> list[Env]:
             zeta + rng.normal(0.0, 0.01, zeta.shape),
             st.x_O.copy(),
             sequencers.astype(float),
+            team.astype(float),
         )
         out.append(Env(scene, sim.object.segments, kin, state))
     return out
 
 
 def _inputs(env: Env, padded: bool) -> list[np.ndarray]:
-    """The kernel's 17 inputs in TeamKinematics' layout (C-contiguous transposes of
+    """The kernel's 18 inputs in TeamKinematics' layout (C-contiguous transposes of
     CasADi's shapes): its own padding, or the shared one (5 + 5 obstacle slots, 24
     segments)."""
     kin = env.kin
@@ -90,7 +94,7 @@ def _inputs(env: Env, padded: bool) -> list[np.ndarray]:
     if padded:
         seg = segment_inputs(env.segments, N_SEG)
         cyl, sph = obstacle_inputs(env.scene, BATCH_CYLINDERS, BATCH_SPHERES)
-    fixed = [kin.grasp, kin.static, env.state[6], kin.waypoints, kin.count, kin.goal]
+    fixed = [kin.grasp, kin.static, *env.state[6:8], kin.waypoints, kin.count, kin.goal]
     inputs = [*env.state[:6], *fixed, kin.time_fraction, seg, cyl, sph, kin.workspace]
     return [np.ascontiguousarray(x, dtype=float) for x in inputs]
 
@@ -156,7 +160,7 @@ def test_fixed_padding_equals_the_per_scenario_padding(envs, noisy):
             rows[absent, dim] = junk.uniform(0.1, 2.0, m)
         assert np.array_equal(_symbolic(shared, inputs), ref)
         if not env.scene.obstacles:
-            assert np.isinf(ref[-15 - 2 * N])  # the team's clearance: no obstacle at all
+            assert np.isinf(ref[-TEAM_ROWS - 2 * N])  # the team's clearance: no obstacle at all
 
 
 def test_one_batched_call_evaluates_different_geometries(envs):

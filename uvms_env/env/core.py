@@ -76,13 +76,21 @@ class Engine(Protocol):
         """The sensors of ``ids`` read the true state plus this noise, B' + (N, 10) each."""
 
     def evaluate(
-        self, ids: Any, action: Any, time_fraction: Any, robots: Any, measured: bool = True
+        self,
+        ids: Any,
+        action: Any,
+        time_fraction: Any,
+        robots: Any,
+        team: Any,
+        measured: bool = True,
     ) -> tuple:
         """The kinematics kernel on the actions B' + (N, 8) (None: zeros), the robots'
-        sequencers ``robots`` B' + (N, 2) and the sensors' readings (``measured=False``: the
-        true state): observations B' + (N, 79) (waypoint and navigation twist after
-        sequencing), team rows (T,) + B', constraint values B' + (N, 8), costs B' + (N,)
-        and the sequencers after this evaluation B' + (N, 2)."""
+        sequencers ``robots`` B' + (N, 2), the team's ``team`` B' + (5,) (``TEAM_INPUT``)
+        and the sensors' readings (``measured=False``: the true state): observations
+        B' + (N, 79) (waypoint and navigation twist after sequencing), team rows (T,) + B'
+        (the team's sequencer after this evaluation among them), constraint values
+        B' + (N, 8), costs B' + (N,) and the robots' sequencers after this evaluation
+        B' + (N, 2)."""
 
     def wrench_sq(self, sampled: Any) -> Any:
         """B: the internal wrench's squared norm after the step where ``sampled``, from the
@@ -202,7 +210,7 @@ class EnvCore(NamespacePickled):
             return
         m, n, w_max = len(changed), self.n, self.task.waypoints.shape[-2]
         waypoints = np.zeros((m, w_max, 6))
-        count, obstacles = np.zeros(m, np.int64), np.zeros(m, bool)
+        count = np.zeros(m, np.int64)
         for row, (i, s) in enumerate(changed):
             if s.n_agents != n:
                 raise ValueError(f"environment {i}: {s.n_agents} agents, the batch has {n}")
@@ -210,13 +218,13 @@ class EnvCore(NamespacePickled):
             if w > w_max:
                 raise ValueError(f"environment {i}: {w} waypoints, the batch has room for {w_max}")
             waypoints[row, :w] = s.waypoints
-            count[row], obstacles[row] = w, bool(s.obstacles)
+            count[row] = w
             self.scenarios[i] = s
             self._geometry_set[i] = True
         ids = [i for i, _ in changed]
         if not self.batched:
-            waypoints, count, obstacles = waypoints[0], count[0], obstacles[0]
-        self.task.set_geometry(self.ids_of(ids), waypoints, count, obstacles)
+            waypoints, count = waypoints[0], count[0]
+        self.task.set_geometry(self.ids_of(ids), waypoints, count)
         self.engine.set_geometry(ids, [s for _, s in changed])
 
     def seed(self, rows: list[int], seeds: Sequence[int]) -> None:
@@ -251,10 +259,10 @@ class EnvCore(NamespacePickled):
         ids = self.ids_of(rows)
         self.task.max_cycles = self.max_cycles
         self.task.reset(ids)
-        self.evaluate(ids, rows, None)
+        team = self.evaluate(ids, rows, None)
         if self.memory is not None:
             self.memory.reset(ids)
-        self.task.start(ids, self.engine.object_pose(ids))
+        self.task.start(ids, team)
         if self.channel is not None:
             self.channel.reset(ids, rows)
 
@@ -317,12 +325,13 @@ class EnvCore(NamespacePickled):
         team = self.evaluate(self.all, rows, command)
         if self.memory is not None:
             self.memory.update(self.all, previous, self.obs, command)
-        x_o = engine.object_pose(self.all)
         wrench_sq = None
         if sampled is not None and task._any(sampled):
             wrench_sq = engine.wrench_sq(sampled)
-        state = self.task_arrays(x_o, command) if task.extended else None
-        out = task.step(x_o, team, self.g, self.cost, diverged, sampled, wrench_sq, state)
+        state = None
+        if task.extended:
+            state = self.task_arrays(engine.object_pose(self.all), command)
+        out = task.step(team, self.g, self.cost, diverged, sampled, wrench_sq, state)
         return out, diverged
 
     def _filtered(self, command: Any) -> Any:
@@ -354,9 +363,9 @@ class EnvCore(NamespacePickled):
         task, engine = self.task, self.engine
         if engine.noisy:
             self._measure(ids, rows)
-        robots = task.sequencing.robots
-        obs, team, g, cost, robots[ids] = engine.evaluate(
-            ids, action, task.time_fraction(ids), robots[ids]
+        seq = task.sequencing
+        obs, team, g, cost, seq.robots[ids] = engine.evaluate(
+            ids, action, task.time_fraction(ids), seq.robots[ids], seq.team[ids]
         )
         self.g, self.cost = g, cost
         task.observe(ids, team)
@@ -407,8 +416,10 @@ class EnvCore(NamespacePickled):
         """B + (N, C): the constraint values of the current true state with zero actions
         (no measurement, no sequencing, the episode does not advance)."""
         engine, task = self.engine, self.task
-        robots = task.sequencing.robots
-        g = engine.evaluate(self.all, None, task.time_fraction(), robots, measured=False)[2]
+        seq = task.sequencing
+        g = engine.evaluate(
+            self.all, None, task.time_fraction(), seq.robots, seq.team, measured=False
+        )[2]
         if task.constraint_fns:
             zero = self.xp.zeros((*g.shape[:-1], NU))
             extra = task.extra_constraint_values(

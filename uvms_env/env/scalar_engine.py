@@ -87,7 +87,7 @@ class ScalarEngine(Engine):
         self._x_o = x[2 * NQ * n : 2 * NQ * n + 6]
         # the kernel's action and sequencers inputs: buffers bound once (a new array each
         # call would be re-bound, which costs more than the copy)
-        self._a, self._robots = np.zeros((n, 8)), np.zeros((n, 2))
+        self._a, self._robots, self._team = np.zeros((n, 8)), np.zeros((n, 2)), np.zeros(5)
         self._q_meas, self._zeta_meas = self._q, self._zeta
 
     def reset(
@@ -114,15 +114,22 @@ class ScalarEngine(Engine):
         self._zeta_meas = zeta_noise + self._zeta
 
     def evaluate(
-        self, ids: Any, action: Any, time_fraction: Any, robots: Any, measured: bool = True
+        self,
+        ids: Any,
+        action: Any,
+        time_fraction: Any,
+        robots: Any,
+        team: Any,
+        measured: bool = True,
     ) -> tuple:
         kin = self.kin
         kin.time_fraction[0] = time_fraction
         self._robots[:] = robots
+        self._team[:] = team
         self._a[:] = 0.0 if action is None else action
         q, zeta = (self._q_meas, self._zeta_meas) if measured else (self._q, self._zeta)
         extra = self.sim.wrench_inputs() if self.wrench else ()
-        kin(self._a, self._q, self._zeta, q, zeta, self._x_o, self._robots, *extra)
+        kin(self._a, self._q, self._zeta, q, zeta, self._x_o, self._robots, self._team, *extra)
         return (
             kin.observation,
             kin.team_rows(),
@@ -149,7 +156,18 @@ class ScalarEngine(Engine):
         state = dict(self.__dict__)
         key = id(self.world.scenario)
         state["_worlds"] = OrderedDict([(key, self.world)])
-        for view in ("_q", "_zeta", "_x_o", "_q_meas", "_zeta_meas", "sim", "kin", "_a", "_robots"):
+        for view in (
+            "_q",
+            "_zeta",
+            "_x_o",
+            "_q_meas",
+            "_zeta_meas",
+            "sim",
+            "kin",
+            "_a",
+            "_robots",
+            "_team",
+        ):
             state.pop(view, None)
         return state
 

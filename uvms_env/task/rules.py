@@ -26,12 +26,20 @@ import numpy as np
 
 from uvms_env.dynamics import NU
 from uvms_env.dynamics.compiled import NamespacePickled
-from uvms_env.dynamics.spatial import wrap_angle
 from uvms_env.task.constraints import CONSTRAINTS, HARD_CONSTRAINTS
 from uvms_env.task.reward import REWARD_TERMS, RewardWeights
 from uvms_env.task.sequencing import Sequencing
 from uvms_env.task.tally import Tally
-from uvms_env.task.team_rows import ACTION_SQ, ALL, KINDS, VIOLATED
+from uvms_env.task.team_rows import (
+    ACTION_SQ,
+    ALL,
+    AT_GOAL,
+    KINDS,
+    PASSED,
+    POTENTIAL,
+    POTENTIAL_AFTER,
+    VIOLATED,
+)
 
 HARD_KINDS = [CONSTRAINTS.index(c) for c in HARD_CONSTRAINTS]  # indices of HARD_CONSTRAINTS
 
@@ -112,13 +120,14 @@ class Task(NamespacePickled):
     Parts: ``sequencing`` (waypoints, the team's and each robot's sequencer; its arrays
     ``waypoints``, ``robot_index``, ``team_waypoint`` and ``goal`` are
     read here too) and ``tally`` (the metrics' accumulators); here ``steps`` B and the
-    reward's ``potential`` B. Inputs are in the same shapes: ``team`` (T,) + B, ``x_o``
-    B + (6,).
+    reward's ``potential`` B. Inputs are in the same shapes: ``team`` (T,) + B, the
+    kinematics kernel's team rows (``uvms_env.task.team_rows``).
 
     Calls, in an episode's order: ``set_geometry`` (when a geometry changes), ``reset``
     (bookkeeping), then per evaluation of the kinematics kernel ``observe`` (state metrics;
-    the kernel itself advances each robot's sequencer, ``sequencing.robots``); ``start``
-    after the first one (the team's sequencing, the reward's potential); per step ``tick``
+    the kernel itself advances each robot's sequencer, ``sequencing.robots``, and computes
+    the team's next one, its potentials and the goal test); ``start`` after the first one
+    (the team's sequencer and the reward's potential taken from it); per step ``tick``
     (before the kernel: time advances; it says where the internal wrench is sampled),
     ``step`` (after it) and ``results`` and ``end_kinds`` for the episodes that ended.
     ``ids``: a slice or an index array of the namespace."""
@@ -148,7 +157,6 @@ class Task(NamespacePickled):
         self.terminate = constraint_mode == "terminate"
         self.max_cycles = max_cycles
         self.period = period
-        self.pos_tol, self.att_tol = success_pos_tol, success_att_tol
         self.wrench_every = internal_wrench_every
         # violations averaged over robots, effort over robots and inputs
         self._per_violation = weights.violation / n_agents
@@ -158,9 +166,10 @@ class Task(NamespacePickled):
         self.reward_terms = REWARD_TERMS + tuple(self.reward_fns)
         self.constraints = CONSTRAINTS + tuple(self.constraint_fns)
         self.extended = bool(self.reward_fns or self.constraint_fns)
-        self.sequencing = Sequencing(xp, b, n_agents, w_max)
+        self.sequencing = Sequencing(
+            xp, b, n_agents, w_max, (weights.attitude, success_pos_tol, success_att_tol)
+        )
         self.tally = Tally(xp, b, len(self.constraints))
-        self._host_tests = self.sequencing.host_tests
         self._hard_many = len(HARD_KINDS) > 1
         self._hard = HARD_KINDS if self._hard_many else HARD_KINDS[0]
         self.steps = xp.zeros(b, np.int64)
@@ -188,10 +197,10 @@ class Task(NamespacePickled):
         return self.sequencing.goal
 
     # -- geometry and resets -------------------------------------------------------------
-    def set_geometry(self, ids: Any, waypoints: Any, counts: Any, has_obstacles: Any) -> None:
+    def set_geometry(self, ids: Any, waypoints: Any, counts: Any) -> None:
         """Environments ``ids`` take these waypoints (B' + (W, 6), zeros beyond each one's
-        ``counts`` B') and obstacle flags B': host or device arrays."""
-        self.sequencing.set_geometry(ids, waypoints, counts, has_obstacles)
+        ``counts`` B'): host or device arrays."""
+        self.sequencing.set_geometry(ids, waypoints, counts)
 
     def reset(self, ids: Any) -> None:
         """New episodes in ``ids``: time, metrics, every robot back to its first waypoint."""
@@ -199,16 +208,17 @@ class Task(NamespacePickled):
         self.tally.reset(ids)
         self.sequencing.reset(ids)
 
-    def start(self, ids: Any, x_o: Any) -> None:
-        """After a reset's first evaluation: the team's sequencer sees the true object
-        ``x_o`` B' + (6,) and the reward's potential starts there."""
-        self.sequencing.start(ids, x_o)
-        self.potential[ids] = self._potential(*self.sequencing.distances(x_o, ids))
+    def start(self, ids: Any, team: Any) -> None:
+        """After a reset's first evaluation (its team rows ``team`` (T,) + B'): the team's
+        sequencer takes what it saw of the true object, the reward's potential starts
+        there."""
+        self.sequencing.commit(ids, team)
+        self.potential[ids] = team[POTENTIAL_AFTER]
 
     # -- evaluation of the state --------------------------------------------------------
     def observe(self, ids: Any, team: Any) -> None:
         """The state metrics, from the kinematics kernel's team rows (T,) + B' of ``ids``."""
-        self.tally.observe(ids, team, self.sequencing.has_obstacles[ids])
+        self.tally.observe(ids, team)
 
     def tick(self, diverged: Any) -> Any:
         """A period passed in every environment (before the step's evaluation); returns
@@ -216,6 +226,8 @@ class Task(NamespacePickled):
         self.steps += 1
         if self.wrench_every <= 0:
             return None
+        if self.wrench_every == 1:  # the default: every step that was not refused
+            return ~diverged
         return ~diverged & (self.steps % self.wrench_every == 0)
 
     def time_fraction(self, ids: Any = ALL) -> Any:
@@ -224,7 +236,6 @@ class Task(NamespacePickled):
     # -- one step ---------------------------------------------------------------------------
     def step(
         self,
-        x_o: Any,
         team: Any,
         constraint_values: Any,
         cost: Any,
@@ -234,7 +245,7 @@ class Task(NamespacePickled):
         state: TaskArrays | None = None,
     ) -> StepOutcome:
         """The rules of one step of every environment, after ``tick`` and the evaluation:
-        ``x_o`` B + (6,) the true object, ``team`` (T,) + B float64 the kernel's team rows,
+        ``team`` (T,) + B float64 the kernel's team rows,
         ``constraint_values`` B + (N, 8) and ``cost`` B + (N,) the kernel's, ``diverged`` B
         (bool) the refused steps, ``sampled``/``wrench_sq`` B the internal wrench samples
         (``tick``), ``state`` what the extensions see (needed when ``extended``)."""
@@ -254,18 +265,13 @@ class Task(NamespacePickled):
         failed = diverged | collision
         if self.terminate:
             failed = failed | (n_violated > 0)
-        d, dist = self.sequencing.distances(x_o)
-        success = self._success(d, dist, failed)
+        success = (team[AT_GOAL] > 0.0) & ~failed
         terminated = success | failed
         truncated = (self.steps >= self.max_cycles) & ~terminated
         action_sq = team[ACTION_SQ]
         self.tally.add_step(kinds, action_sq * self.period, sampled, wrench_sq)
-        # the potential towards the waypoint before the team's sequencer moves on
-        potential = self._potential(d, dist)
-        passed = self.sequencing.advance_team(ALL, dist[..., 0])
-        terms = self._reward_terms(
-            x_o, potential, passed, success, failed, n_violated, action_sq, state
-        )
+        self.sequencing.commit(ALL, team)
+        terms = self._reward_terms(team, success, failed, n_violated, action_sq, state)
         values = iter(terms.values())
         reward = next(values)
         for value in values:  # in order: REWARD_TERMS, then the extra terms
@@ -284,31 +290,23 @@ class Task(NamespacePickled):
 
     def _reward_terms(
         self,
-        x_o: Any,
-        potential: Any,
-        passed: Any,
+        team: Any,
         success: Any,
         failed: Any,
         n_violated: Any,
         action_sq: Any,
         state: TaskArrays | None,
     ) -> dict[str, Any]:
-        """The shared reward's terms (``uvms_env.task.reward``), then the extra ones, given
-        the potential towards the waypoint the team held and where the team's sequencer
-        passed one this step (None: nowhere); moves the potential on."""
+        """The shared reward's terms (``uvms_env.task.reward``), then the extra ones, from
+        the team rows: the potential towards the waypoint the team held, and where its
+        sequencer passed one this step; moves the potential on."""
         xp, w = self.xp, self.weights
         # potential-based progress towards the team's waypoint
-        progress = w.progress * (self.potential - potential)
-        if passed is not None:
-            after = self._potential(*self.sequencing.distances(x_o))
-            potential = xp.where(passed, after, potential)
-            waypoint = passed * w.waypoint
-        else:
-            waypoint = xp.zeros(self.batch)
-        self.potential[...] = potential
+        progress = w.progress * (self.potential - team[POTENTIAL])
+        self.potential[...] = team[POTENTIAL_AFTER]
         terms = {
             "progress": progress,
-            "waypoint": waypoint,
+            "waypoint": team[PASSED] * w.waypoint,
             "success": success * w.success,
             # 0.0 - ...: a clean 0.0 rather than -0.0 when nothing is violated
             "violation": 0.0 - self._per_violation * n_violated - failed * w.failure,
@@ -339,20 +337,6 @@ class Task(NamespacePickled):
             ],
             axis=-1,
         )
-
-    def _potential(self, d: Any, dist: Any) -> Any:
-        """Phi = |p_O - p_wp| + w_attitude |wrap(Theta_O - Theta_wp)| (``distances``)."""
-        att = wrap_angle(d[..., 0, 3:], self.xp)
-        return dist[..., 0] + self.weights.attitude * self.xp.sqrt((att * att).sum(axis=-1))
-
-    def _success(self, d: Any, dist: Any, failed: Any) -> Any:
-        """Where the true object is at the goal (position and attitude tolerances) and the
-        step did not fail (``distances``)."""
-        near = dist[..., 1] < self.pos_tol
-        if self._host_tests and not self._any(near):  # the common case, decided cheaply
-            return near
-        att = self.xp.abs(wrap_angle(d[..., 1, 3:], self.xp)).max(axis=-1)
-        return near & ~failed & (att < self.att_tol)
 
     # -- ended episodes ---------------------------------------------------------------------
     def results(self, ids: Any, x_o: Any, success: Any) -> list[dict[str, Any]]:

@@ -45,11 +45,11 @@ class Tally(NamespacePickled):
         self.wrench_sq[ids] = 0.0
         self.wrench_samples[ids] = 0
 
-    def observe(self, ids: Any, team: Any, has_obstacles: Any) -> None:
-        """The state's extremes, from the team kernel's rows (T,) + B' of ``ids``."""
+    def observe(self, ids: Any, team: Any) -> None:
+        """The state's extremes, from the team kernel's rows (T,) + B' of ``ids`` (its
+        clearance is +inf in a scene without obstacles: absent ones count nowhere)."""
         xp = self.xp
-        clearance = xp.where(has_obstacles, team[CLEARANCE], np.inf)
-        self.min_clearance[ids] = xp.minimum(self.min_clearance[ids], clearance)
+        self.min_clearance[ids] = xp.minimum(self.min_clearance[ids], team[CLEARANCE])
         self.min_manipulability[ids] = xp.minimum(
             self.min_manipulability[ids], team[MANIPULABILITY]
         )

@@ -7,7 +7,10 @@ team-wide reductions of them, and the observation rows themselves, called throug
 zero-copy ``BufferCall``. Each robot's waypoint sequencer runs inside too (on its own
 estimate: it passes its waypoint within ``WAYPOINT_TOLERANCE``), and the navigation twist
 towards its waypoint after that (``navigation.parametric``, the scene's parameters as an
-input table): the observation comes out whole, and nothing of it is written twice.
+input table): the observation comes out whole, and nothing of it is written twice. The
+team's sequencer runs inside as well, on the true object, with the reward's potential
+before and after it moves and the goal test (``team_sequenced``): the task's rules read
+them from the team rows.
 
 The scenario geometry enters as inputs, so a new random scenario with the same team size
 reuses the compiled function. Padding and branch-free code (docs/batched.md, "One kernel
@@ -17,7 +20,7 @@ for every geometry"): an obstacle row with ``present == 0`` changes nothing (see
 
 May import: numpy, casadi, ``uvms_env.dynamics``, ``uvms_env.navigation`` (obstacle
 types, the parametric twist, the tolerance), ``uvms_env.scenarios`` (types), ``uvms_env.sim``
-and ``uvms_env.task.constraints``.
+and ``uvms_env.task`` (constraints, team_rows).
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ import numpy as np
 from uvms_env.dynamics import NQ, NU, UVMSModel
 from uvms_env.dynamics.compiled import BufferCall, RebuiltOnUnpickle, compile_function
 from uvms_env.dynamics.local_model import euler_zyx
-from uvms_env.dynamics.spatial import rot_zyx
+from uvms_env.dynamics.spatial import rot_zyx, wrap_angle_sx
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.navigation import Cylinder
 from uvms_env.navigation.parametric import NAV_PARAMETERS, twist_of_row
@@ -46,6 +49,7 @@ from uvms_env.task.constraints import (
     capsule_clearance,
     robot_constraints,
 )
+from uvms_env.task.team_rows import TEAM_INPUT
 
 if TYPE_CHECKING:
     from uvms_env.scenarios import Scenario
@@ -154,24 +158,69 @@ def _body_clearance(
     return own, excess
 
 
+def _row(table: cs.SX, i: cs.SX) -> cs.SX:
+    """Column ``i`` of a waypoint ``table``, branch-free (a sum of one-hot columns)."""
+    return sum((cs.SX(float(w)) == i) * table[:, w] for w in range(table.shape[1]))
+
+
+def _advanced(index: cs.SX, done: cs.SX, near: cs.SX, count: cs.SX) -> tuple:
+    """A sequencer at ``index`` (``done``: past its last waypoint) that is ``near`` its
+    waypoint moves to the next (at the last one: done). Returns the new index and done
+    flag, and whether an intermediate waypoint was passed."""
+    near = (1.0 - done) * near
+    last = index + 1.0 >= count
+    passed = near * (1.0 - last)
+    return index + passed, done + near * last, passed
+
+
 def _sequenced(pose: cs.SX, sequencer: cs.SX, table: cs.SX, count: cs.SX) -> tuple:
     """One robot's waypoint sequencer on its estimate ``pose``: ``sequencer`` = [index,
     done] (floats), the scene's waypoints as ``table`` (NAV_PARAMETERS, W) rows of
     ``parameter_row``, ``count`` of them real. It passes its waypoint within the tolerance
     (the last one: done). Returns the new [index, done], its waypoint (6,) and the
-    navigation twist towards it, branch-free (a selection is a sum of one-hot columns)."""
+    navigation twist towards it, branch-free."""
     index, done = sequencer[0], sequencer[1]
-
-    def row(i: cs.SX) -> cs.SX:
-        return sum((cs.SX(float(w)) == i) * table[:, w] for w in range(table.shape[1]))
-
-    d = pose[:3] - row(index)[:3]
-    near = (1.0 - done) * (cs.dot(d, d) < WAYPOINT_TOLERANCE**2)
-    last = index + 1.0 >= count
-    index = index + near * (1.0 - last)
-    done = done + near * last
-    new = row(index)
+    d = pose[:3] - _row(table, index)[:3]
+    index, done, _ = _advanced(index, done, cs.dot(d, d) < WAYPOINT_TOLERANCE**2, count)
+    new = _row(table, index)
     return cs.vertcat(index, done), new[:6], twist_of_row(pose, new)
+
+
+def _potential(x_o: cs.SX, target: cs.SX, attitude: cs.SX) -> tuple[cs.SX, cs.SX]:
+    """The reward's potential of the true object ``x_o`` towards ``target`` (6,),
+    Phi = |p_O - p_wp| + w_attitude |wrap(Theta_O - Theta_wp)|, and its distance term."""
+    d = x_o - target
+    att = wrap_angle_sx(d[3:])
+    dist = cs.sqrt(cs.dot(d[:3], d[:3]))
+    return dist + attitude * cs.sqrt(cs.dot(att, att)), dist
+
+
+def team_sequenced(x_o: cs.SX, team: cs.SX, table: cs.SX, count: cs.SX, goal: cs.SX) -> cs.SX:
+    """The team's waypoint sequencer on the true object ``x_o``, and the task's tests of
+    it: ``team`` = [index, done, attitude weight, position tolerance, attitude tolerance]
+    (``TEAM_INPUT``), ``table``/``count`` as ``_sequenced`` takes them. Returns the rows
+    ``TEAM_SEQUENCER`` (new index, done), ``POTENTIAL`` (towards the waypoint before the
+    sequencer moves), ``POTENTIAL_AFTER`` (towards the one after), ``PASSED`` (an
+    intermediate waypoint) and ``AT_GOAL`` (within both tolerances of ``goal``) of
+    ``uvms_env.task.team_rows``."""
+    index, done, attitude, pos_tol, att_tol = (team[i] for i in range(TEAM_INPUT))
+    before, dist = _potential(x_o, _row(table, index)[:6], attitude)
+    index, done, passed = _advanced(index, done, dist < WAYPOINT_TOLERANCE, count)
+    after, _ = _potential(x_o, _row(table, index)[:6], attitude)
+    d_goal = x_o - goal
+    at_goal = (cs.sqrt(cs.dot(d_goal[:3], d_goal[:3])) < pos_tol) * (
+        cs.mmax(cs.fabs(wrap_angle_sx(d_goal[3:]))) < att_tol
+    )
+    return cs.vertcat(index, done, before, after, passed, at_goal)
+
+
+def _team_sequencer_function(w_slots: int) -> cs.Function:
+    """``team_sequenced`` as an SX function (called inside the MX kernel)."""
+    x_o, team = cs.SX.sym("x_O", 6), cs.SX.sym("team", TEAM_INPUT)
+    table, count = cs.SX.sym("waypoints", NAV_PARAMETERS, w_slots), cs.SX.sym("count")
+    goal = cs.SX.sym("goal", 6)
+    out = team_sequenced(x_o, team, table, count, goal)
+    return cs.Function("env_team", [x_o, team, table, count, goal], [out], {"cse": True})
 
 
 def robot_function(
@@ -294,11 +343,12 @@ def team_function(
     Inputs, in order (CasADi shapes; ``TeamKinematics.__call__`` passes each as the
     C-contiguous transpose): a (8, n), q, zeta, q_meas, zeta_meas (10, n), x_O (6,),
     grasp (12, n), static (13, n), sequencers (2, n) (each robot's waypoint index and
-    done flag, as floats), waypoints (NAV_PARAMETERS, w_slots) (``parameter_row`` of each,
+    done flag, as floats), team (5,) (the team's sequencer and its constants,
+    ``TEAM_INPUT``), waypoints (NAV_PARAMETERS, w_slots) (``parameter_row`` of each,
     zeros beyond the count), count (1,), goal (6,), time_fraction (1,), segments
     (6, n_seg), cylinders (4, n_cyl), spheres (5, n_sph), workspace (4,).
     Outputs: observation (size, n), pose (6, n), constraints (8, n), scalars (5, n),
-    team (15,), sequencers (2, n) after this evaluation.
+    team (``TEAM_ROWS``,), sequencers (2, n) after this evaluation.
 
     With ``wrench`` (the closed chain's ``internal_wrench``, inputs x, tau, v_c, P, P_O,
     grasp): its inputs but the grasp come after those, and one more output, the squeeze's
@@ -311,6 +361,7 @@ def team_function(
     qm, zm = cs.MX.sym("q_meas", NQ, n), cs.MX.sym("zeta_meas", NQ, n)
     x_o, grasp = cs.MX.sym("x_O", 6), cs.MX.sym("grasp", NG, n)
     static, seq = cs.MX.sym("static", NS, n), cs.MX.sym("sequencers", 2, n)
+    team_in = cs.MX.sym("team", TEAM_INPUT)
     table, count = cs.MX.sym("waypoints", NAV_PARAMETERS, w_slots), cs.MX.sym("count")
     goal, tf = cs.MX.sym("goal", 6), cs.MX.sym("time_fraction")
     seg = cs.MX.sym("segments", 6, n_seg)
@@ -329,9 +380,10 @@ def team_function(
         cs.sum2(scalars[4, :]),  # sum of squared clipped normalized actions
         cs.sum2(g > 0.0) > 0.0,  # per kind: violated by any robot
         obj_terms,
+        _team_sequencer_function(w_slots)(x_o, team_in, table, count, goal),
     )
-    inputs = [a, q, zeta, qm, zm, x_o, grasp, static, seq, table, count, goal, tf, seg, cyl, sph]
-    inputs.append(ws)
+    inputs = [a, q, zeta, qm, zm, x_o, grasp, static, seq, team_in, table, count, goal, tf]
+    inputs += [seg, cyl, sph, ws]
     outputs = [obs, pose, g, scalars, team, seq_next]
     name = f"env_kernel_n{n}_s{n_seg}_c{n_cyl}_p{n_sph}_w{w_slots}{'_noisy' if noisy else ''}"
     if wrench is not None:
@@ -397,7 +449,8 @@ class TeamKinematics(RebuiltOnUnpickle):
     After ``__call__``, per robot (rows): ``observation`` (N, size), ``pose_estimate``
     (N, 6), ``constraints`` (N, 8) in the order of ``CONSTRAINTS``, ``manipulability``,
     ``grasp_error`` (m), ``clearance`` of the robot's own bodies (m), ``violated_count``,
-    ``sequencers`` (N, 2) after this evaluation. Team: ``team_rows()``. With ``chain``
+    ``sequencers`` (N, 2) after this evaluation. Team: ``team_rows()`` (with the team's
+    sequencer after this evaluation, which the task commits or not). With ``chain``
     (the simulator's ``chain_key``), ``__call__`` also takes the simulator's
     ``wrench_inputs()`` and ``wrench_sq`` (1,) holds the internal wrench's squared norm.
     """
@@ -472,11 +525,13 @@ class TeamKinematics(RebuiltOnUnpickle):
         zeta_meas: np.ndarray,
         x_o: np.ndarray,
         sequencers: np.ndarray,
+        team: np.ndarray,
         *wrench_inputs: np.ndarray,
     ) -> None:
         """Evaluate on C-contiguous float64 arrays: action (N, 8) normalized as requested,
         true q, zeta (N, 10), measured q, zeta (N, 10), true object pose (6,), each robot's
-        sequencer (N, 2): waypoint index and done flag; with a ``chain``, the simulator's
+        sequencer (N, 2): waypoint index and done flag, the team's sequencer and its
+        constants (5,) (``TEAM_INPUT``); with a ``chain``, the simulator's
         ``wrench_inputs()``."""
         self._call(
             action,
@@ -488,6 +543,7 @@ class TeamKinematics(RebuiltOnUnpickle):
             self.grasp,
             self.static,
             sequencers,
+            team,
             self.waypoints,
             self.count,
             self.goal,

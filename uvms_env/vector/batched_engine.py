@@ -40,7 +40,7 @@ from uvms_env.task.team_kernel import (
     obstacle_inputs,
     segment_inputs,
 )
-from uvms_env.task.team_rows import NK
+from uvms_env.task.team_rows import NK, TEAM_INPUT
 from uvms_env.vector.batched_simulator import BatchedSimulator
 from uvms_env.vector.kernel_list import kernel_functions
 from uvms_env.vector.kernels import BatchedFunction
@@ -114,7 +114,7 @@ class BatchedEngine(Engine):
         z = lambda rows: xp.zeros((rows, kp), real)  # noqa: E731
         self._a = z(NU * n)
         self._q_meas, self._zeta_meas = z(NQ * n), z(NQ * n)
-        self._static, self._robots = z(13 * n), z(2 * n)
+        self._static, self._robots, self._team = z(13 * n), z(2 * n), z(TEAM_INPUT)
         self._waypoints, self._count = z(NAV_PARAMETERS * self._w), z(1)
         self._goal, self._time_fraction = z(6), z(1)
         self._segments = z(6 * self._n_seg)
@@ -228,13 +228,20 @@ class BatchedEngine(Engine):
         self._zeta_meas[:, ids] = zeta_noise.reshape(m, -1).T + x[NQ * n : 2 * NQ * n, ids]
 
     def evaluate(
-        self, ids: Any, action: Any, time_fraction: Any, robots: Any, measured: bool = True
+        self,
+        ids: Any,
+        action: Any,
+        time_fraction: Any,
+        robots: Any,
+        team: Any,
+        measured: bool = True,
     ) -> tuple:
         xp, n, k, s = self.xp, self.n, self.k, self.sim
         if action is not None:
             self._a[:, ids] = action.reshape(-1, n * NU).T
         self._time_fraction[0, ids] = time_fraction
         self._robots[:, ids] = robots.reshape(-1, 2 * n).T
+        self._team[:, ids] = team.T
         q, zeta, x_o = self._truth
         q_meas, zeta_meas = (self._q_meas, self._zeta_meas) if measured else (q, zeta)
         inputs = [
@@ -247,6 +254,7 @@ class BatchedEngine(Engine):
             s.grasp,
             self._static,
             self._robots,
+            self._team,
             self._waypoints,
             self._count,
             self._goal,
