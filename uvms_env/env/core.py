@@ -76,16 +76,11 @@ class Engine(Protocol):
         """The sensors of ``ids`` read the true state plus this noise, B' + (N, 10) each."""
 
     def evaluate(
-        self,
-        ids: Any,
-        action: Any,
-        time_fraction: Any,
-        robots: Any,
-        team: Any,
-        measured: bool = True,
+        self, ids: Any, action: Any, elapsed: Any, robots: Any, team: Any, measured: bool = True
     ) -> tuple:
-        """The kinematics kernel on the actions B' + (N, 8) (None: zeros), the robots'
-        sequencers ``robots`` B' + (N, 2), the team's ``team`` B' + (5,) (``TEAM_INPUT``)
+        """The kinematics kernel on the actions B' + (N, 8) (None: zeros), the fraction of
+        the time limit ``elapsed`` B', the robots' sequencers ``robots`` B' + (N, 2), the
+        team's ``team`` B' + (5,) (``TEAM_INPUT``)
         and the sensors' readings (``measured=False``: the true state): observations
         B' + (N, 79) (waypoint and navigation twist after sequencing), team rows (T,) + B'
         (the team's sequencer after this evaluation among them), constraint values

@@ -114,16 +114,10 @@ class ScalarEngine(Engine):
         self._zeta_meas = zeta_noise + self._zeta
 
     def evaluate(
-        self,
-        ids: Any,
-        action: Any,
-        time_fraction: Any,
-        robots: Any,
-        team: Any,
-        measured: bool = True,
+        self, ids: Any, action: Any, elapsed: Any, robots: Any, team: Any, measured: bool = True
     ) -> tuple:
         kin = self.kin
-        kin.time_fraction[0] = time_fraction
+        kin.time_fraction[0] = elapsed
         self._robots[:] = robots
         self._team[:] = team
         self._a[:] = 0.0 if action is None else action

@@ -228,18 +228,12 @@ class BatchedEngine(Engine):
         self._zeta_meas[:, ids] = zeta_noise.reshape(m, -1).T + x[NQ * n : 2 * NQ * n, ids]
 
     def evaluate(
-        self,
-        ids: Any,
-        action: Any,
-        time_fraction: Any,
-        robots: Any,
-        team: Any,
-        measured: bool = True,
+        self, ids: Any, action: Any, elapsed: Any, robots: Any, team: Any, measured: bool = True
     ) -> tuple:
         xp, n, k, s = self.xp, self.n, self.k, self.sim
         if action is not None:
             self._a[:, ids] = action.reshape(-1, n * NU).T
-        self._time_fraction[0, ids] = time_fraction
+        self._time_fraction[0, ids] = elapsed
         self._robots[:, ids] = robots.reshape(-1, 2 * n).T
         self._team[:, ids] = team.T
         q, zeta, x_o = self._truth
