@@ -11,7 +11,7 @@ Reference: docs/environment.md, "The task and its driver" and "Extension points"
 (``num_envs=None``: the same code, on numpy scalars rather than 1-element arrays, which
 cost several times more per operation). Nothing here is per-environment Python.
 
-May import: numpy, ``uvms_env.dynamics`` (compiled, spatial) and the other modules of
+May import: numpy, ``uvms_env.dynamics`` (compiled) and the other modules of
 ``uvms_env.task`` except ``team_kernel``.
 """
 
