@@ -226,8 +226,6 @@ class Task(NamespacePickled):
         self.steps += 1
         if self.wrench_every <= 0:
             return None
-        if self.wrench_every == 1:  # the default: every step that was not refused
-            return ~diverged
         return ~diverged & (self.steps % self.wrench_every == 0)
 
     def time_fraction(self, ids: Any = ALL) -> Any:

@@ -78,15 +78,9 @@ class Sequencing(NamespacePickled):
     def reset(self, ids: Any) -> None:
         """Every robot of ``ids`` back to its first waypoint, the team's sequencer too."""
         self.robots[ids] = 0.0
-        self._set_team(ids, 0.0)
+        self.team[ids, :2] = 0.0
 
     def commit(self, ids: Any, team: Any) -> None:
         """The team's sequencer of ``ids`` moves as the kernel's evaluation whose team rows
         are ``team`` (T,) + B' found (an evaluation alone does not move it)."""
-        self._set_team(ids, team[TEAM_SEQUENCER].T)
-
-    def _set_team(self, ids: Any, values: Any) -> None:
-        if self.batch:
-            self.team[ids, :2] = values
-        else:  # ids is ALL
-            self.team[:2] = values
+        self.team[ids, :2] = team[TEAM_SEQUENCER].T
