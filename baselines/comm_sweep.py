@@ -4,7 +4,7 @@
 
 The talking expert (``nmpc:comm``) plays the ladder's cases under every point of a grid of
 channels (bit rate x loss probability x modem latency, variations of ``--preset``) and
-under ``ideal``; the silent expert and the centralized bound play the same episodes once,
+under ``ideal``; the silent expert and the full-information reference play the same episodes once,
 without a channel (neither talks, and the channel changes no physics draw).
 Reference: docs/channel.md.
 
@@ -54,7 +54,10 @@ LOSSES = (0.0, 0.5)
 LATENCIES = (4,)
 SWEEP_TEAM_SIZES = (2, 4, 6)  # the ladder's TEAM_SIZES thinned: each case is one more run
 SEPARATOR = " | "  # between the case and the channel in a channel point's case label
-CURVE = {"completion periods": "completion_periods", "internal wrench rms": "internal_wrench_rms"}
+CURVE = {
+    "completion periods": "completion_periods_imputed",
+    "internal wrench rms": "internal_wrench_rms",
+}
 
 
 @dataclass(frozen=True)
@@ -107,7 +110,7 @@ def summarize(
     rows: list[dict[str, Any]], labels: list[str], points: list[ChannelPoint], seed: int
 ) -> dict[str, Any]:
     """Per (case, policy or channel): the rates and means (``baselines.ladder``'s rung
-    summary) and, for the talking expert and the bound, the ratios of means against the
+    summary) and, for the talking expert and the reference, the ratios of means against the
     silent expert on the paired episodes; pooled over the cases, the clean success and
     the mean of the per-case ratios (each case counts once, whatever its scale)."""
     # the case in ``scenario`` and the channel in the policy's name (``nmpc:comm [channel]``),
@@ -132,7 +135,7 @@ def summarize(
                 p = price(split, run, EXPERT, case, seed)
                 for name, key in PRICED.items():
                     s[f"{key}_ratio"] = p[name]["ratio"] if p[name] else None
-                s["paired_successes"] = p["paired_successes"]
+                s["paired"] = p["episodes"]
             s["run"], s["channel"] = run, group[0]["channel"]
             per_case.append(s)
         if not per_case:
@@ -157,11 +160,11 @@ def summarize(
 def markdown(result: dict[str, Any]) -> str:
     lines = [
         "Pooled over the cases (ratios: the mean over the cases of each case's ratio of means "
-        "against the silent expert on the episodes both succeeded in; < 1: better):",
+        "against the silent expert over the paired episodes, a failure's completion counted "
+        "at the cap; < 1: better):",
         "",
         *table(
-            "run | clean success | completion time ratio | internal wrench ratio | "
-            "control effort ratio",
+            "run | clean success | " + " | ".join(f"{name} ratio" for name in PRICED),
             (
                 [f"`{e['run']}`", fmt(e["clean_success_rate"])]
                 + [fmt(e[f"{key}_ratio"], 3) for key in PRICED.values()]
@@ -177,9 +180,9 @@ def markdown(result: dict[str, Any]) -> str:
     for s in sorted(result["per_case"], key=case_order):
         n = s["episodes"] - s["out_of_reach"]
         ratios = (
-            f"{fmt(s.get('completion_periods_ratio'), 3)} / "
-            f"{fmt(s.get('internal_wrench_rms_ratio'), 3)} ({s['paired_successes']})"
-            if "paired_successes" in s
+            f"{fmt(s.get('completion_periods_imputed_ratio'), 3)} / "
+            f"{fmt(s.get('internal_wrench_rms_ratio'), 3)} ({s['paired']})"
+            if "paired" in s
             else "1 / 1"
         )
         lines.append(
@@ -195,7 +198,7 @@ def write_csv(result: dict[str, Any], path: Path) -> None:
     (empty where a run has none: the silent expert's ratios)."""
     ratios = [f"{key}_ratio" for key in PRICED.values()]
     keys = ["scenario", "run", "channel", "episodes", "clean_success", "success"]
-    keys += [*PRICED.values(), *ratios, "paired_successes"]
+    keys += [*PRICED.values(), *ratios, "paired"]
     with open(path, "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=keys, restval="", extrasaction="ignore")
         writer.writeheader()
@@ -206,7 +209,7 @@ def plot_curve(result: dict[str, Any], out: Path) -> None:
     """``comm_curve.png``: per panel (clean success, the completion time and internal
     wrench ratios against the silent expert) the talking expert against the bit rate,
     one line per (loss, latency); the silent expert, the ``ideal`` channel and the
-    centralized bound as horizontal lines. An unlimited rate sits right of the others."""
+    full-information reference as horizontal lines. An unlimited rate sits right of the others."""
     pooled = result["pooled"]
     ref = {e["run"]: e for e in pooled}
     talk = [e for e in pooled if "bit_rate" in e and e["channel"] != IDEAL]
@@ -231,7 +234,7 @@ def plot_curve(result: dict[str, Any], out: Path) -> None:
         for run, label, style in (
             (EXPERT, "silent expert", "k-"),
             (f"{TALKER} [{IDEAL}]", "talking, ideal channel", "g--"),
-            (CENTRAL, "centralized bound", "r:"),
+            (CENTRAL, "full-information reference", "r:"),
         ):
             if run in ref and ref[run].get(key) is not None:
                 ax.axhline(ref[run][key], color=style[0], ls=style[1:], lw=1.2, label=label)

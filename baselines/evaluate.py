@@ -2,6 +2,7 @@
 
     python -m baselines.evaluate --policy nmpc --policy random --scenario paper \\
         --scenario random --episodes 20 --seed 0 --workers 2 --out runs/eval
+    python -m baselines.evaluate --policy nmpc --scenario paper --split dev --out runs/dev
 
 Every policy plays exactly the same episodes, and a result depends only on (policy,
 scenario, seed), never on the number of workers. Outputs and policies: docs/evaluation.md.
@@ -28,6 +29,7 @@ from baselines.command_line import (
 from baselines.evaluation.outputs import run_and_write
 from baselines.evaluation.report import markdown_table
 from baselines.evaluation.runner import BACKENDS, Settings, UsageError
+from baselines.evaluation.splits import add_split_arguments
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,11 +39,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--policy",
         action="append",
         required=True,
-        help="nmpc, random, zero, ppo:PATH, sac:PATH, rllib:PATH, bc:PATH, dagger:PATH, "
-        "pkg.mod:factory; "
-        "suffix +filter: inside the expert's safety filter; nmpc:central: the centralized "
-        "NMPC, a team policy with full information (its rows say information full: a bound, "
-        "not a decentralized entry)",
+        help="nmpc, random, zero, prior, ppo:PATH, sac:PATH, rllib:PATH, bc:PATH, dagger:PATH, "
+        "pkg.mod:factory; suffix +filter: inside the expert's safety filter; nmpc:central: "
+        "the full-information reference, a team policy on the global state (its rows say "
+        "information full: a reference, not a decentralized entry; it bounds nothing)",
     )
     ap.add_argument(
         "--scenario",
@@ -50,8 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="paper, random, short (repeatable; default paper)",
     )
-    ap.add_argument("--episodes", type=positive_int, default=20)
-    ap.add_argument("--seed", type=non_negative_int, default=0)
+    add_split_arguments(ap, non_negative_int, positive_int, default_seed=0)
     ap.add_argument("--workers", type=positive_int, default=2)
     ap.add_argument("--max-cycles", type=positive_int, default=None)
     add_condition_arguments(ap, draws=False)  # the trainers' flags, one value each
@@ -119,12 +119,13 @@ def main(argv: list[str] | None = None) -> None:
     ap = build_parser()
     args = ap.parse_args(argv)
     overrides = env_overrides(ap, args)
-    settings = Settings(
-        args.episodes,
-        args.seed,
-        args.workers,
-        overrides,
-        args.max_cycles,
+    settings = Settings.of_args(
+        args,
+        0,
+        20,
+        workers=args.workers,
+        conditions=overrides,
+        max_cycles=args.max_cycles,
         backend=args.backend,
         address=args.address,
         replay_dir=args.out if args.replay else None,
@@ -140,7 +141,7 @@ def main(argv: list[str] | None = None) -> None:
         marl_eval.write(
             args.marl_eval_json,
             rows,
-            args.seed,
+            settings.seed,
             step_count=args.marl_eval_step_count,
             overrides=overrides,
         )

@@ -22,26 +22,15 @@ from typing import Any
 import numpy as np
 
 from uvms_env.models import load_parameters
-from uvms_env.task.constraints import CONSTRAINTS, MANIPULABILITY_EPS
+from uvms_env.task.constraints import CONSTRAINTS, SAFETY_CONSTRAINTS, constraint_scales
 
 COSTS = ("count", "magnitude")
 
 
-def constraint_scales() -> np.ndarray:
-    """The scale of each constraint's limit (order of CONSTRAINTS), read from the limits'
-    one source: one unit of normalized cost is a violation by the whole limit (vehicle
-    speed: by the angular limit, the tighter one in its units; the rest: 1)."""
-    lim = load_parameters().limits
-    scale = {
-        "joint_limit": lim.joint_position,
-        "joint_speed": lim.joint_speed,
-        "vehicle_speed": lim.vehicle_angular_speed,
-        "manipulability": MANIPULABILITY_EPS,
-    }
-    return np.array([scale.get(c, 1.0) for c in CONSTRAINTS])
-
-
-SCALES = constraint_scales()
+# one unit of normalized cost is a violation by the whole limit (``constraint_scales``)
+SCALES = np.array(constraint_scales(load_parameters()))
+# the kinds the cost sums: the safety kinds (``input`` is clipped before the simulator)
+COUNTED = np.array([c in SAFETY_CONSTRAINTS for c in CONSTRAINTS])
 
 
 @dataclass
@@ -68,8 +57,9 @@ class CostSettings:
 
 
 def magnitude_cost(g: np.ndarray) -> np.ndarray:
-    """(..., 8) constraint values -> (...) summed normalized positive parts."""
-    return (np.maximum(np.asarray(g, dtype=np.float64), 0.0) / SCALES).sum(-1)
+    """(..., 8) constraint values -> (...) the safety kinds' normalized positive parts
+    summed."""
+    return (np.maximum(np.asarray(g, dtype=np.float64), 0.0) / SCALES)[..., COUNTED].sum(-1)
 
 
 class Lagrangian:

@@ -45,7 +45,8 @@ LOADERS: dict[str, str] = {
     "rllib": "baselines.loaders.rllib_policy:RLlibPolicy",
     "bc": _CLONE,
     "dagger": _CLONE,
-    "student": _CLONE,  # DAgger clones named by teacher: student:pretrained (the bound), :expert
+    # DAgger clones named by teacher: student:pretrained (the full-information reference), :expert
+    "student": _CLONE,
 }
 
 

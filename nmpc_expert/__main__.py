@@ -35,6 +35,7 @@ from nmpc_expert.settings import CONTROLLERS, controller_settings
 from uvms_env.env.options import ENV_OPTIONS
 from uvms_env.scenarios import CURRENT_PRESETS, FAMILIES, make
 from uvms_env.scenarios.overrides import SCENARIO_OVERRIDES
+from uvms_env.task.metrics import json_ready
 
 
 def check_options(ap: argparse.ArgumentParser, args: argparse.Namespace, overrides: dict) -> None:
@@ -111,7 +112,7 @@ def main(argv: list[str] | None = None) -> dict:
         print("writing the figures and the animation ...", file=sys.stderr, flush=True)
         make_figures(arr, scenario, args.out)
     metrics["wall_time_incl_figures_s"] = time.perf_counter() - start
-    (args.out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    (args.out / "metrics.json").write_text(json.dumps(json_ready(metrics), indent=2))
     for k, v in metrics.items():
         print(f"{k:>28}: {v}")
     print(f"wrote {args.out}")

@@ -82,7 +82,7 @@ def run_episode(
         traj.x_o.append(st.x_O.copy())
         traj.v_o.append(st.v_O.copy())
         traj.action.append(np.stack([step.actions[a] for a in agents]))
-        g = [step.infos[a]["constraint_values"]["manipulability"] for a in agents]
+        g = [step.infos[a]["constraint_manipulability"] for a in agents]
         traj.manipulability.append(MANIPULABILITY_EPS - np.array(g))
         traj.waypoint.append(wp)
         traj.policy_ms.append(step.decision_ms)

@@ -10,7 +10,7 @@ kind, by how much, for ``joint_speed`` which joint and its rate, and the robot's
 (the expert's status, its margin ``margin_max`` and predicted rate offset) and in how
 many of the last ``WINDOW`` periods the robot had a saturated input. A summary per
 policy and episode follows. Why: the rare violation periods of the distributed expert
-at large N need their place in the episode and their cause, with the centralized bound
+at large N need their place in the episode and their cause, with the full-information reference
 beside them on the same episodes.
 
 An analysis script, not part of the installed packages.
@@ -27,6 +27,7 @@ import numpy as np
 import uvms_env
 from baselines.evaluation.runner import case_episode_seed
 from baselines.loaders.sources import PolicySource
+from uvms_env.env.infos import constraint_kinds
 from uvms_env.episode import Step, play, play_team
 
 SATURATED = 0.98  # |a| at which a normalized input counts as saturated
@@ -54,7 +55,8 @@ def probe(policy: str, scenario: str, seed: int, overrides: dict[str, Any]) -> l
             if action is not None:
                 window.append(bool(np.abs(action).max() >= SATURATED))
                 del window[:-WINDOW]
-            for kind, value in info["constraint_values"].items():
+            for kind in constraint_kinds(info):
+                value = info[f"constraint_{kind}"]
                 if value <= 0:
                     continue
                 row = {"period": step.index, "robot": i, "kind": kind, "excess": value}

@@ -15,7 +15,7 @@ driver every evaluation and rollout plays through).
     from uvms_env.sim import Simulator
     sim = Simulator(make("paper"))
 
-Importing the package registers ``uvms_env/CoopTransport-v0`` with PettingZoo
+Importing the package registers ``uvms_env/CoopTransport-v1`` with PettingZoo
 (``pettingzoo.make("parallel", ...)``) and Gymnasium (``gymnasium.make(...)``).
 """
 

@@ -1,11 +1,12 @@
 """The one closed-loop episode driver: one policy per agent in, the episode's metrics out.
 
     episode = play(env, factory, seed=3, on_step=record)
-    episode.metrics            # the env's metrics, ``policy_time_ms`` filled here
+    episode.metrics            # the env's metrics, ``policy_time_ms_*`` added here
 
 Every caller that plays a policy on the environment plays it here, so an episode is the
 same episode everywhere and the decision time is measured in one place: around each
-agent's ``act``, summarized as ``policy_time_ms`` (median, p95, max over decisions).
+agent's ``act``, summarized as ``policy_time_ms_median``, ``_p95`` and ``_max`` over
+decisions (NaN without a decision).
 
 Callers attach what they need without another loop:
 
@@ -23,10 +24,10 @@ Under an acoustic channel a policy that does not declare ``reads_messages = True
 silent through ``SilentPolicy`` (docs/channel.md, "Policies, evaluation and training").
 
 Only the public env API is used (``reset(seed=)``, ``step``, ``agents``,
-``possible_agents``, ``scenario``, ``infos[agent]["metrics"]``, and ``comm`` and
-``observation_structure`` under a channel).
-May import: numpy, ``uvms_env.policy``, ``uvms_env.team_policy``, ``uvms_env.robot.channel``
-and (when a replay is asked for) ``uvms_env.replay``.
+``possible_agents``, ``scenario``, the last infos (``uvms_env.env.infos``), and ``comm``
+and ``observation_structure`` under a channel).
+May import: numpy, ``uvms_env.policy``, ``uvms_env.team_policy``, ``uvms_env.robot.channel``,
+``uvms_env.env.infos`` and (when a replay is asked for) ``uvms_env.replay``.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from uvms_env.dynamics import NU
+from uvms_env.env.infos import EPISODE_END_NAMES, episode_metrics
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 from uvms_env.robot.channel import ChannelSettings, silent
 from uvms_env.team_policy import (
@@ -50,6 +52,7 @@ from uvms_env.team_policy import (
 )
 
 Execute = Callable[[int, Policy, np.ndarray, np.ndarray], np.ndarray]
+TIMING = ("median", "p95", "max")  # ``policy_time_ms_<key>`` of an episode's metrics
 TEAM = "team"  # the key of a team policy in ``Episode.policies`` and ``Step.policies``
 
 
@@ -71,12 +74,12 @@ class Step:
 
 @dataclass(frozen=True)
 class Episode:
-    """A played episode: the env's end metrics with ``policy_time_ms`` filled, how it
-    ended, the summed shared reward and each decision's time (steps, N) in ms."""
+    """A played episode: the env's end metrics (the summed shared reward among them,
+    ``return``) with ``policy_time_ms_*`` added, how it ended (``EPISODE_END_NAMES``) and
+    each decision's time (steps, N) in ms."""
 
     metrics: dict[str, Any]
     end: str | None
-    total_reward: float
     decision_ms: np.ndarray
     policies: dict[str, Policy | TeamPolicy]
 
@@ -246,7 +249,6 @@ def _episode(
     if not env.agents:
         raise RuntimeError("the environment has no agent after reset")
     times: list[np.ndarray] = []
-    total_reward = 0.0
     metrics: dict[str, Any] = {}
     end = None
     while env.agents:
@@ -255,18 +257,21 @@ def _episode(
         obs, rewards, terms, truncs, infos = env.step(actions)
         if recorder is not None:
             recorder.record(infos)
-        # the reward is the team's, shared by every agent
-        total_reward += float(next(iter(rewards.values()))) if rewards else 0.0
         if on_step is not None:
             on_step(
                 Step(len(times) - 1, env, policies, actions, ms, obs, rewards, terms, truncs, infos)
             )
-        for info in infos.values():
-            if "metrics" in info:
-                metrics, end = dict(info["metrics"]), info.get("episode_end")
+        if env.agents:
+            continue
+        first = next(iter(infos.values()), {})
+        ended = episode_metrics(first)
+        if ended is not None:
+            metrics, end = ended, EPISODE_END_NAMES[int(first["episode_end"])]
     if recorder is not None:
         recorder.write(replay)
     width = len(times[0]) if times else 1
     decision_ms = np.array(times).reshape(-1, width)
-    metrics["policy_time_ms"] = decision_time_summary(decision_ms)
-    return Episode(metrics, end, total_reward, decision_ms, policies)
+    timing = decision_time_summary(decision_ms)
+    for key in TIMING:
+        metrics[f"policy_time_ms_{key}"] = timing[key] if timing else float("nan")
+    return Episode(metrics, end, decision_ms, policies)

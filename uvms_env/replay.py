@@ -12,9 +12,9 @@ optional: nothing here is imported by the environment's step. Reference: docs/re
 (what the page shows, the display frame, decimation, the three.js subset).
 
 May import: numpy, casadi, ``uvms_env.dynamics``, ``uvms_env.navigation``,
-``uvms_env.scenarios``, ``uvms_env.task.metrics`` (the metrics' names) and, to rebuild a
-recorded episode's geometry and constraints, the environment (``uvms_env.parallel_env``,
-lazily).
+``uvms_env.scenarios``, ``uvms_env.task.metrics`` (the metrics' names), ``uvms_env.env.infos``
+(the infos' layout) and, to rebuild a recorded episode's geometry and constraints, the
+environment (``uvms_env.parallel_env``, lazily).
 """
 
 from __future__ import annotations
@@ -34,9 +34,15 @@ import numpy as np
 
 from uvms_env.dynamics.spatial import rot_zyx
 from uvms_env.dynamics.uvms import default_model
+from uvms_env.env.infos import (
+    CONSTRAINT_PREFIX,
+    EPISODE_END_NAMES,
+    constraint_kinds,
+    episode_metrics,
+)
 from uvms_env.navigation import Cylinder
 from uvms_env.scenarios import Scenario
-from uvms_env.task.metrics import METRICS
+from uvms_env.task.metrics import HEAD, TAIL, json_ready
 
 # A page stays a few MB and plays smoothly up to this many frames; longer episodes are
 # decimated unless ``full_rate``.
@@ -44,13 +50,11 @@ MAX_FRAMES = 1500
 THREE_JS = "three-0.187.0.min.js"
 # NED -> display (x right, y up, z towards the viewer): (x, y, z) -> (x, -z, y), det +1.
 NED_TO_DISPLAY = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
-# The metrics the page lists (when the episode has them), in ``METRICS``' order: how the
-# episode ended and every metric but the per-step bookkeeping a viewer does not read.
-NOT_SHOWN = frozenset(
-    "clean_success violations violation_periods control_effort policy_time_ms "
-    "grasp_drift_max_m".split()
-)
-SHOWN_METRICS = ("episode_end", *(m for m in METRICS if m not in NOT_SHOWN))
+# The metrics the page lists (when the episode has them), in the metrics' order: how the
+# episode ended and the episode's totals but the bookkeeping a viewer does not read (the
+# per-kind violations are listed apart).
+NOT_SHOWN = frozenset("violation_periods control_effort grasp_drift_max_m".split())
+SHOWN_METRICS = ("episode_end", *(m for m in (*HEAD, *TAIL) if m not in NOT_SHOWN))
 
 
 @dataclass
@@ -103,13 +107,13 @@ class ReplayRecorder:
         """The state after a step and the step's constraint values (``infos``)."""
         first = infos[self.agents[0]]
         if self.constraints is None:
-            self.constraints = list(first["constraint_values"])
-        g = np.array(
-            [[infos[a]["constraint_values"][c] for c in self.constraints] for a in self.agents]
-        )
+            self.constraints = constraint_kinds(first)
+        keys = [CONSTRAINT_PREFIX + c for c in self.constraints]
+        g = np.array([[infos[a][k] for k in keys] for a in self.agents])
         self._append(g)
-        if "metrics" in first:
-            self.metrics = {**first["metrics"], "episode_end": first.get("episode_end")}
+        ended = episode_metrics(first)
+        if ended is not None:
+            self.metrics = {**ended, "episode_end": EPISODE_END_NAMES[int(first["episode_end"])]}
 
     def episode(self) -> Episode:
         names = self.constraints or []
@@ -183,8 +187,8 @@ def replay_path(folder: str | Path, *parts: Any) -> Path:
 
 
 def values_as_infos(values: dict[str, dict[str, float]]) -> dict[str, dict[str, Any]]:
-    """Per-agent constraint values in the shape of a step's infos."""
-    return {a: {"constraint_values": v} for a, v in values.items()}
+    """Per-agent constraint values in the shape of a step's infos (``uvms_env.env.infos``)."""
+    return {a: {CONSTRAINT_PREFIX + k: g for k, g in v.items()} for a, v in values.items()}
 
 
 # -- the page ----------------------------------------------------------------------------
@@ -253,18 +257,6 @@ def _b64(a: np.ndarray) -> dict[str, Any]:
     return {"shape": list(a32.shape), "b64": base64.b64encode(a32.tobytes()).decode("ascii")}
 
 
-def _jsonable(v: Any) -> Any:
-    if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    if isinstance(v, list | tuple):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, np.generic):
-        return v.item()
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    return v
-
-
 def page_data(ep: Episode, full_rate: bool = False) -> dict[str, Any]:
     """The page's JSON: the scene (display frame) and the frames' arrays."""
     model = default_model()
@@ -282,8 +274,12 @@ def page_data(ep: Episode, full_rate: bool = False) -> dict[str, Any]:
         "title": ep.title,
         "agents": ep.agents,
         "constraints": ep.constraints,
-        "metrics": {k: _jsonable(ep.metrics[k]) for k in SHOWN_METRICS if k in ep.metrics},
-        "violations": _jsonable(ep.metrics.get("violations", {})),
+        "metrics": {k: json_ready(ep.metrics[k]) for k in SHOWN_METRICS if k in ep.metrics},
+        "violations": {
+            c: json_ready(ep.metrics[f"violations_{c}"])
+            for c in ep.constraints
+            if f"violations_{c}" in ep.metrics
+        },
         "period": float(sc.period),
         "episode_frames": len(ep.t),
         "radii": {

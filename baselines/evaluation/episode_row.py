@@ -12,6 +12,7 @@ May import: the standard library, numpy, ``baselines.loaders.sources`` and ``uvm
 from __future__ import annotations
 
 import os
+import time
 import traceback
 from dataclasses import dataclass
 from typing import Any
@@ -21,7 +22,6 @@ import numpy as np
 from baselines.loaders.sources import PolicySource, check_policy
 from uvms_env.episode import decision_time_summary
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
-from uvms_env.task.constraints import CONSTRAINTS
 
 # the ``episode_end`` of an episode that raised (the env's own kinds: EPISODE_ENDS)
 ERROR_END = "error"
@@ -51,7 +51,7 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
 
     row: dict[str, Any] = {
         "policy": job.policy,
-        # "full": a team policy's full-information bound, never a decentralized entry
+        # "full": a team policy, the full-information reference, never a decentralized entry
         "information": PolicySource.parse(job.policy).information,
         "scenario": job.label or job.scenario,
         "episode": job.index,
@@ -61,23 +61,23 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
     times: list[np.ndarray] = []  # kept here too: a failed episode reports its decisions
     path: list[list[float]] = []
     filtered, interventions, deviation = 0, 0, 0.0  # safety-filter decisions (``+filter``)
-    total_reward = 0.0
 
     def reached(env: Any, _obs: Any) -> None:
         row["current_within_reach"] = within_reach(env.scenario)
+        row["max_cycles"] = int(env.max_cycles)  # the cap a failure's time is counted at
 
     def record(step: Step) -> None:
-        nonlocal filtered, interventions, deviation, total_reward
+        nonlocal filtered, interventions, deviation
         times.append(step.decision_ms)
         for policy in step.policies.values():
             if "intervened" in policy.stats:
                 filtered += 1
                 interventions += bool(policy.stats["intervened"])
                 deviation += float(policy.stats["intervention"])
-        total_reward += float(next(iter(step.rewards.values()))) if step.rewards else 0.0
         if job.record_path:
             path.append(step.env.unwrapped.sim.state.x_O[:3].tolist())
 
+    start = time.perf_counter()
     try:
         kwargs = dict(job.overrides)
         if job.max_cycles is not None:
@@ -90,17 +90,16 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
         else:
             episode = play(env, checked(source, job.seed), job.seed, **hooks)
         env.close()
-        row.update(flatten_metrics(episode.metrics))
+        row.update(episode.metrics)  # flat numbers, the return among them
         row["episode_end"] = episode.end  # success, max_cycles, collision, ...
     except Exception as exc:  # a failing policy must not stop the evaluation
         row["error"] = f"{type(exc).__name__}: {exc}"
         row["traceback"] = traceback.format_exc(limit=5)
         row["success"] = False
         row["episode_end"] = ERROR_END
-    row["return"] = total_reward
     if row["error"]:  # no env metrics: the episode did not end
-        row["violation_periods"] = 0
-        row["clean_success"] = False
+        row.update(violation_periods=0, clean_success=False, clean_success_tol=False)
+        row["return"] = float("nan")
     row["interventions"] = interventions
     row["filtered_decisions"] = filtered
     row["intervention_rate"] = interventions / filtered if filtered else None
@@ -109,6 +108,7 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
     timing = decision_time_summary(ms)
     for key in ("median", "p95", "max"):
         row[f"policy_time_ms_{key}"] = timing[key] if timing else float("nan")
+    row["wall_s"] = time.perf_counter() - start  # the episode's compute, for the tables' cost
     row["_decision_ms"] = ms.tolist()
     row["_path"] = path
     return row
@@ -138,19 +138,3 @@ def within_reach(scenario: Any) -> bool:
     from uvms_env.scenarios.reach import current_within_reach
 
     return current_within_reach(scenario)[0]
-
-
-def flatten_metrics(metrics: dict[str, Any]) -> dict[str, Any]:
-    """The env's metrics as a row's columns: one ``violations_KIND`` per constraint (the
-    env's, then any extra ones), the scalars as they are."""
-    out: dict[str, Any] = {}
-    for key, value in metrics.items():
-        if key == "violations" and isinstance(value, dict):
-            extra = [k for k in value if k not in CONSTRAINTS]  # extra_constraints
-            for kind in (*CONSTRAINTS, *extra):
-                out[f"violations_{kind}"] = int(value.get(kind, 0))
-        elif key == "policy_time_ms":
-            continue  # a dict: the row has its parts
-        elif isinstance(value, bool | int | float | np.floating | np.integer) or value is None:
-            out[key] = value
-    return out

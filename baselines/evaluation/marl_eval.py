@@ -47,20 +47,25 @@ ENV_NAME = "uvms"  # BenchMARL's name of the uvms tasks' environment (benchmarl_
 RANDOM_FAMILY, DEFAULT_TEAM = "random", 2  # the family whose team size varies; its default
 GROUP_RETURN = "uvms_return"  # BenchMARL's return of the agent group, the team's here
 # marl-eval averages every list it finds, so only numeric per-episode values; booleans as
-# 0/1 so success rates aggregate like returns. Also every ``violations_<kind>`` column.
+# 0/1 so success rates aggregate like returns. Also every per-kind column (violations and
+# the graded safety, ``PER_KIND``).
 METRICS: tuple[str, ...] = (
     "return",
     GROUP_RETURN,
     "success",
     "clean_success",
+    "clean_success_tol",
     "episode_steps",
     "final_pos_error_m",
     "final_att_error_rad",
     "min_obstacle_clearance_m",
     "violation_periods",
+    "excess",
+    "max_excess",
+    "violated_fraction",
     "internal_wrench_rms",
 )
-PER_KIND = "violations_"
+PER_KIND = ("violations_", "excess_", "max_excess_", "violated_fraction_")
 ABSOLUTE = "absolute_metrics"
 STEP_KEYS = ("step_count", "elapsed_time")  # a step's entries that are no metric
 

@@ -79,7 +79,7 @@ def markdown_table(summaries: Sequence[Row], failed: Sequence[str] = ()) -> str:
         lines += [
             "",
             "information `full`: a team policy that sees the global state and decides for "
-            "every robot (a full-information bound, not a decentralized entry); `local`: "
+            "every robot (the full-information reference, not a decentralized entry); `local`: "
             "one policy per robot on its own observation. Decision time: per team decision "
             "for `full`, per agent decision for `local`.",
         ]

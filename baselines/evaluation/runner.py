@@ -11,7 +11,7 @@ a case the environment refuses or a policy that cannot be loaded is a ``UsageErr
 naming it, not a column of failed episodes. A policy that fails while it plays (a solver error)
 still ends its episodes as failures, each with its error.
 
-May import: the standard library, tqdm, ``baselines.evaluation.episode_row``,
+May import: the standard library, tqdm, ``baselines.evaluation`` (episode_row, splits),
 ``baselines.loaders.sources``, ``baselines.evaluation.ray_backend`` (``backend="ray"``) and
 ``uvms_env``.
 """
@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +29,7 @@ from typing import Any
 from tqdm import tqdm
 
 from baselines.evaluation.episode_row import EpisodeJob, run_episode
+from baselines.evaluation.splits import SPLITS
 from baselines.loaders.sources import PolicySource
 from uvms_env.replay import replay_path
 
@@ -72,7 +73,7 @@ class Case:
 def evaluate(
     policies: Sequence[str],
     scenarios: Sequence[str | Case],
-    episodes: int,
+    episodes: int | Callable[[str], int],
     seed: int,
     workers: int,
     overrides: dict[str, Any] | None = None,
@@ -84,7 +85,9 @@ def evaluate(
     check: bool = True,
 ) -> list[dict[str, Any]]:
     """Run every (policy, scenario, episode) and return the per-episode rows, sorted.
-    ``scenarios``: names, or ``Case``s whose keywords go over ``overrides``.
+    ``scenarios``: names, or ``Case``s whose keywords go over ``overrides``. ``episodes``:
+    per case, for every policy or by policy (a split's ``Split.episodes``); episode k is
+    the same episode whatever the count.
     ``replay_dir``: write each policy's first episode per scenario there as a 3D replay
     page (``uvms_env.replay.replay_path``).
     ``backend``: ``process`` (a process pool of ``workers``; 1: in this process) or
@@ -107,6 +110,7 @@ def evaluate(
     if len(set(labels)) != len(labels):
         raise UsageError(f"two scenarios share a label: {labels}")
     overrides = overrides or {}
+    count = episodes if callable(episodes) else lambda policy: episodes
     if check:
         preflight(policies, cases, seed, overrides, max_cycles, progress)
     jobs = [
@@ -123,7 +127,7 @@ def evaluate(
         )
         for p in policies
         for c in cases
-        for k in range(episodes)
+        for k in range(count(p))
     ]
     rows = _play(jobs, workers, backend, address, progress)
     order = list(policies)
@@ -216,9 +220,11 @@ def _play(
 class Settings:
     """What a command's evaluations share: the episodes per case, the seed, the workers,
     the environment keywords of every case (``conditions``, ``evaluate``'s
-    ``overrides``), the cap on periods, the progress bar, the backend and the replays."""
+    ``overrides``), the cap on periods, the progress bar, the backend and the replays.
+    ``split``: a split's name (``baselines.evaluation.splits``): its seed, and its
+    episodes per kind of rung unless ``episodes`` is given (None)."""
 
-    episodes: int
+    episodes: int | None
     seed: int
     workers: int
     conditions: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -228,6 +234,32 @@ class Settings:
     address: str | None = None
     replay_dir: Path | None = None
     check: bool = True  # ``evaluate``'s preflight
+    split: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.split is None and self.episodes is None:
+            raise ValueError("Settings need episodes or a split")
+        if self.split is not None and SPLITS[self.split].seed != self.seed:
+            raise ValueError(
+                f"split {self.split} has seed {SPLITS[self.split].seed}, not {self.seed}"
+            )
+
+    @classmethod
+    def of_args(
+        cls, args: Any, default_seed: int, default_episodes: int, **options: Any
+    ) -> Settings:
+        """The settings of ``splits.add_split_arguments``' flags: ``--split`` (its seed,
+        its counts unless ``--episodes``), or ``--seed`` and ``--episodes`` with defaults."""
+        if args.split is not None:
+            return cls(args.episodes, SPLITS[args.split].seed, split=args.split, **options)
+        seed = default_seed if args.seed is None else args.seed
+        return cls(args.episodes or default_episodes, seed, **options)
+
+    def episodes_of(self, policy: str) -> int:
+        """Episodes per case of ``policy``: ``episodes``, or the split's count for it."""
+        if self.episodes is not None:
+            return self.episodes
+        return SPLITS[self.split].episodes(policy)  # type: ignore[index]
 
     def evaluate(
         self, policies: Sequence[str], cases: Sequence[str | Case]
@@ -235,8 +267,13 @@ class Settings:
         """``evaluate`` of the policies on the cases with these settings."""
         options = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         options["overrides"] = options.pop("conditions")
+        del options["split"]
+        options["episodes"] = self.episodes_of
         return evaluate(policies, cases, **options)
 
     def record(self) -> dict[str, Any]:
-        """The settings a result records as its ``command``."""
-        return {k: getattr(self, k) for k in ("episodes", "seed", "conditions", "max_cycles")}
+        """The settings a result records as its ``command`` (a split with its version)."""
+        out = {k: getattr(self, k) for k in ("episodes", "seed", "conditions", "max_cycles")}
+        if self.split is not None:
+            out["split"] = {"name": self.split, "version": SPLITS[self.split].version}
+        return out

@@ -22,30 +22,43 @@ from baselines.evaluation.episode_row import ERROR_END
 from baselines.stats import bootstrap_mean_interval, wilson_interval
 from uvms_env.episode import decision_time_summary
 from uvms_env.task.constraints import CONSTRAINTS
-from uvms_env.task.metrics import METRICS
+from uvms_env.task.metrics import GRADED, HEAD, TAIL
 from uvms_env.task.rules import EPISODE_ENDS
 
 Row = dict[str, Any]
 
 VIOLATION_KINDS = CONSTRAINTS
 END_KINDS = (*EPISODE_ENDS, ERROR_END)  # how the episodes of a summary ended
-# numeric per-episode metrics averaged with bootstrap intervals (same names as the env's);
-# success and clean success are rates, the violations are counted per kind
-NOT_AVERAGED = ("success", "clean_success", "violations", "violation_periods", "policy_time_ms")
-MEAN_METRICS = (*(m for m in METRICS if m not in NOT_AVERAGED), "return")
+#: Rates with Wilson intervals: success, clean success and clean success in the band.
+RATES = ("success", "clean_success", "clean_success_tol")
+# the episode's numeric totals averaged with bootstrap intervals (same names as the env's);
+# the rates are counted, the per-kind values summarized in ``graded``
+NOT_AVERAGED = (*RATES, "violation_periods")
+MEAN_METRICS = tuple(m for m in (*HEAD, *TAIL) if m not in NOT_AVERAGED)
 TIMING = ("median", "p95", "max")
 # what the evaluator's table leaves out of ``summarize``: the ladder's counts and median
-NOT_TABULATED = ("success", "clean_success", "violation_periods_median")
+NOT_TABULATED = (*RATES, "violation_periods_median")
+#: Derived per-episode values (``metric_values``): periods to success over the successes
+#: only, or over every episode with a failure counted at its cap (``_imputed``: a price
+#: never conditioned on success), and the control effort per second.
+DERIVED = ("completion_periods", "completion_periods_imputed", "effort_rate")
 
 
 def metric_values(rows: Sequence[Row], key: str) -> np.ndarray:
     """``key`` of every row as floats, NaN where a row has none (an episode that did not
-    end, an empty cell of episodes.csv); ``completion_periods`` is derived per row: periods
-    to success, NaN for an episode that did not succeed."""
-    if key == "completion_periods":
-        return np.array(
-            [float(r.get("episode_steps", np.nan)) if r.get("success") else np.nan for r in rows]
-        )
+    end, an empty cell of episodes.csv), or one of ``DERIVED``: ``completion_periods``
+    (periods to success, NaN for an episode that did not succeed),
+    ``completion_periods_imputed`` (the same, a failure counted at the episode's cap
+    ``max_cycles``) and ``effort_rate`` (control effort per simulated second)."""
+    if key in ("completion_periods", "completion_periods_imputed"):
+        steps = metric_values(rows, "episode_steps")
+        cap = metric_values(rows, "max_cycles") if key.endswith("imputed") else np.nan
+        won = np.array([bool(r.get("success")) for r in rows], bool)
+        return np.where(won, steps, cap)
+    if key == "effort_rate":
+        time = metric_values(rows, "sim_time_s")
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(time > 0, metric_values(rows, "control_effort") / time, np.nan)
     return np.array([np.nan if r.get(key) in (None, "") else float(r[key]) for r in rows])
 
 
@@ -92,11 +105,13 @@ def summarize(
 
     * ``policy``, ``information``, ``scenario``; ``episodes``, ``out_of_reach`` (episodes
       whose current is beyond the team's reach: no policy's failure) and ``errors``;
-    * ``success`` and ``clean_success``: the count, ``_rate`` and Wilson ``_ci95`` over
-      the episodes within reach;
+    * each of ``RATES`` (success, clean success, clean success within the tolerance band):
+      the count, ``_rate`` and Wilson ``_ci95`` over the episodes within reach;
     * each of ``means``: its mean and bootstrap ``_ci95`` (None without a finite value),
       and ``violation_periods_median``, over every episode or, ``within_reach_only``,
       those within reach (the ladder compares rungs on the episodes they can win);
+    * ``graded``: per constraint kind the mean of each graded measure (excess, largest
+      excess, violated fraction) and the violation periods summed;
     * ``violations`` (the total per constraint), ``episode_ends`` (how many ended each
       way, ``END_KINDS``; None for rows that do not record it, as older episodes.csv
       files), ``intervention_rate`` and ``intervention_mean`` (``interventions``) and
@@ -112,7 +127,7 @@ def summarize(
         "out_of_reach": len(rows) - n,
         "errors": sum(bool(r.get("error")) for r in rows),
     }
-    for name in ("success", "clean_success"):
+    for name in RATES:
         k = sum(bool(r.get(name)) for r in reach)
         out[name] = k
         out[f"{name}_rate"] = k / n if n else float("nan")
@@ -131,11 +146,19 @@ def summarize(
         kind: int(sum(r.get(f"violations_{kind}", 0) or 0 for r in rows))
         for kind in VIOLATION_KINDS
     }
+    out["graded"] = {
+        kind: {g: _mean(metric_values(counted, f"{g}_{kind}")) for g in GRADED}
+        for kind in VIOLATION_KINDS
+    }
     ends = [r.get("episode_end") for r in rows]
     out["episode_ends"] = {kind: ends.count(kind) for kind in END_KINDS} if all(ends) else None
     out.update(interventions(rows))
     out["policy_time_ms"] = decision_times(rows)
     return out
+
+
+def _mean(values: np.ndarray) -> float | None:
+    return float(np.nanmean(values)) if np.isfinite(values).any() else None
 
 
 def groups(rows: Sequence[Row]) -> dict[tuple[str, str], list[Row]]:

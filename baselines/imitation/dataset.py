@@ -7,7 +7,7 @@ other folders next to it never reach Minari's scan of its root. What an episode 
 docs/imitation.md.
 
 Each dataset records the environment it came from as a Gymnasium ``EnvSpec`` of
-``uvms_env/CoopTransport-v0`` with the scenario and its overrides as kwargs, so
+``uvms_env/CoopTransport-v1`` with the scenario and its overrides as kwargs, so
 ``load(path).recover_environment()`` builds it. That is the centralized Gymnasium view
 (``uvms_env.env.gym_wrapper``): robot i's observation and action are the slices
 ``[79 i, 79 (i + 1))`` and ``[8 i, 8 (i + 1))`` of its spaces, while the dataset's spaces
@@ -64,7 +64,7 @@ def _use_root(own: Path) -> str:
 
 
 def env_spec(scenario: str, **kwargs: Any):
-    """The Gymnasium ``EnvSpec`` of ``uvms_env/CoopTransport-v0`` built with ``scenario``
+    """The Gymnasium ``EnvSpec`` of ``uvms_env/CoopTransport-v1`` built with ``scenario``
     and ``kwargs`` (scenario overrides and environment options; JSON-serializable)."""
     import gymnasium
 

@@ -1,11 +1,13 @@
 """Policy sources for the evaluator: ``--policy NAME[:ARG]`` to a per-agent factory.
 
 Names: the expert's variants (``nmpc``, ``nmpc:ipopt``, ``nmpc:paper``, ``nmpc:comm``;
-``nmpc:central`` is a *team* policy, ``PolicySource.team``), ``random``, ``zero``,
+``nmpc:central`` is a *team* policy, ``PolicySource.team``), the trivial rungs ``random``,
+``zero`` and ``prior`` (the residual priors with a zero residual),
 ``module:factory``, the saved networks of ``baselines.registry.LOADERS`` and any of them
 with ``+filter``. Reference: docs/evaluation.md.
 
-May import: numpy, ``uvms_env``, ``nmpc_expert`` (inside functions) and
+May import: numpy, ``uvms_env``, ``nmpc_expert`` (inside functions),
+``baselines.loaders.saved`` (the priors around a network: the ``prior`` rung) and
 ``baselines.registry`` (whose loaders are imported on demand).
 """
 
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
@@ -20,11 +23,15 @@ from typing import Any
 
 import numpy as np
 
+from baselines.loaders.saved import LoadedPolicy
 from baselines.registry import LOADERS, loader
+from uvms_env.dynamics import NU
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
+from uvms_env.robot.priors import Priors
 from uvms_env.team_policy import FULL_INFORMATION, LOCAL_INFORMATION, TeamPolicyFactory
 
 TALK_OPTION = "comm"  # nmpc:comm, the expert that talks over the channel
+CARD_FILE = "info.json"  # a committed model's card
 FILTER_SUFFIX = "+filter"
 
 
@@ -55,6 +62,25 @@ class ZeroPolicy:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         return np.zeros(8, dtype=np.float32)
+
+
+#: The trivial rung ``prior``: the residual priors of the committed from-scratch runs
+#: (a_ss and the joint hold, ``ppo:scratch``'s config.json) with a zero residual.
+PRIOR = Priors(
+    action_mode="residual", observation_mode="features", hold_stiffness=0.5, hold_damping=1.0
+)
+
+
+class PriorPolicy(LoadedPolicy):
+    """The priors alone: a learned rung's starting point (its network's output zero)."""
+
+    KIND = "prior"
+
+    def __init__(self, spec: AgentSpec) -> None:
+        super().__init__(spec, PRIOR)
+
+    def decide(self, x: np.ndarray) -> np.ndarray:
+        return np.zeros(NU, np.float32)
 
 
 def _nmpc(arg: str | None, seed: int) -> PolicyFactory:
@@ -110,6 +136,7 @@ BUILTIN: dict[str, Callable[[str | None, int], PolicyFactory]] = {
     "nmpc": _nmpc,
     "random": lambda arg, seed: lambda spec: RandomPolicy(spec, seed),
     "zero": lambda arg, seed: ZeroPolicy,
+    "prior": lambda arg, seed: PriorPolicy,
     **{name: partial(_saved, name) for name in LOADERS},
 }
 
@@ -132,7 +159,7 @@ class PolicySource:
 
     @property
     def information(self) -> str:
-        """``"full"`` for a team policy (a full-information bound), else ``"local"``."""
+        """``"full"`` for a team policy (the full-information reference), else ``"local"``."""
         return FULL_INFORMATION if self.team else LOCAL_INFORMATION
 
     @staticmethod
@@ -176,6 +203,15 @@ class PolicySource:
         from nmpc_expert import make_filter  # the expert is optional at import time
 
         return make_filter(inner)
+
+    def card(self) -> dict[str, Any] | None:
+        """The model card (``info.json`` beside the saved item) of a saved network; None
+        for the controllers, the trivial rungs and a run folder without one."""
+        if self.name not in LOADERS:
+            return None
+        saved = loader(self.name).locate(self.name, self.arg)
+        path = (saved if saved.is_dir() else saved.parent) / CARD_FILE
+        return json.loads(path.read_text()) if path.exists() else None
 
     def build_once(self, env: Any, seed: int) -> None:
         """Build this source's policy for robot 0 of ``env`` (a team source: its team

@@ -93,7 +93,7 @@ class UVMSMultiAgentEnv(ParallelPettingZooEnv):
             self._finished.append((self._return, self._length))
         if self.lagrangian is None:
             return obs, rewards, terminated, truncated, infos
-        g = [[infos[a]["constraint_values"][c] for c in CONSTRAINTS] for a in agents]
+        g = [[infos[a][f"constraint_{c}"] for c in CONSTRAINTS] for a in agents]
         count = [float(infos[a]["cost"]) for a in agents]
         done = np.array([bool(terminated[a] or truncated[a]) for a in agents])
         cost = self.lagrangian.penalize(g, count, done)

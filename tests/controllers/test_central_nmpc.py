@@ -186,11 +186,11 @@ def test_play_team_sees_the_global_state_and_times_team_decisions():
     team = episode.policies[TEAM]
     assert episode.steps == 4 and episode.decision_ms.shape == (4, 1)
     assert len(team.states) == 4 and team.states[0].shape == env.state().shape
-    assert episode.metrics["policy_time_ms"]["max"] == pytest.approx(episode.decision_ms.max())
+    assert episode.metrics["policy_time_ms_max"] == pytest.approx(episode.decision_ms.max())
     # the same loop as per-robot play: zero inputs give the same episode either way
     alone = play(uvms_env.parallel_env("short", max_cycles=4), _Zero, seed=0)
     assert episode.metrics["control_effort"] == alone.metrics["control_effort"]
-    assert episode.total_reward == alone.total_reward
+    assert episode.metrics["return"] == alone.metrics["return"]
 
 
 def test_bad_state_is_a_clear_error_and_a_failed_solve_falls_back(monkeypatch):
@@ -239,7 +239,7 @@ def test_the_evaluator_marks_team_rows_as_full_information():
     table = markdown_table(aggregate(rows, 202))
     assert "| nmpc:central | full | short |" in table
     assert "| nmpc | local | short |" in table
-    assert "full-information bound" in table
+    assert "full-information reference" in table
 
 
 def test_the_central_controller_carries_the_object_to_the_goal(short_scenario):

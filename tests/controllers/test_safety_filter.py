@@ -115,7 +115,7 @@ def test_unsafe_joint_torque_is_corrected_to_a_safe_prediction(env):
         for _ in range(20):
             act = {"uvms_0": robot0.act(obs["uvms_0"]), "uvms_1": other.act(obs["uvms_1"])}
             obs, _, _, _, infos = env.step(act)
-            worst = max(worst, infos["uvms_0"]["constraint_values"]["joint_speed"])
+            worst = max(worst, infos["uvms_0"]["constraint_joint_speed"])
         assert (worst <= 0) == filtered, (filtered, worst)
 
 

@@ -202,7 +202,12 @@ def test_the_observation_table_is_the_layout_the_env_builds():
 
 
 def test_the_metrics_table_lists_every_metric_once():
-    from uvms_env.task.metrics import METRICS
+    """Every metric by name, the per-kind ones once each as ``<measure>_<kind>``."""
+    from uvms_env.task.metrics import HEAD, METRICS, PER_KIND, TAIL
 
-    names = [code_name(r["metric"]) for r in table_after(OPTIONS_PAGE, "Episode metrics")]
-    assert sorted(names) == sorted(METRICS) and len(names) == len(set(names))
+    rows = table_after(OPTIONS_PAGE, "Episode metrics")
+    names = [re.match(r"`([\w<>]+)`", r["metric"]).group(1) for r in rows]
+    per_kind = [f"{p}_<kind>" for p in PER_KIND]
+    assert sorted(names) == sorted((*HEAD, *TAIL, *per_kind)) and len(names) == len(set(names))
+    kinds = [m for m in METRICS if m not in HEAD and m not in TAIL]
+    assert len(kinds) == len(PER_KIND) * 8  # the table's patterns cover every per-kind key

@@ -32,6 +32,7 @@ from uvms_env.env import (
     make_navigator,
     save_video,
 )
+from uvms_env.env.infos import end_name, episode_metrics, reward_terms
 from uvms_env.env.registration import register_gymnasium
 from uvms_env.navigation import Cylinder, Sphere
 from uvms_env.robot.observation import FAR_OBSTACLE, NOISE_STD_Q
@@ -123,7 +124,7 @@ def test_gymnasium_view_passes_check_env(paper):
     obs, _ = env.reset(seed=0)
     assert obs.shape == (OBSERVATION_SIZE * 2,) and obs.dtype == np.float32
     obs, _, _, _, info = env.step(env.action_space.sample())
-    assert set(info["reward_terms"]) == set(REWARD_TERMS)
+    assert set(reward_terms(info)) == set(REWARD_TERMS)
     assert set(info["agents"]) == {"uvms_0", "uvms_1"}
     with pytest.raises(ValueError, match="shape"):
         env.step(np.zeros(8))
@@ -317,8 +318,8 @@ def test_actions_beyond_one_are_clipped_and_reported(env):
     act["uvms_0"] = act["uvms_0"].copy()
     act["uvms_0"][0] = 3.0
     _, _, _, _, infos = env.step(act)
-    assert infos["uvms_0"]["constraint_values"]["input"] == pytest.approx(2.0)
-    assert infos["uvms_1"]["constraint_values"]["input"] < 0
+    assert infos["uvms_0"]["constraint_input"] == pytest.approx(2.0)
+    assert infos["uvms_1"]["constraint_input"] < 0
     assert infos["uvms_0"]["cost"] >= 1
 
 
@@ -358,10 +359,10 @@ def test_constraint_sign_convention_on_violating_states(env):
     values = env.constraint_values()
     assert all(values[a]["collision"] > 0.5 for a in env.possible_agents)
     _, _, term, _, infos = env.step(holding(env))
-    assert term["uvms_0"] and infos["uvms_0"]["episode_end"] == "collision"
-    assert infos["uvms_0"]["metrics"]["violations"]["collision"] == 1
-    assert infos["uvms_0"]["metrics"]["min_obstacle_clearance_m"] < 0
-    assert infos["uvms_0"]["reward_terms"]["violation"] <= -env.reward_weights.failure
+    assert term["uvms_0"] and end_name(infos["uvms_0"]) == "collision"
+    assert infos["uvms_0"]["violations_collision"] == 1
+    assert infos["uvms_0"]["min_obstacle_clearance_m"] < 0
+    assert infos["uvms_0"]["reward_violation"] <= -env.reward_weights.failure
     assert not env.agents
 
 
@@ -371,11 +372,11 @@ def test_reward_is_the_sum_of_its_terms_and_shared(env):
     total = 0.0
     for _ in range(100):
         _, rewards, _, _, infos = env.step(random_actions(env, rng))
-        terms = infos["uvms_0"]["reward_terms"]
+        terms = reward_terms(infos["uvms_0"])
         assert list(terms) == list(REWARD_TERMS)
         assert rewards["uvms_0"] == sum(terms.values())
         assert rewards["uvms_0"] == rewards["uvms_1"]
-        assert infos["uvms_1"]["reward_terms"] == terms
+        assert reward_terms(infos["uvms_1"]) == terms
         total += terms["violation"]
     assert total < 0  # random inputs break the 0.1 rad/s joint speed limit
 
@@ -390,7 +391,7 @@ def test_progress_rewards_motion_towards_the_waypoint(env, paper):
     x_o[:3] += step
     env.sim.set_state(q, st.zeta, x_o, st.v_O)
     *_, infos = env.step(holding(env))
-    assert infos["uvms_0"]["reward_terms"]["progress"] == pytest.approx(
+    assert infos["uvms_0"]["reward_progress"] == pytest.approx(
         env.reward_weights.progress * 0.1, abs=0.02
     )
 
@@ -402,14 +403,17 @@ def test_max_cycles_truncates(paper):
         obs, _, term, trunc, infos = env.step(holding(env))
         assert trunc["uvms_0"] == (k == 4) and not term["uvms_0"]
     assert obs["uvms_0"][env.observation_structure["time_fraction"]][0] == pytest.approx(1.0)
-    metrics = infos["uvms_0"]["metrics"]
-    assert infos["uvms_0"]["episode_end"] == "max_cycles"
-    assert list(metrics) == list(METRICS) and list(metrics["violations"]) == list(CONSTRAINTS)
+    metrics = episode_metrics(infos["uvms_0"])
+    assert end_name(infos["uvms_0"]) == "max_cycles"
+    assert list(metrics) == list(METRICS)
+    assert [k.removeprefix("violations_") for k in METRICS if k.startswith("violations_")] == list(
+        CONSTRAINTS
+    )
     assert metrics["episode_steps"] == 5 and metrics["sim_time_s"] == pytest.approx(0.6)
-    assert metrics["success"] is False and metrics["policy_time_ms"] is None
+    assert metrics["success"] is False and "policy_time_ms_median" not in metrics
     assert metrics["min_manipulability"] > 3.0 and metrics["grasp_drift_max_m"] < 1e-5
     assert metrics["internal_wrench_rms"] > 0 and metrics["control_effort"] > 0
-    json.dumps(metrics)  # plain types
+    json.dumps(metrics, allow_nan=False)  # plain types
     with pytest.raises(RuntimeError, match="reset"):
         env.step(holding(env))
     assert CoopTransportEnv(paper).max_cycles == paper.max_steps
@@ -417,7 +421,7 @@ def test_max_cycles_truncates(paper):
     quick.reset(seed=0)
     quick.step(holding(quick))
     *_, infos = quick.step(holding(quick))
-    assert infos["uvms_0"]["metrics"]["internal_wrench_rms"] is None
+    assert np.isnan(infos["uvms_0"]["internal_wrench_rms"])
 
 
 def test_terminate_mode_ends_on_any_violation(paper):
@@ -428,8 +432,8 @@ def test_terminate_mode_ends_on_any_violation(paper):
         if term["uvms_0"]:
             break
         _, _, term, _, infos = env.step({a: np.ones(8, np.float32) for a in env.agents})
-    assert term["uvms_0"] and infos["uvms_0"]["episode_end"] == "constraint"
-    assert infos["uvms_0"]["reward_terms"]["violation"] <= -env.reward_weights.failure
+    assert term["uvms_0"] and end_name(infos["uvms_0"]) == "constraint"
+    assert infos["uvms_0"]["reward_violation"] <= -env.reward_weights.failure
 
 
 def test_success_ends_the_episode(paper):
@@ -443,9 +447,9 @@ def test_success_ends_the_episode(paper):
     x_o[:3] += shift
     env.sim.set_state(q, st.zeta, x_o, st.v_O)  # attitude error 0.07 rad < 0.1
     _, _, term, _, infos = env.step(holding(env))
-    assert term["uvms_0"] and infos["uvms_0"]["episode_end"] == "success"
-    assert infos["uvms_0"]["metrics"]["success"] is True
-    assert infos["uvms_0"]["reward_terms"]["success"] == env.reward_weights.success
+    assert term["uvms_0"] and end_name(infos["uvms_0"]) == "success"
+    assert infos["uvms_0"]["success"] is True
+    assert infos["uvms_0"]["reward_success"] == env.reward_weights.success
 
 
 def test_divergence_ends_the_episode_gracefully(env, monkeypatch):
@@ -456,10 +460,11 @@ def test_divergence_ends_the_episode_gracefully(env, monkeypatch):
 
     monkeypatch.setattr(env.sim, "advance", boom)  # the engine's call into the simulator
     obs, _, term, _, infos = env.step(holding(env))
-    assert term["uvms_0"] and infos["uvms_0"]["episode_end"] == "diverged"
-    assert infos["uvms_0"]["diverged_reason"] == "the simulation diverged (non-finite state)"
+    assert term["uvms_0"] and end_name(infos["uvms_0"]) == "diverged"
+    assert infos["uvms_0"]["diverged"] == 1
+    assert env.diverged_reason == "the simulation diverged (non-finite state)"
     assert np.all(np.isfinite(obs["uvms_0"]))
-    assert infos["uvms_0"]["metrics"]["success"] is False
+    assert infos["uvms_0"]["success"] is False
 
 
 def test_both_engines_implement_the_engine_protocol(env):
@@ -539,7 +544,7 @@ def test_the_wrench_metric_samples_every_kth_step():
         infos = env.step({a: rng.uniform(-0.5, 0.5, 8) for a in env.agents})[4]
         if t % 3 == 0:
             samples.append(float(np.sum(env.sim.internal_wrench() ** 2)))
-    metrics = infos[env.possible_agents[0]]["metrics"]
+    metrics = episode_metrics(infos[env.possible_agents[0]])
     assert len(samples) == 2 and not env.agents  # ended by the time limit
     assert metrics["internal_wrench_rms"] == pytest.approx(np.sqrt(np.mean(samples)), rel=1e-9)
 
@@ -562,8 +567,8 @@ def test_seeded_family_geometry_follows_reset_seed():
     fixed.reset(seed=2)
     assert np.allclose(fixed.scenario.waypoints[-1], goal_1)
     *_, infos = fixed.step(holding(fixed))  # no obstacles at all:
-    assert infos["uvms_0"]["metrics"]["min_obstacle_clearance_m"] is None
-    assert infos["uvms_0"]["constraint_values"]["collision"] == -100.0
+    assert np.isnan(infos["uvms_0"]["min_obstacle_clearance_m"])
+    assert infos["uvms_0"]["constraint_collision"] == -100.0
 
 
 # -- rendering -----------------------------------------------------------------------------------
@@ -620,3 +625,12 @@ def test_human_rendering_is_headless_safe(paper, monkeypatch):
     plain.reset(seed=0)
     with pytest.warns(UserWarning, match="render_mode"):
         assert plain.render() is None
+
+
+def test_v0_is_no_longer_registered_and_its_refusal_names_v1():
+    """v1 changed the metrics and the infos: v0's numbers are not comparable."""
+    assert ENV_ID == "uvms_env/CoopTransport-v1"
+    with pytest.raises(gym.error.Error, match="v1"):
+        gym.make("uvms_env/CoopTransport-v0")
+    with pytest.raises(Exception, match="v1"):
+        pettingzoo.make("parallel", "uvms_env/CoopTransport-v0")

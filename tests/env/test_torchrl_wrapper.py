@@ -1,5 +1,5 @@
-"""TorchRL users see the benchmark's metrics: TorchRL's own ``PettingZooWrapper`` over
-``FlatInfos(parallel_env(...))`` carries every info key, and the batched TorchRL view with
+"""TorchRL users see the benchmark's metrics: TorchRL's own ``PettingZooWrapper`` over the
+plain ``parallel_env(...)`` carries every info key, and the batched TorchRL view with
 ``info=True`` the same episode values, equal to the environments' own; its ``fixed_seed``
 replays the episodes of every fresh reset, and it renders a copy as the parallel env does,
 without the step ever importing what draws. Skipped without TorchRL."""
@@ -19,13 +19,9 @@ from torchrl.envs import PettingZooWrapper
 from torchrl.envs.utils import check_env_specs
 
 import uvms_env
+from uvms_env.env.infos import EPISODE_END_NAMES, episode_metrics
 from uvms_env.vector import VectorEnv
-from uvms_env.vector.torchrl_env import (
-    GROUP,
-    CoopTransportTorchRLEnv,
-    FlatInfos,
-    episode_info_keys,
-)
+from uvms_env.vector.torchrl_env import GROUP, CoopTransportTorchRLEnv, episode_info_keys
 
 CYCLES = 4
 
@@ -47,26 +43,28 @@ def _actions(steps: int, n: int, k: int | None = None) -> np.ndarray:
     return np.random.default_rng(0).uniform(-1, 1, shape).astype(np.float32)
 
 
-def test_flat_infos_is_a_pettingzoo_parallel_env():
-    from pettingzoo.test import parallel_api_test
+def test_the_plain_env_infos_are_numbers_with_the_same_keys_at_reset_and_every_step():
+    env = uvms_env.parallel_env("short", max_cycles=CYCLES)
+    _, infos = env.reset(seed=1)
+    keys = list(env.info_keys)
+    assert all(list(i) == keys for i in infos.values())
+    actions = _actions(CYCLES, 2)
+    for t in range(CYCLES):
+        *_, infos = env.step({f"uvms_{i}": actions[t, i] for i in range(2)})
+        for info in infos.values():
+            assert list(info) == keys
+            assert all(isinstance(v, int | float) for v in info.values()), info
+    assert infos["uvms_0"]["episode_end"] == EPISODE_END_NAMES.index("max_cycles")
 
-    parallel_api_test(FlatInfos(uvms_env.parallel_env("short", max_cycles=20)), num_cycles=30)
 
-
-def test_the_bare_parallel_env_passes_torchrls_checks_without_infos():
-    env = PettingZooWrapper(env=uvms_env.parallel_env("short", max_cycles=CYCLES))
-    check_env_specs(env)
-    assert "info" not in env.observation_spec[GROUP].keys()
-
-
-def test_pettingzoo_wrapper_rollout_carries_the_info_keys_and_their_values():
-    flat = FlatInfos(uvms_env.parallel_env("short", max_cycles=CYCLES))
-    env = PettingZooWrapper(env=flat, return_state=True, seed=3)
+def test_pettingzoo_wrapper_rollout_of_the_plain_env_carries_the_infos_and_their_values():
+    plain = uvms_env.parallel_env("short", max_cycles=CYCLES)
+    env = PettingZooWrapper(env=plain, return_state=True, seed=3)
     check_env_specs(env)
     keys = set(env.observation_spec[GROUP, "info"].keys())
-    assert keys == set(flat.info_keys)
-    assert {"cost", "success", "clean_success", "violation_periods", "episode_cost"} <= keys
-    assert {"constraint_collision", "reward_progress", "violations_collision"} <= keys
+    assert keys == set(plain.info_keys)
+    assert {"cost", "success", "clean_success", "clean_success_tol", "return"} <= keys
+    assert {"constraint_collision", "reward_progress", "excess_joint_speed"} <= keys
 
     actions = _actions(CYCLES, 2)
     policy = _replaying(actions)
@@ -77,22 +75,18 @@ def test_pettingzoo_wrapper_rollout_carries_the_info_keys_and_their_values():
 
     reference = uvms_env.parallel_env("short", max_cycles=CYCLES)
     reference.reset(seed=3)
-    cost = np.zeros(2)
     for t in range(CYCLES):
         *_, infos = reference.step({f"uvms_{i}": actions[t, i] for i in range(2)})
         for i in range(2):
             mine = infos[f"uvms_{i}"]
-            cost[i] += mine["cost"]
             assert info["cost"][t, i] == mine["cost"], t
-            g = mine["constraint_values"]["collision"]
+            g = mine["constraint_collision"]
             assert info["constraint_collision"][t, i] == pytest.approx(g, rel=1e-6)
-    metrics = infos["uvms_0"]["metrics"]  # the last step's: the episode's
+    metrics = episode_metrics(infos["uvms_0"])  # the last step's: the episode's
     assert rollout["next", "done"][-1].all() and not rollout["next", "done"][:-1].any()
-    last = {key: info[key][-1] for key in flat.episode_keys}
-    assert last["episode_steps"].tolist() == [CYCLES] * 2
-    assert last["violation_periods"].tolist() == [metrics["violation_periods"]] * 2
-    assert last["success"].tolist() == [float(metrics["success"])] * 2
-    assert last["episode_cost"].tolist() == cost.tolist()
+    for key in ("episode_steps", "violation_periods", "success", "excess", "return"):
+        assert info[key][-1].tolist() == pytest.approx([float(metrics[key])] * 2, rel=1e-6)
+    assert info["episode_steps"][-1].tolist() == [CYCLES] * 2
     assert not info["episode_steps"][:-1].any()  # zero before the episode's end
 
 
@@ -120,8 +114,7 @@ def test_batched_view_carries_the_ended_episodes_values():
                 continue
             for key in ("success", "clean_success", "violation_periods", "episode_steps"):
                 assert info[key][e, t].tolist() == [float(metrics[key])] * 2, (key, e, t)
-            kinds = metrics["violations"]
-            assert info["violations_joint_speed"][e, t, 0] == kinds["joint_speed"]
+            assert info["violations_joint_speed"][e, t, 0] == metrics["violations_joint_speed"]
             assert info["episode_cost"][e, t].tolist() == cost[e].tolist()
             cost[e] = 0
     assert rollout["next", "done"].sum() == 2 * k
@@ -129,8 +122,9 @@ def test_batched_view_carries_the_ended_episodes_values():
 
 def test_episode_keys_follow_the_constraints_and_the_wrench_setting():
     keys = episode_info_keys(("input", "mine"), internal_wrench=False)
-    assert keys[-3:] == ("violations_input", "violations_mine", "episode_cost")
-    assert episode_info_keys((), internal_wrench=True)[-1] == "internal_wrench_rms"
+    assert {"violations_mine", "excess_mine", "max_excess_mine"} <= set(keys)
+    assert keys[-1] == "episode_cost" and "internal_wrench_rms" not in keys
+    assert "internal_wrench_rms" in episode_info_keys((), internal_wrench=True)
 
 
 def test_fixed_seed_replays_the_episodes_of_every_fresh_reset():

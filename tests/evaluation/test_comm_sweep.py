@@ -51,9 +51,9 @@ def test_ratios_pair_with_the_silent_expert() -> None:
     result = summarize(rows, ["random N=2"], points, seed=0)
     pooled = {e["run"]: e for e in result["pooled"]}
     mine = pooled[f"{TALKER} [{points[1].label}]"]
-    assert mine["completion_periods_ratio"] == pytest.approx(0.9)
+    assert mine["completion_periods_imputed_ratio"] == pytest.approx(0.9)
     assert mine["internal_wrench_rms_ratio"] == pytest.approx(0.5)
-    assert pooled[EXPERT]["completion_periods_ratio"] == 1.0
+    assert pooled[EXPERT]["completion_periods_imputed_ratio"] == 1.0
     assert mine["bit_rate"] == 80.0 and mine["clean_success_rate"] == 1.0
 
 

@@ -29,11 +29,14 @@ def raising_factory(spec):
 
 
 def _strip(rows):
-    return [{k: v for k, v in r.items() if not k.startswith(("_", "policy_time"))} for r in rows]
+    # what differs between runs: the decision times and the episode's wall time
+    measured = ("_", "policy_time", "wall_s")
+    return [{k: v for k, v in r.items() if not k.startswith(measured)} for r in rows]
 
 
 def _same(a: list[dict], b: list[dict]) -> bool:
-    """Equal rows; floats to 1e-12 relative. Run inside the whole test suite (every test
+    """Equal rows; floats to 1e-12 relative (NaN, a value an episode has none of, equal to
+    NaN). Run inside the whole test suite (every test
     module imported, with its native libraries), the in-process episodes differed from
     the worker processes' by up to 3e-15 relative (the same episodes, not the same last
     bits); alone they are bit-identical."""
@@ -43,7 +46,7 @@ def _same(a: list[dict], b: list[dict]) -> bool:
         for key, u in x.items():
             v = y[key]
             if isinstance(u, float) and isinstance(v, float):
-                if not np.isclose(u, v, rtol=1e-12, atol=1e-15):
+                if not np.isclose(u, v, rtol=1e-12, atol=1e-15, equal_nan=True):
                     return False
             elif u != v:
                 return False

@@ -7,7 +7,13 @@ import pytest
 
 from baselines.evaluation.runner import case_episode_seed
 from baselines.loaders.sources import PolicySource
-from baselines.stats import bootstrap_mean_interval, wilson_interval
+from baselines.stats import (
+    bootstrap_mean_interval,
+    holm,
+    mcnemar_exact,
+    wilcoxon_paired,
+    wilson_interval,
+)
 
 
 def test_wilson_interval_agrees_with_scipy():
@@ -24,6 +30,51 @@ def test_bootstrap_interval_brackets_the_mean_and_is_reproducible():
     assert lo < x.mean() < hi
     assert (lo, hi) == bootstrap_mean_interval(x, seed=1)
     assert hi - lo == pytest.approx(2 * 1.96 / np.sqrt(50), rel=0.25)
+
+
+def test_exact_mcnemar_is_the_binomial_tail_of_the_discordant_pairs():
+    from math import comb
+
+    a = [1, 1, 1, 0, 1, 1, 0, 1, 1, 1, 0, 1]
+    b = [0, 0, 1, 0, 0, 1, 1, 0, 1, 0, 0, 1]
+    test = mcnemar_exact(a, b)
+    only_a, only_b = 5, 1  # episodes won by one of the two
+    assert (test["a_only"], test["b_only"]) == (only_a, only_b)
+    n = only_a + only_b
+    tail = sum(comb(n, i) for i in range(min(only_a, only_b) + 1)) / 2**n
+    assert test["p"] == pytest.approx(min(1.0, 2 * tail))  # 2 * 7 / 64
+    assert mcnemar_exact([1, 0, 1], [1, 0, 1])["p"] == 1.0  # no discordant pair
+    with pytest.raises(ValueError, match="length"):
+        mcnemar_exact([1, 0], [1])
+
+
+def test_wilcoxon_matches_the_exact_signed_rank_distribution():
+    from itertools import product
+
+    x = np.array([3.1, 2.0, 5.5, 4.0, 1.2, 6.3, np.nan])
+    y = np.array([2.0, 2.6, 3.0, 1.4, 1.0, 2.1, 9.0])
+    test = wilcoxon_paired(x, y)
+    d = (x - y)[:6]  # the NaN pair is dropped
+    ranks = np.argsort(np.argsort(np.abs(d))) + 1.0  # no ties here
+    w = ranks[d > 0].sum()
+    # every sign pattern is equally likely under the null: enumerate them
+    sums = [
+        sum(r for r, s in zip(ranks, signs, strict=True) if s)
+        for signs in product((0, 1), repeat=6)
+    ]
+    centre = ranks.sum() / 2
+    p = np.mean([abs(t - centre) >= abs(w - centre) for t in sums])
+    assert test["pairs"] == 6 and test["p"] == pytest.approx(p)
+    assert test["median_difference"] == pytest.approx(np.median(d))
+    assert wilcoxon_paired([1.0, 2.0], [1.0, 2.0])["p"] == 1.0  # every difference zero
+
+
+def test_holm_adjusts_by_rank_and_keeps_the_order():
+    p = [0.01, 0.04, 0.03, 0.005, float("nan")]
+    # sorted 0.005, 0.01, 0.03, 0.04 times 4, 3, 2, 1 -> 0.02, 0.03, 0.06, 0.04 -> monotone
+    expected = [0.03, 0.06, 0.06, 0.02]
+    assert holm(p)[:4] == pytest.approx(expected) and np.isnan(holm(p)[4])
+    assert holm([0.6, 0.5]) == [1.0, 1.0]
 
 
 def test_episode_seeds_are_shared_across_policies_and_distinct_across_episodes():
@@ -119,7 +170,7 @@ def test_the_evaluator_and_the_ladder_read_one_summary():
     rung = rung_summary(rows, seed=0)
     for key in ("episodes", "out_of_reach", "errors", "success_rate", "success_ci95",
                 "clean_success_rate", "clean_success_ci95", "internal_wrench_rms",
-                "internal_wrench_rms_ci95", "control_effort", "control_effort_ci95"):  # fmt: skip
+                "internal_wrench_rms_ci95", "clean_success_tol_rate"):  # fmt: skip
         assert table[key] == rung[key], key
     assert rung["decision_ms_median"] == table["policy_time_ms"]["median"] == 2.0
     assert rung["completion_periods"] is None  # no episode_steps: nothing to average

@@ -7,8 +7,11 @@ import json
 
 import numpy as np
 import pytest
+from scipy import stats
 
+from baselines.evaluation.paired import significance_tests
 from baselines.evaluation.runner import Case, case_episode_seed, evaluate
+from baselines.evaluation.splits import DEV
 from baselines.ladder import PRICED, cases, ladder, main, price
 
 
@@ -20,9 +23,14 @@ def _row(policy: str, episode: int, success: bool, steps: int, wrench: float, ef
         "episode": episode,
         "success": success,
         "clean_success": success,
+        "clean_success_tol": success,
         "episode_steps": steps,
+        "max_cycles": 3000,
+        "sim_time_s": 0.12 * steps,
         "internal_wrench_rms": wrench,
         "control_effort": effort,
+        "excess": 0.0,
+        "return": 10.0 * success,
         "violation_periods": 0,
         "current_within_reach": True,
         "error": "",
@@ -30,23 +38,31 @@ def _row(policy: str, episode: int, success: bool, steps: int, wrench: float, ef
     }
 
 
-def test_prices_are_paired_differences_over_the_episodes_both_succeeded_in():
+def test_prices_are_paired_differences_over_every_episode_failures_at_the_cap():
     central = [(True, 500, 2.0, 100.0), (True, 600, 3.0, 120.0), (True, 700, 1.0, 90.0)]
-    expert = [(True, 550, 4.0, 110.0), (False, 3000, 9.0, 500.0), (True, 800, 2.0, 99.0)]
+    expert = [(True, 550, 4.0, 110.0), (False, 900, 9.0, 500.0), (True, 800, 2.0, 99.0)]
     rows = [_row("nmpc:central", k, *v) for k, v in enumerate(central)]
     rows += [_row("nmpc", k, *v) for k, v in enumerate(expert)]
     p = price(rows, "nmpc", "nmpc:central", "random N=3", seed=0)
-    assert p["paired_successes"] == 2  # episode 1: the expert failed, not compared
-    assert p["success_difference"] == pytest.approx(-1 / 3)
+    assert p["episodes"] == 3  # the failed episode is compared too, never left out
+    assert p["success"]["difference"] == pytest.approx(-1 / 3)
+    assert (p["success"]["a_only"], p["success"]["b_only"]) == (0, 1)
     time = p["completion periods"]
-    assert time["difference"] == pytest.approx(((550 - 500) + (800 - 700)) / 2)
-    assert time["ratio"] == pytest.approx((550 + 800) / (500 + 700))
+    # episode 1: the expert's failure after 900 periods counts at the cap, 3000
+    assert time["difference"] == pytest.approx(((550 - 500) + (3000 - 600) + (800 - 700)) / 3)
+    assert time["ratio"] == pytest.approx((550 + 3000 + 800) / (500 + 600 + 700))
     lo, hi = time["difference_ci95"]
-    assert 50 <= lo <= hi <= 100  # a bootstrap of the two paired differences
-    assert p["internal wrench rms"]["ratio"] == pytest.approx((4 + 2) / (2 + 1))
+    assert 50 <= lo <= hi <= 2400  # a bootstrap of the three paired differences
+    assert p["internal wrench rms"]["ratio"] == pytest.approx((4 + 9 + 2) / (2 + 3 + 1))
+    per_s = [e / (0.12 * n) for n, e in ((550, 110), (900, 500), (800, 99))]
+    ref_s = [e / (0.12 * n) for n, e in ((500, 100), (600, 120), (700, 90))]
+    effort = p["effort per second"]
+    assert effort["difference"] == pytest.approx(np.mean(np.subtract(per_s, ref_s)))
+    assert effort["p"] == pytest.approx(stats.wilcoxon(np.subtract(per_s, ref_s)).pvalue)
     result = ladder(rows, ["nmpc:central", "nmpc"], ["random N=3"], seed=0)
     expert_rung = next(s for s in result["rungs"] if s["policy"] == "nmpc")
     assert expert_rung["success"] == 2 and expert_rung["completion_periods"] == 675.0
+    assert expert_rung["completion_periods_imputed"] == pytest.approx((550 + 3000 + 800) / 3)
     assert expert_rung["violation_periods"] == 0.0  # a zero is a value, not a gap
     for k, v in enumerate((0, 3, 900)):  # the median episode beside the run-away's mean
         rows[3 + k]["violation_periods"] = v
@@ -54,6 +70,8 @@ def test_prices_are_paired_differences_over_the_episodes_both_succeeded_in():
     assert spread["violation_periods"] == 301.0 and spread["violation_periods_median"] == 3.0
     assert [q["rung"] for q in result["prices"]["decentralization"]] == ["nmpc"]
     assert result["prices"]["learning"] == []  # no learned rung here
+    tests = [t for q in result["prices"]["decentralization"] for t in significance_tests(q)]
+    assert all(t["p_holm"] >= t["p"] for t in tests)  # corrected within the table
 
 
 def test_a_case_plays_the_episodes_of_the_plain_evaluator_command():
@@ -76,32 +94,47 @@ def test_the_ladder_command_runs_end_to_end(tmp_path):
     main(
         [
             "--policy", "nmpc:central", "--policy", "nmpc", "--policy", "zero",
-            "--n-agents", "2", "--episodes", "1", "--seed", "3", "--workers", "1",
-            "--max-cycles", "8", "--out", str(tmp_path),
+            "--policy", "prior", "--n-agents", "2", "--episodes", "1", "--split", "dev",
+            "--workers", "1", "--max-cycles", "8", "--out", str(tmp_path),
         ]
     )  # fmt: skip
     result = json.loads((tmp_path / "ladder.json").read_text())
     labels = {(s["policy"], s["scenario"]) for s in result["rungs"]}
     assert labels == {
         (p, c)
-        for p in ("nmpc:central", "nmpc", "zero")
+        for p in ("nmpc:central", "nmpc", "zero", "prior")
         for c in ("random N=2", "random bar N=2", "paper")
     }
     assert all(s["errors"] == 0 for s in result["rungs"])
     central = next(s for s in result["rungs"] if s["policy"] == "nmpc:central")
     assert central["information"] == "full"
     assert {q["rung"] for q in result["prices"]["decentralization"]} == {"nmpc"}
-    assert {q["rung"] for q in result["prices"]["learning"]} == {"zero"}
+    assert {q["rung"] for q in result["prices"]["learning"]} == {"zero", "prior"}
     assert all(set(PRICED) <= set(q) for q in result["prices"]["learning"])
-    bound = result["prices"]["learning against the bound"]
-    assert {(q["rung"], q["reference"]) for q in bound} == {("zero", "nmpc:central")}
+    reference = result["prices"]["learning against the reference"]
+    assert {(q["rung"], q["reference"]) for q in reference} == {
+        ("zero", "nmpc:central"),
+        ("prior", "nmpc:central"),
+    }
     assert result["command"]["conditions"] == {"current": "mild", "mismatch": 0.1}
-    for name in ("ladder.md", "price_vs_n.png", "episodes.csv", "results.md"):
+    assert result["command"]["split"] == {"name": "dev", "version": DEV.version}
+    assert result["command"]["seed"] == DEV.seed
+    pooled = {(s["policy"], s["scenario"]) for s in result["pooled"]}
+    assert ("nmpc", "rings") in pooled and ("nmpc", "all") in pooled
+    names = ("ladder.md", "ladder_clean_success_vs_n.png", "episodes.csv", "results.md")
+    for name in names:
         assert (tmp_path / name).stat().st_size > 0
     text = (tmp_path / "ladder.md").read_text()
-    assert "Price of decentralization" in text
-    assert "| `nmpc:central` | full | 0 / 0 / 1 | 0 / 0 / 1 |" in text  # 8 periods: no success
+    assert "Price of decentralization" in text and "Main table" in text and "CPU-hours" in text
+    assert "| `nmpc:central` | full |  | 0/1 [0.00, 0.79] | 0/1 [0.00, 0.79] |" in text
     assert np.isfinite(central["decision_ms_median"])
+
+
+def test_split_and_seed_exclude_each_other_before_any_work(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--split", "test", "--seed", "3", "--out", "/nonexistent/ladder"])
+    assert exit_info.value.code == 2
+    assert "not allowed with argument" in capsys.readouterr().err
 
 
 def test_runs_apart_merge_into_the_ladder_of_one_run(tmp_path):
@@ -122,7 +155,7 @@ def test_runs_apart_merge_into_the_ladder_of_one_run(tmp_path):
     assert [(s["policy"], s["scenario"]) for s in merged] == [
         (s["policy"], s["scenario"]) for s in one
     ]
-    timing = ("decision_ms_median", "decision_ms_p95")
+    timing = ("decision_ms_median", "decision_ms_p95", "wall_s")
     for a, b in zip(one, merged, strict=True):
         assert set(a) == set(b)
         for key in set(a) - set(timing):

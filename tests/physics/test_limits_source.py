@@ -37,7 +37,7 @@ from uvms_env.task.team_kernel import WAYPOINT_SLOTS, team_function
 # constraint kind, the OCP rows bounded by it, the state entry put at the current limit
 # (``q``/``zeta`` index; None: none needed), the sign of the env value's move per unit
 # of the limit's move: g = value - limit moves by -d, g = eps - det by +d and
-# g = |theta| - (pi/2 - margin) by +d)
+# g = |theta| - (pi/2 - margin) by +d; vehicle_speed, value / limit - 1, by old / new - 1)
 CASES = [
     ("joint_position", "toml", 0.8, "joint_limit", "joint_position_", ("q", 6), -1.0),
     ("joint_speed", "toml", 0.8, "joint_speed", "joint_speed_", ("zeta", 7), -1.0),
@@ -175,7 +175,9 @@ def test_one_limit_changed_in_one_place_moves_env_expert_and_filter(
 
     moved = g_after - g_before
     k = CONSTRAINTS.index(kind)
-    np.testing.assert_allclose(moved[k], sign * (new - old), rtol=0, atol=1e-12)
+    # vehicle_speed is the speed beyond the limit as a fraction of it: speed / limit - 1
+    expected = old / new - 1.0 if kind == "vehicle_speed" else sign * (new - old)
+    np.testing.assert_allclose(moved[k], expected, rtol=0, atol=1e-12)
     assert np.all(moved[np.arange(len(CONSTRAINTS)) != k] == 0.0), "another kind moved"
     # the OCP rows are normalized by the bound itself: the limit, eps, or pi/2 - margin
     expected_rows = np.zeros(NC, dtype=bool)

@@ -10,6 +10,7 @@ import pytest
 
 import uvms_env
 from baselines.evaluation.runner import case_episode_seed, evaluate
+from uvms_env.env.infos import constraint_values, end_name, episode_metrics, reward_terms
 from uvms_env.vector import VectorEnv
 
 TOL = 1e-9
@@ -56,25 +57,25 @@ def test_single_env_applies_them_to_the_true_state():
         _, r0, _, _, info0 = plain.step(actions)
         st = ext.sim.state
         g = np.abs(st.zeta[:, 6:]).max(axis=1) - SLOW
-        terms, terms0 = info[agents[0]]["reward_terms"], info0[agents[0]]["reward_terms"]
+        terms, terms0 = reward_terms(info[agents[0]]), reward_terms(info0[agents[0]])
         assert terms["tilt"] == pytest.approx(-0.5 * np.abs(st.x_O[3:5]).sum(), abs=TOL)
         violated = g > 0
         periods += bool(violated.any())
-        kinds = info[agents[0]]["constraint_values"]
-        all_kinds += sum(any(info[a]["constraint_values"][k] > 0 for a in agents) for k in kinds)
+        kinds = [k for k in constraint_values(info[agents[0]]) if k != "input"]  # the counted
+        all_kinds += sum(any(info[a][f"constraint_{k}"] > 0 for a in agents) for k in kinds)
         extra_violation = -ext.reward_weights.violation * violated.sum() / len(agents)
         assert terms["violation"] == pytest.approx(terms0["violation"] + extra_violation, abs=TOL)
         assert r[agents[0]] == pytest.approx(r0[agents[0]] + terms["tilt"] + extra_violation)
         for i, a in enumerate(agents):
-            assert info[a]["constraint_values"]["slow_joints"] == pytest.approx(g[i], abs=TOL)
+            assert info[a]["constraint_slow_joints"] == pytest.approx(g[i], abs=TOL)
             assert info[a]["cost"] == info0[a]["cost"] + violated[i]
     assert tr[agents[0]]
-    metrics = info[agents[0]]["metrics"]
-    assert metrics["violations"]["slow_joints"] == periods > 0  # the test can fail
-    # every kind's periods, built-in and extra
+    metrics = episode_metrics(info[agents[0]])
+    assert metrics["violations_slow_joints"] == periods > 0  # the test can fail
+    # every safety kind's periods, built-in and extra
     assert metrics["violation_periods"] == all_kinds >= periods
     assert metrics["clean_success"] is False
-    assert ext.constraint_values()[agents[0]].keys() == info[agents[0]]["constraint_values"].keys()
+    assert ext.constraint_values()[agents[0]].keys() == constraint_values(info[agents[0]]).keys()
 
 
 def test_terminate_mode_ends_the_episode_on_an_extra_constraint():
@@ -83,10 +84,10 @@ def test_terminate_mode_ends_the_episode_on_an_extra_constraint():
     agents = env.possible_agents
     for t, act in enumerate(_actions(3, 40, 1)[:, 0]):
         _, _, te, _, info = env.step({a: act[i] for i, a in enumerate(agents)})
-        slow = [info[a]["constraint_values"]["slow_joints"] for a in agents]
+        slow = [info[a]["constraint_slow_joints"] for a in agents]
         if te[agents[0]]:
-            assert info[agents[0]]["episode_end"] == "constraint"
-            assert max(slow) > 0 and info[agents[0]]["metrics"]["violations"]["slow_joints"] == 1
+            assert end_name(info[agents[0]]) == "constraint"
+            assert max(slow) > 0 and info[agents[0]]["violations_slow_joints"] == 1
             break
         assert max(slow) <= 0, t
     else:
@@ -116,18 +117,22 @@ def test_vector_env_agrees_with_single_envs(backend):
             assert host(reward)[i] == pytest.approx(r[agents[0]], abs=TOL), t
             for name in names:
                 assert host(infos["reward_terms"][name])[i] == pytest.approx(
-                    head["reward_terms"][name], abs=TOL
+                    head[f"reward_{name}"], abs=TOL
                 ), (name, t)
-            g = [list(info[a]["constraint_values"].values()) for a in agents]
+            g = [list(constraint_values(info[a]).values()) for a in agents]
             np.testing.assert_allclose(host(infos["constraint_values"])[i], g, atol=TOL)
             np.testing.assert_array_equal(host(infos["cost"])[i], [info[a]["cost"] for a in agents])
             if te[agents[0]] or tr[agents[0]]:
                 ends += 1
-                mine, theirs = infos["metrics"][i], head["metrics"]
-                assert mine["violations"] == theirs["violations"]
-                assert mine["violation_periods"] == theirs["violation_periods"]
+                mine, theirs = infos["metrics"][i], episode_metrics(head)
+                assert list(mine) == list(theirs)
+                for key in mine:
+                    if key.startswith(("violations_", "violated_fraction", "violation_periods")):
+                        assert mine[key] == theirs[key], key
+                    elif key.startswith(("excess", "max_excess")):
+                        assert mine[key] == pytest.approx(theirs[key], abs=1e-6), key
                 assert mine["clean_success"] == theirs["clean_success"]
-                assert "slow_joints" in mine["violations"]
+                assert "violations_slow_joints" in mine
                 assert mine["control_effort"] == pytest.approx(theirs["control_effort"], abs=TOL)
                 env.reset()
     assert ends >= 2
@@ -146,7 +151,8 @@ def test_evaluator_passes_them_to_its_environments():
     while env.agents:
         _, r, _, _, info = env.step({a: np.zeros(8) for a in env.agents})
         total += r[env.possible_agents[0]]
-    metrics = info[env.possible_agents[0]]["metrics"]
-    assert row["violations_slow_joints"] == metrics["violations"]["slow_joints"]
+    metrics = episode_metrics(info[env.possible_agents[0]])
+    assert row["violations_slow_joints"] == metrics["violations_slow_joints"]
+    assert row["excess_slow_joints"] == pytest.approx(metrics["excess_slow_joints"])
     assert row["return"] == pytest.approx(total, abs=TOL)
     assert row["return"] != pytest.approx(plain[0]["return"], abs=1e-6)  # they took effect

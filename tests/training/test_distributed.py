@@ -20,7 +20,7 @@ from baselines.evaluation.outputs import write_outputs
 from baselines.evaluation.runner import evaluate
 from baselines.loaders.sources import PolicySource
 
-TIMING = ("policy_time_ms_median", "policy_time_ms_p95", "policy_time_ms_max")
+TIMING = ("policy_time_ms_median", "policy_time_ms_p95", "policy_time_ms_max", "wall_s")
 
 
 def _csv_rows(path: Path) -> list[dict[str, str]]:

@@ -136,7 +136,8 @@ def _compare(
                 assert m_ref.keys() == m_out.keys()
                 for key, value in m_ref.items():
                     if isinstance(value, float | int | list) and not isinstance(value, bool):
-                        assert np.allclose(value, m_out[key], rtol=0, atol=TOL), (key, t, i)
+                        close = np.allclose(value, m_out[key], rtol=0, atol=TOL, equal_nan=True)
+                        assert close, (key, t, i)
                     else:  # flags, names, absent values (None)
                         assert value == m_out[key], (key, t, i)
                 end = ref[4]["episode_end"][i]

@@ -2,7 +2,7 @@
 
     import uvms_env
     env = uvms_env.parallel_env(scenario="paper")        # or pettingzoo.make("parallel",
-    obs, infos = env.reset(seed=0)                         #   "uvms_env/CoopTransport-v0")
+    obs, infos = env.reset(seed=0)                         #   "uvms_env/CoopTransport-v1")
     obs, rewards, terminated, truncated, infos = env.step(
         {agent: env.action_space(agent).sample() for agent in env.agents}
     )

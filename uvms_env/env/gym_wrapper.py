@@ -3,7 +3,7 @@ agents' observations and actions concatenated, the shared team reward. Centraliz
 construction (a policy on it sees every robot): use the PettingZoo environment for
 decentralized policies.
 
-May import: numpy, gymnasium and ``uvms_env.env.parallel``.
+May import: numpy, gymnasium and ``uvms_env.env`` (parallel, infos).
 """
 
 from __future__ import annotations
@@ -14,18 +14,20 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from uvms_env.env.infos import CONSTRAINT_PREFIX
 from uvms_env.env.parallel import CoopTransportEnv
 from uvms_env.scenarios import Scenario
 
 
 class CoopTransportGymEnv(gym.Env[np.ndarray, np.ndarray]):
-    """Gymnasium ``uvms_env/CoopTransport-v0``: ``CoopTransportEnv`` seen as one agent.
+    """Gymnasium ``uvms_env/CoopTransport-v1``: ``CoopTransportEnv`` seen as one agent.
 
     Observation ``Box(79 N,)`` float32, action ``Box(-1, 1, (8 N,), float32)``; agent i's
     part is ``[79 i, 79 (i + 1))`` and ``[8 i, 8 (i + 1))`` (with a channel, ``comm=``,
-    each agent's part is its larger observation and action). ``info`` carries the shared
-    ``reward_terms``, the summed ``cost``, ``metrics`` and ``episode_end`` at the end, and
-    every agent's own info under ``"agents"``. Arguments: as ``CoopTransportEnv``.
+    each agent's part is its larger observation and action). ``info`` carries the team's
+    keys of the agents' infos (``uvms_env.env.infos``: the reward's terms, ``episode_end``,
+    ``diverged``, the metrics; the same keys at ``reset``), the robots' ``cost`` summed,
+    and every agent's own info under ``"agents"``. Arguments: as ``CoopTransportEnv``.
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -53,7 +55,7 @@ class CoopTransportGymEnv(gym.Env[np.ndarray, np.ndarray]):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         obs, infos = self.parallel.reset(seed=seed, options=options)
-        return self._flatten(obs), {"agents": infos}
+        return self._flatten(obs), self._team_info(infos)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         action = np.asarray(action)
@@ -65,22 +67,22 @@ class CoopTransportGymEnv(gym.Env[np.ndarray, np.ndarray]):
         obs, rewards, terms, truncs, infos = self.parallel.step(
             {a: action[m * i : m * (i + 1)] for i, a in enumerate(agents)}
         )
-        first = infos[agents[0]]
-        info: dict[str, Any] = {
-            "reward_terms": first["reward_terms"],
-            "cost": sum(infos[a]["cost"] for a in agents),
-            "agents": infos,
-        }
-        for key in ("episode_end", "metrics"):
-            if key in first:
-                info[key] = first[key]
         return (
             self._flatten(obs),
             float(rewards[agents[0]]),
             bool(terms[agents[0]]),
             bool(truncs[agents[0]]),
-            info,
+            self._team_info(infos),
         )
+
+    def _team_info(self, infos: dict[str, dict[str, Any]]) -> dict[str, Any]:
+        """The team's keys of the first agent's info (every key but its constraint values),
+        the robots' ``cost`` summed, and every agent's own info under ``"agents"``."""
+        first = infos[self.parallel.possible_agents[0]]
+        info = {k: v for k, v in first.items() if not k.startswith(CONSTRAINT_PREFIX)}
+        info["cost"] = sum(i["cost"] for i in infos.values())
+        info["agents"] = infos
+        return info
 
     def render(self) -> np.ndarray | None:
         return self.parallel.render()

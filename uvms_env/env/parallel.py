@@ -21,6 +21,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from uvms_env.env.core import ACTION_KINDS, CoreViews, EnvCore
+from uvms_env.env.infos import InfoLayout
 from uvms_env.env.options import (
     RESET_SEED,
     action_space,
@@ -44,8 +45,8 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     | | |
     |---|---|
     | Import | `uvms_env.parallel_env(scenario="paper", render_mode=None, **overrides)` |
-    | PettingZoo | `pettingzoo.make("parallel", "uvms_env/CoopTransport-v0")` |
-    | Gymnasium | `gymnasium.make("uvms_env/CoopTransport-v0")`: centralized view |
+    | PettingZoo | `pettingzoo.make("parallel", "uvms_env/CoopTransport-v1")` |
+    | Gymnasium | `gymnasium.make("uvms_env/CoopTransport-v1")`: centralized view |
     | Agents | `uvms_0 ... uvms_{N-1}`; paper, short N = 2; random N = 2..6 (default 2) |
     | Action space | `Box(-1, 1, (8,), float32)` per agent |
     | Observation space | `Box(79,)` float32 per agent, local only (layout below) |
@@ -104,11 +105,12 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     `infos[agent]["reward_terms"]`, and the reward is their sum): the formulas and
     weights are `uvms_env.task.reward`'s; change them with `reward_weights`.
 
-    **Constraints** (`infos[agent]["constraint_values"]`, g <= 0 holds, on the true state;
+    **Constraints** (`infos[agent]["constraint_<kind>"]`, g <= 0 holds, on the true state;
     the kinds and their definitions: `uvms_env.task.constraints`). `infos[agent]["cost"]`
-    is the number of the robot's violated constraints. Collisions always end the episode;
-    the others end it in `constraint_mode="terminate"` and only cost reward in
-    `"penalize"` (default).
+    is the number of the robot's violated safety constraints (every kind but `input`, which
+    is reported but clipped before the simulator). Collisions always end the episode; the
+    others end it in `constraint_mode="terminate"` and only cost reward in `"penalize"`
+    (default).
 
     **Starting state.** The scenario's start, at rest: a static equilibrium that holds
     the grasps exactly, kept by the normalized actions `env.sim.holding_inputs() /
@@ -119,15 +121,22 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     violation in "terminate" mode, or a diverged simulation: a period the simulator's
     error control could not integrate to its accuracy even in 16 parts, or a state beyond
     the model's physical envelope (`uvms_env.sim.simulator.SPEED_LIMITS`). The step is
-    refused, its observation is the last valid state's, the episode ends as a failure
-    and `infos[agent]["diverged_reason"]` says why. Truncated: `max_cycles` periods. All
-    agents end together. The last infos carry `"episode_end"` (success, collision, constraint,
-    diverged, max_cycles) and `"metrics"` (`uvms_env.task.metrics`).
+    refused, its observation is the last valid state's, the episode ends as a failure,
+    `infos[agent]["diverged"]` is 1 and `env.diverged_reason` says why. Truncated:
+    `max_cycles` periods. All agents end together. The last infos carry the code of how
+    the episode ended, `"episode_end"` (`uvms_env.env.infos.EPISODE_END_NAMES`: 1 success,
+    2 diverged, 3 collision, 4 constraint, 5 max_cycles; 0 while it runs), and the
+    episode's metrics (`uvms_env.task.metrics`: success, clean success, the graded safety
+    per kind, the return, ...).
 
-    **Infos.** Every step, per agent: `constraint_values` (dict), `cost`, `reward_terms`
-    (dict); at the end also `episode_end` and `metrics` (the same dict for every agent;
-    `policy_time_ms` is left None). The internal wrench metric costs ~20 us (~6% of a
-    step); `internal_wrench_every=0` drops it (e.g. for training).
+    **Infos** (`uvms_env.env.infos`): per agent one flat dict of numbers with the same
+    keys (`env.info_keys`) at `reset` and at every step, so that TorchRL's
+    `PettingZooWrapper(env=parallel_env(...))` carries them: `cost`,
+    `constraint_<kind>`, `reward_<term>`, `episode_end`, `diverged`, and the metrics
+    (zeros until the step that ends the episode; the same values for every agent).
+    `uvms_env.env.infos.episode_metrics(info)` reads them back. The internal wrench
+    metric costs ~20 us (~6% of a step); `internal_wrench_every=0` drops it (e.g. for
+    training).
 
     **Rendering.** `render_mode="rgb_array"`: `render()` returns a (360, 720, 3) uint8
     array (height, width, RGB), a top and a side view (`uvms_env.env.render`); "human"
@@ -167,9 +176,14 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     The number of agents never changes and never depends on a seed: two environments
     built with the same arguments and reset with the same seed are identical.
 
-    **Version history.** v0 (2026-11): first version; the `comm` option added later in
-    2026-11 (default off: observations, actions and episodes unchanged, a test replays
-    episodes recorded before it).
+    **Version history.** v1 (2026-12): the metrics gain the graded safety per kind (excess,
+    largest excess, violated share of robot-periods), clean success within a 5 % band and
+    the return; `input` leaves the safety totals, the reward's violation term and `cost`
+    (it is clipped before the simulator); `vehicle_speed`'s value is the faster axis's
+    fraction beyond its limit; the infos are flat numbers with the same keys at `reset`
+    and every step, `episode_end` a code (docs/environment.md, "From v0 to v1"). v0 is
+    no longer registered (its numbers are not comparable). v0 (2026-11): first version;
+    the `comm` option added later in 2026-11 (default off).
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -206,6 +220,9 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
         self.state_space = spaces.Box(-np.inf, np.inf, (size,), np.float32)
         self._path: list[np.ndarray] = []
         self._renderer: Any = None
+        self._infos = InfoLayout(self._core.task.constraints, self._core.task.reward_terms)
+        self.info_keys = self._infos.keys
+        self.diverged_reason = ""
 
     # -- public views ------------------------------------------------------------------
     @property
@@ -236,7 +253,8 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
         self._core.reset([0])
         self.agents = self.possible_agents[:]
         self._path = [self._engine.object_pose(...)[:3].copy()]
-        return self._observations(), {a: {} for a in self.possible_agents}
+        self.diverged_reason = ""
+        return self._observations(), self._infos.reset(self.possible_agents)
 
     def step(
         self, actions: Mapping[str, Any]
@@ -256,25 +274,15 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
         if self.render_mode is not None:
             self._path.append(self._engine.object_pose(...)[:3].copy())
         agents = self.possible_agents
-        terms = {name: float(v) for name, v in out.terms.items()}
-        g_rows, costs = out.constraint_values.tolist(), out.cost.tolist()
-        names = core.task.constraints
-        infos = {
-            agent: {
-                "constraint_values": dict(zip(names, g_rows[i], strict=True)),
-                "cost": costs[i],
-                "reward_terms": dict(terms),
-            }
-            for i, agent in enumerate(agents)
-        }
+        terms = [float(v) for v in out.terms.values()]
+        rows = (agents, out.cost.tolist(), out.constraint_values.tolist(), terms)
         if terminated or truncated:
             (end,), (metrics,), (reason,) = core.ended([0], out, diverged)
-            for info in infos.values():
-                info["episode_end"] = end
-                info["metrics"] = metrics
-                if reason:
-                    info["diverged_reason"] = reason
+            self.diverged_reason = reason
+            infos = self._infos.step(*rows, end, bool(reason), metrics)
             self.agents = []
+        else:
+            infos = self._infos.step(*rows)
         return (
             self._observations(),
             dict.fromkeys(agents, reward),

@@ -1,10 +1,10 @@
 """Put the environment in PettingZoo's and Gymnasium's registries (on ``import uvms_env``).
 
-* PettingZoo 1.27: ``pettingzoo.make("parallel", "uvms_env/CoopTransport-v0", **kwargs)``
+* PettingZoo 1.27: ``pettingzoo.make("parallel", "uvms_env/CoopTransport-v1", **kwargs)``
   (``max_cycles`` is passed through when given).
-* Gymnasium (>= 1.0): ``gymnasium.make("uvms_env/CoopTransport-v0", **kwargs)``, or
-  without a prior import ``gymnasium.make("uvms_env:uvms_env/CoopTransport-v0")``.
-* Gymnasium's vector API: ``gymnasium.make_vec("uvms_env/CoopTransport-v0", num_envs=K,
+* Gymnasium (>= 1.0): ``gymnasium.make("uvms_env/CoopTransport-v1", **kwargs)``, or
+  without a prior import ``gymnasium.make("uvms_env:uvms_env/CoopTransport-v1")``.
+* Gymnasium's vector API: ``gymnasium.make_vec("uvms_env/CoopTransport-v1", num_envs=K,
   **kwargs)`` builds the batched ``uvms_env.vector.gym_vector.CoopTransportVectorEnv``
   (the ``vector_entry_point``, Gymnasium's default mode when one is registered; kwargs as
   ``uvms_env.vector.VectorEnv``: ``scenario``, ``dtype``, ``threads``, overrides);
@@ -19,7 +19,7 @@ from __future__ import annotations
 import gymnasium
 import pettingzoo
 
-ENV_ID = "uvms_env/CoopTransport-v0"
+ENV_ID = "uvms_env/CoopTransport-v1"
 PARALLEL_ENTRY_POINT = "uvms_env.env.parallel:parallel_env"
 GYMNASIUM_ENTRY_POINT = "uvms_env.env.gym_wrapper:CoopTransportGymEnv"
 VECTOR_ENTRY_POINT = "uvms_env.vector.gym_vector:CoopTransportVectorEnv"

@@ -9,8 +9,10 @@ kind              g (<= 0 means satisfied)
 input             max_k |a_k| - 1: a requested normalized input beyond the saturation
 joint_limit       max_m |q_m| - ``joint_position``
 joint_speed       max_m |qdot_m| - ``joint_speed``
-vehicle_speed     max(max |u, v, w| - ``vehicle_linear_speed``,
-                  max |p, q, r| - ``vehicle_angular_speed``)
+vehicle_speed     max(max |u, v, w| / ``vehicle_linear_speed``,
+                  max |p, q, r| / ``vehicle_angular_speed``) - 1: the faster axis's
+                  speed beyond its limit, as a fraction of that limit (two units in one
+                  kind: the fraction is what they share)
 manipulability    eps - det(Jbar Jbar^T), eps = ``MANIPULABILITY_EPS``, Jbar the 8 actuated
                   columns of the end-effector Jacobian (about 4.2 at the paper's start)
 representation    max(|theta_O|, |theta_i|) - (pi/2 - ``REPRESENTATION_MARGIN``): object and
@@ -20,6 +22,20 @@ collision         -clearance: the smallest signed distance from the robot's bodi
 workspace         the largest distance by which the robot's bodies or the object reach
                   outside the workspace ball (m)
 ================  ========================================================================
+
+Graded safety (``constraint_scales``, ``SAFETY_CONSTRAINTS``): each kind's value divided
+by its scale, ``max(0, g) / scale``, is its excess as a fraction of the limit (input 1,
+joint_limit ``joint_position``, joint_speed ``joint_speed``, vehicle_speed 1 (already a
+fraction), manipulability ``MANIPULABILITY_EPS``, representation pi/2 -
+``REPRESENTATION_MARGIN``, collision and workspace the vehicle's bounding radius: a
+penetration or an excursion as a fraction of the robot's size). ``CLEAN_TOLERANCE`` is the
+band of clean success with a tolerance. ``input`` is reported per kind but is not a safety
+kind: the requested input is clipped before the simulator, every applied input is within
+the saturation, and the ladder's policies (the expert, the loaders, SB3, the random
+policy) clip before they act, so a violation is a caller's out-of-space request, not the
+robot leaving its envelope. The totals (violation periods, clean success, the graded
+totals, the reward's violation term and each robot's ``cost``) count
+``SAFETY_CONSTRAINTS`` only (and any extra constraints).
 
 Bodies: the vehicle is a sphere of radius ``vehicle.bounding_radius`` at its origin, the
 arm links are capsules of radius ``arm.tube_radius`` between consecutive columns 1..5 of
@@ -52,6 +68,10 @@ CONSTRAINTS = (
     "collision",
     "workspace",
 )
+#: The kinds the safety totals count: every kind but ``input`` (module docstring).
+SAFETY_CONSTRAINTS = tuple(c for c in CONSTRAINTS if c != "input")
+#: Clean success with a tolerance: no kind beyond this fraction of its scale.
+CLEAN_TOLERANCE = 0.05
 # Always end the episode, whatever the constraint mode: the bodies have hit something.
 HARD_CONSTRAINTS = ("collision",)
 
@@ -69,6 +89,24 @@ MAX_CLEARANCE = 100.0
 # functions serve every scenario with the same number of robots.
 PAD_CYLINDER = (1e6, 1e6, 0.0)
 PAD_SPHERE = (1e6, 1e6, 1e6, 0.0)
+
+
+def constraint_scales(params: Parameters) -> tuple[float, ...]:
+    """The scale of each kind's value (order of ``CONSTRAINTS``): one unit of
+    ``max(0, g) / scale`` is a violation by the whole limit (module docstring)."""
+    lim = params.limits
+    length = params.vehicle.bounding_radius
+    scale = {
+        "input": 1.0,
+        "joint_limit": lim.joint_position,
+        "joint_speed": lim.joint_speed,
+        "vehicle_speed": 1.0,
+        "manipulability": MANIPULABILITY_EPS,
+        "representation": np.pi / 2 - REPRESENTATION_MARGIN,
+        "collision": length,
+        "workspace": length,
+    }
+    return tuple(float(scale[c]) for c in CONSTRAINTS)
 
 
 def segment_point_distance(a: cs.SX, b: cs.SX, c: cs.SX) -> cs.SX:
@@ -124,9 +162,10 @@ def robot_constraints(
         cs.mmax(cs.fabs(q[6:])) - lim.joint_position,
         cs.mmax(cs.fabs(zeta[6:])) - lim.joint_speed,
         cs.fmax(
-            cs.mmax(cs.fabs(zeta[:3])) - lim.vehicle_linear_speed,
-            cs.mmax(cs.fabs(zeta[3:6])) - lim.vehicle_angular_speed,
-        ),
+            cs.mmax(cs.fabs(zeta[:3])) / lim.vehicle_linear_speed,
+            cs.mmax(cs.fabs(zeta[3:6])) / lim.vehicle_angular_speed,
+        )
+        - 1.0,
         MANIPULABILITY_EPS - manipulability,
         cs.fmax(cs.fabs(object_pitch), cs.fabs(q[4])) - (np.pi / 2 - REPRESENTATION_MARGIN),
         -cs.fmin(clearance, MAX_CLEARANCE),

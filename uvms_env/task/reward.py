@@ -9,7 +9,7 @@
 * ``waypoint = w_waypoint`` in the step the true object passes an intermediate
   waypoint (within ``WAYPOINT_TOLERANCE``; the team's own sequencer, in order).
 * ``success = w_success`` in the step the episode succeeds.
-* ``violation = -w_violation * (violated constraints summed over robots) / N
+* ``violation = -w_violation * (violated safety constraints summed over robots) / N
   - w_failure * [the episode ends in failure: collision, a violation in "terminate"
   mode, or simulator divergence]``.
 * ``effort = -w_effort * mean over robots and inputs of a^2`` (a normalized, clipped).

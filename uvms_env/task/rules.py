@@ -33,12 +33,16 @@ from uvms_env.task.tally import Tally
 from uvms_env.task.team_rows import (
     ACTION_SQ,
     ALL,
+    ANY_VIOLATED,
     AT_GOAL,
+    EXCESS,
     KINDS,
+    MAX_EXCESS,
     PASSED,
     POTENTIAL,
     POTENTIAL_AFTER,
     VIOLATED,
+    VIOLATED_ROBOTS,
 )
 
 HARD_KINDS = [CONSTRAINTS.index(c) for c in HARD_CONSTRAINTS]  # indices of HARD_CONSTRAINTS
@@ -75,7 +79,7 @@ class StepOutcome(NamedTuple):
     reward: Any  # B
     terms: dict[str, Any]  # name -> B, REWARD_TERMS then the extra terms
     constraint_values: Any  # B + (N, C): C = 8 + extra constraints
-    cost: Any  # B + (N,) violated constraints per robot
+    cost: Any  # B + (N,) violated safety constraints per robot
     success: Any  # B bool
     failed: Any
     collision: Any
@@ -169,7 +173,7 @@ class Task(NamespacePickled):
         self.sequencing = Sequencing(
             xp, b, n_agents, w_max, (weights.attitude, success_pos_tol, success_att_tol)
         )
-        self.tally = Tally(xp, b, len(self.constraints))
+        self.tally = Tally(xp, b, len(self.constraints), n_agents)
         self._hard_many = len(HARD_KINDS) > 1
         self._hard = HARD_KINDS if self._hard_many else HARD_KINDS[0]
         self.steps = xp.zeros(b, np.int64)
@@ -250,6 +254,7 @@ class Task(NamespacePickled):
         xp = self.xp
         kinds = team[KINDS].T > 0.0  # B + (8,)
         n_violated = team[VIOLATED]
+        graded = (team[EXCESS].T, team[MAX_EXCESS].T, team[VIOLATED_ROBOTS].T, team[ANY_VIOLATED])
         if self.constraint_fns:
             assert state is not None, "extra constraints need the state"
             extra = self.extra_constraint_values(state)
@@ -258,6 +263,7 @@ class Task(NamespacePickled):
             cost = cost + violated.sum(axis=-1)
             kinds = xp.concatenate([kinds, violated.any(axis=-2)], axis=-1)
             n_violated = n_violated + violated.sum(axis=(-2, -1))
+            graded = self._with_extra(graded, xp.maximum(extra, 0.0), violated, cost)
         hard = kinds[..., self._hard]
         collision = hard.any(axis=-1) if self._hard_many else hard
         failed = diverged | collision
@@ -267,13 +273,14 @@ class Task(NamespacePickled):
         terminated = success | failed
         truncated = (self.steps >= self.max_cycles) & ~terminated
         action_sq = team[ACTION_SQ]
-        self.tally.add_step(kinds, action_sq * self.period, sampled, wrench_sq)
+        self.tally.add_step(kinds, graded, action_sq * self.period, sampled, wrench_sq)
         self.sequencing.commit(ALL, team)
         terms = self._reward_terms(team, success, failed, n_violated, action_sq, state)
         values = iter(terms.values())
         reward = next(values)
         for value in values:  # in order: REWARD_TERMS, then the extra terms
             reward = reward + value
+        self.tally.add_reward(reward)
         return StepOutcome(
             reward,
             terms,
@@ -284,6 +291,19 @@ class Task(NamespacePickled):
             collision,
             terminated,
             truncated,
+        )
+
+    def _with_extra(self, graded: tuple, excess: Any, violated: Any, cost: Any) -> tuple:
+        """The kernel's graded rows with the extra constraints' (scale 1: their own
+        units) after them; any safety kind of a robot, extra ones included, from its
+        ``cost`` (B + (N,), every kind it counts)."""
+        xp = self.xp
+        summed, largest, robots, _ = graded
+        return (
+            xp.concatenate([summed, excess.sum(axis=-2)], axis=-1),
+            xp.concatenate([largest, excess.max(axis=-2)], axis=-1),
+            xp.concatenate([robots, violated.sum(axis=-2)], axis=-1),
+            (cost > 0).sum(axis=-1),
         )
 
     def _reward_terms(

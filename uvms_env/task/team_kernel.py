@@ -43,10 +43,13 @@ from uvms_env.navigation.task_navigator import WAYPOINT_TOLERANCE, waypoint_tabl
 from uvms_env.sim.chain import NG  # grasp per robot: offset l_i (3), R_Oi column-major (9)
 from uvms_env.sim.simulator import compiled_chain, grasp_parameters
 from uvms_env.task.constraints import (
+    CONSTRAINTS,
     PAD_CYLINDER,
     PAD_SPHERE,
+    SAFETY_CONSTRAINTS,
     ball_excess,
     capsule_clearance,
+    constraint_scales,
     robot_constraints,
 )
 from uvms_env.task.team_rows import TEAM_INPUT
@@ -68,7 +71,7 @@ NS = 13  # per robot, known a priori: load share, grasp offset, R_Oi row-major
 #: a scenario with more uses its own count.
 WAYPOINT_SLOTS = 3
 #: Rows of the per-robot ``scalars`` output: manipulability, grasp error, own clearance,
-#: violated constraints, squared clipped action.
+#: violated safety constraints (its ``cost``), squared clipped action.
 ROBOT_SCALARS = 5
 ROBOT_VIOLATED = 3
 Layout = tuple[tuple[str, int], ...]  # the observation's (name, size) blocks, in order
@@ -292,7 +295,7 @@ def robot_function(
         manip,
         cs.sqrt(cs.dot(e, e)),
         own,
-        cs.sum1(g > 0.0),
+        cs.sum1(g[_SAFETY_ROWS] > 0.0),
         cs.dot(a_clip, a_clip),
     )
     return cs.Function(
@@ -301,6 +304,20 @@ def robot_function(
         [obs, pose, g, scalars, seq_next],
         {"cse": True},
     )
+
+
+_SAFETY_ROWS = [CONSTRAINTS.index(c) for c in SAFETY_CONSTRAINTS]
+
+
+def _graded(g: cs.MX, n: int) -> cs.MX:
+    """The team rows ``EXCESS``, ``MAX_EXCESS``, ``VIOLATED_ROBOTS`` and ``ANY_VIOLATED`` of
+    the robots' constraint values ``g`` (8, n) (``uvms_env.task.team_rows``)."""
+    inv = cs.DM([1.0 / s for s in constraint_scales(default_model().params)])
+    excess = cs.fmax(g, 0.0) * cs.repmat(inv, 1, n)
+    largest = cs.vertcat(*[cs.mmax(excess[k, :]) for k in range(len(CONSTRAINTS))])
+    violated = g > 0.0
+    any_safety = cs.sum2(cs.sum1(violated[_SAFETY_ROWS, :]) > 0.0)
+    return cs.vertcat(cs.sum2(excess), largest, cs.sum2(violated), any_safety)
 
 
 def object_function(radius: float, n_seg: int, n_cyl: int, n_sph: int) -> cs.Function:
@@ -376,11 +393,12 @@ def team_function(
         cs.fmin(cs.mmin(scalars[2, :]), obj_terms[0]),  # clearance of every body
         cs.mmin(scalars[0, :]),  # manipulability
         cs.mmax(scalars[1, :]),  # grasp error
-        cs.sum2(scalars[3, :]),  # violated constraints, all robots
+        cs.sum2(scalars[3, :]),  # violated safety constraints, all robots
         cs.sum2(scalars[4, :]),  # sum of squared clipped normalized actions
         cs.sum2(g > 0.0) > 0.0,  # per kind: violated by any robot
         obj_terms,
         _team_sequencer_function(w_slots)(x_o, team_in, table, count, goal),
+        _graded(g, n),
     )
     inputs = [a, q, zeta, qm, zm, x_o, grasp, static, seq, team_in, table, count, goal, tf]
     inputs += [seg, cyl, sph, ws]

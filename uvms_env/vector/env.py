@@ -92,13 +92,13 @@ class VectorEnv(CoreViews):
     | key | shape | meaning |
     |---|---|---|
     | constraint_values | (K, N, 8 + E) | g <= 0 holds: `CONSTRAINTS`, then E extra ones |
-    | cost | (K, N) | violated constraints per robot |
+    | cost | (K, N) | violated safety constraints per robot |
     | reward_terms | dict name -> (K,) | the terms of the shared reward (extra terms last) |
     | success | (K,) bool | the episode succeeded this step |
     | episode_end | (K,) object | "" or success, collision, constraint, diverged, max_cycles |
     | final_observation | (K, N, 79) | last observation of the envs that ended (else zeros) |
     | final_state | (K, 20 N + 19) or None | `state()` before the resets, when an env ended |
-    | metrics | (K,) object | the ended episodes' metrics (`uvms_env.task.metrics`) or None |
+    | metrics | (K,) object | the ended episodes' flat metrics (`uvms_env.task.metrics`), or None |
     | diverged_reason | (K,) object | why a step was refused ("" elsewhere) |
 
     **Communication** (`comm=`): as in `parallel_env`, the same channel code over K: actions

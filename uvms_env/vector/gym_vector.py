@@ -1,7 +1,7 @@
 """Gymnasium's vector API over a ``VectorEnv``: the centralized view, K environments at once.
 
     import gymnasium, uvms_env
-    envs = gymnasium.make_vec("uvms_env/CoopTransport-v0", num_envs=64, scenario="short",
+    envs = gymnasium.make_vec("uvms_env/CoopTransport-v1", num_envs=64, scenario="short",
                               dtype="float32")       # vectorization_mode: vector_entry_point
     obs, infos = envs.reset(seed=0)                  # obs (64, 79 N)
     obs, rewards, terminations, truncations, infos = envs.step(actions)   # actions (64, 8 N)
@@ -11,7 +11,8 @@ robots' observations concatenated, their actions concatenated, the team reward. 
 centralized by construction; ``uvms_env.vector.sb3`` gives the decentralized, shared-policy
 view for SB3.
 
-May import: numpy, gymnasium and ``uvms_env.vector.env``.
+May import: numpy, gymnasium, ``uvms_env.env.infos`` (the single view's info layout),
+``uvms_env.task.metrics`` and ``uvms_env.vector.env``.
 """
 
 from __future__ import annotations
@@ -25,12 +26,14 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector import VectorEnv as GymVectorEnv
 from gymnasium.vector.utils import batch_space
 
+from uvms_env.env.infos import CONSTRAINT_PREFIX, InfoLayout, end_code
 from uvms_env.scenarios import Scenario
+from uvms_env.task.metrics import metric_keys
 from uvms_env.vector.env import VectorEnv
 
 
 class CoopTransportVectorEnv(GymVectorEnv):
-    """``gymnasium.vector.VectorEnv`` of K centralized ``uvms_env/CoopTransport-v0`` envs.
+    """``gymnasium.vector.VectorEnv`` of K centralized ``uvms_env/CoopTransport-v1`` envs.
 
     Construct: ``CoopTransportVectorEnv(num_envs=1, scenario="paper", dtype="float64",
     threads=None, **overrides)``, the arguments of ``uvms_env.vector.VectorEnv`` (the
@@ -52,22 +55,16 @@ class CoopTransportVectorEnv(GymVectorEnv):
     ``_key`` mask (``_final_obs``, ``_final_info``: the environments that ended). Both
     keys appear only on steps where some episode ended.
 
-    **Infos** (dicts of arrays over environments, each key with its ``_key`` mask):
-
-    | key | shape | where |
-    |---|---|---|
-    | reward_terms | dict name -> (K,) | every step |
-    | cost | (K,) int | every step: violated constraints, summed over the robots |
-    | constraint_values | (K, N, 8) | every step: each robot's g <= 0 values |
-    | episode_end | (K,) object | in ``final_info`` only |
-    | metrics | dict name -> (K,) | in ``final_info`` only (``uvms_env.task.metrics``) |
-    | diverged_reason | (K,) object | in ``final_info``, for refused steps |
-    | episode_seed | (K,) int | ``reset`` |
-
-    As in ``SyncVectorEnv``, the top-level masks are False for the environments that
-    ended (their step infos are in ``final_info``); the arrays hold every environment's
-    values all the same. The single environment's per-agent ``"agents"`` infos are not
-    built (``constraint_values`` carries their content as an array).
+    **Infos** (dicts of arrays over environments, each key with its ``_key`` mask): the
+    single view's team info (``CoopTransportGymEnv``, ``uvms_env.env.infos``) as (K,)
+    arrays, the same keys every step: ``cost`` (violated safety constraints summed over
+    the robots), ``reward_<term>``, ``episode_end`` (the end's code; 0 while an episode
+    runs), ``diverged`` and the metrics (zeros until an episode's end); and
+    ``constraint_values`` (K, N, C), each robot's g <= 0 values (the single view's
+    per-agent ``"agents"`` infos are not built: this carries their content). Where an
+    episode ended, ``final_info`` holds that step's values and the top level the new
+    episode's first infos (zeros), as ``SyncVectorEnv`` reports a reset; ``reset`` gives
+    the zeros and ``episode_seed`` (K,) int.
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -99,6 +96,11 @@ class CoopTransportVectorEnv(GymVectorEnv):
         )
         self.single_action_space = spaces.Box(-1.0, 1.0, (act.shape[0] * n,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        task = self.vector_env.task
+        zeros = InfoLayout(task.constraints, task.reward_terms).reset(["team"])["team"]
+        # the team's keys of a reset's infos (every key but the robots' constraint values)
+        self._zeros = {k: v for k, v in zeros.items() if not k.startswith(CONSTRAINT_PREFIX)}
+        self._metric_keys = metric_keys(task.constraints)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.render_mode = None
 
@@ -122,11 +124,10 @@ class CoopTransportVectorEnv(GymVectorEnv):
             elif any(s is None for s in seeds):
                 raise ValueError(f"seed: all ints or all None, got {seeds}")
         obs, infos = self.vector_env.reset(seed=seed)
-        mask = np.ones(self.num_envs, bool)
-        return obs.reshape(self.num_envs, -1), {
-            "episode_seed": np.asarray(infos["episode_seed"]),
-            "_episode_seed": mask,
-        }
+        k = self.num_envs
+        zeros = {key: np.full(k, v, dtype=type(v)) for key, v in self._zeros.items()}
+        zeros["episode_seed"] = np.asarray(infos["episode_seed"])
+        return obs.reshape(k, -1), _masked(zeros, np.ones(k, bool))
 
     def step(
         self, actions: Any
@@ -137,32 +138,42 @@ class CoopTransportVectorEnv(GymVectorEnv):
             raise ValueError(f"actions must have shape {self.action_space.shape}, got {a.shape}")
         obs, reward, terminated, truncated, vinfos = self.vector_env.step(a.reshape(k, n, -1))
         ended = terminated | truncated
-        step_info = {
-            "reward_terms": vinfos["reward_terms"],
-            "cost": vinfos["cost"].sum(axis=1),
-            "constraint_values": vinfos["constraint_values"],
-        }
-        infos = _masked(step_info, ~ended)
-        if ended.any():
-            ids = np.flatnonzero(ended).tolist()
-            final_obs = np.full(k, None, dtype=object)
-            last = vinfos["final_observation"].reshape(k, -1)
-            for i in ids:
-                final_obs[i] = last[i]
-            final = {
-                **_copied(step_info),
-                "episode_end": np.where(ended, vinfos["episode_end"], None),
-            }
-            final_info = _masked(final, ended)
-            final_info["metrics"] = _stacked([vinfos["metrics"][i] for i in ids], ids, k)
-            final_info["_metrics"] = ended.copy()
-            diverged = vinfos["diverged_reason"] != ""
-            if (diverged & ended).any():
-                final_info["diverged_reason"] = np.where(diverged, vinfos["diverged_reason"], None)
-                final_info["_diverged_reason"] = diverged & ended
-            infos["final_obs"], infos["_final_obs"] = final_obs, ended.copy()
-            infos["final_info"], infos["_final_info"] = final_info, ended.copy()
+        step_info = self._team_info(vinfos, ended)
+        if not ended.any():
+            return obs.reshape(k, -1), reward, terminated, truncated, _masked(step_info, ~ended)
+        # as SyncVectorEnv in same-step mode: the ended episodes' infos in final_info, the
+        # new episodes' first (reset) infos at the top level
+        infos = _masked({key: v.copy() for key, v in step_info.items()}, np.ones(k, bool))
+        for key, value in self._zeros.items():
+            infos[key][ended] = value
+        ids = np.flatnonzero(ended).tolist()
+        final_obs = np.full(k, None, dtype=object)
+        last = vinfos["final_observation"].reshape(k, -1)
+        for i in ids:
+            final_obs[i] = last[i]
+        infos["final_obs"], infos["_final_obs"] = final_obs, ended.copy()
+        infos["final_info"], infos["_final_info"] = _masked(step_info, ended), ended.copy()
         return obs.reshape(k, -1), reward, terminated, truncated, infos
+
+    def _team_info(self, vinfos: dict[str, Any], ended: np.ndarray) -> dict[str, np.ndarray]:
+        """The single view's team info (``CoopTransportGymEnv``) of every environment, as
+        arrays (K,): the robots' summed cost, the reward's terms, how the episode ended,
+        whether its step was refused and the ended episodes' metrics (zeros elsewhere);
+        and the robots' constraint values (K, N, C)."""
+        k = self.num_envs
+        out: dict[str, np.ndarray] = {"cost": vinfos["cost"].sum(axis=1)}
+        for name, value in vinfos["reward_terms"].items():
+            out[f"reward_{name}"] = np.broadcast_to(value, (k,)).astype(float)
+        out["episode_end"] = np.array([end_code(e) if e else 0 for e in vinfos["episode_end"]])
+        out["diverged"] = (vinfos["diverged_reason"] != "").astype(int) & ended
+        for key in self._metric_keys:
+            zero = self._zeros[key]
+            column = np.full(k, zero, dtype=type(zero))
+            for i in np.flatnonzero(ended).tolist():
+                column[i] = vinfos["metrics"][i][key]
+            out[key] = column
+        out["constraint_values"] = vinfos["constraint_values"]
+        return out
 
     def state(self) -> np.ndarray:
         """(K, 20 N + 19) float32: each environment's ``parallel_env.state()``."""
@@ -180,31 +191,3 @@ def _masked(values: dict[str, Any], mask: np.ndarray) -> dict[str, Any]:
         out[key] = _masked(value, mask) if isinstance(value, dict) else value
         out[f"_{key}"] = mask.copy()
     return out
-
-
-def _stacked(dicts: list[dict[str, Any]], ids: list[int], k: int) -> dict[str, Any]:
-    """The dicts of environments ``ids`` as one dict of (K,) arrays with ``_key`` masks, as
-    ``_add_info`` batches a dict-valued info: numbers in an array of their type (zeros
-    elsewhere), anything else (None, str) in an object array (None elsewhere)."""
-    mask = np.zeros(k, bool)
-    mask[ids] = True
-    out: dict[str, Any] = {}
-    for key in dicts[0]:
-        values = [d[key] for d in dicts]
-        if all(isinstance(v, dict) for v in values):
-            out[key] = _stacked(values, ids, k)
-        else:
-            kinds = {type(v) for v in values}
-            number = len(kinds) == 1 and issubclass(kinds.pop(), int | float | bool | np.number)
-            array = np.zeros(k, type(values[0])) if number else np.full(k, None, object)
-            array[ids] = values
-            out[key] = array
-        out[f"_{key}"] = mask.copy()
-    return out
-
-
-def _copied(values: dict[str, Any]) -> dict[str, Any]:
-    return {
-        key: _copied(value) if isinstance(value, dict) else np.array(value, copy=True)
-        for key, value in values.items()
-    }

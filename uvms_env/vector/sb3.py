@@ -11,7 +11,8 @@ team's sub-environments end their episode together. The step is the ``VectorEnv`
 reshaped; Python builds one small info dict per sub-environment (SB3 wants a list) and
 nothing else per robot.
 
-May import: numpy, gymnasium, stable-baselines3 and ``uvms_env.vector.env``.
+May import: numpy, gymnasium, stable-baselines3, ``uvms_env.env.infos`` (the end codes) and
+``uvms_env.vector.env``.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
+from uvms_env.env.infos import end_code
 from uvms_env.vector.env import VectorEnv
 
 # ConcatVecEnv: part j's seed is the given one plus j times this (a prime: the parts'
@@ -43,12 +45,13 @@ class VectorVecEnv(VecEnv):
     | infos | one dict per sub-environment: the robot's ``cost`` |
 
     Where the episode ended, the infos also hold ``terminal_observation`` (the robot's last
-    observation), ``TimeLimit.truncated``, ``episode_end``, ``metrics`` (one dict shared by
-    the team's robots) and, when the step was refused, ``diverged_reason``.
+    observation), ``TimeLimit.truncated`` and, as the single env's last infos name them
+    (``uvms_env.env.infos``), ``episode_end`` (the end's code), ``diverged`` and the
+    episode's metrics.
 
-    The per-robot ``constraint_values`` and ``reward_terms`` dicts of the single env are
-    left out (they would cost K N dicts a step): the last step's batched infos (arrays over
-    environments) are in ``last_infos``.
+    The single env's per-step ``constraint_<kind>`` and ``reward_<term>`` keys are left out
+    (K N dicts of them a step would cost more than the step): the last step's batched
+    infos (arrays over environments) are in ``last_infos``.
 
     **Seeding** (the adapters' one rule, ``uvms_env.vector.seeding``): the first
     ``reset()`` is the ``VectorEnv``'s ``reset(seed=seed)`` (with ``seed=None``: its own
@@ -112,11 +115,10 @@ class VectorVecEnv(VecEnv):
             for k in np.flatnonzero(ended).tolist():
                 shared = {
                     "TimeLimit.truncated": bool(truncated[k] and not terminated[k]),
-                    "episode_end": infos["episode_end"][k],
-                    "metrics": infos["metrics"][k],
+                    "episode_end": end_code(infos["episode_end"][k]),
+                    "diverged": int(bool(infos["diverged_reason"][k])),
+                    **infos["metrics"][k],
                 }
-                if infos["diverged_reason"][k]:
-                    shared["diverged_reason"] = infos["diverged_reason"][k]
                 for a in range(n):
                     info = out[k * n + a]
                     info.update(shared)

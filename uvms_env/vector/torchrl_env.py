@@ -25,14 +25,13 @@ without a ``_reset`` entry (each ``rollout``, a collector's first reset) is, so 
 evaluations that start afresh play the same episodes.
 
 Infos (``info=True``): ``(uvms, info)`` holds, per robot (K, N) float32, ``cost`` (its
-violated constraints this period) and, on the step that ends an episode (zero on every
-other), that episode's ``EPISODE_INFO`` values: ``success``, ``clean_success`` (0/1),
-``violation_periods``, ``violations_<kind>`` per constraint kind, ``episode_steps``,
-``final_pos_error_m``, ``final_att_error_rad``, ``episode_cost`` (the robot's ``cost``
-summed over the episode) and, when the vector env computes it (``internal_wrench_every >
-0``), ``internal_wrench_rms``.
-The same numbers are what ``FlatInfos`` gives TorchRL's ``PettingZooWrapper`` of one
-``parallel_env``, whose own infos hold dicts and strings that the wrapper cannot carry.
+violated safety constraints this period) and, on the step that ends an episode (zero on
+every other), that episode's metrics (``uvms_env.task.metrics``: success, clean success
+with and without the tolerance, the return, the violation periods and the graded safety
+per kind, ...; ``internal_wrench_rms`` when the vector env computes it) and
+``episode_cost`` (the robot's ``cost`` summed over the episode). The metrics have the
+names of the single env's infos, which TorchRL's ``PettingZooWrapper`` carries as they are
+(``uvms_env.env.infos``).
 
 Rendering: ``render(env_index=0)`` draws one copy's current state as
 ``parallel_env(render_mode="rgb_array").render()`` does (``uvms_env.env.render``, imported
@@ -48,8 +47,8 @@ passes through numpy. The host reads a mask only where ``_reset`` restarts envir
 that had not ended (the ids ``VectorEnv.restart`` takes).
 
 Only imported on demand (TorchRL is optional). May import: numpy, torch, tensordict,
-torchrl, pettingzoo, ``uvms_env.vector.env``, ``uvms_env.env`` (options; the renderer and the
-parallel env's class only inside ``render`` and ``FlatInfos``).
+torchrl, ``uvms_env.vector.env``, ``uvms_env.task.metrics``, ``uvms_env.env`` (options; the
+renderer only inside ``render``).
 """
 
 from __future__ import annotations
@@ -60,49 +59,31 @@ from typing import Any
 
 import numpy as np
 import torch
-from pettingzoo.utils.wrappers import BaseParallelWrapper
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from uvms_env.env.options import state_structure
+from uvms_env.task.metrics import metric_keys
 from uvms_env.vector.env import VectorEnv
 
 GROUP = "uvms"
-# an ended episode's values, by metric (``uvms_env.task.metrics``), in the infos; the
-# per-kind violation periods, the episode's cost and the internal wrench are added per env
-EPISODE_INFO = (
-    "success",
-    "clean_success",
-    "violation_periods",
-    "episode_steps",
-    "final_pos_error_m",
-    "final_att_error_rad",
-)
 
 
 def episode_info_keys(constraints: Sequence[str], internal_wrench: bool) -> tuple[str, ...]:
-    """The names of an ended episode's values in the infos, in order (module docstring)."""
-    keys = (*EPISODE_INFO, *(f"violations_{kind}" for kind in constraints), "episode_cost")
-    return (*keys, "internal_wrench_rms") if internal_wrench else keys
+    """The names of an ended episode's values in the infos, in order: the metrics
+    (``uvms_env.task.metrics.metric_keys``; ``internal_wrench_rms`` only where the vector
+    env computes it) and the robot's summed cost."""
+    keys = [k for k in metric_keys(constraints) if internal_wrench or k != "internal_wrench_rms"]
+    return (*keys, "episode_cost")
 
 
 def episode_info_values(
     metrics: Mapping[str, Any], episode_cost: float, keys: Sequence[str]
 ) -> list[float]:
-    """``keys``' values of one ended episode: its metrics dict and the robot's summed cost;
-    a metric the episode has none of (``internal_wrench_rms`` before its first sample) is
-    NaN."""
-    values = []
-    for key in keys:
-        if key == "episode_cost":
-            value: Any = episode_cost
-        elif key.startswith("violations_"):
-            value = metrics["violations"][key.removeprefix("violations_")]
-        else:
-            value = metrics[key]
-        values.append(math.nan if value is None else float(value))
-    return values
+    """``keys``' values of one ended episode: its metrics dict and the robot's summed cost
+    (a metric the episode has none of is NaN)."""
+    return [float(episode_cost if key == "episode_cost" else metrics[key]) for key in keys]
 
 
 class CoopTransportTorchRLEnv(EnvBase):
@@ -346,54 +327,3 @@ def vector_device(vector_env: VectorEnv) -> torch.device:
     if vector_env.backend == "cpu" or vector_env.device == "cpu":
         return torch.device("cpu")
     return torch.device("cuda", int(vector_env.device))
-
-
-class FlatInfos(BaseParallelWrapper):
-    """One ``parallel_env`` whose infos are numbers only, the same keys at ``reset`` (zeros)
-    and at every step, for TorchRL's ``PettingZooWrapper``: it builds its info spec from
-    ``reset``'s infos and writes each step's into it as tensors, so the parallel env's
-    own infos (dicts, and at the end strings and a metrics dict) cannot go through.
-
-        from torchrl.envs import PettingZooWrapper
-        env = PettingZooWrapper(env=FlatInfos(uvms_env.parallel_env("short")), return_state=True)
-        td = env.rollout(100)    # td["next", "uvms", "info", "cost"]: (100, 2)
-
-    Per agent: ``cost``, ``constraint_<kind>`` (the constraint values), ``reward_<term>`` (the
-    reward's terms) and the ended episode's values of ``episode_info_keys`` (zero on the
-    other steps), as ``CoopTransportTorchRLEnv(..., info=True)`` names them."""
-
-    def __init__(self, env: Any) -> None:
-        super().__init__(env)
-        base = env.unwrapped
-        task = base.task
-        self.episode_keys = episode_info_keys(task.constraints, base.internal_wrench_every > 0)
-        self.info_keys: tuple[str, ...] = (
-            "cost",
-            *(f"constraint_{kind}" for kind in task.constraints),
-            *(f"reward_{term}" for term in task.reward_terms),
-            *self.episode_keys,
-        )
-        self._episode_cost: dict[str, float] = {}
-
-    def reset(
-        self, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, float]]]:
-        obs, _ = self.env.reset(seed=seed, options=options)
-        self._episode_cost = dict.fromkeys(self.possible_agents, 0.0)
-        return obs, {a: dict.fromkeys(self.info_keys, 0.0) for a in self.possible_agents}
-
-    def step(self, actions: Mapping[str, Any]) -> tuple[Any, Any, Any, Any, dict[str, Any]]:
-        obs, reward, terminated, truncated, infos = self.env.step(actions)
-        flat: dict[str, dict[str, float]] = {}
-        for agent, info in infos.items():
-            self._episode_cost[agent] += info["cost"]
-            row = dict.fromkeys(self.info_keys, 0.0)
-            row["cost"] = float(info["cost"])
-            row.update({f"constraint_{k}": float(g) for k, g in info["constraint_values"].items()})
-            row.update({f"reward_{t}": float(v) for t, v in info["reward_terms"].items()})
-            if "metrics" in info:
-                cost = self._episode_cost[agent]
-                values = episode_info_values(info["metrics"], cost, self.episode_keys)
-                row.update(zip(self.episode_keys, values, strict=True))
-            flat[agent] = row
-        return obs, reward, terminated, truncated, flat
