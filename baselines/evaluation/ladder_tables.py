@@ -228,8 +228,9 @@ def price_table(kind: str, comparisons: Sequence[Row]) -> list[str]:
         metrics = [
             "n/a"
             if (v := c[name]) is None
-            else f"{interval(v['difference'], v['difference_ci95'])}, x{fmt(v['ratio'])}, "
-            f"p {fmt(v['p_holm'], 3)}"
+            else f"{interval(v['difference'], v['difference_ci95'], 3)}"
+            + (f", x{fmt(v['ratio'])}" if v["ratio"] is not None else "")
+            + f", p {fmt(v['p_holm'], 3)}"
             for name in PAIRED_METRICS
         ]
         lines.append(
@@ -275,7 +276,7 @@ def plot_metrics(result: Row, out: Path) -> list[Path]:
     policies = list(dict.fromkeys(s["policy"] for s in result["rungs"]))
     written = []
     for title, (key, is_rate) in FIGURE_METRICS.items():
-        fig, axes = pyplot().subplots(1, 2, figsize=(10.5, 4.0), sharey=True)
+        fig, axes = pyplot().subplots(1, 2, figsize=(10.5, 4.6), sharey=True)
         for ax, group in zip(axes, ("rings", "bars"), strict=True):
             prefix = CASE_GROUPS[group]
             for k, p in enumerate(policies):
@@ -300,11 +301,14 @@ def plot_metrics(result: Row, out: Path) -> list[Path]:
             ax.set_xlabel("robots N")
             ax.set_xticks(range(2, 7))
         axes[0].set_ylabel(title)
+        if key == "excess":  # from 0 to tens: a linear axis hides everything but the worst
+            axes[0].set_yscale("symlog", linthresh=0.01)
+            axes[0].set_ylim(bottom=0.0)
         handles, labels = axes[0].get_legend_handles_labels()
+        rows = -(-len(labels) // 4)
         if handles:
-            fig.legend(handles, labels, fontsize=7, loc="center right", frameon=False)
-            fig.subplots_adjust(right=0.78)
+            fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=4, frameon=False)
         path = out / f"ladder_{key.removesuffix('_rate')}_vs_n.png"
-        save(fig, path)
+        save(fig, path, rect=(0, 0.05 * rows, 1, 1))
         written.append(path)
     return written

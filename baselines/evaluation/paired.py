@@ -29,6 +29,8 @@ from baselines.evaluation.summary import RATES, Row, groups, metric_values
 from baselines.stats import bootstrap_mean_interval, holm, mcnemar_exact, wilcoxon_paired
 
 #: The continuous metrics a comparison prices: its name in the tables -> the row's key.
+#: A ratio of means is given for the positive ones with a scale (``RATIO_METRICS``); the
+#: excess (often 0 for the reference) and the return (of either sign) get differences only.
 PAIRED_METRICS = {
     "completion periods": "completion_periods_imputed",
     "internal wrench rms": "internal_wrench_rms",
@@ -36,6 +38,7 @@ PAIRED_METRICS = {
     "excess": "excess",
     "return": "return",
 }
+RATIO_METRICS = ("completion periods", "internal wrench rms", "effort per second")
 
 
 def paired_episodes(
@@ -76,7 +79,9 @@ def compare(rows: Sequence[Row], rung: str, reference: str, case: str, seed: int
         out[name] = {
             "difference": float(diff.mean()),
             "difference_ci95": list(bootstrap_mean_interval(diff, seed=seed)),
-            "ratio": float(x[ok].mean()) / ref_mean if ref_mean != 0 else None,
+            "ratio": float(x[ok].mean()) / ref_mean
+            if name in RATIO_METRICS and ref_mean > 0
+            else None,
             **wilcoxon_paired(x[ok], y[ok]),
         }
     return out

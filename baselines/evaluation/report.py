@@ -99,9 +99,10 @@ def pyplot() -> Any:
     return plt
 
 
-def save(fig: Any, path: Path, dpi: int = 120) -> None:
-    """Lay the figure out, write it (its folder made where missing) and free it."""
-    fig.tight_layout()
+def save(fig: Any, path: Path, dpi: int = 120, rect: tuple[float, ...] | None = None) -> None:
+    """Lay the figure out (within ``rect`` of it: room for a figure legend), write it (its
+    folder made where missing) and free it."""
+    fig.tight_layout(rect=rect)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi)
     pyplot().close(fig)
