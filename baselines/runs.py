@@ -45,6 +45,7 @@ from baselines.evaluation.during_training import append_row, evaluate_rungs, eva
 from baselines.lagrangian import CostSettings
 from baselines.loaders.saved import CONFIG_FILE, read_config
 from baselines.registry import policy_spec
+from uvms_env.task.rules import EPISODE_ENDS
 
 PROGRESS_FILE = "progress.csv"
 SNAPSHOT = "eval_snapshot"
@@ -52,6 +53,11 @@ BEST = "best"
 # One row per training iteration (a rollout and its update): the training episodes that
 # ended in it (unscaled team return), the constraint cost and multiplier of
 # PPO-Lagrangian (empty without it) and the throughput.
+# ``episode_objective_mean``: what PPO maximizes, the return less the multiplier times the
+# cost at this iteration's multiplier (the return itself without a cost); ``ends_<name>``:
+# how the iteration's training episodes ended (``EPISODE_END_NAMES``), so that a run that
+# learns to end episodes early shows it.
+ENDS = tuple(f"ends_{name}" for name in EPISODE_ENDS)
 PROGRESS_COLUMNS = (
     "iteration",
     "robot_steps",
@@ -60,6 +66,8 @@ PROGRESS_COLUMNS = (
     "episode_len_mean",
     "episode_cost_mean",
     "multiplier",
+    "episode_objective_mean",
+    *ENDS,
     "iteration_s",
     "wall_time_s",
     "robot_steps_per_s",
@@ -388,11 +396,16 @@ class Run:
         lengths: list[float] | None = None,
         episode_cost: float | None = None,
         multiplier: float | None = None,
+        ends: list[str] | None = None,
     ) -> dict[str, Any]:
         """One progress row at ``robot_steps`` done in all: the training episodes that
         ended in the iteration (their team returns, the environment's shared reward with
-        no normalization and no cost penalty, and lengths), the cost and multiplier."""
+        no normalization and no cost penalty, lengths and how they ended), the cost and
+        multiplier, and the objective (the return less the multiplier times the cost)."""
         summary = (len(returns or []), _mean(returns), _mean(lengths))
+        objective = summary[1]
+        if objective is not None and episode_cost is not None and multiplier is not None:
+            objective -= multiplier * episode_cost
         if multiplier is not None:
             self.multiplier = multiplier
         now = time.perf_counter()
@@ -407,6 +420,8 @@ class Run:
             "episode_len_mean": _round(summary[2]),
             "episode_cost_mean": _round(episode_cost),
             "multiplier": _round(multiplier),
+            "episode_objective_mean": _round(objective),
+            **{c: (ends.count(c[len("ends_") :]) if ends is not None else None) for c in ENDS},
             "iteration_s": round(seconds, 3),
             "wall_time_s": round(self._wall_before + now - self._start, 2),
             "robot_steps_per_s": round(steps / seconds, 1) if seconds > 0 else None,

@@ -119,29 +119,51 @@ def mean_band(xs: list[np.ndarray], ys: list[np.ndarray], grid: np.ndarray):
     return t_band(table)
 
 
+# the progress columns of ``plot_groups``' training panels (an ended-early share is
+# derived from the ``ends_*`` counts)
+EARLY_ENDS = ("ends_diverged", "ends_collision", "ends_constraint")
+
+
+def early_share(p: dict[str, np.ndarray]) -> np.ndarray | None:
+    """Per iteration, the share of its training episodes that ended early (diverged,
+    collided or ended by a constraint), NaN without an episode; None without the counts."""
+    if not all(k in p for k in EARLY_ENDS) or "episodes" not in p:
+        return None
+    early = sum(p[k] for k in EARLY_ENDS)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(p["episodes"] > 0, early / p["episodes"], np.nan)
+
+
 def plot_groups(groups: dict[str, list[Path]], out: Path) -> None:
+    """Per group of runs (its seeds): the mean and 95 % band of the training episodes'
+    return, PPO's objective (return less the multiplier times the cost), the cost, the
+    share of episodes that ended early, and the evaluations' success and clean success."""
     panels = [
         ("training episodes: mean return", "return"),
+        ("training episodes: objective (return - multiplier x cost)", "objective"),
         ("training episodes: constraint cost per robot", "cost"),
+        ("training episodes ended early (diverged, collision, constraint)", "share"),
         ("evaluation: success (training rungs)", "rate"),
         ("evaluation: clean success (training rungs)", "rate"),
     ]
-    fig, axes = pyplot().subplots(2, 2, figsize=(9, 5.5))
+    fig, axes = pyplot().subplots(3, 2, figsize=(9, 8.0))
     for k, (name, runs) in enumerate(groups.items()):
         color = f"C{k}"
-        series: list[list[tuple[np.ndarray, np.ndarray]]] = [[], [], [], []]
+        series: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in panels]
         for run in runs:
             p = progress(run)
             t = p.get("robot_steps")
-            for j, key in enumerate(("episode_return_mean", "episode_cost_mean")):
-                if t is not None and key in p:
-                    ok = np.isfinite(p[key])
-                    if ok.any():  # a run without a cost records none
-                        series[j].append((t[ok], p[key][ok]))
+            keys = ("episode_return_mean", "episode_objective_mean", "episode_cost_mean")
+            values = [p.get(key) for key in keys] + [early_share(p)]
+            for j, v in enumerate(values):
+                if t is not None and v is not None:
+                    ok = np.isfinite(v)
+                    if ok.any():  # a run without a cost (or an older run) records none
+                        series[j].append((t[ok], v[ok]))
             e = _rung_evaluations(run)
             if e is not None:
-                series[2].append((e["robot_steps"], e["success_rate"]))
-                series[3].append((e["robot_steps"], e["clean_success_rate"]))
+                series[4].append((e["robot_steps"], e["success_rate"]))
+                series[5].append((e["robot_steps"], e["clean_success_rate"]))
         for ax, curves in zip(axes.flat, series, strict=True):
             if not curves:
                 continue
@@ -151,8 +173,8 @@ def plot_groups(groups: dict[str, list[Path]], out: Path) -> None:
             ax.plot(grid, mean, color=color, label=f"{name} ({len(curves)} seeds)")
             ax.fill_between(grid, mean - half, mean + half, color=color, alpha=0.2)
     _label(axes, panels)
-    axes[1, 0].set_ylim(-0.05, 1.05)
-    axes[1, 1].set_ylim(-0.05, 1.05)
+    for ax in axes.flat[3:]:
+        ax.set_ylim(-0.05, 1.05)
     axes[0, 0].legend(fontsize=8, loc="lower right")
     save(fig, out, dpi=80)
 

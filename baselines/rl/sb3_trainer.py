@@ -33,6 +33,7 @@ from baselines.runs import (
     add_step_arguments,
     seeded_pool,
 )
+from uvms_env.env.infos import EPISODE_END_NAMES
 
 if TYPE_CHECKING:
     from baselines.lagrangian import CostSettings
@@ -539,6 +540,7 @@ def _progress_callback(trainer: Trainer) -> Any:
             self.leaders = leaders if leaders is not None else [True] * self.model.n_envs
             self.returns: list[float] = []
             self.lengths: list[float] = []
+            self.ends: list[str] = []
             self.last = self.model.num_timesteps
             on_policy = trainer.algo in ON_POLICY
             self.warmup = getattr(trainer.args, "critic_warmup", 0) if on_policy else 0
@@ -548,6 +550,8 @@ def _progress_callback(trainer: Trainer) -> Any:
                 if "episode" in info and self.leaders[i]:
                     self.returns.append(float(info["episode"]["r"]))
                     self.lengths.append(float(info["episode"]["l"]))
+                    if "episode_end" in info:
+                        self.ends.append(EPISODE_END_NAMES[int(info["episode_end"])])
             run.advance(self.model.num_timesteps)
             return True
 
@@ -578,8 +582,9 @@ def _progress_callback(trainer: Trainer) -> Any:
                 lengths=self.lengths,
                 episode_cost=cost,
                 multiplier=penalty.multiplier if penalty is not None else None,
+                ends=self.ends,
             )
-            self.returns, self.lengths = [], []
+            self.returns, self.lengths, self.ends = [], [], []
             if shield is not None:  # the correction penalty, its own record (shield.csv)
                 from baselines.evaluation.during_training import append_row
                 from baselines.rl.shield import SHIELD_COLUMNS, SHIELD_FILE

@@ -38,6 +38,7 @@ from uvms_env.navigation import Cylinder, Sphere
 from uvms_env.robot.observation import FAR_OBSTACLE, NOISE_STD_Q
 from uvms_env.scenarios import replace
 from uvms_env.sim.simulator import SimulationDiverged
+from uvms_env.task.constraints import SAFETY_CONSTRAINTS
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -362,8 +363,14 @@ def test_constraint_sign_convention_on_violating_states(env):
     assert term["uvms_0"] and end_name(infos["uvms_0"]) == "collision"
     assert infos["uvms_0"]["violations_collision"] == 1
     assert infos["uvms_0"]["min_obstacle_clearance_m"] < 0
-    assert infos["uvms_0"]["reward_violation"] <= -env.reward_weights.failure
+    # ending early never pays: the failure costs what every remaining period could cost,
+    # every safety kind violated by every robot and every input saturated
+    w, remaining = env.reward_weights, env.max_cycles - 1
+    worst_period = w.violation * len(SAFETY_CONSTRAINTS) * env.n / env.n + w.effort * 1.0
+    assert infos["uvms_0"]["reward_violation"] <= -(w.failure + remaining * worst_period)
     assert not env.agents
+    v0 = CoopTransportEnv(env.scenario, reward_weights={"continuation": 0.0})
+    assert v0.reward_weights.failure_penalty(remaining) == w.failure  # v0's one-off penalty
 
 
 def test_reward_is_the_sum_of_its_terms_and_shared(env):

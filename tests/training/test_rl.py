@@ -3,6 +3,8 @@ pretrained models reproducing their recorded evaluation."""
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 
 import numpy as np
@@ -15,6 +17,7 @@ from baselines.loaders.saved import PRETRAINED
 from baselines.rl.sb3_trainer import find_resume, make_vec_env
 from baselines.runs import RunSettings, training_env_options
 from baselines.train import main, train
+from uvms_env.task.rules import EPISODE_ENDS
 
 SEED = 7
 
@@ -26,7 +29,7 @@ def test_train_save_resume_evaluate(tmp_path):
     def settings(budget: int, **kw) -> RunSettings:
         return RunSettings(
             "short",
-            {"max_cycles": 40},
+            {"max_cycles": 24},
             budget,
             2,
             0,
@@ -55,6 +58,12 @@ def test_train_save_resume_evaluate(tmp_path):
     assert config["robot_steps"] == 256 and config["resumes"] == 1
     progress = (out / "progress.csv").read_text().splitlines()
     assert [int(line.split(",")[1]) for line in progress[1:]] == [128, 256]  # appended
+    # how the iteration's training episodes ended (a 24-period cap: each copy's first end
+    # in every 32-period iteration), and the objective: the return itself without a cost
+    last = list(csv.DictReader(io.StringIO("\n".join(progress))))[-1]
+    ends = {e: int(last[f"ends_{e}"]) for e in EPISODE_ENDS}
+    assert int(last["episodes"]) == sum(ends.values()) == ends["max_cycles"] >= 1
+    assert float(last["episode_objective_mean"]) == float(last["episode_return_mean"])
     rows = evaluate([f"ppo:{out}"], ["short"], 1, 0, 1, max_cycles=20, progress=False)
     assert rows[0]["error"] == "" and rows[0]["episode_steps"] == 20
 

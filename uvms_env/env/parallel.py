@@ -179,7 +179,8 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     **Version history.** v1 (2026-12): the metrics gain the graded safety per kind (excess,
     largest excess, violated share of robot-periods), clean success within a 5 % band and
     the return; `input` leaves the safety totals, the reward's violation term and `cost`
-    (it is clipped before the simulator); `vehicle_speed`'s value is the faster axis's
+    (it is clipped before the simulator); a failure prices the rest of the episode (ending
+    early never pays); `vehicle_speed`'s value is the faster axis's
     fraction beyond its limit; the infos are flat numbers with the same keys at `reset`
     and every step, `episode_end` a code (docs/environment.md, "From v0 to v1"). v0 is
     no longer registered (its numbers are not comparable). v0 (2026-11): first version;

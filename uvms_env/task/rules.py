@@ -327,7 +327,9 @@ class Task(NamespacePickled):
             "waypoint": team[PASSED] * w.waypoint,
             "success": success * w.success,
             # 0.0 - ...: a clean 0.0 rather than -0.0 when nothing is violated
-            "violation": 0.0 - self._per_violation * n_violated - failed * w.failure,
+            "violation": 0.0
+            - self._per_violation * n_violated
+            - failed * w.failure_penalty(self.max_cycles - self.steps, len(self.constraint_fns)),
             "effort": 0.0 - self._per_action_sq * action_sq,
         }
         if self.reward_fns:
