@@ -78,6 +78,8 @@ def _build(priors: Priors, ring_radius: float, layers: list[np.ndarray]) -> cs.F
         )
     if priors.action_mode == "torque":
         steady = cs.DM.zeros(ACT_DIM)
+    elif priors.action_mode == "setpoint":  # the holding a_ss, not the features' own
+        steady = steady_sx(priors.steady_source(args[0]), ring_radius)
     else:
         steady = ff if features in FEEDFORWARD else steady_sx(args[0], ring_radius)
     name = f"ppo_actor_{tag}_{layers_digest(layers)}"

@@ -133,6 +133,84 @@ def test_joint_hold_is_the_plain_env_driven_through_a_ss_and_the_hold():
     assert np.abs(h[:, 4:]).max() > 1e-3  # the hold acted
 
 
+def test_setpoint_mode_is_the_plain_env_driven_by_the_loop_around_the_holding_a_ss():
+    """action_mode="setpoint": the plain env driven by clip(a_ss0 + K (clip(a) - zeta_a /
+    limit), -1, 1): a_ss0 the expert's steady input at a zero navigation twist (what holds
+    the robot still with its load), zeta_a the robot's measured surge, sway, heave, yaw
+    rate and joint rates, the limits the model's, K the robot's own inertia on each vehicle
+    velocity over setpoint_time (per saturation) and setpoint_joint_gain on the joints; the
+    vector env applies the same, and the input constraint sees the command."""
+    from uvms_env.dynamics.uvms import default_model
+    from uvms_env.robot.observation import OBSERVATION_STRUCTURE
+    from uvms_env.scenarios.geometry import NOMINAL_ARM
+    from uvms_env.vector import VectorEnv
+
+    mode = {"action_mode": "setpoint", "setpoint_time": 0.4, "setpoint_joint_gain": 0.08}
+    with_loop = uvms_env.parallel_env("short", internal_wrench_every=0, **mode)
+    plain = uvms_env.parallel_env("short", internal_wrench_every=0)
+    venv = VectorEnv("short", num_envs=1, dtype="float64", internal_wrench_every=0, **mode)
+    obs_l, _ = with_loop.reset(seed=6)
+    obs_0, _ = plain.reset(seed=6)
+    venv.reset(seed=6)
+    uvms = default_model()
+    lim = uvms.params.limits
+    scale = np.array([lim.vehicle_linear_speed] * 3 + [lim.vehicle_angular_speed])
+    scale = np.r_[scale, [lim.joint_speed] * 4]
+    mass = np.diag(
+        np.array(uvms.mass_matrix(np.r_[np.zeros(6), NOMINAL_ARM], uvms.nominal_parameters()))
+    )
+    actuated = [0, 1, 2, 5, 6, 7, 8, 9]
+    gain = mass[actuated] * scale / (0.4 * np.asarray(lim.tau_max, float))
+    gain[4:] = 0.08
+    nav, zeta = OBSERVATION_STRUCTURE["nav_velocity"], OBSERVATION_STRUCTURE["zeta"]
+    rng = np.random.default_rng(3)
+    for _ in range(8):
+        raw = _stack(obs_0, plain).astype(float)
+        held = raw.copy()
+        held[:, nav] = 0.0
+        a = rng.uniform(-1.4, 1.4, (2, 8))
+        speed = raw[:, zeta][:, actuated] / scale
+        command = np.clip(_experts_steady(plain, held) + gain * (np.clip(a, -1, 1) - speed), -1, 1)
+        obs_l, _, _, _, info_l = with_loop.step(
+            dict(zip(with_loop.possible_agents, a, strict=True))
+        )
+        obs_0, _, _, _, info_0 = plain.step(dict(zip(plain.possible_agents, command, strict=True)))
+        obs_v, *_ = venv.step(a[None])
+        np.testing.assert_allclose(with_loop.sim.flat_state, plain.sim.flat_state, atol=1e-7)
+        np.testing.assert_allclose(obs_v[0], _stack(obs_l, with_loop), atol=1e-6)
+        for agent in plain.possible_agents:
+            assert info_l[agent]["constraint_input"] == pytest.approx(
+                info_0[agent]["constraint_input"], abs=1e-9
+            )
+    assert np.abs(gain * speed).max() > 1e-3  # the loop acted
+
+
+def test_setpoint_loop_holds_a_constant_set_point_within_the_limits():
+    """A zero set-point holds the team still after the start's transient (no speed limit
+    broken in the last 60 periods); a surge set-point of 0.2 of the limit moves every
+    vehicle forward at a steady speed below it, nothing else past its limit."""
+    from uvms_env.robot.priors import SETPOINT_ZETA, setpoint_limits
+
+    def run(target: np.ndarray) -> tuple[np.ndarray, list]:
+        env = uvms_env.parallel_env("short", max_cycles=120, action_mode="setpoint")
+        env.reset(seed=1)
+        speeds, late = [], []
+        while env.agents:
+            *_, infos = env.step({a: target for a in env.agents})
+            speeds.append(env.sim.state.zeta[:, list(SETPOINT_ZETA)] / setpoint_limits())
+            late.append(max(infos[a]["cost"] for a in env.possible_agents))
+        return np.array(speeds), late
+
+    still, late = run(np.zeros(8))
+    assert np.abs(still[-60:]).max() < 0.2 and max(late[-60:]) == 0
+    surge = np.zeros(8)
+    surge[0] = 0.2
+    moving, late = run(surge)
+    forward = moving[-30:, :, 0]
+    assert 0.05 < forward.mean() < 0.2 and forward.std() < 0.02  # steady, below its set-point
+    assert np.abs(moving[-60:]).max() <= 1.0 and max(late[-60:]) == 0
+
+
 def test_bad_modes_name_the_option():
     with pytest.raises(ValueError, match="action_mode"):
         uvms_env.parallel_env("short", action_mode="force")
@@ -146,6 +224,10 @@ def test_bad_modes_name_the_option():
         uvms_env.parallel_env("short", hold_stiffness=0.5)  # torque mode has no base input
     with pytest.raises(ValueError, match="hold_damping"):
         uvms_env.parallel_env("short", action_mode="residual", hold_damping=-1.0)
+    with pytest.raises(ValueError, match="setpoint_time"):
+        uvms_env.parallel_env("short", action_mode="setpoint", setpoint_time=0.0)
+    with pytest.raises(ValueError, match="setpoint_joint_gain"):
+        uvms_env.parallel_env("short", action_mode="setpoint", setpoint_joint_gain=2.0)
 
 
 def test_sb3_policy_rebuilds_the_runs_priors(tmp_path):

@@ -25,6 +25,7 @@ SETTINGS = {
         "hold_damping": 1.0,
     },
     "residual_raw": {"action_mode": "residual", "residual_scale": 1.5},
+    "setpoint_features": {"action_mode": "setpoint", "observation_mode": "features"},
 }
 
 

@@ -155,6 +155,10 @@ class EnvCore(NamespacePickled):
         batch = (k,) if self.batched else ()
         self.obs = xp.zeros((*batch, n, OBSERVATION_SIZE), np.float32)  # the raw views
         self.steady = xp.zeros((*batch, n, NU)) if self.priors.needs_steady else None
+        # the a_ss the command is built around: the observation's own, or in the setpoint
+        # mode the holding one (``Priors.steady_source``)
+        setpoint = self.priors.action_mode == "setpoint"
+        self.command_steady = xp.zeros((*batch, n, NU)) if setpoint else self.steady
         # observation_mode="memory": each robot's memory of its own measurements
         self.memory = (
             Memory((*batch, n), s.period, self.ring, xp) if self.priors.remembers else None
@@ -307,7 +311,7 @@ class EnvCore(NamespacePickled):
         if self.channel is not None:  # the message part goes on the air, the inputs on
             self._transmit(a)
             a = self.xp.ascontiguousarray(a[..., :NU])  # the kernels read it as one block
-        command = self.priors.command(self.obs, a, self.ring, self.steady)
+        command = self.priors.command(self.obs, a, self.ring, self.command_steady)
         if self.command_filter is not None:
             command = self._filtered(command)
         diverged = engine.step(command * engine.tau_max)
@@ -367,6 +371,9 @@ class EnvCore(NamespacePickled):
         self.obs[ids] = obs
         if self.steady is not None:  # from the float32 observations the robots see
             self.steady[ids] = engine.steady(self.obs[ids], self.ring)
+            if self.command_steady is not self.steady:  # the set-point loop's holding a_ss
+                source = self.priors.steady_source(self.obs[ids])
+                self.command_steady[ids] = engine.steady(source, self.ring)
         return team
 
     def _measure(self, ids: Any, rows: list[int]) -> None:

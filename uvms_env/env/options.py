@@ -24,7 +24,14 @@ from gymnasium import spaces
 from uvms_env.dynamics import NQ, NU
 from uvms_env.robot.channel import ChannelSettings, block_bounds, channel_settings
 from uvms_env.robot.observation import OBSERVATION_SIZE, OBSERVATION_STRUCTURE, observation_bounds
-from uvms_env.robot.priors import ACTION_MODES, DEFAULT_RESIDUAL_SCALE, OBSERVATION_MODES, Priors
+from uvms_env.robot.priors import (
+    ACTION_MODES,
+    DEFAULT_RESIDUAL_SCALE,
+    DEFAULT_SETPOINT_JOINT_GAIN,
+    DEFAULT_SETPOINT_TIME,
+    OBSERVATION_MODES,
+    Priors,
+)
 from uvms_env.scenarios import FAMILIES, SEEDED_FAMILIES, Scenario, make, replace
 from uvms_env.scenarios.bank import GeometryBank
 from uvms_env.scenarios.families import default_agents
@@ -54,7 +61,10 @@ ENV_OPTIONS: dict[str, Option] = {
         "functions", "extra constraints fn(s, xp) -> g (K, N) (uvms_env.task.rules)", optional=True
     ),
     "action_mode": Option(
-        "choice", "torque: normalized inputs; residual: around own a_ss", choices=ACTION_MODES
+        "choice",
+        "torque: normalized inputs; residual: around own a_ss; setpoint: velocity set-points "
+        "(normalized by their limits) tracked around own a_ss",
+        choices=ACTION_MODES,
     ),
     "observation_mode": Option(
         "choice",
@@ -69,6 +79,19 @@ ENV_OPTIONS: dict[str, Option] = {
     ),
     "hold_damping": Option(
         "float", "residual mode: joint hold damping, per rad/s", low=0.0, high=10.0
+    ),
+    "setpoint_time": Option(
+        "float",
+        "setpoint mode: the vehicle loop's time constant on the robot's own inertia, s",
+        low=0.05,
+        high=10.0,
+    ),
+    "setpoint_joint_gain": Option(
+        "float",
+        "setpoint mode: normalized joint torque per joint-rate error of one limit",
+        low=0.0,
+        high=1.0,
+        low_open=True,
     ),
     "comm": Option(
         "comm",
@@ -221,6 +244,8 @@ def priors_of(options: Mapping[str, Any]) -> Priors:
         options.get("residual_scale", DEFAULT_RESIDUAL_SCALE),
         options.get("hold_stiffness", 0.0),
         options.get("hold_damping", 0.0),
+        options.get("setpoint_time", DEFAULT_SETPOINT_TIME),
+        options.get("setpoint_joint_gain", DEFAULT_SETPOINT_JOINT_GAIN),
     )
 
 

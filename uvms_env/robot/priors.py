@@ -3,10 +3,11 @@ what it knows before the task, offered to learning as an action or observation o
 
 ``steady_inputs`` (a_ss, the expert's own input reference from
 ``uvms_env.dynamics.local_model.build_steady_input``), ``featurize`` (76 numbers in the
-robot's own heading frame) and ``Priors`` (the options ``action_mode``,
-``observation_mode``, ``hold_stiffness``, ``hold_damping``). The single and the batched
-environment and the trained policies all call this class, so an option means the same
-everywhere.
+robot's own heading frame) and ``Priors`` (the options ``action_mode`` (torque, residual
+around a_ss, or set-points of the robot's actuated velocities tracked around a_ss),
+``observation_mode``, ``hold_stiffness``, ``hold_damping`` and the set-point loop's
+gains). The single and the batched environment and the trained policies all call this
+class, so an option means the same everywhere.
 
 Why priors: a policy starting at zero torque drifts under weight and buoyancy, and the
 holding forces depend on the grasp geometry and load share through the arm's kinematics,
@@ -45,7 +46,24 @@ OBSTACLE_RANGE = 5.0  # m; obstacle offsets beyond this are scaled down to it
 # the arm's joint angles (q's last 4) and rates (zeta's last 4) in the observation
 _JOINTS = slice(OBSERVATION_STRUCTURE["q"].start + 6, OBSERVATION_STRUCTURE["q"].stop)
 _JOINT_RATES = slice(OBSERVATION_STRUCTURE["zeta"].start + 6, OBSERVATION_STRUCTURE["zeta"].stop)
-ACTION_MODES = ("torque", "residual")
+_ZETA = OBSERVATION_STRUCTURE["zeta"]
+ACTION_MODES = ("torque", "residual", "setpoint")
+# action_mode="setpoint": the action's 8 numbers are set-points of the robot's actuated
+# velocities, each normalized by its limit: surge, sway, heave (m/s, by the linear vehicle
+# speed limit), yaw rate (rad/s, by the angular one) and the 4 joint rates (by the joint
+# speed limit); these are zeta's entries (body twist u v w, r, then the joint rates).
+SETPOINT_ZETA = (0, 1, 2, 5, 6, 7, 8, 9)
+# The set-point loop, closed once per period on the robot's measured velocities, around
+# the steady input that holds the robot still with its share of the load (a_ss at a zero
+# navigation twist). The vehicle's gain on each of its inputs is its own inertia on that
+# velocity over ``setpoint_time``: one gain for all made the yaw ring at a gain the surge
+# barely felt (0.73 kg m^2 of yaw inertia against 21 kg of surge mass, a 0.12 s period).
+# The joints' own inertia (0.05-0.07 kg m^2) says little in the closed chain, where a
+# joint moves the object and the teammates: their gain is one number, the largest a probe
+# of zero, surge, yaw and joint-rate set-points on ``short`` kept stable (0.2 rang at the
+# joint-rate limit; docs/environment.md, "Set-points").
+DEFAULT_SETPOINT_TIME = 0.5  # s
+DEFAULT_SETPOINT_JOINT_GAIN = 0.05  # normalized torque per joint-rate error of one limit
 OBSERVATION_MODES = ("raw", "features", "memory")
 # observation_mode="memory": featurize, the robot's memory (uvms_env.robot.memory: the last
 # command and the disturbance estimate, 16), then a_ss (last, as in "features")
@@ -196,6 +214,30 @@ def steady_inputs(obs: np.ndarray, ring_radius: float) -> np.ndarray:
     return _rows(call, o.reshape(-1, OBS_DIM), ACT_DIM, np.float64).reshape(*o.shape[:-1], ACT_DIM)
 
 
+@functools.cache
+def setpoint_inertia() -> np.ndarray:
+    """(8,) the robot's own generalized inertia on each actuated velocity
+    (``SETPOINT_ZETA``: the diagonal of its mass matrix with the added mass, at the nominal
+    arm pose; kg and kg m^2), the object and the teammates left out."""
+    uvms = default_model()
+    q = np.concatenate([np.zeros(6), NOMINAL_ARM])
+    mass = np.array(uvms.mass_matrix(q, uvms.nominal_parameters()))
+    return np.diag(mass)[list(SETPOINT_ZETA)]
+
+
+def _tau_max() -> np.ndarray:
+    return np.asarray(default_model().params.limits.tau_max, dtype=float)
+
+
+@functools.cache
+def setpoint_limits() -> np.ndarray:
+    """(8,) the limits that scale a set-point action (``SETPOINT_ZETA``'s order), from the
+    limits' one source: linear vehicle speed (u, v, w), angular (r), joint speed (4)."""
+    lim = default_model().params.limits
+    v, w, j = lim.vehicle_linear_speed, lim.vehicle_angular_speed, lim.joint_speed
+    return np.array([v, v, v, w, j, j, j, j])
+
+
 def check_mode(name: str, value: object, allowed: tuple[str, ...]) -> str:
     if value not in allowed:
         raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
@@ -213,6 +255,8 @@ class Priors:
     residual_scale: float = DEFAULT_RESIDUAL_SCALE
     hold_stiffness: float = 0.0
     hold_damping: float = 0.0
+    setpoint_time: float = DEFAULT_SETPOINT_TIME
+    setpoint_joint_gain: float = DEFAULT_SETPOINT_JOINT_GAIN
 
     def __post_init__(self) -> None:
         check_mode("action_mode", self.action_mode, ACTION_MODES)
@@ -225,6 +269,11 @@ class Priors:
                 raise ValueError(f"{name} must be in [0, 10], got {gain!r}")
         if self.holds and self.action_mode != "residual":
             raise ValueError("hold_stiffness and hold_damping act in action_mode='residual' only")
+        if not (math.isfinite(self.setpoint_time) and 0.05 <= self.setpoint_time <= 10.0):
+            raise ValueError(f"setpoint_time must be in [0.05, 10] s, got {self.setpoint_time!r}")
+        gain = self.setpoint_joint_gain
+        if not (math.isfinite(gain) and 0.0 < gain <= 1.0):
+            raise ValueError(f"setpoint_joint_gain must be in (0, 1], got {gain!r}")
 
     @property
     def holds(self) -> bool:
@@ -278,13 +327,51 @@ class Priors:
         steady: np.ndarray | None = None,
     ) -> np.ndarray:
         """The normalized input for ``action`` of robots whose last observation is ``raw``:
-        the action itself (torque), or clip(a_ss + s clip(action, -1, 1), -1, 1)."""
+        the action itself (torque), clip(a_ss + s clip(action, -1, 1), -1, 1) (residual),
+        or the set-point loop's clip(a_ss + K (clip(action, -1, 1) - zeta_a / limit), -1, 1)
+        (setpoint: ``zeta_a`` the robot's measured actuated velocities, ``SETPOINT_ZETA``;
+        ``K``: ``setpoint_gains``). ``steady``: a_ss of ``steady_source(raw)`` when the
+        caller has it."""
         if self.action_mode == "torque":
             return action
         if steady is None:
-            steady = steady_inputs(raw, ring_radius)
+            steady = steady_inputs(self.steady_source(raw), ring_radius)
+        if self.action_mode == "setpoint":
+            speed = raw[..., _ZETA][..., list(SETPOINT_ZETA)] / setpoint_limits()
+            return self._setpoint(steady, action, speed, np.minimum, np.maximum)
         base = steady + self.joint_hold(raw) if self.holds else steady
         return self._residual(base, action, np.minimum, np.maximum)
+
+    @property
+    def setpoint_gains(self) -> np.ndarray:
+        """K (8,): per actuated velocity, normalized input per set-point error of one whole
+        limit: on the vehicle's four the robot's own inertia on it (``setpoint_inertia``)
+        times the limit over ``setpoint_time`` and the input's saturation; on the joints'
+        ``setpoint_joint_gain``."""
+        vehicle = setpoint_inertia() * setpoint_limits() / (self.setpoint_time * _tau_max())
+        return np.concatenate([vehicle[:4], np.full(4, self.setpoint_joint_gain)])
+
+    def steady_source(self, raw: Any) -> Any:
+        """The observation whose a_ss the command is built around: ``raw`` itself, or in
+        the setpoint mode ``raw`` with its navigation twist zeroed (the input that holds
+        the robot still with its share of the load). Any array type, CasADi's included."""
+        if self.action_mode != "setpoint":
+            return raw
+        nav = OBSERVATION_STRUCTURE["nav_velocity"]
+        if isinstance(raw, cs.MX | cs.SX):
+            return cs.vertcat(
+                raw[: nav.start], type(raw).zeros(nav.stop - nav.start), raw[nav.stop :]
+            )
+        out = raw.copy()
+        out[..., nav] = 0.0
+        return out
+
+    def _setpoint(self, steady: Any, action: Any, speed: Any, fmin: Any, fmax: Any) -> Any:
+        """clip(a_ss + K (clip(action, -1, 1) - speed), -1, 1), ``speed`` the measured
+        actuated velocities over their limits, in any namespace: the one writing of the
+        loop."""
+        target = fmin(1.0, fmax(-1.0, action))
+        return fmin(1.0, fmax(-1.0, steady + self.setpoint_gains * (target - speed)))
 
     def _residual(self, base: Any, action: Any, fmin: Any, fmax: Any) -> Any:
         """clip(base + s clip(action, -1, 1), -1, 1) with the namespace's own min and max
@@ -307,10 +394,15 @@ class Priors:
         return -self.hold_stiffness * (q - float(NOMINAL_ARM[j])) - self.hold_damping * rate
 
     def command_sx(self, o: cs.MX, action: cs.MX, steady: cs.MX) -> cs.MX:
-        """``command`` of one symbolic (79,) observation ``o`` with its a_ss ``steady``,
-        for compiled decisions (``baselines.rl.actor``); ``action`` is clipped here."""
+        """``command`` of one symbolic (79,) observation ``o`` with its a_ss ``steady``
+        (that of ``steady_source(o)``), for compiled decisions (``baselines.rl.actor``);
+        ``action`` is clipped here."""
         if self.action_mode == "torque":
             return cs.fmin(1.0, cs.fmax(-1.0, action))
+        if self.action_mode == "setpoint":
+            zeta = _ZETA.start
+            speed = cs.vertcat(*[o[zeta + k] for k in SETPOINT_ZETA]) / cs.DM(setpoint_limits())
+            return self._setpoint(steady, action, speed, cs.fmin, cs.fmax)
         base = steady
         if self.holds:
             q, rate = _JOINTS.start, _JOINT_RATES.start
