@@ -173,3 +173,24 @@ def _acts_within_bounds(env, policy: str, seed: int) -> None:
             assert action.shape == (8,) and np.all(np.abs(action) <= 1.0)
         obs, _, terminated, truncated, _ = env.step(actions)
         assert not any(terminated.values()) and not any(truncated.values())
+
+
+def test_the_committed_runs_cards_state_the_settings_their_config_records():
+    """A model card's ``settings`` are what its run's config.json recorded (the trainer's
+    hyperparameters as they ran, not a library's defaults), and say what it trained on."""
+    import json
+
+    from baselines.loaders.saved import PRETRAINED
+
+    checked = 0
+    for config_file in sorted(PRETRAINED.glob("*/config.json")):
+        card = json.loads((config_file.parent / "info.json").read_text())
+        config = json.loads(config_file.read_text())
+        ran = config.get("library_settings") or config["engine_settings"]  # the older key
+        settings = card["settings"]
+        assert settings["num_envs"] == config["num_envs"], config_file
+        for key in ("hyperparameters", "policy_kwargs", "net_arch"):
+            assert settings[key] == ran[key], (config_file, key)
+        assert set(card["trained_on"]) == {"paper", "bars", "seeds", "budget"}
+        checked += 1
+    assert checked >= 2
