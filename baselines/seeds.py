@@ -33,9 +33,14 @@ from baselines.stats import iqm_and_mean
 METRICS = {
     "success": "success rate",
     "clean_success": "clean success rate",
+    "clean_success_tol": "clean success rate within the 5 % band",
+    "excess": "mean graded excess per period",
     "violation_periods": "median violation periods per episode",
     "return": "mean return per episode",
 }
+# the per-episode values a case's score averages (the rest are rates of flags, but
+# violation periods: their median)
+MEANS = ("return", "excess")
 
 
 def parse_group(text: str) -> tuple[str, list[str]]:
@@ -59,8 +64,8 @@ def score_matrix(
                 continue
             if metric == "violation_periods":
                 scores[i, j] = float(np.median([float(r[metric] or 0.0) for r in mine]))
-            elif metric == "return":
-                scores[i, j] = float(np.mean([float(r[metric]) for r in mine]))
+            elif metric in MEANS:
+                scores[i, j] = float(np.nanmean([float(r[metric]) for r in mine]))
             else:
                 scores[i, j] = float(np.mean([bool(r[metric]) for r in mine]))
     missing = [policies[i] for i in range(len(policies)) if np.isnan(scores[i]).all()]
