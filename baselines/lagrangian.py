@@ -6,12 +6,18 @@ the RL library:
 
 J_c the mean cost per robot of the episodes that ended in the rollout and d the cost
 limit per episode; ``lr = 0`` is a fixed penalty. Costs ``count`` and ``magnitude``
-(``SCALES``): docs/rl.md. A trainer calls ``Lagrangian.penalize`` where its rewards are
+(``SCALES``): docs/rl.md. Per robot and period either costs at most ``PERIOD_CAP`` (every
+safety kind violated; a kind's magnitude counts up to one whole limit), and an episode
+that ends in failure also costs ``PERIOD_CAP`` for each period left to its time limit:
+without it, ending an episode early stops its cost and pays under the multiplier (the
+from-scratch runs on the distribution learned to: most of their training episodes
+diverged). A trainer calls ``Lagrangian.penalize`` where its rewards are
 made and ``Lagrangian.end_rollout`` once per rollout. Written here because the RL
 libraries have no constrained RL and the safe-RL ones (OmniSafe, safety-gymnasium) bring
 their own environment loop and pins.
 
-May import: numpy and ``uvms_env.task.constraints``.
+May import: numpy, ``uvms_env.models``, ``uvms_env.task.constraints`` and
+``uvms_env.env.infos`` (the episode ends' codes).
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from uvms_env.env.infos import EPISODE_END_NAMES
 from uvms_env.models import load_parameters
 from uvms_env.task.constraints import CONSTRAINTS, SAFETY_CONSTRAINTS, constraint_scales
 
@@ -31,6 +38,8 @@ COSTS = ("count", "magnitude")
 SCALES = np.array(constraint_scales(load_parameters()))
 # the kinds the cost sums: the safety kinds (``input`` is clipped before the simulator)
 COUNTED = np.array([c in SAFETY_CONSTRAINTS for c in CONSTRAINTS])
+PERIOD_CAP = float(len(SAFETY_CONSTRAINTS))  # the most either cost takes per robot-period
+FAILURES = ("diverged", "collision", "constraint")  # the ends ``periods_left`` prices
 
 
 @dataclass
@@ -57,18 +66,31 @@ class CostSettings:
 
 
 def magnitude_cost(g: np.ndarray) -> np.ndarray:
-    """(..., 8) constraint values -> (...) the safety kinds' normalized positive parts
-    summed."""
-    return (np.maximum(np.asarray(g, dtype=np.float64), 0.0) / SCALES)[..., COUNTED].sum(-1)
+    """(..., 8) constraint values -> (...) the safety kinds' normalized positive parts, each
+    up to one whole limit, summed."""
+    excess = np.maximum(np.asarray(g, dtype=np.float64), 0.0) / SCALES
+    return np.minimum(excess, 1.0)[..., COUNTED].sum(-1)
+
+
+def periods_left(info: dict[str, Any], max_cycles: int | None = None) -> int:
+    """The periods left to the time limit of a robot's episode that ended in failure on
+    this step (0 otherwise: running, a success, a time-out), from its info (the end's code,
+    the episode's ``episode_steps``, and ``max_cycles`` there or given): what its cost also
+    pays."""
+    if EPISODE_END_NAMES[int(info.get("episode_end", 0))] not in FAILURES:
+        return 0
+    cap = int(info["max_cycles"] if max_cycles is None else max_cycles)
+    return max(cap - int(info["episode_steps"]), 0)
 
 
 class Lagrangian:
     """The multiplier and the per-robot episode costs of one training run.
 
-    ``penalize(g, count, done)``: R robots' (R, 8) constraint values and (R,) violation
-    counts (the environment's ``cost``) this step, and (R,) their episode ended -> (R,)
-    costs (the caller subtracts ``multiplier * cost``); ``end_rollout`` takes the dual step
-    from the episodes that ended since the last one."""
+    ``penalize(g, count, done, left)``: R robots' (R, 8) constraint values and (R,)
+    violation counts (the environment's ``cost``) this step, (R,) their episode ended and
+    (R,) the periods left to the time limit of an episode that ended in failure (0
+    otherwise) -> (R,) costs (the caller subtracts ``multiplier * cost``); ``end_rollout``
+    takes the dual step from the episodes that ended since the last one."""
 
     def __init__(self, settings: CostSettings, robots: int) -> None:
         self.settings = settings
@@ -97,14 +119,16 @@ class Lagrangian:
     def add(self, episode_costs: list[float]) -> None:
         self._finished.extend(float(c) for c in episode_costs)
 
-    def penalize(self, g: Any, count: Any, done: np.ndarray) -> np.ndarray:
+    def penalize(self, g: Any, count: Any, done: np.ndarray, left: Any = None) -> np.ndarray:
         """``g`` and ``count`` are only read for their kind of cost (the other may be
-        None)."""
+        None); ``left`` None: no failure."""
         robots = len(self._episode)
         if self.settings.kind == "magnitude":
             cost = magnitude_cost(np.asarray(g).reshape(robots, -1))
         else:
             cost = np.asarray(count, dtype=np.float64).reshape(robots)
+        if left is not None:
+            cost = cost + PERIOD_CAP * np.asarray(left, dtype=np.float64).reshape(robots)
         self.record(cost, np.asarray(done).reshape(-1))
         return cost
 

@@ -12,7 +12,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
-from baselines.lagrangian import CostSettings, Lagrangian
+from baselines.lagrangian import CostSettings, Lagrangian, periods_left
 
 
 class CostPenalty(VecEnvWrapper):
@@ -44,7 +44,7 @@ class CostPenalty(VecEnvWrapper):
             # the vector env's (K, N, C) values, robots in sub-env order
             g = self.venv.last_infos["constraint_values"]
         count = [float(info["cost"]) for info in infos]
-        cost = self.lagrangian.penalize(g, count, done)
+        cost = self.lagrangian.penalize(g, count, done, [periods_left(i) for i in infos])
         for i, c in enumerate(cost.tolist()):
             infos[i]["constraint_cost"] = c
         return obs, (reward - self.multiplier * cost).astype(np.float32), done, infos

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
-from baselines.lagrangian import CostSettings, Lagrangian
+from baselines.lagrangian import CostSettings, Lagrangian, periods_left
 from uvms_env.task.constraints import CONSTRAINTS
 from uvms_env.vector.seeding import copy_reset_seed
 
@@ -96,7 +96,8 @@ class UVMSMultiAgentEnv(ParallelPettingZooEnv):
         g = [[infos[a][f"constraint_{c}"] for c in CONSTRAINTS] for a in agents]
         count = [float(infos[a]["cost"]) for a in agents]
         done = np.array([bool(terminated[a] or truncated[a]) for a in agents])
-        cost = self.lagrangian.penalize(g, count, done)
+        left = [periods_left(infos[a], self.par_env.max_cycles) for a in agents]
+        cost = self.lagrangian.penalize(g, count, done, left)
         multiplier = self.lagrangian.multiplier
         for a, c in zip(agents, cost.tolist(), strict=True):
             infos[a]["constraint_cost"] = c

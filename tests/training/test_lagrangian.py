@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from baselines.lagrangian import SCALES, CostSettings, magnitude_cost
+from baselines.lagrangian import (
+    PERIOD_CAP,
+    SCALES,
+    CostSettings,
+    Lagrangian,
+    magnitude_cost,
+    periods_left,
+)
 from baselines.rl.cost import CostPenalty
 from uvms_env.models import load_parameters
 from uvms_env.task.constraints import CONSTRAINTS
@@ -18,6 +25,30 @@ def test_magnitude_cost_is_the_normalized_excess():
     g[CONSTRAINTS.index("joint_limit")] = 0.2  # 2.2 rad against 2
     assert magnitude_cost(g) == pytest.approx(0.05 / 0.1 + 0.2 / 2.0)
     assert SCALES[CONSTRAINTS.index("joint_speed")] == load_parameters().limits.joint_speed
+    g[CONSTRAINTS.index("joint_speed")] = 0.35  # 0.45 rad/s: a kind counts up to one limit
+    assert magnitude_cost(g) == pytest.approx(1.0 + 0.2 / 2.0)
+    g[CONSTRAINTS.index("input")] = 5.0  # clipped before the simulator: not a safety kind
+    assert magnitude_cost(g) == pytest.approx(1.0 + 0.2 / 2.0)
+    assert magnitude_cost(np.full(len(CONSTRAINTS), 9.0)) == PERIOD_CAP == 7
+
+
+def test_a_failure_costs_the_rest_of_its_episode_at_the_cap():
+    """Ending early never stops the cost: a robot whose episode diverged, collided or broke
+    a constraint in terminate mode pays PERIOD_CAP for every period left to the limit; a
+    success or a time-out pays nothing more."""
+    from uvms_env.env.infos import end_code
+
+    lag = Lagrangian(CostSettings("count"), robots=3)
+    infos = [
+        {"episode_end": end_code("diverged"), "episode_steps": 40, "max_cycles": 100},
+        {"episode_end": end_code("success"), "episode_steps": 40, "max_cycles": 100},
+        {"episode_end": 0},  # running
+    ]
+    left = [periods_left(i) for i in infos]
+    assert left == [60, 0, 0]
+    cost = lag.penalize(None, [2, 1, 0], np.array([True, True, False]), left)
+    assert cost.tolist() == [2 + 60 * PERIOD_CAP, 1, 0]
+    assert periods_left({"episode_end": end_code("collision"), "episode_steps": 9}, 10) == 1
 
 
 def test_bad_settings_are_refused():

@@ -47,7 +47,7 @@ class VectorVecEnv(VecEnv):
     Where the episode ended, the infos also hold ``terminal_observation`` (the robot's last
     observation), ``TimeLimit.truncated`` and, as the single env's last infos name them
     (``uvms_env.env.infos``), ``episode_end`` (the end's code), ``diverged`` and the
-    episode's metrics.
+    episode's metrics, and its time limit ``max_cycles``.
 
     The single env's per-step ``constraint_<kind>`` and ``reward_<term>`` keys are left out
     (K N dicts of them a step would cost more than the step): the last step's batched
@@ -117,6 +117,7 @@ class VectorVecEnv(VecEnv):
                     "TimeLimit.truncated": bool(truncated[k] and not terminated[k]),
                     "episode_end": end_code(infos["episode_end"][k]),
                     "diverged": int(bool(infos["diverged_reason"][k])),
+                    "max_cycles": int(venv.max_cycles),
                     **infos["metrics"][k],
                 }
                 for a in range(n):
