@@ -78,7 +78,8 @@ def report(rows: list[dict[str, Any]], groups: dict[str, list[str]]) -> dict[str
     out: dict[str, Any] = {}
     for name, policies in groups.items():
         entry: dict[str, Any] = {"policies": policies, "metrics": {}}
-        for metric in METRICS:
+        mine = [r for r in rows if r["policy"] in policies]
+        for metric in (m for m in METRICS if any(m in r for r in mine)):  # older files: fewer
             scores, cases = score_matrix(rows, policies, metric)
             entry["cases"] = cases
             entry["metrics"][metric] = {
@@ -93,6 +94,8 @@ def markdown(summary: dict[str, Any]) -> str:
     lines = table("group | metric | IQM [95% CI] | mean [95% CI]")
     for name, entry in summary.items():
         for metric, title in METRICS.items():
+            if metric not in entry["metrics"]:
+                continue
             m = entry["metrics"][metric]
             iqm, mean = m["iqm"], m["mean"]
             lines.append(
@@ -106,6 +109,7 @@ def markdown(summary: dict[str, Any]) -> str:
             (
                 [title, i, *(f"{v:.3g}" for v in scores)]
                 for metric, title in METRICS.items()
+                if metric in entry["metrics"]
                 for i, scores in enumerate(entry["metrics"][metric]["per_seed"])
             ),
         )
