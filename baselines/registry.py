@@ -30,7 +30,9 @@ class Library:
 
 LIBRARIES: dict[str, Library] = {
     "sb3": Library("baselines.rl.sb3_trainer", ("ppo", "sac", "recurrent_ppo")),
-    "torchrl": Library("baselines.rl.torchrl_ppo", ("ppo",), policy="torchrl"),
+    "benchmarl": Library(
+        "baselines.rl.benchmarl_trainer", ("mappo", "ippo", "masac"), policy="benchmarl"
+    ),
     "rllib": Library("baselines.rl.rllib_trainer", ("ppo",), policy="rllib"),
 }
 DEFAULT_LIBRARY = "sb3"
@@ -40,7 +42,6 @@ _CLONE = "baselines.loaders.clone_policy:ClonedPolicy"
 # ``--policy NAME[:PATH]`` of a saved network -> its loader (``module:Class``)
 LOADERS: dict[str, str] = {
     **{algo: _SB3 for algo in LIBRARIES["sb3"].algos},
-    "torchrl": "baselines.loaders.torchrl_policy:TorchRLPolicy",
     "benchmarl": "baselines.loaders.benchmarl_policy:BenchMARLPolicy",
     "rllib": "baselines.loaders.rllib_policy:RLlibPolicy",
     "bc": _CLONE,

@@ -1,17 +1,18 @@
 """End-to-end PPO training speed per RL library, robot-steps per second, with its shares.
 
-    python benchmarks/train_throughput.py [--libraries sb3 torchrl] [--n-agents 4]
+    python benchmarks/train_throughput.py [--libraries sb3 benchmarl] [--n-agents 4]
                                           [--robot-steps 200000] [--repeats 2]
 
-Each library trains PPO for ``--robot-steps`` on ``random`` with the team size(s) of
-``--n-agents``, a mild current and mismatch 0.1, through ``baselines.train.train`` (the
-command line's code path: the run folder, records and all), twice per repeat: with the
+Each library trains PPO (BenchMARL: MAPPO) for ``--robot-steps`` on ``random`` with the team
+size(s) of ``--n-agents`` (BenchMARL: one), a mild current and mismatch 0.1, through
+``baselines.train.train`` (the command line's code path: the run folder, records and all),
+twice per repeat: with the
 settings before this benchmark existed (``BEFORE``: the libraries' old defaults) and with
 today's defaults, alternating (the load of a shared machine drifts). Reported per run:
 robot-steps/s over the whole learning loop (setup excluded: compiling and building
 geometries happen once per machine and run), and the shares of the learning time spent
 in the environment's step (``VectorEnv.step``), in the policy's forward passes while
-collecting, in the rest of collecting (the library's buffers, normalization and
+collecting (SB3 only), in the rest of collecting (the library's buffers, normalization and
 bookkeeping) and in the update. The table holds the
 medians over repeats. Run it on a quiet machine (it prints the load before and after),
 with the pool's geometries built beforehand (``--geometry-pool``: building one in the
@@ -35,15 +36,22 @@ import numpy as np
 
 from baselines import train as trainer
 from baselines.command_line import positive_int, script_parser, team_size
-from baselines.registry import trainer_module
+from baselines.registry import LIBRARIES, trainer_module
 from baselines.runs import RunSettings
 from uvms_env.vector import VectorEnv
 
 # The libraries' defaults before the distribution-training work (2026-11-26): copies per
-# run and the update's settings. Today's defaults are the libraries' own.
+# run and the update's settings; for BenchMARL, its own yaml defaults (10 copies, 45
+# passes of minibatches of 400). Today's defaults are the trainers' own.
 BEFORE: dict[str, dict[str, Any]] = {
     "sb3": {"num_envs": 4, "hp": {"n_steps": 256, "n_epochs": 10}},
-    "torchrl": {"num_envs": 64, "hp": {"rollout_steps": 256, "epochs": 10, "minibatches": 32}},
+    "benchmarl": {
+        "num_envs": 10,
+        "hp": {
+            "experiment.on_policy_n_minibatch_iters": 45,
+            "experiment.on_policy_minibatch_size": 400,
+        },
+    },
 }
 CONDITIONS = {"current": "mild", "mismatch": 0.1}
 
@@ -95,9 +103,10 @@ def one_run(
     )
     from baselines.runs import Run
 
-    run = Run.start(run_settings, library, "ppo")
+    algo = LIBRARIES[library].algos[0]
+    run = Run.start(run_settings, library, algo)
     args = trainer.build_parser(library).parse_args(["--library", library])
-    trainer_obj = module.Trainer(run, "ppo", args)
+    trainer_obj = module.Trainer(run, algo, args)
     try:
         run.write_config(**trainer_obj.build())
         update = _time_updates(library, trainer_obj)
@@ -123,30 +132,14 @@ def one_run(
 
 def _time_forward(library: str, trainer_obj: Any):
     """A function that returns the seconds the policy's forward passes have taken while
-    collecting (SB3: the policy's ``forward``; TorchRL: the actor network's, outside the
-    update's own passes)."""
+    collecting (SB3: the policy's ``forward``; BenchMARL: not measured, 0)."""
     spent = [0.0]
-    if library == "torchrl":
-        net = trainer_obj.actor_net
-        updating = [False]
-        train = trainer_obj.loss.forward
-
-        def in_update(*args: Any, **kwargs: Any) -> Any:
-            updating[0] = True
-            try:
-                return train(*args, **kwargs)
-            finally:
-                updating[0] = False
-
-        trainer_obj.loss.forward = in_update
-    else:
-        net = trainer_obj.model.policy
-        updating = [False]
+    if library == "benchmarl":
+        return lambda: spent[0]
+    net = trainer_obj.model.policy
     original = net.forward
 
     def timed(*args: Any, **kwargs: Any) -> Any:
-        if updating[0]:
-            return original(*args, **kwargs)
         start = time.perf_counter()
         try:
             return original(*args, **kwargs)
@@ -158,11 +151,24 @@ def _time_forward(library: str, trainer_obj: Any):
 
 
 def _time_updates(library: str, trainer_obj: Any):
-    """A function that returns the seconds the trainer has spent updating so far."""
-    if library == "torchrl":
-        return lambda: trainer_obj.totals["update_s"]
-    model = trainer_obj.model
+    """A function that returns the seconds the trainer has spent updating so far (BenchMARL:
+    from each batch's arrival to its training's end, advantages included)."""
     spent = [0.0]
+    if library == "benchmarl":
+        collected, done = trainer_obj.collected, trainer_obj.iteration_done
+        started = [0.0]
+
+        def arrived(batch: Any) -> None:
+            collected(batch)
+            started[0] = time.perf_counter()
+
+        def trained() -> None:
+            spent[0] += time.perf_counter() - started[0]
+            done()
+
+        trainer_obj.collected, trainer_obj.iteration_done = arrived, trained
+        return lambda: spent[0]
+    model = trainer_obj.model
     original = model.train
 
     def timed() -> None:
@@ -177,7 +183,7 @@ def _time_updates(library: str, trainer_obj: Any):
 def main(argv: list[str] | None = None) -> None:
     ap = script_parser(__file__, __doc__)
     ap.add_argument(
-        "--libraries", nargs="+", default=["sb3", "torchrl"], choices=["sb3", "torchrl"]
+        "--libraries", nargs="+", default=["sb3", "benchmarl"], choices=["sb3", "benchmarl"]
     )
     ap.add_argument("--n-agents", type=team_size, nargs="+", default=[4])
     ap.add_argument("--robot-steps", type=positive_int, default=200_000)

@@ -13,7 +13,7 @@ the per-episode values of each metric, and ``absolute_metrics`` repeats the late
 merges, so several policies, seeds or training evaluations land in one file, as the
 tools expect.
 
-The names are BenchMARL's for its uvms tasks (examples/benchmarl), so that the evaluator's
+The names are BenchMARL's for its uvms tasks (baselines.benchmarl_tasks), so that the evaluator's
 file and BenchMARL's merge (``merge``; marl-eval reads every algorithm of a task with the
 first one's runs, steps and metrics): the environment ``uvms``, the task (``paper``,
 ``short``, ``random_n2``: the random family always with its team size), the algorithm by
@@ -43,7 +43,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-ENV_NAME = "uvms"  # BenchMARL's name of the uvms tasks' environment (benchmarl_uvms)
+ENV_NAME = "uvms"  # BenchMARL's name of the uvms tasks' environment (benchmarl_tasks)
 RANDOM_FAMILY, DEFAULT_TEAM = "random", 2  # the family whose team size varies; its default
 GROUP_RETURN = "uvms_return"  # BenchMARL's return of the agent group, the team's here
 # marl-eval averages every list it finds, so only numeric per-episode values; booleans as

@@ -2,16 +2,16 @@
 the evaluator plays it on the ladder's episodes beside the expert and the other baselines.
 
 PATH: a checkpoint (``<experiment>/checkpoints/checkpoint_<frames>.pt``), an experiment
-folder or the Hydra run folder that holds one (its latest checkpoint). BenchMARL restores
+folder, a ``baselines.train --library benchmarl`` run folder (its own ``checkpoints/``) or
+the Hydra run folder that holds one experiment folder (their latest checkpoint). BenchMARL restores
 the experiment (``Experiment.reload_from_file``, its own config.pkl beside the checkpoints,
 patched to one env copy, no loggers, and a scratch folder for what it writes), and the
 robot acts with BenchMARL's policy under TorchRL's deterministic exploration, as BenchMARL's
 own evaluation does: the robot's observation goes in, its action comes out. The task's
 ``options`` give the priors and the channel (``baselines.loaders.saved``).
 
-BenchMARL lives in its own virtual environment (it needs torchrl < 0.12; the project's test
-extra has torchrl >= 0.14), where the project is installed too: run the evaluator there
-(examples/benchmarl/README.md). Elsewhere loading raises ``ImportError`` naming that install.
+BenchMARL comes with the ``learn`` extra; without it loading raises ``ImportError`` naming
+that install.
 
 May import: numpy, torch, tensordict, torchrl and benchmarl (inside the loader),
 ``baselines.loaders.saved`` and ``uvms_env``.
@@ -32,14 +32,18 @@ from baselines.loaders.saved import LoadedPolicy, load_once, options_record
 from uvms_env.policy import AgentSpec
 
 INSTALL = (
-    "BenchMARL is not installed here: --policy benchmarl:PATH runs in BenchMARL's own "
-    "virtual environment (python -m venv .venv-benchmarl; pip install -e . -e "
-    "examples/benchmarl benchmarl==1.5.2 -c constraints.txt; examples/benchmarl/README.md)"
+    "BenchMARL is not installed here: --policy benchmarl:PATH needs the learn extra "
+    '(pip install -e ".[learn]" -c constraints.txt)'
 )
 CHECKPOINT = re.compile(r"checkpoint_(\d+)\.pt")
 GROUP = "uvms"  # the tasks' agent group (uvms_env.vector.torchrl_env.GROUP)
 # the restored experiment's settings that matter for acting only: one copy, nothing logged
 PATCH: dict[str, Any] = {
+    # on the host, whatever device trained it (the evaluator plays single envs on the CPU)
+    "sampling_device": "cpu",
+    "train_device": "cpu",
+    "buffer_device": "cpu",
+    "restore_map_location": "cpu",
     "loggers": [],
     "create_json": False,
     "render": False,
@@ -89,9 +93,10 @@ def load_policy(checkpoint: Path) -> Any:
         from benchmarl.models.common import Model
     except ImportError as exc:
         raise ImportError(INSTALL) from exc
-    scratch = tempfile.mkdtemp(prefix="benchmarl_policy_")  # BenchMARL writes config.pkl
+    scratch = Path(tempfile.mkdtemp(prefix="benchmarl_policy_"))  # BenchMARL writes there
     experiment = Experiment.reload_from_file(
-        str(checkpoint), experiment_patch={**PATCH, "save_folder": scratch}
+        str(on_the_host(checkpoint, scratch)),
+        experiment_patch={**PATCH, "save_folder": str(scratch)},
     )
     policy = experiment.policy
     if any(isinstance(m, Model) and m.centralised for m in policy.modules()):
@@ -100,6 +105,31 @@ def load_policy(checkpoint: Path) -> Any:
             "a robot's policy decides from its own"
         )
     return policy.eval()
+
+
+def on_the_host(checkpoint: Path, scratch: Path) -> Path:
+    """``checkpoint`` as BenchMARL restores it on the host: for a task that stepped its env
+    copies on a GPU (``backend: cuda``), a link to it beside a copy of its config.pkl
+    whose task steps them on the CPU (the same policy; BenchMARL's patch reaches the
+    experiment's config only)."""
+    with open(Path(checkpoint).parents[1] / "config.pkl", "rb") as fh:
+        pickled = []
+        while True:
+            try:
+                pickled.append(pickle.load(fh))
+            except EOFError:
+                break
+    if pickled[1].get("backend", "cpu") == "cpu":  # the task config
+        return checkpoint
+    pickled[1] = {**pickled[1], "backend": "cpu"}
+    folder = scratch / "restored"
+    (folder / "checkpoints").mkdir(parents=True)
+    with open(folder / "config.pkl", "wb") as fh:
+        for item in pickled:
+            pickle.dump(item, fh)
+    link = folder / "checkpoints" / Path(checkpoint).name
+    link.symlink_to(Path(checkpoint).resolve())
+    return link
 
 
 class BenchMARLPolicy(LoadedPolicy):
@@ -122,13 +152,19 @@ class BenchMARLPolicy(LoadedPolicy):
 
     @classmethod
     def find(cls, path: Path | str) -> Path:
-        """A checkpoint itself; else the latest in ``path/checkpoints`` or, for a Hydra run
-        folder, in its one experiment folder's."""
+        """A checkpoint itself; else the latest in ``path/checkpoints`` (an experiment folder,
+        a run folder of ``baselines.train``) or, where ``path`` has none of its own, in its
+        one experiment folder's (a Hydra run folder)."""
         path = Path(path)
         if cls.accepts(path):
             return path
-        folders = [path / cls.SAVED, *sorted(path.glob(f"*/{cls.SAVED}"))]
-        found = [f for f in folders if f.is_dir() and any(map(cls.accepts, f.iterdir()))]
+
+        def holding(folders: list[Path]) -> list[Path]:
+            return [f for f in folders if f.is_dir() and any(map(cls.accepts, f.iterdir()))]
+
+        # a folder's own checkpoints first: a training run folder also holds BenchMARL's
+        # experiment folder (the checkpoints a resume reads), best/ and the eval snapshot
+        found = holding([path / cls.SAVED]) or holding(sorted(path.glob(f"*/{cls.SAVED}")))
         if len(found) > 1:
             raise ValueError(f"{path} holds several BenchMARL experiments: name one of {found}")
         if not found:

@@ -1,5 +1,5 @@
 """Saved networks as per-robot policies: the one base every adapter derives from (SB3,
-TorchRL, RLlib, the clones), the one rule that finds a saved policy, the one cache of
+RLlib, BenchMARL, the clones), the one rule that finds a saved policy, the one cache of
 loaded networks (``load_once``) and the run record they read (``run_record``).
 
 * ``LoadedPolicy.locate(name, arg)``, for ``--policy NAME:ARG``: ARG ``pretrained`` (or

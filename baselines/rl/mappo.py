@@ -4,8 +4,9 @@ Each robot's sub-environment observation is extended by its copy's global state
 (``VectorEnv.state()``): the critic reads the whole vector, the actor only its first
 ``local_dim`` numbers, so execution stays local (``SB3Policy`` passes zeros for the state;
 a test checks that the actions do not depend on it). The "agent-specific global state" of
-Yu et al. 2022. Written on SB3 because SB3 has no centralized critic and the MARL
-libraries that do (RLlib, BenchMARL) train elsewhere. Reference: docs/rl.md.
+Yu et al. 2022. Written on SB3 because SB3 has no centralized critic; BenchMARL's MAPPO
+(``--library benchmarl``) has its own, on one team size per run, and this one reads a
+padded state over several. Reference: docs/rl.md.
 
 May import: numpy, torch, gymnasium, stable-baselines3, ``uvms_env.dynamics`` (sizes) and
 ``uvms_env.vector``.

@@ -1,7 +1,7 @@
 """Learning curves of training runs (any library) from their ``evaluations.csv`` and
 ``progress.csv`` (the schemas of ``baselines.runs``).
 
-    python -m baselines.rl.plot runs/ppo runs/torchrl_ppo runs/rllib_ppo \
+    python -m baselines.rl.plot runs/ppo runs/benchmarl_mappo runs/rllib_ppo \
         --out docs/figures/learning_curves.png
     python -m baselines.rl.plot --group "PPO-Lag=runs/a0,runs/a1,runs/a2" --group ... \
         --out docs/figures/learning_curves_seeds.png

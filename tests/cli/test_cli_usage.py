@@ -51,8 +51,14 @@ def usage_error(main, argv: list[str], capsys) -> str:
         (["--hp", "nsteps=8"], ["--hp", "'nsteps'", "n_steps"]),
         (["--algo", "sac", "--central-critic"], ["--central-critic", "--algo ppo"]),
         (["--anchor", "0.5"], ["--anchor", "--init-actor"]),
-        (["--library", "torchrl", "--hp", "nope=1"], ["--hp", "'nope'", "rollout_steps"]),
-        (["--library", "torchrl", "--device", "gpu"], ["--device", "GPU index"]),
+        (["--library", "benchmarl", "--hp", "nope=1"], ["--hp", "'nope'", "SECTION.KEY"]),
+        (["--library", "benchmarl", "--hp", "algorithm.nope=1"], ["--hp", "'nope'", "lmbda"]),
+        (["--library", "benchmarl", "--hp", "experiment.max_n_frames=9"], ["--robot-steps"]),
+        (["--library", "benchmarl", "--device", "gpu"], ["--device", "GPU index"]),
+        (
+            ["--library", "benchmarl", "--scenario", "random", "--n-agents", "2", "3"],
+            ["--n-agents", "the benchmarl trainer takes one"],
+        ),
         (["--library", "rllib", "--iterations", "0"], ["--iterations", "int >= 1"]),
         # an option that would be dropped is refused
         (["--cost-weight", "0.2"], ["--cost-weight", "without --cost"]),
@@ -89,9 +95,9 @@ def test_resume_of_a_missing_or_foreign_run_is_refused(tmp_path, capsys):
     assert "--resume" in err and "no such file or folder" in err
     other = tmp_path / "other"
     other.mkdir()
-    (other / "config.json").write_text(json.dumps({"library": "torchrl"}))
+    (other / "config.json").write_text(json.dumps({"library": "benchmarl"}))
     err = usage_error(train.main, ["--resume", str(other), "--out", str(other)], capsys)
-    assert "--resume" in err and "trained with torchrl, not sb3" in err
+    assert "--resume" in err and "trained with benchmarl, not sb3" in err
 
 
 def test_a_usage_error_prints_no_traceback_from_the_command_line(tmp_path):

@@ -157,6 +157,9 @@ def test_trainer_flag_defaults_are_the_parsers(flag_rows):
     for flag, row in flag_rows.items():
         for library in libraries_of(row):
             action = parser_flags(library)[flag]
+            if flag == "--algo":  # each library's first algorithm: the cell names every one
+                assert f"`{action.default!r}`" in row["default"], (flag, library)
+                continue
             expected = "sb3" if flag == "--library" else action.default  # main's default library
             assert default_literal(row["default"]) == expected, (flag, library)
         assert row["meaning"], flag

@@ -19,7 +19,7 @@ from torchrl.envs import PettingZooWrapper
 from torchrl.envs.utils import check_env_specs
 
 import uvms_env
-from uvms_env.env.infos import EPISODE_END_NAMES, episode_metrics
+from uvms_env.env.infos import EPISODE_END_NAMES, end_code, episode_metrics
 from uvms_env.vector import VectorEnv
 from uvms_env.vector.torchrl_env import GROUP, CoopTransportTorchRLEnv, episode_info_keys
 
@@ -94,7 +94,10 @@ def test_batched_view_carries_the_ended_episodes_values():
     k, steps = 3, 2 * CYCLES
     env = CoopTransportTorchRLEnv(VectorEnv("short", num_envs=k, max_cycles=CYCLES), info=True)
     check_env_specs(env)
-    assert set(env.observation_spec[GROUP, "info"].keys()) == {"cost", *env.episode_keys}
+    assert set(env.observation_spec[GROUP, "info"].keys()) == {*env.step_keys, *env.episode_keys}
+    # the plain env's names for the values they share (PettingZooWrapper's infos above)
+    plain_keys = set(uvms_env.parallel_env("short").info_keys)
+    assert {*env.step_keys, *env.episode_keys} - plain_keys == {"episode_cost"}
     actions = _actions(steps, 2, k)
     policy = _replaying(actions)
     env.set_seed(5)
@@ -107,6 +110,8 @@ def test_batched_view_carries_the_ended_episodes_values():
         *_, infos = reference.step(actions[t])
         cost += infos["cost"]
         assert np.array_equal(info["cost"][:, t].numpy(), infos["cost"]), t
+        g = infos["constraint_values"].astype(np.float32)  # (K, N, kinds)
+        assert np.array_equal(info["constraint_joint_speed"][:, t].numpy(), g[..., 2]), t
         for e in range(k):
             metrics = infos["metrics"][e]
             if metrics is None:
@@ -114,6 +119,8 @@ def test_batched_view_carries_the_ended_episodes_values():
                 continue
             for key in ("success", "clean_success", "violation_periods", "episode_steps"):
                 assert info[key][e, t].tolist() == [float(metrics[key])] * 2, (key, e, t)
+            code = end_code(infos["episode_end"][e])
+            assert info["episode_end"][e, t].tolist() == [float(code)] * 2
             assert info["violations_joint_speed"][e, t, 0] == metrics["violations_joint_speed"]
             assert info["episode_cost"][e, t].tolist() == cost[e].tolist()
             cost[e] = 0

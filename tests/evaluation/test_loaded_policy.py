@@ -14,21 +14,20 @@ from baselines.loaders import saved as loaded_policy
 from baselines.loaders.clone_policy import ClonedPolicy
 from baselines.loaders.saved import PRETRAINED, LoadedPolicy, load_once, run_record
 from baselines.loaders.sb3_policy import SB3Policy
-from baselines.loaders.torchrl_policy import TorchRLPolicy
 
 
 def test_one_rule_finds_the_committed_models_a_run_folder_and_a_file(tmp_path):
     assert SB3Policy.locate("ppo", "pretrained") == PRETRAINED / "ppo" / "model.zip"
     assert ClonedPolicy.locate("dagger", None) == PRETRAINED / "dagger" / "policy.pt"
-    (tmp_path / "actor.pt").write_bytes(b"")
-    assert TorchRLPolicy.locate("torchrl", str(tmp_path)) == tmp_path / "actor.pt"
+    (tmp_path / "model.zip").write_bytes(b"")
+    assert SB3Policy.locate("ppo", str(tmp_path)) == tmp_path / "model.zip"
     named = tmp_path / "clone_7.pt"
     named.write_bytes(b"")
     assert ClonedPolicy.locate("bc", str(named)) == named  # a file of its kind, any name
-    with pytest.raises(ValueError, match=r"no TorchRL actor at .*pretrained/torchrl"):
-        TorchRLPolicy.locate("torchrl", None)  # the one default: a committed model
+    with pytest.raises(ValueError, match=r"no SB3 model at .*pretrained/sac"):
+        SB3Policy.locate("sac", None)  # the one default: a committed model
     with pytest.raises(ValueError, match="no SB3 model"):
-        SB3Policy.locate("ppo", str(tmp_path))
+        SB3Policy.locate("ppo", str(tmp_path / "elsewhere"))
 
 
 def test_a_committed_variant_is_named_by_a_bare_word(tmp_path, monkeypatch):
@@ -80,7 +79,7 @@ def test_every_saved_policy_name_has_a_loaded_policy_loader():
     for lib in registry.LIBRARIES.values():  # what each library saves, a loader reads
         assert all((lib.policy or algo) in registry.LOADERS for algo in lib.algos), lib
     assert registry.policy_spec("sb3", "sac", PRETRAINED) == f"sac:{PRETRAINED}"
-    assert registry.policy_spec("torchrl", "ppo", PRETRAINED) == f"torchrl:{PRETRAINED}"
+    assert registry.policy_spec("benchmarl", "mappo", PRETRAINED) == f"benchmarl:{PRETRAINED}"
 
 
 def test_the_robots_of_a_committed_model_share_one_loaded_network():

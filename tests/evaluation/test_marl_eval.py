@@ -49,8 +49,8 @@ def _run(folder: Path, seed: int, library: str | None = "sb3") -> str:
 
 def _benchmarl_json(algo: str, seeds: tuple[int, ...]) -> dict[str, Any]:
     """A BenchMARL 1.5.2 experiment's JSON (its ``JsonWriter``) for ``uvms/random_n2``, with
-    ``benchmarl_uvms.metrics.EpisodeMetrics``: absolute_metrics first (each the maximum),
-    then one step per evaluation, ``step_<total_frames // evaluation_interval>``."""
+    ``baselines.benchmarl_tasks.episode_logs.EpisodeMetrics``: absolute_metrics first (each
+    the maximum), then one step per evaluation, ``step_<total_frames // evaluation_interval>``."""
     runs = {}
     for seed in seeds:
         step = {

@@ -1,13 +1,10 @@
-"""BenchMARL's uvms tasks (examples/benchmarl: the package ``benchmarl_uvms`` and its Hydra
-plugin) as a BenchMARL user runs them: the registry, ``get_from_yaml``, the Hydra configs,
-the env's specs and infos, a ``benchmarl.run`` whose checkpoint ``reload_experiment_from_file``
-restores, the episodes' metrics in the scalars and marl-eval JSON (``benchmarl_uvms.run``),
-a checkpoint's evaluation that replays the run's, its policy in the project's evaluator
-(``--policy benchmarl:PATH``), and (slow) a multirun over MAPPO and MASAC.
-
-BenchMARL 1.5.2 needs torchrl < 0.12 and the project's test extra torchrl >= 0.14, so
-these tests run in BenchMARL's own virtual environment (examples/benchmarl/README.md) and
-skip in the project's. The runs are tiny: a few hundred frames of 10-step episodes.
+"""BenchMARL's uvms tasks (``baselines.benchmarl_tasks`` and the Hydra plugin
+``hydra_plugins.uvms_coop_benchmarl``) as a BenchMARL user runs them: the registry,
+``get_from_yaml``, the Hydra configs, the env's specs and infos, a ``benchmarl.run`` whose
+checkpoint ``reload_experiment_from_file`` restores, the episodes' metrics in the scalars and
+marl-eval JSON (``run_experiment``), a checkpoint's evaluation that replays the run's, its
+policy in the project's evaluator (``--policy benchmarl:PATH``), and (slow) a multirun over
+MAPPO and MASAC. The runs are tiny: a few hundred frames of 10-step episodes.
 """
 
 from __future__ import annotations
@@ -23,26 +20,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-SKIP = "BenchMARL has its own venv (.venv-benchmarl, torchrl < 0.12): examples/benchmarl/README.md"
+pytest.importorskip("benchmarl", reason="the learn extra installs BenchMARL")
+
 # the tasks' yaml files in this checkout (the editable install reads these)
-YAML_DIR = Path(__file__).resolve().parents[2] / "examples/benchmarl/benchmarl_uvms/conf/task/uvms"
+YAML_DIR = Path(__file__).resolve().parents[2] / "baselines/benchmarl_tasks/conf/task/uvms"
+TASKS_MODULE = "baselines.benchmarl_tasks"
 
 
-# the tests of the project's side where BenchMARL is missing
-WITHOUT_BENCHMARL = {"test_without_benchmarl_the_loader_names_the_install"}
-
-
-@pytest.fixture(autouse=True)
-def _benchmarl(request: pytest.FixtureRequest) -> None:
-    # Skips each test rather than the module at import: a module skipped while collecting
-    # leaves `pytest tests/training/test_benchmarl.py` with no test collected (exit status 5).
-    if request.node.originalname in WITHOUT_BENCHMARL:
-        return
-    pytest.importorskip("benchmarl", reason=SKIP)
-    pytest.importorskip("benchmarl_uvms", reason=f"pip install -e examples/benchmarl; {SKIP}")
-
-
-TASKS = ("paper", "short", "random_n2", "random_n4")
+TASKS = ("paper", "short", *(f"random_n{n}" for n in range(2, 7)))
 # A run of 2 iterations of 4 copies x 20 steps (2 episodes each), trained on 2 minibatches
 TINY = [
     "task.max_cycles=10",
@@ -92,7 +77,8 @@ def _benchmarl_run(
 
 def test_registry_holds_the_uvms_tasks():
     from benchmarl.environments import task_config_registry
-    from benchmarl_uvms import UVMSTask, UVMSTaskClass
+
+    from baselines.benchmarl_tasks import UVMSTask, UVMSTaskClass
 
     uvms = {k: v for k, v in task_config_registry.items() if k.startswith("uvms/")}
     assert uvms == {f"uvms/{name}": UVMSTask[name.upper()] for name in TASKS}
@@ -102,7 +88,7 @@ def test_registry_holds_the_uvms_tasks():
 
 @pytest.mark.parametrize("name", TASKS)
 def test_get_from_yaml_gives_the_yamls_values(name):
-    from benchmarl_uvms import UVMSTask, UVMSTaskClass
+    from baselines.benchmarl_tasks import UVMSTask, UVMSTaskClass
 
     task = UVMSTask[name.upper()].get_from_yaml()
     assert isinstance(task, UVMSTaskClass) and task.name == name.upper()
@@ -111,10 +97,10 @@ def test_get_from_yaml_gives_the_yamls_values(name):
 
 
 def test_the_yamls_hold_their_scenarios_and_teams():
-    from benchmarl_uvms import UVMSTask
+    from baselines.benchmarl_tasks import UVMSTask
 
     expected = {"paper": ("paper", 2), "short": ("short", 2)}
-    expected |= {"random_n2": ("random", 2), "random_n4": ("random", 4)}
+    expected |= {f"random_n{n}": ("random", n) for n in range(2, 7)}
     for name, (scenario, n) in expected.items():
         config = UVMSTask[name.upper()].get_from_yaml().config
         assert (config["scenario"], config["n_agents"]) == (scenario, n)
@@ -124,7 +110,8 @@ def test_the_yamls_hold_their_scenarios_and_teams():
 
 def test_get_from_yaml_refuses_an_unknown_key(tmp_path):
     import yaml
-    from benchmarl_uvms import UVMSTask
+
+    from baselines.benchmarl_tasks import UVMSTask
 
     path = tmp_path / "typo.yaml"
     path.write_text(yaml.safe_dump({**_yaml("random_n2"), "max_cycle": 5}))
@@ -137,9 +124,10 @@ def test_get_from_yaml_refuses_an_unknown_key(tmp_path):
 def test_hydra_composes_the_tasks_with_overrides_and_checks_them():
     """The search path plugin puts the yaml files where BenchMARL's own configs are."""
     from benchmarl.hydra_config import load_task_config_from_hydra
-    from benchmarl_uvms import UVMSTaskClass
     from hydra import compose, initialize_config_module
     from hydra.errors import ConfigCompositionException
+
+    from baselines.benchmarl_tasks import UVMSTaskClass
 
     with initialize_config_module(config_module="benchmarl.conf", version_base=None):
         overrides = ["algorithm=mappo", "task=uvms/random_n4", "task.max_cycles=7"]
@@ -158,7 +146,7 @@ def test_hydra_composes_the_tasks_with_overrides_and_checks_them():
 
 
 def test_the_tasks_env_gives_one_copys_specs_and_steps():
-    from benchmarl_uvms import UVMSTask
+    from baselines.benchmarl_tasks import UVMSTask
 
     uvms = UVMSTask.RANDOM_N2.get_from_yaml()
     uvms.config["max_cycles"] = 5
@@ -195,7 +183,7 @@ def test_the_tasks_env_gives_one_copys_specs_and_steps():
 def test_the_task_renders_copy_0_every_render_every_steps():
     from types import SimpleNamespace
 
-    from benchmarl_uvms import UVMSTask
+    from baselines.benchmarl_tasks import UVMSTask
 
     uvms = UVMSTask.SHORT.get_from_yaml()
     env = uvms.get_env_fun(num_envs=2, continuous_actions=True, seed=0, device="cpu")()
@@ -213,7 +201,7 @@ def test_the_task_renders_copy_0_every_render_every_steps():
 
 
 def test_options_must_not_repeat_the_tasks_own_keys():
-    from benchmarl_uvms import UVMSTask
+    from baselines.benchmarl_tasks import UVMSTask
 
     uvms = UVMSTask.RANDOM_N2.get_from_yaml()
     uvms.config["options"] = {"max_cycles": 5}
@@ -226,13 +214,14 @@ def test_benchmarl_run_writes_a_checkpoint_that_reloads(tmp_path):
     import torch
     from benchmarl.experiment import Experiment
     from benchmarl.hydra_config import reload_experiment_from_file
-    from benchmarl_uvms import UVMSTaskClass
+
+    from baselines.benchmarl_tasks import UVMSTaskClass
 
     run = ["algorithm=mappo", "task=uvms/random_n2", "seed=1", *TINY]
     _benchmarl_run(*run, f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
     (checkpoint,) = (tmp_path / "run").glob("*/checkpoints/checkpoint_160.pt")
     with open(checkpoint.parents[1] / "config.pkl", "rb") as fh:
-        assert type(pickle.load(fh)).__module__ == "benchmarl_uvms.tasks"  # not __main__
+        assert type(pickle.load(fh)).__module__ == f"{TASKS_MODULE}.tasks"  # not __main__
 
     experiment = reload_experiment_from_file(str(checkpoint))
     assert isinstance(experiment.task, UVMSTaskClass) and experiment.task.name == "RANDOM_N2"
@@ -281,12 +270,13 @@ EVALUATED = [
 
 @pytest.fixture(scope="module")
 def mappo_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """``python -m benchmarl_uvms.run`` of MAPPO on uvms/short, seed 1: the Hydra run
-    folder (one experiment folder inside)."""
-    pytest.importorskip("benchmarl", reason=SKIP)
+    """``python -m baselines.benchmarl_tasks.run_experiment`` of MAPPO on uvms/short, seed 1:
+    the Hydra run folder (one experiment folder inside)."""
     root = tmp_path_factory.mktemp("mappo")
     run = ["algorithm=mappo", "task=uvms/short", "seed=1", *EVALUATED]
-    _benchmarl_run(*run, f"hydra.run.dir={root / 'run'}", cwd=root, module="benchmarl_uvms.run")
+    _benchmarl_run(
+        *run, f"hydra.run.dir={root / 'run'}", cwd=root, module=f"{TASKS_MODULE}.run_experiment"
+    )
     return root / "run"
 
 
@@ -296,7 +286,7 @@ def _experiment(run: Path) -> Path:
 
 
 def test_the_logs_hold_the_episodes_and_a_checkpoint_replays_the_evaluation(mappo_run):
-    from benchmarl_uvms.evaluate import main as evaluate_main
+    from baselines.benchmarl_tasks.evaluate_checkpoint import main as evaluate_main
 
     folder = _experiment(mappo_run)
     scalars = folder / folder.name / "scalars"
@@ -393,11 +383,7 @@ def test_the_evaluator_files_a_checkpoint_under_its_training_run(mappo_run, tmp_
     assert metrics == set(runs["mappo"]["seed_1"]["step_0"]) | {"elapsed_time"}
 
 
-def test_without_benchmarl_the_loader_names_the_install(tmp_path):
-    import importlib.util
-
-    if importlib.util.find_spec("benchmarl") is not None:
-        pytest.skip("BenchMARL is installed here")
+def test_without_benchmarl_the_loader_names_the_install(tmp_path, monkeypatch):
     from baselines.evaluation import marl_eval
     from baselines.loaders.sources import PolicySource
 
@@ -406,7 +392,8 @@ def test_without_benchmarl_the_loader_names_the_install(tmp_path):
     (checkpoints / "checkpoint_160.pt").write_bytes(b"")
     (checkpoints.parent / "config.pkl").write_bytes(b"")
     factory = PolicySource.parse(f"benchmarl:{tmp_path}").factory(0)  # found
-    with pytest.raises(ImportError, match=r"\.venv-benchmarl"):
+    monkeypatch.setitem(sys.modules, "benchmarl", None)  # an install without the learn extra
+    with pytest.raises(ImportError, match=r"learn\]"):
         factory(None)
     label = f"benchmarl:{tmp_path}"
     assert marl_eval.run_identity(label) == marl_eval.RunIdentity(label, None)

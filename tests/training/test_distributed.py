@@ -4,7 +4,7 @@ training evaluated through ``--policy rllib:PATH``.
 The Ray tests need Ray (in the test extra; they skip where it is missing); the fast
 RLlib run trains one iteration on the local runner and evaluates the checkpoint through
 ``rllib:PATH``; the 2-iteration, 2-runner run is ``slow``. BenchMARL's tasks are tested in
-tests/training/test_benchmarl.py (in their own venv: BenchMARL needs torchrl < 0.12)."""
+tests/training/test_benchmarl.py."""
 
 from __future__ import annotations
 

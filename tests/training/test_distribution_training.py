@@ -1,7 +1,7 @@
 """Training on a distribution of team sizes and conditions, with memory: the shared
 condition flags, ``ConcatVecEnv`` (one VecEnv per team size), MAPPO's padded state, the
-SB3 trainer (PPO on the memory observation, RecurrentPPO) and the TorchRL trainer over
-several team sizes, their evaluations under the run's conditions, the imitation CLI's
+SB3 trainer (PPO on the memory observation, RecurrentPPO) over several team sizes, their
+evaluations under the run's conditions, the imitation CLI's
 parallel rollouts over the distribution and the aggregate over training seeds. Tiny
 budgets: these check the paths, not the learning."""
 
@@ -213,24 +213,6 @@ def test_recurrent_ppo_trains_and_its_state_restarts_each_episode(tmp_path):
     np.testing.assert_array_equal(np.stack(first), np.stack(again))
     # the LSTM carries something: the same observation twice is not the same decision
     assert not np.array_equal(policy.act(stream[0]), first[0])
-
-
-def test_torchrl_trains_over_team_sizes(tmp_path, capsys):
-    pytest.importorskip("torchrl", minversion="0.14")
-    out = tmp_path / "torchrl"
-    main(["--library", "torchrl", "--robot-steps", "100", "--out", str(out), *TINY,
-          "--hp", "rollout_steps=4", "--hp", "minibatches=2", "--hp", "epochs=1",
-          "--hp", "hidden=[8]"])  # fmt: skip
-    config = json.loads((out / "config.json").read_text())
-    assert config["library_settings"]["team_sizes"] == [2, 3]
-    # 2 copies x 4 steps x (2 + 3) robots per iteration
-    assert config["library_settings"]["robot_steps_per_iteration"] == 40
-    assert config["robot_steps"] == 120
-    with pytest.raises(SystemExit) as refused:  # a usage error, before the run folder
-        main(["--library", "torchrl", "--robot-steps", "40", "--out", str(tmp_path / "c"),
-              *TINY, "--cost", "count"])  # fmt: skip
-    assert refused.value.code == 2 and not (tmp_path / "c").exists()
-    assert "--cost with several team sizes" in capsys.readouterr().err
 
 
 # -- imitation over the distribution --------------------------------------------------------

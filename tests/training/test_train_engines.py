@@ -1,4 +1,4 @@
-"""One training layer under three libraries (``baselines.train --library {sb3,torchrl,rllib}``):
+"""One training layer under three libraries (``baselines.train --library {sb3,benchmarl,rllib}``):
 each trains for a tiny budget and writes the same progress.csv and evaluations.csv
 columns and the same config.json keys; every library's ``--help`` lists the same shared
 options; the learning-curve figure draws runs of all three; every PPO trainer takes
@@ -71,15 +71,20 @@ LIBRARY_ARGS = {
         "--hp",
         'policy_kwargs={"net_arch": [8]}',
     ],
-    "torchrl": [
+    # 2 copies x 16 steps x 2 robots: 64 robot-steps an iteration
+    "benchmarl": [
         "--hp",
-        "rollout_steps=16",
+        "experiment.on_policy_collected_frames_per_batch=32",
         "--hp",
-        "minibatches=2",
+        "experiment.on_policy_minibatch_size=16",
         "--hp",
-        "epochs=1",
+        "experiment.on_policy_n_minibatch_iters=1",
         "--hp",
-        "hidden=[8]",
+        "model.num_cells=[8]",
+        "--hp",
+        "critic_model.num_cells=[8]",
+        "--geometry-pool",
+        "0",
     ],
     "rllib": [
         "--num-env-runners",
@@ -128,8 +133,6 @@ def trained(tmp_path_factory, request) -> dict[str, Path]:
     for library in LIBRARIES:
         if library == "rllib":
             request.getfixturevalue("local_ray")
-        if library == "torchrl":
-            pytest.importorskip("torchrl", minversion="0.14")
         out = base / library
         main(
             [
@@ -154,7 +157,8 @@ def test_every_library_writes_the_same_records(trained):
         assert _header(run / "evaluations.csv") == list(EVAL_COLUMNS), library
         config = json.loads((run / "config.json").read_text())
         assert list(config) == list(CONFIG_KEYS), library
-        assert config["library"] == library and config["algo"] == "ppo"
+        # PPO, shared by the robots: MAPPO for BenchMARL (its algorithms are multi-agent)
+        assert config["library"] == library and config["algo"] == LIBRARIES[library].algos[0]
         assert config["command"].startswith(f"python -m baselines.train --library {library}")
         assert config["num_envs"] == 2 and config["seed"] == 1
         assert config["overrides"] == {"max_cycles": 6}
@@ -186,7 +190,7 @@ def test_the_plot_draws_the_three_libraries_runs(trained, tmp_path):
     assert [label.split()[0] for label in labels] == list(trained)
 
 
-@pytest.mark.parametrize("library", ["sb3", "torchrl"])
+@pytest.mark.parametrize("library", ["sb3", "benchmarl"])
 def test_a_resumed_run_goes_on_where_it_stopped_and_appends_to_its_records(
     library, trained, tmp_path
 ):
@@ -225,7 +229,7 @@ def _shared_options(library: str) -> list[list[str]]:
 
 def test_every_library_lists_the_same_shared_options(capsys):
     listed = {library: _shared_options(library) for library in LIBRARIES}
-    assert listed["sb3"] == listed["torchrl"] == listed["rllib"]
+    assert listed["sb3"] == listed["benchmarl"] == listed["rllib"]
     flags = [f for options in listed["sb3"] for f in options]
     for name in ("--robot-steps", "--num-envs", "--env-option", "--eval-every", "--resume"):
         assert name in flags
@@ -238,11 +242,11 @@ def test_every_library_lists_the_same_shared_options(capsys):
 
 
 def test_the_earlier_engine_flag_still_picks_the_library(capsys):
-    assert build_parser("torchrl").parse_args(["--engine", "torchrl"]).library == "torchrl"
+    assert build_parser("rllib").parse_args(["--engine", "rllib"]).library == "rllib"
     with pytest.raises(SystemExit):
-        main(["--engine", "torchrl", "--help"])
+        main(["--engine", "rllib", "--help"])
     text = capsys.readouterr().out
-    assert "torchrl library:" in text and "--engine {" not in text  # accepted, not listed
+    assert "rllib library:" in text and "--engine {" not in text  # accepted, not listed
 
 
 def _cost_run(library: str, out: Path, robot_steps: int, cost: list[str], *extra: str) -> None:
@@ -278,15 +282,13 @@ DUAL = ["--cost", "magnitude", "--cost-weight", "0.5", "--multiplier-lr", "0.1"]
 DUAL += ["--cost-limit", "0.2"]
 
 
-@pytest.mark.parametrize("library", ["sb3", "torchrl", "rllib"])
+@pytest.mark.parametrize("library", ["sb3", "benchmarl", "rllib"])
 def test_ppo_lagrangian_takes_the_dual_step_from_each_rollouts_episode_cost(
     library, tmp_path, monkeypatch, request
 ):
     """Every PPO trainer: after each rollout the multiplier moves by lr (mean episode cost -
     limit), clipped at 0, from 0.5; config.json keeps the last. RLlib's env runners hold
     each new multiplier before the next iteration samples."""
-    if library == "torchrl":
-        pytest.importorskip("torchrl", minversion="0.14")
     held: list[list[float]] = []
     if library == "rllib":
         request.getfixturevalue("local_ray")
@@ -391,8 +393,6 @@ def test_every_library_learns_with_the_channel_and_its_policy_sends(library, tmp
     reads the inbox and returns the full action."""
     if library == "rllib":
         request.getfixturevalue("local_ray")
-    if library == "torchrl":
-        pytest.importorskip("torchrl", minversion="0.14")
     out = tmp_path / library
     args = ["--library", library, "--robot-steps", "64", "--out", str(out), "--comm", "atm900"]
     main([*args, *COMMON, *LIBRARY_ARGS[library]])
@@ -407,7 +407,7 @@ def test_every_library_learns_with_the_channel_and_its_policy_sends(library, tmp
 
     env = uvms_env.parallel_env("short", comm="atm900")
     obs, _ = env.reset(seed=0)
-    name = {"sb3": "ppo", "torchrl": "torchrl", "rllib": "rllib"}[library]
+    name = {"sb3": "ppo", "benchmarl": "benchmarl", "rllib": "rllib"}[library]
     policies = build_policies(env, PolicySource.parse(f"{name}:{out}").factory(0))
     policy = policies["uvms_0"]
     assert policy.reads_messages

@@ -24,14 +24,15 @@ stands (``VectorEnv.restart``). ``set_seed(s)``: the next full reset is
 without a ``_reset`` entry (each ``rollout``, a collector's first reset) is, so that
 evaluations that start afresh play the same episodes.
 
-Infos (``info=True``): ``(uvms, info)`` holds, per robot (K, N) float32, ``cost`` (its
-violated safety constraints this period) and, on the step that ends an episode (zero on
-every other), that episode's metrics (``uvms_env.task.metrics``: success, clean success
-with and without the tolerance, the return, the violation periods and the graded safety
-per kind, ...; ``internal_wrench_rms`` when the vector env computes it) and
-``episode_cost`` (the robot's ``cost`` summed over the episode). The metrics have the
-names of the single env's infos, which TorchRL's ``PettingZooWrapper`` carries as they are
-(``uvms_env.env.infos``).
+Infos (``info=True``): ``(uvms, info)`` holds, per robot (K, N) float32, each step's
+``cost`` (its violated safety constraints this period) and ``constraint_<kind>`` (its
+constraint values, g <= 0 holds) and, on the step that ends an episode (zero on every
+other), ``episode_end`` (how it ended: the code of ``uvms_env.env.infos.EPISODE_END_NAMES``),
+that episode's metrics (``uvms_env.task.metrics``: success, clean success with and without
+the tolerance, the return, the violation periods and the graded safety per kind, ...;
+``internal_wrench_rms`` when the vector env computes it) and ``episode_cost`` (the robot's
+``cost`` summed over the episode). They have the names of the single env's infos, which
+TorchRL's ``PettingZooWrapper`` carries as they are (``uvms_env.env.infos``).
 
 Rendering: ``render(env_index=0)`` draws one copy's current state as
 ``parallel_env(render_mode="rgb_array").render()`` does (``uvms_env.env.render``, imported
@@ -63,6 +64,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from uvms_env.env.infos import CONSTRAINT_PREFIX, end_code
 from uvms_env.env.options import state_structure
 from uvms_env.task.metrics import metric_keys
 from uvms_env.vector.env import VectorEnv
@@ -70,20 +72,26 @@ from uvms_env.vector.env import VectorEnv
 GROUP = "uvms"
 
 
+def step_info_keys(constraints: Sequence[str]) -> tuple[str, ...]:
+    """The names of the values every step fills: the robot's cost and its constraint values."""
+    return ("cost", *(CONSTRAINT_PREFIX + kind for kind in constraints))
+
+
 def episode_info_keys(constraints: Sequence[str], internal_wrench: bool) -> tuple[str, ...]:
-    """The names of an ended episode's values in the infos, in order: the metrics
-    (``uvms_env.task.metrics.metric_keys``; ``internal_wrench_rms`` only where the vector
-    env computes it) and the robot's summed cost."""
+    """The names of an ended episode's values in the infos, in order: how it ended, the
+    metrics (``uvms_env.task.metrics.metric_keys``; ``internal_wrench_rms`` only where the
+    vector env computes it) and the robot's summed cost."""
     keys = [k for k in metric_keys(constraints) if internal_wrench or k != "internal_wrench_rms"]
-    return (*keys, "episode_cost")
+    return ("episode_end", *keys, "episode_cost")
 
 
 def episode_info_values(
-    metrics: Mapping[str, Any], episode_cost: float, keys: Sequence[str]
+    metrics: Mapping[str, Any], episode_cost: float, keys: Sequence[str], end: str = ""
 ) -> list[float]:
-    """``keys``' values of one ended episode: its metrics dict and the robot's summed cost
-    (a metric the episode has none of is NaN)."""
-    return [float(episode_cost if key == "episode_cost" else metrics[key]) for key in keys]
+    """``keys``' values of one ended episode: its metrics dict, the robot's summed cost and
+    ``end``, the name of how it ended (a metric the episode has none of is NaN)."""
+    special = {"episode_cost": episode_cost, "episode_end": end_code(end) if end else 0}
+    return [float(special[key] if key in special else metrics[key]) for key in keys]
 
 
 class CoopTransportTorchRLEnv(EnvBase):
@@ -116,13 +124,15 @@ class CoopTransportTorchRLEnv(EnvBase):
         act_size = vector_env.single_action_space.shape[0]  # 8, or more with a channel
         group_obs: dict[str, Any] = {"observation": Bounded(low, high, (k, n, size), self.device)}
         self.episode_keys: tuple[str, ...] = ()
+        self.step_keys: tuple[str, ...] = ()
         if info:
             wrench = vector_env.internal_wrench_every > 0
             self.episode_keys = episode_info_keys(vector_env.task.constraints, wrench)
+            self.step_keys = step_info_keys(vector_env.task.constraints)
             group_obs["info"] = Composite(
                 {
                     key: Unbounded((k, n), self.device, torch.float32)
-                    for key in ("cost", *self.episode_keys)
+                    for key in (*self.step_keys, *self.episode_keys)
                 },
                 shape=(k, n),
             )
@@ -256,20 +266,27 @@ class CoopTransportTorchRLEnv(EnvBase):
     def _neutral_info(self) -> dict[str, torch.Tensor]:
         k, n = self.vector_env.num_envs, self.vector_env.n
         zero = torch.zeros(k, n, dtype=torch.float32, device=self.device)
-        return {key: zero.clone() for key in ("cost", *self.episode_keys)}
+        return {key: zero.clone() for key in (*self.step_keys, *self.episode_keys)}
 
     def _step_info(self, infos: dict[str, Any], ended: torch.Tensor) -> dict[str, torch.Tensor]:
-        """The step's ``(uvms, info)``: the robots' cost, and the ended episodes' values."""
+        """The step's ``(uvms, info)``: the robots' cost and constraint values, and the ended
+        episodes' values."""
         cost = self._tensor(infos["cost"])
         self._episode_cost += cost
         info = self._neutral_info()
         info["cost"] = cost.to(torch.float32)
+        g = self._tensor(infos["constraint_values"]).to(torch.float32)  # (K, N, kinds)
+        for j, key in enumerate(self.step_keys[1:]):
+            info[key] = g[..., j]
         done = torch.nonzero(ended).reshape(-1).tolist()  # the host reads the ended few
         if done:
+            ends = infos["episode_end"]
             rows = torch.tensor(
                 [
                     [
-                        episode_info_values(infos["metrics"][e], float(c), self.episode_keys)
+                        episode_info_values(
+                            infos["metrics"][e], float(c), self.episode_keys, str(ends[e])
+                        )
                         for c in self._episode_cost[e].tolist()
                     ]
                     for e in done

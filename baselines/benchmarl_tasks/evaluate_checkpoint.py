@@ -1,9 +1,10 @@
-"""``python -m benchmarl_uvms.evaluate CHECKPOINT``: ``python -m benchmarl.evaluate`` with the
-callback ``benchmarl_uvms.metrics.EpisodeMetrics``: one evaluation of the checkpoint (the
-experiment's ``evaluation_episodes`` episodes, from its seed: the same episodes as every
-evaluation of the run) into the experiment folder's scalars and marl-eval JSON.
+"""``python -m baselines.benchmarl_tasks.evaluate_checkpoint CHECKPOINT``: ``python -m
+benchmarl.evaluate`` with the callback ``episode_logs.EpisodeMetrics``: one evaluation of
+the checkpoint (the experiment's ``evaluation_episodes`` episodes, from its seed: the same
+episodes as every evaluation of the run) into the experiment folder's scalars and marl-eval
+JSON.
 
-May import: argparse, benchmarl and ``benchmarl_uvms``.
+May import: argparse, benchmarl and ``baselines.benchmarl_tasks``.
 """
 
 from __future__ import annotations
@@ -13,8 +14,8 @@ from pathlib import Path
 
 from benchmarl.hydra_config import reload_experiment_from_file
 
-import benchmarl_uvms  # noqa: F401  (registers the tasks)
-from benchmarl_uvms.metrics import attach
+import baselines.benchmarl_tasks  # noqa: F401  (registers the tasks)
+from baselines.benchmarl_tasks.episode_logs import attach
 
 
 def main(argv: list[str] | None = None) -> None:

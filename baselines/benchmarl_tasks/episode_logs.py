@@ -7,12 +7,13 @@ BenchMARL 1.5.2 logs a task's infos in collection only (``Task.log_info`` and it
 ``(group, info)`` over every collected frame); its evaluation logs and JSON hold the return
 alone and have no task hook. Its mechanism for more is a ``Callback``, which Experiment
 takes as an argument and ``benchmarl.run``/``benchmarl.evaluate`` never pass: the
-package's ``benchmarl_uvms.run`` and ``benchmarl_uvms.evaluate`` are those commands with it.
+package's ``run_experiment`` and ``evaluate_checkpoint`` are those commands with it.
 
 In the JSON the metrics are named as ``baselines.evaluation.marl_eval`` names them, one
 value per episode (0/1 for success and clean success), so that the two tools' files merge.
 
-May import: torch, tensordict, benchmarl and ``uvms_env.vector.torchrl_env`` (names).
+May import: torch, tensordict, benchmarl, ``uvms_env.env.infos`` and
+``uvms_env.vector.torchrl_env`` (names).
 """
 
 from __future__ import annotations
@@ -24,9 +25,16 @@ import torch
 from benchmarl.experiment import Callback
 from tensordict import TensorDictBase
 
+from uvms_env.env.infos import CONSTRAINT_PREFIX
 from uvms_env.vector.torchrl_env import GROUP
 
-STEP_INFO = ("cost",)  # per-step infos; every other key is an ended episode's value
+# per-step infos, and how an episode ended (a code, no quantity to average); every other
+# key is an ended episode's value
+NOT_LOGGED = ("cost", "episode_end")
+
+
+def logged(key: str) -> bool:
+    return key not in NOT_LOGGED and not key.startswith(CONSTRAINT_PREFIX)
 
 
 def ended_episodes(data: TensorDictBase | Iterable[TensorDictBase]) -> dict[str, torch.Tensor]:
@@ -41,7 +49,7 @@ def ended_episodes(data: TensorDictBase | Iterable[TensorDictBase]) -> dict[str,
         if not bool(done.any()):
             continue
         for key, value in info.items():
-            if key not in STEP_INFO:
+            if logged(key):
                 out.setdefault(key, []).append(value[done].to(torch.float64).mean(-1))
     return {key: torch.cat(values) for key, values in out.items()}
 

@@ -1,9 +1,9 @@
-"""``python -m benchmarl_uvms.run``: ``python -m benchmarl.run`` with the callback
-``benchmarl_uvms.metrics.EpisodeMetrics``, so that the evaluations log the episodes'
+"""``python -m baselines.benchmarl_tasks.run_experiment``: ``python -m benchmarl.run`` with the
+callback ``episode_logs.EpisodeMetrics``, so that the evaluations log the episodes'
 success, violations and costs beside the return. The same config and Hydra overrides
 (``algorithm=mappo task=uvms/random_n2 seed=0 experiment.loggers=[csv] ...``, ``-m``).
 
-May import: hydra, omegaconf, benchmarl and ``benchmarl_uvms``.
+May import: hydra, omegaconf, benchmarl and ``baselines.benchmarl_tasks``.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from benchmarl.hydra_config import load_experiment_from_hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-import benchmarl_uvms  # noqa: F401  (registers the tasks before Hydra reads them)
-from benchmarl_uvms.metrics import EpisodeMetrics
+import baselines.benchmarl_tasks  # noqa: F401  (registers the tasks before Hydra reads them)
+from baselines.benchmarl_tasks.episode_logs import EpisodeMetrics
 
 
 @hydra.main(version_base=None, config_path="pkg://benchmarl.conf", config_name="config")

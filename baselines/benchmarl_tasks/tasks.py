@@ -1,5 +1,5 @@
 """The uvms tasks as BenchMARL tasks: the enum ``UVMSTask`` (``PAPER``, ``SHORT``,
-``RANDOM_N2``, ``RANDOM_N4``), the ``UVMSTaskClass`` that builds their TorchRL env, the
+``RANDOM_N2`` ... ``RANDOM_N6``), the ``UVMSTaskClass`` that builds their TorchRL env, the
 schema ``UVMSTaskConfig`` of their yaml files (``conf/task/uvms/*.yaml``), and
 ``register()``, which adds them to BenchMARL's ``task_config_registry`` and the schema to
 Hydra's ConfigStore.
@@ -8,18 +8,20 @@ A task's env is one ``CoopTransportTorchRLEnv`` over a ``VectorEnv`` of BenchMAR
 ``num_envs`` copies: the robots one group ``uvms``, the global state for centralized
 critics, continuous actions only, the infos under ``(uvms, info)`` (BenchMARL's info spec:
 never a model's input, left out of its training batches). Its yaml holds the ``VectorEnv``
-keywords (the scenario family, team size, truncation, precision, threads, geometry pool),
-``options``, any further keyword of ``uvms_env.env.parallel_env``, and ``render_every``.
+keywords (the scenario family, team size, truncation, precision, threads, geometry pool,
+backend), ``options``, any further keyword of ``uvms_env.env.parallel_env``, and
+``render_every``. With ``backend: cuda`` the copies step on the GPU of BenchMARL's
+``sampling_device`` (the host emulation of the kernels where that device is the CPU).
 
 What BenchMARL gets beyond the return: ``log_info`` gives its collection scalars the
 episodes that ended in the batch (``collection/uvms/episode/<key>``, the mean over them,
 from their last step's infos); the evaluation's episodes go to its scalars and marl-eval
-JSON through the callback ``benchmarl_uvms.metrics.EpisodeMetrics``. Every reset that
+JSON through the callback ``episode_logs.EpisodeMetrics``. Every reset that
 starts the copies afresh (each evaluation's rollout) starts from the experiment's seed,
 so every evaluation, in training or of a checkpoint, plays the same episodes.
 
-May import: yaml, torch, tensordict, torchrl, benchmarl, hydra, ``benchmarl_uvms.metrics``
-and ``uvms_env.vector``.
+May import: yaml, torch, tensordict, torchrl, benchmarl, hydra,
+``baselines.benchmarl_tasks.episode_logs`` and ``uvms_env.vector``.
 """
 
 from __future__ import annotations
@@ -39,13 +41,13 @@ from tensordict import TensorDictBase
 from torchrl.data import Composite
 from torchrl.envs import EnvBase
 
-from benchmarl_uvms.metrics import ended_episodes
+from baselines.benchmarl_tasks.episode_logs import ended_episodes
 from uvms_env.vector import VectorEnv
 from uvms_env.vector.torchrl_env import GROUP, CoopTransportTorchRLEnv
 
 ENV_NAME = "uvms"
 # Where the tasks' yaml files are: the folder Hydra searches (the plugin in
-# hydra_plugins/benchmarl_uvms_searchpath) and get_from_yaml reads.
+# hydra_plugins/uvms_coop_benchmarl) and get_from_yaml reads.
 CONF_DIR = Path(__file__).resolve().parent / "conf"
 # The schema's name in Hydra's ConfigStore, named in each yaml's defaults list
 SCHEMA = "uvms_config"
@@ -65,6 +67,7 @@ class UVMSTaskConfig:
     internal_wrench_every: int = 0  # internal-wrench metric period; 0: never (cheaper)
     options: dict[str, Any] = field(default_factory=dict)  # more parallel_env keywords
     render_every: int = 0  # evaluation videos: a new picture every this many steps; 0: none
+    backend: str = "cpu"  # the VectorEnv backend: cpu, or cuda on the sampling device
 
     def env_keywords(self) -> dict[str, Any]:
         """The ``VectorEnv`` keywords after ``scenario`` and ``num_envs``: the optional
@@ -76,7 +79,7 @@ class UVMSTaskConfig:
         named = {
             name: getattr(self, name)
             for name in own
-            if name not in ("scenario", "options", "render_every")
+            if name not in ("scenario", "options", "render_every", "backend")
             and getattr(self, name) is not None
         }
         return {**named, **self.options}
@@ -100,6 +103,15 @@ class UVMSTaskClass(TaskClass):
             raise ValueError("the uvms tasks have continuous actions only")
         config = UVMSTaskConfig(**copy.deepcopy(self.config))
         keywords = config.env_keywords()  # checked here, before BenchMARL builds anything
+
+        if config.backend == "cuda":
+            where = torch.device(device)
+            # a GPU's index; on the CPU, the emulated CUDA device of the host
+            keywords |= {"backend": "cuda", "device": where.index or 0}
+            if where.type != "cuda":
+                keywords["device"] = "cpu"
+        elif config.backend != "cpu":
+            raise ValueError(f"backend must be cpu or cuda, got {config.backend!r}")
 
         def make() -> EnvBase:
             venv = VectorEnv(config.scenario, num_envs=num_envs, **keywords)
@@ -198,7 +210,10 @@ class UVMSTask(Task):
     PAPER = None
     SHORT = None
     RANDOM_N2 = None
+    RANDOM_N3 = None
     RANDOM_N4 = None
+    RANDOM_N5 = None
+    RANDOM_N6 = None
 
     @staticmethod
     def associated_class() -> type[TaskClass]:

@@ -1,1 +1,0 @@
-"""Hydra plugin package of benchmarl-uvms (the plugin: ``benchmarl_uvms_searchpath.py``)."""
