@@ -91,18 +91,32 @@ def generated_source(fn: cs.Function) -> str:
 
 def compile_function(fn: cs.Function) -> cs.Function:
     """A compiled, cached equivalent of ``fn`` (same name, inputs and outputs)."""
-    cc = find_compiler()
-    if os.environ.get("UVMS_ENV_NO_COMPILE") or cc is None:
+    if compiler_off():
         return fn
-    code = cut_long_functions(generated_source(fn))
+    return cs.external(fn.name(), str(compiled_library(fn.name(), generated_source(fn))))
+
+
+def compiler_off() -> bool:
+    """No compilation here: ``UVMS_ENV_NO_COMPILE`` is set or there is no C compiler."""
+    return bool(os.environ.get("UVMS_ENV_NO_COMPILE")) or find_compiler() is None
+
+
+def compiled_library(name: str, source: str) -> Path:
+    """The shared library of the C ``source`` (CasADi's generated C, and what a caller
+    appends to it in CasADi's calling convention), compiled once and cached under a key of
+    the source, the flags, the CasADi version and the CPU; ``name`` names the file. Call
+    only where ``compiler_off()`` is false."""
+    cc = find_compiler()
+    assert cc is not None
+    code = cut_long_functions(source)
     key = hashlib.sha256(
         code.encode() + " ".join(CFLAGS).encode() + cs.__version__.encode() + _cpu_identity()
     )
-    lib = cache_dir() / f"{fn.name()}_{key.hexdigest()[:16]}.so"
+    lib = cache_dir() / f"{name}_{key.hexdigest()[:16]}.so"
     if not lib.exists():
         units = translation_units(code, default_units(code))
-        build_library(fn.name(), lib, cc, CFLAGS, units, ".c")
-    return cs.external(fn.name(), str(lib))
+        build_library(name, lib, cc, CFLAGS, units, ".c")
+    return lib
 
 
 # Seconds per generated line and translation unit, compiled at -O3 on one core, where this
