@@ -1,7 +1,7 @@
 """Per-agent decision time of the NMPC expert (one core), at N = 2, 4, 6 robots.
 
     python benchmarks/nmpc_solve.py [--steps 150] [--solver rti] [--sizes 2 4 6] [--random]
-        [--controllers paper observer]
+        [--controllers paper observer] [--compare PATH]
 
 Runs each case in closed loop on the environment (N = 2: the paper scenario; N = 4, 6:
 the random family, seed 0; ``--random``: the random family for every N, so that the
@@ -10,14 +10,24 @@ times every ``act`` call (the whole decision: observation check, object estimate
 reference, QP build and solve).
 ``--controllers``: the paper's controller and the one with the disturbance observer
 (``nmpc_expert.CONTROLLERS``), measured one after the other in the same run (before and
-after). The controllers are distributed, so the time per decision must not grow with N. The
-first run compiles the OCP of each object shape (~50 s each, cached on disk).
+after). The controllers are distributed, so the time per decision must not grow with N.
+``--compare PATH``: the same cases for another checkout too (PATH: its root, e.g. main's
+HEAD unpacked with ``git archive``), each case in a fresh process per checkout, the
+checkouts alternating, so that a change of load hits both; the last column is this
+checkout's median over the other's. The first run compiles the OCP library (one for every
+object of a strip capacity, cached on disk); the machine and its load are printed with the
+table.
 """
 
 from __future__ import annotations
 
+import argparse
+import json
 import os
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -27,6 +37,8 @@ import uvms_env
 from baselines.command_line import positive_int, script_parser, team_size
 from nmpc_expert import CONTROLLERS, make_policy
 from uvms_env.policy import AgentSpec
+
+HERE = Path(__file__).resolve().parents[1]  # this checkout's root
 
 
 def measure(
@@ -54,6 +66,15 @@ def measure(
     return np.asarray(times)
 
 
+def measured_in(checkout: Path, argv: list[str]) -> np.ndarray:
+    """``measure`` in a fresh process on ``checkout``'s packages (``--one``'s times)."""
+    env = {**os.environ, "PYTHONPATH": str(checkout)}
+    out = subprocess.run(
+        [sys.executable, __file__, *argv], env=env, check=True, capture_output=True, text=True
+    )
+    return np.asarray(json.loads(out.stdout.strip().splitlines()[-1]))
+
+
 def main() -> None:
     ap = script_parser(__file__, __doc__)
     ap.add_argument("--steps", type=positive_int, default=150)
@@ -61,20 +82,45 @@ def main() -> None:
     ap.add_argument("--sizes", type=team_size, nargs="+", default=[2, 4, 6])
     ap.add_argument("--random", action="store_true", help="random family at every N")
     ap.add_argument("--controllers", nargs="+", default=["paper", "observer"], choices=CONTROLLERS)
+    ap.add_argument("--compare", type=Path, default=None, help="another checkout's root")
+    ap.add_argument("--one", nargs=2, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.solver == "ipopt":
         args.controllers = ["paper"]  # IPOPT solves the paper's controller only
+    if args.one is not None:  # a worker: one case, its times as JSON
+        t = measure(int(args.one[0]), args.steps, args.solver, args.random, args.one[1])
+        print(json.dumps(t.tolist()))
+        return
+    if args.compare is not None and not (args.compare / "nmpc_expert").is_dir():
+        ap.error(f"--compare {args.compare}: not a checkout (no nmpc_expert folder there)")
+    from uvms_env.dynamics.compiled import machine_description
+
+    print(f"{machine_description()}; load average before {os.getloadavg()}")
+    checkouts = [("this", HERE)] + ([("compared", args.compare)] if args.compare else [])
     print(
-        f"{'controller':>10} {'N':>3} {'decisions':>9} {'median ms':>10} {'p95 ms':>8} "
-        f"{'max ms':>8}"
+        f"{'checkout':>9} {'controller':>10} {'N':>3} {'decisions':>9} {'median ms':>10} "
+        f"{'p95 ms':>8} {'max ms':>8}{' ratio':>7}"
     )
     for n in args.sizes:
         for controller in args.controllers:
-            t = measure(n, args.steps, args.solver, args.random, controller)
-            print(
-                f"{controller:>10} {n:>3} {len(t):>9} {np.median(t):>10.2f} "
-                f"{np.percentile(t, 95):>8.2f} {t.max():>8.2f}"
-            )
+            medians = {}
+            for name, root in checkouts:
+                if args.compare is None:
+                    t = measure(n, args.steps, args.solver, args.random, controller)
+                else:
+                    argv = ["--one", str(n), controller, "--steps", str(args.steps)]
+                    argv += ["--solver", args.solver] + (["--random"] if args.random else [])
+                    t = measured_in(root, argv)
+                medians[name] = float(np.median(t))
+                ratio = (
+                    f"{medians['this'] / medians[name]:>7.2f}" if name == "compared" else " " * 7
+                )
+                print(
+                    f"{name:>9} {controller:>10} {n:>3} {len(t):>9} {np.median(t):>10.2f} "
+                    f"{np.percentile(t, 95):>8.2f} {t.max():>8.2f}{ratio}",
+                    flush=True,
+                )
+    print(f"load average after {os.getloadavg()}")
 
 
 if __name__ == "__main__":

@@ -292,11 +292,12 @@ class LocalController:
         m = NX // 2
         offset = self.solver.input_offset
         d = self._input_disturbance()
+        limit = s.observer_input_limit
         for j in range(3):  # surge, sway, heave
             k = self._input_of_rate[j]
             if gain[m + j, k] > 1e-9:
                 shift = -s.observer_input_gain * d[j] / gain[m + j, k]
-                offset[k] = np.clip(shift, -s.observer_input_limit, s.observer_input_limit)
+                offset[k] = min(max(shift, -limit), limit)  # np.clip's, on one number
 
     def _input_disturbance(self) -> np.ndarray:
         """The estimate the steady-input shift counters: the robot's own (a talking

@@ -59,6 +59,33 @@ def _cpu_identity() -> bytes:
     return ident.encode()
 
 
+def machine_description() -> str:
+    """The CPU the libraries are compiled for, as benchmarks report it: its model name,
+    whether it has AVX-512 (avx512f) and AVX2, and the cores this process may use."""
+    model, flags = platform.processor() or platform.machine(), set()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                key, _, value = line.partition(":")
+                if key.strip() == "model name":
+                    model = value.strip()
+                elif key.strip() == "flags":
+                    flags = set(value.split())
+                if flags and model:
+                    break
+    except OSError:
+        pass
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        cores = os.cpu_count() or 1
+    yes = {True: "yes", False: "no"}
+    return (
+        f"{model} (avx512f: {yes['avx512f' in flags]}, avx2: {yes['avx2' in flags]}), "
+        f"{cores} cores"
+    )
+
+
 def cache_dir() -> Path:
     root = os.environ.get("UVMS_ENV_CACHE") or platformdirs.user_cache_dir("uvms_env")
     path = Path(root)
@@ -230,6 +257,21 @@ class BufferCall:
                 self._inputs[i] = a
         self._eval()
         return self.outputs
+
+    def bind_output(self, i: int, array: np.ndarray) -> None:
+        """Output ``i`` written into ``array`` from now on: a C-contiguous float64 array of
+        as many entries (e.g. a view into a larger array the caller hands on), in the
+        output's layout; ``outputs[i]`` becomes its view of the output's shape."""
+        shape = self.outputs[i].shape
+        if array.size != self.outputs[i].size or not (
+            array.flags.c_contiguous and array.dtype == np.float64
+        ):
+            raise ValueError(
+                f"output {i} of {self.fn.name()} needs a C-contiguous float64 array of "
+                f"{self.outputs[i].size} entries, got {array.dtype} {array.shape}"
+            )
+        self.outputs[i] = array.reshape(shape)
+        self._buf.set_res(i, memoryview(self.outputs[i]))
 
     def again(self) -> None:
         """Evaluate on the arrays bound by the last call (their contents may have been
