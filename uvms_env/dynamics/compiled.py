@@ -81,8 +81,7 @@ def machine_description() -> str:
         cores = os.cpu_count() or 1
     yes = {True: "yes", False: "no"}
     return (
-        f"{model} (avx512f: {yes['avx512f' in flags]}, avx2: {yes['avx2' in flags]}), "
-        f"{cores} cores"
+        f"{model} (avx512f: {yes['avx512f' in flags]}, avx2: {yes['avx2' in flags]}), {cores} cores"
     )
 
 
