@@ -146,9 +146,11 @@ def compiled_library(name: str, source: str) -> Path:
 
 
 # Seconds per generated line and translation unit, compiled at -O3 on one core, where this
-# machine has no record yet (measured on the 2-core reference machine: the controller's
-# QP builder 10.4 s for 130,000 lines in 2 units, the chain step 5.0 s for 52,000)
-SECONDS_PER_LINE = 1.8e-4
+# machine has no record yet (measured on the 2-core AVX-512 machine, 2026-12-01: the chain
+# step 8.4-9.2 s for 50,000-52,000 lines in 2 units, the controller's library 14.5-22 s for
+# 115,000-130,000: 2.2e-4 to 3.7e-4; the first announcement is within 2x of either, the
+# log's own rate takes over after it). A 3x slower machine is 3x off until its first record.
+SECONDS_PER_LINE = 2.6e-4
 _LOG = "compile_log.jsonl"
 
 
