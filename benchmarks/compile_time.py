@@ -2,12 +2,14 @@
 ring episode compiles after it, and the expert's decision time, for this checkout and
 (``--compare PATH``) another one, in one run.
 
-    python benchmarks/compile_time.py [--steps 300] [--compare PATH] [--whole]
+    python benchmarks/compile_time.py [--scenarios paper random] [--steps 300]
+        [--compare PATH] [--whole]
 
 For each checkout, a fresh process with an empty compile cache (``UVMS_ENV_CACHE``) builds
 the paper scenario's environment and one expert per robot and plays ``--steps`` periods
-(the main job's episode); a second fresh process with the same cache then plays the
-evaluator's first ``nmpc`` episode on a ring (the random family, N = 2, seed 7). Reported
+(``paper``: the main job's episode); a second fresh process with the same cache then
+plays the evaluator's first ``nmpc`` episode on a ring (``random``: the random family,
+N = 2, seed 7). Reported
 per library: the generated lines, the units compiled in parallel, the time the compile
 announced (``~N s expected``: ``uvms_env.dynamics.compiled.expected_seconds`` from the
 cache's log at that moment) and the time it took; per job the total and the median
@@ -32,7 +34,7 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 HERE = Path(__file__).resolve().parents[1]  # this checkout's root
-JOBS = {"main job": ("paper", 0), "ring episode": ("random", 7)}
+JOBS = {"paper": ("main job", 0), "random": ("ring episode", 7)}  # scenario: (job, seed)
 
 
 def worker(scenario: str, seed: int, steps: int, whole: bool) -> dict:
@@ -88,8 +90,8 @@ def announced(rows: list[dict], earlier: list[dict], default: float) -> list[flo
     return out
 
 
-def run(checkout: Path, cache: str, job: str, steps: int, whole: bool) -> dict:
-    scenario, seed = JOBS[job]
+def run(checkout: Path, cache: str, scenario: str, steps: int, whole: bool) -> dict:
+    _, seed = JOBS[scenario]
     env = {**os.environ, "UVMS_ENV_CACHE": cache, "PYTHONPATH": str(checkout)}
     cmd = [sys.executable, __file__, "--worker", scenario, str(seed), "--steps", str(steps)]
     cmd += ["--whole"] if whole else []
@@ -101,6 +103,7 @@ def main(argv: list[str] | None = None) -> None:
     from baselines.command_line import script_parser  # after OMP_NUM_THREADS is set
 
     ap = script_parser(__file__, __doc__)
+    ap.add_argument("--scenarios", nargs="+", choices=list(JOBS), default=list(JOBS))
     ap.add_argument("--steps", type=int, default=300, help="periods played per job")
     ap.add_argument("--compare", type=Path, default=None, help="another checkout's root")
     ap.add_argument("--whole", action="store_true", help="this checkout compiled whole too")
@@ -122,9 +125,10 @@ def main(argv: list[str] | None = None) -> None:
     ways += [("this, whole", HERE, True)] if args.whole else []
     caches = {name: tempfile.mkdtemp(prefix="uvms_compile_") for name, _, _ in ways}
     results: dict[str, dict[str, dict]] = {name: {} for name, _, _ in ways}
-    for job in JOBS:  # the ways alternate job by job
+    for scenario in args.scenarios:  # the ways alternate job by job
         for name, root, whole in ways:
-            results[name][job] = run(root, caches[name], job, args.steps, whole)
+            job = JOBS[scenario][0]
+            results[name][job] = run(root, caches[name], scenario, args.steps, whole)
     print("\n| checkout | job | library | lines | units | announced s | compile s |")
     print("|---|---|---|---|---|---|---|")
     for name, _, _ in ways:
@@ -149,7 +153,7 @@ def main(argv: list[str] | None = None) -> None:
                 f"| {name} | {job} | {len(rows)} | {lines:,} | {total:.1f} | "
                 f"{res['decision_ms']:.3f} |"
             )
-    if args.compare:
+    if args.compare and "paper" in args.scenarios:
         mine = sum(r["seconds"] for r in results["this"]["main job"]["compiles"])
         theirs = sum(r["seconds"] for r in results["compared"]["main job"]["compiles"])
         print(f"\nmain job's compile, this over compared: {mine / theirs:.2f}")
