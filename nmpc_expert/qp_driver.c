@@ -1,8 +1,11 @@
 /* The condensed Gauss-Newton QP of one real-time iteration, and the steady input, around
  * the per-stage functions CasADi generated above this text (nmpc_expert.ocp, "the
- * library"): the model is theirs; this file holds only the linear algebra around it, the
- * same operations in the same order as the symbolic builder it is tested against
- * (ocp.build_qp_builder), in loops over small dense matrices.
+ * library"): the model is theirs; this file holds only the linear algebra around it, in
+ * loops over small dense matrices. It computes what the symbolic builder it is tested
+ * against computes (ocp.build_qp_builder: the RK4 combinations, the Taylor polynomials and
+ * the condensing's products summed in the same order), with two writings of its own:
+ * the model's solves by Cholesky (the graph's CasADi solve is a QR), the velocity
+ * Jacobian as terms_jac gives it.
  *
  * Written for CasADi's calling convention (arg, res, iw, w) and with casadi_real only, no
  * branch on a value: the library is also compiled with casadi_real a bundle of SIMD lanes
@@ -12,9 +15,11 @@
  * horizon, UVMS_NS substeps, UVMS_NTH theta, UVMS_NW weights, UVMS_NC soft rows and
  * UVMS_NR residuals per node), the substep's constants (UVMS_DT, UVMS_DT_HALF,
  * UVMS_DT_SIXTH), the weight vector's offsets (UVMS_W_*), the stage functions' names
- * (UVMS_TERMS, UVMS_TERMS_JAC, UVMS_NODE, UVMS_STEADY_STATE) and their work sizes
- * (UVMS_SUB_ARG, UVMS_SUB_RES, UVMS_SUB_IW, UVMS_SUB_W), and UVMS_BT, B diag(tau_max)
- * (NQ x NU, column-major).
+ * (UVMS_TERMS, UVMS_TERMS_JAC, UVMS_NODE, UVMS_STEADY_STATE, UVMS_OBJECT_STATE) and their
+ * largest argument and result lists (UVMS_SUB_ARG, UVMS_SUB_RES), and the actuation:
+ * UVMS_B (NQ x NU, column-major), UVMS_BT = B diag(tau_max), UVMS_TAU = tau_max (NU).
+ * The entry points' CasADi API (and their work sizes: this file's scratch and a stage
+ * function's) follows this text.
  */
 
 #define UVMS_NZ (UVMS_NH * UVMS_NU)
