@@ -54,12 +54,14 @@ def builder_us() -> tuple[float, float]:
     from nmpc_expert.ocp import ocp_functions
     from nmpc_expert.safety_filter import FILTER_HORIZON
     from nmpc_expert.settings import NMPCSettings
+    from uvms_env.dynamics import ObjectModel
     from uvms_env.dynamics.compiled import BufferCall
     from uvms_env.vector.kernels import BatchedFunction
 
     s = NMPCSettings.paper(horizon=FILTER_HORIZON)
-    funcs = ocp_functions("bar", 0.0, FILTER_HORIZON, s.period, s.substeps)
-    scalar, lanes = BufferCall(funcs.qp_builder), BatchedFunction(funcs.qp_builder_graph)
+    funcs = ocp_functions(ObjectModel("bar").capacity, FILTER_HORIZON, s.period, s.substeps)
+    scalar = BufferCall(funcs.qp_builder)
+    lanes = BatchedFunction(funcs.qp_builder, source=funcs.source)
     rng = np.random.default_rng(0)
     g = funcs.qp_builder
     args = [0.1 * rng.standard_normal(g.size_in(i)[::-1]) for i in range(g.n_in())]

@@ -10,7 +10,7 @@ One job per module, each said in its docstring: the OCP and its solvers (``ocp``
 ``ipopt_solver``), the safety filter (``safety_filter``, ``filter_batch``,
 ``filter_workspace_rows``), the centralized NMPC (``central``, ``central_rti``,
 ``team_model``, ``central_model``), the talking expert (``comm``). The prediction model
-(MODEL section 5) and the steady input are ``uvms_env.dynamics.local_model``.
+(docs/model.md) and the steady input are ``uvms_env.dynamics.local_model``.
 Reference: docs/expert.md.
 
 May import: numpy, scipy, casadi, matplotlib, tqdm and ``uvms_env``. Never ``baselines``.

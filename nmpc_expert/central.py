@@ -1,6 +1,6 @@
 """The centralized NMPC: one optimal control problem over the whole team's inputs.
 
-The full-information bound of the ladder (ARCHITECTURE: "a team policy"): a team policy
+The full-information bound of the ladder (docs/expert.md, "Centralized bound"): a team policy
 (``uvms_env.team_policy``) that reads the global state and decides the N x 8 normalized
 inputs of every robot at once. What it has that no robot of the distributed expert has:
 the exact coupled team-and-object model and the internal (squeeze) wrench.

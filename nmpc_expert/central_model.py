@@ -24,15 +24,15 @@ import casadi as cs
 
 from uvms_env.dynamics import NP, NQ, NU
 from uvms_env.dynamics.compiled import compile_function
-from uvms_env.dynamics.payload import NPO
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.sim.chain import NG, ChainFunctions, state_size
-from uvms_env.sim.simulator import compiled_chain
+from uvms_env.sim.simulator import chain_of_capacity
 
 
 @dataclass(frozen=True)
 class CentralFunctions:
-    """Compiled functions of the centralized OCP for one team (size, object, period)."""
+    """Compiled functions of the centralized OCP for one team size and period (every
+    object of a strip capacity)."""
 
     n: int
     nodes: int  # plan nodes whose squeeze and manipulability ``linearization`` evaluates
@@ -56,7 +56,8 @@ def build_linearization(chain: ChainFunctions, n: int, nodes: int) -> cs.Functio
     tau_max = cs.DM(default_model().params.limits.tau_max)
     x0, a0 = cs.MX.sym("x0", nx), cs.MX.sym("a0", NU, n)
     xs, a_s = cs.MX.sym("X", nx, nodes), cs.MX.sym("A", NU, n * nodes)
-    pp, po, grasp = cs.MX.sym("P", NP, n), cs.MX.sym("P_O", NPO), cs.MX.sym("grasp", NG, n)
+    pp, grasp = cs.MX.sym("P", NP, n), cs.MX.sym("grasp", NG, n)
+    po = cs.MX.sym("P_O", chain.rhs.size1_in(4))  # the object's p_O, its shape included
     eps = cs.MX.sym("eps")
     vc = cs.MX.zeros(3)
     tau0 = cs.diag(tau_max) @ a0
@@ -104,9 +105,10 @@ def build_linearization(chain: ChainFunctions, n: int, nodes: int) -> cs.Functio
 
 @cache
 def central_functions(
-    n: int, shape: str, ring_radius: float, period: float, substeps: int, nodes: int
+    n: int, capacity: int, period: float, substeps: int, nodes: int
 ) -> CentralFunctions:
-    """Build and compile (disk-cached) once per process and team."""
-    chain, step = compiled_chain(n, shape, ring_radius, period, substeps)
+    """Build and compile (disk-cached) once per process and team size, for every object of
+    a strip ``capacity`` (``ObjectModel.capacity``: the object is in P_O)."""
+    chain, step = chain_of_capacity(n, capacity, period, substeps)
     lin = compile_function(build_linearization(chain, n, nodes))
     return CentralFunctions(n, nodes, chain, step, lin)

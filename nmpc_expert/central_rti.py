@@ -65,9 +65,10 @@ def team_rows(per_robot: np.ndarray, n: int) -> np.ndarray:
 
 
 @cache
-def _steady_function(shape: str, ring_radius: float) -> cs.Function:
-    """The expert's steady input a_ss(x, theta, v_d) of one robot (its local model's)."""
-    uvms, obj = default_model(), ObjectModel(shape, ring_radius)
+def _steady_function(capacity: int) -> cs.Function:
+    """The expert's steady input a_ss(x, theta, v_d) of one robot (its local model's), for
+    every object of a strip ``capacity`` (the object is in theta)."""
+    uvms, obj = default_model(), ObjectModel.of_capacity(capacity)
     return build_steady_input(uvms, obj, build_local_model(uvms, obj))
 
 
@@ -106,7 +107,7 @@ class CentralRTI(RealTimeIteration):
         self._velocity_rows = np.r_[st["zeta"], self._twist]
         self._select_constraints(st)
         s = model.scenario
-        self._steady_fn = _steady_function(s.object_shape, s.object_ring_radius)
+        self._steady_fn = _steady_function(ObjectModel(s.object_shape, s.ring_radius).capacity)
         self._steady: dict[int, BufferCall] = {}
         self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.steady_inputs(np.zeros((hz, model.nx)), np.zeros((hz, 6)))  # compile it now

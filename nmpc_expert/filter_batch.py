@@ -6,8 +6,9 @@
                                             # [f.act(o) for f, o in zip(filters, observations)]
 
 Each robot's filter still runs alone on its own observation (no communication). The
-builders of all robots that carry the same object (one ``OCPFunctions``) are evaluated in
-one call of ``uvms_env.vector.kernels.BatchedFunction``, one robot per SIMD lane; the
+builders of all robots whose objects share a strip capacity (one ``OCPFunctions``) are
+evaluated in one call of ``uvms_env.vector.kernels.BatchedFunction`` (the library's C
+compiled with SIMD lanes), one robot per lane; the
 QPs are then solved one after another (DAQP has no batched interface; each QP has a
 different active set). Reference: docs/safety-filter.md, "Many filters at once".
 
@@ -43,7 +44,12 @@ class BatchedFilterStep:
         if id(funcs) not in self._batched:
             from uvms_env.vector.kernels import BatchedFunction
 
-            self._batched[id(funcs)] = (funcs, BatchedFunction(funcs.qp_builder_graph, "float64"))
+            built = (
+                BatchedFunction(funcs.qp_builder, "float64", source=funcs.source)
+                if funcs.source is not None  # the library's own C, one robot per lane
+                else BatchedFunction(funcs.qp_builder_graph, "float64")
+            )
+            self._batched[id(funcs)] = (funcs, built)
         return self._batched[id(funcs)][1]
 
     def __call__(self, filters: Sequence[SafetyFilter], observations: Sequence[np.ndarray]):

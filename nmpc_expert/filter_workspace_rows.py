@@ -21,7 +21,7 @@ import numpy as np
 
 from uvms_env.dynamics import ObjectModel
 from uvms_env.dynamics.compiled import BufferCall, compile_function
-from uvms_env.dynamics.local_model import NTHETA, NX, build_local_model
+from uvms_env.dynamics.local_model import NX, build_local_model
 from uvms_env.dynamics.payload import object_key, object_tag
 from uvms_env.dynamics.spatial import rot_zyx
 from uvms_env.dynamics.uvms import default_model
@@ -59,7 +59,7 @@ def workspace_function(shape: str, ring_radius: float) -> cs.Function:
     uvms = default_model()
     prm = uvms.params
     model = build_local_model(uvms, ObjectModel(shape, ring_radius))
-    x, theta = cs.SX.sym("x", NX), cs.SX.sym("theta", NTHETA)
+    x, theta = cs.SX.sym("x", NX), cs.SX.sym("theta", model.theta_size)
     ws = cs.SX.sym("ws", 6)  # centre, radius, margin, rate
     q = x[: NX // 2]
     q_dot = uvms.qdot_map(q) @ x[NX // 2 :]

@@ -23,7 +23,7 @@ from nmpc_expert.rti import RealTimeIteration
 from nmpc_expert.settings import NMPCSettings
 from uvms_env.dynamics import NU
 from uvms_env.dynamics.compiled import BufferCall
-from uvms_env.dynamics.local_model import NTHETA, NX
+from uvms_env.dynamics.local_model import NX
 
 
 class IpoptSolver(RealTimeIteration):
@@ -49,14 +49,14 @@ class IpoptSolver(RealTimeIteration):
         x = cs.MX.sym("X", NX, n + 1)
         a = cs.MX.sym("A", NU, n)
         s = cs.MX.sym("S", NC, n)
-        p_x0, p_theta = cs.MX.sym("x0", NX), cs.MX.sym("theta", NTHETA)
+        p_x0, p_theta = cs.MX.sym("x0", NX), cs.MX.sym("theta", model.theta_size)
         p_xd, p_vd = cs.MX.sym("xd", 6, n + 1), cs.MX.sym("vd", 6, n + 1)
         p_aref, p_w = cs.MX.sym("aref", NU, n), cs.MX.sym("w", NW)
         o = 18 + NU
         q_x, q_v, p_x, r_u = p_w[0:6], p_w[6:12], p_w[12:18], p_w[18:o]
         l1, l2, scale = (p_w[o + k * NC : o + (k + 1) * NC] for k in (0, 1, 4))
 
-        xs, ts = cs.MX.sym("x", NX), cs.MX.sym("t", NTHETA)
+        xs, ts = cs.MX.sym("x", NX), cs.MX.sym("t", model.theta_size)
         av = cs.MX.sym("a", NU)
         dt = settings.period / settings.substeps
         xk = xs

@@ -46,11 +46,17 @@ def navigator_for(spec: AgentSpec) -> WaypointNavigator:
 
 def local_parameters(spec: AgentSpec) -> np.ndarray:
     """theta of the robot's local model: its grasp, its load share and the object's
-    nominal parameters, from its spec."""
+    nominal parameters (its shape included), from its spec."""
     obj = ObjectModel(spec.object_shape, spec.ring_radius)
     return ModelParams(
         spec.grasp_offset, spec.grasp_rotation, spec.load_share, obj.nominal_parameters()
     ).pack()
+
+
+def object_capacity(spec: AgentSpec) -> int:
+    """The strip capacity of the robot's object: which compiled library it uses (one for
+    every object of a capacity, ``uvms_env.dynamics.payload``)."""
+    return ObjectModel(spec.object_shape, spec.ring_radius).capacity
 
 
 def default_settings(solver: str) -> NMPCSettings:
@@ -130,10 +136,8 @@ class LocalController:
         self.settings = s = settings or default_settings(solver)
         if abs(s.period - spec.period) > 1e-12:
             raise ValueError(f"settings.period {s.period} != scenario period {spec.period}")
-        self.funcs = ocp_functions(
-            spec.object_shape, spec.object_ring_radius, s.horizon, s.period, s.substeps
-        )
         self.theta = local_parameters(spec)
+        self.funcs = ocp_functions(object_capacity(spec), s.horizon, s.period, s.substeps)
         self.weights = controller_weights(s)
         self._steady = BufferCall(self.funcs.steady_input)
         if solver == "rti":
@@ -288,11 +292,12 @@ class LocalController:
         m = NX // 2
         offset = self.solver.input_offset
         d = self._input_disturbance()
+        limit = s.observer_input_limit
         for j in range(3):  # surge, sway, heave
             k = self._input_of_rate[j]
             if gain[m + j, k] > 1e-9:
                 shift = -s.observer_input_gain * d[j] / gain[m + j, k]
-                offset[k] = np.clip(shift, -s.observer_input_limit, s.observer_input_limit)
+                offset[k] = min(max(shift, -limit), limit)  # np.clip's, on one number
 
     def _input_disturbance(self) -> np.ndarray:
         """The estimate the steady-input shift counters: the robot's own (a talking
@@ -345,7 +350,10 @@ class NMPCPolicy(LocalController):
         self.solver.vd[:] = vd
         status, info = "ok", {}
         try:
-            a_init = self._steady(self._x0, self.theta, self.solver.vd[0])[0].ravel()
+            # the first guess of a cold start only: a plan's shift replaces it
+            a_init = None
+            if not self.solver.has_plan:
+                a_init = self._steady(self._x0, self.theta, self.solver.vd[0])[0].ravel()
             action, info = self.solver.step(self._x0.copy(), a_init)
             # the plan's node 1 is the model's one-step prediction under the applied input
             self._predicted_zeta = self.solver.xbar[1, NX // 2 :].copy()

@@ -55,15 +55,17 @@ def solve_daqp(
     lower: np.ndarray,
     sense: np.ndarray,
     soft: tuple[np.ndarray, np.ndarray],
+    hard: np.ndarray | None = None,
 ) -> tuple[daqp.Model, np.ndarray, np.ndarray, dict[str, Any]]:
     """Load the dense QP min 0.5 x'Hx + f'x s.t. lower <= [x; C x] <= upper (DAQP's
     layout: the first len(x) entries are bounds on x) into ``qp`` (a new model when None),
     solve it and check the solution here, since a solver may stop early and still return
     numbers: finite, and within its hard bounds (the entries not flagged SOFT: the box on
     x and any hard rows) to ``FEASIBILITY_TOL``. ``soft``: (1 / (2 l2), l1) per entry, the
-    rows flagged SOFT in ``sense`` carry them. Returns (model, x, C x, info: status,
-    iterations, qp_violation); raises RuntimeError on a setup failure, an unsolved QP or
-    a failed check."""
+    rows flagged SOFT in ``sense`` carry them; ``hard``: the indices of the entries not
+    flagged SOFT, where the caller has them at hand (None: from ``sense``). Returns
+    (model, x, C x, info: status, iterations, qp_violation); raises RuntimeError on a
+    setup failure, an unsolved QP or a failed check."""
     if qp is None:
         qp = daqp.Model()
         flag, _ = qp.setup(h, f, c, upper, lower, sense)
@@ -83,7 +85,8 @@ def solve_daqp(
     if not np.all(np.isfinite(x)):
         raise RuntimeError("QP solution is not finite")
     cx = c @ x
-    hard = sense != SOFT
+    if hard is None:
+        hard = np.flatnonzero(sense != SOFT)
     values = np.concatenate([x, cx])
     viol = violation(values[hard], lower[hard], upper[hard])
     if viol > FEASIBILITY_TOL:
@@ -243,6 +246,23 @@ class RTISolver(RealTimeIteration):
         self._sense = np.concatenate([np.zeros(nz), np.full(nc, SOFT), np.zeros(n_step)]).astype(
             np.intc
         )
+        self._hard = np.flatnonzero(self._sense != SOFT)
+        # C: the builder's soft rows, the extra rows, the step rows (constant)
+        self._c = np.zeros((nc + n_step, nz))
+        if n_step:
+            self._c[nc:] = self._step_c
+        # the builder writes its bounds and rows where DAQP reads them (no copies)
+        nb = n * NC
+        views = {
+            2: self._c[:nb],  # c_t: C row by row
+            3: self._lower[:nz],  # lb
+            4: self._upper[:nz],  # ub
+            5: self._lower[nz : nz + nb],  # lbc
+            6: self._upper[nz : nz + nb],  # ubc
+        }
+        for i, view in views.items():
+            self._build.bind_output(i, view)
+        self._r_twice = 2.0 * np.tile(self.weights[WEIGHT_LAYOUT["r_u"]], n)
         l1 = np.tile(self.weights[WEIGHT_LAYOUT["slack_l1"]], n)
         l2 = np.tile(self.weights[WEIGHT_LAYOUT["slack_l2"]], n)
         if extra is not None:
@@ -274,41 +294,39 @@ class RTISolver(RealTimeIteration):
 
     def solve_qp(self) -> tuple[np.ndarray, dict[str, Any]]:
         """Build and solve the condensed QP around (xbar, abar); returns the input steps
-        da (N * 8) and solver info; raises RuntimeError if the QP failed."""
+        da (N * 8) and solver info; raises RuntimeError if the QP failed. The builder
+        writes the bounds and the soft rows into DAQP's arrays (``__init__``)."""
         if self._loaded:
             built, self._loaded = self._build.outputs, False
         else:
             built = self._build(*self.build_inputs())
-        h, f, c, lb, ub, lbc, ubc = built[:7]
-        f, lb, ub, lbc, ubc = (v.reshape(-1) for v in (f, lb, ub, lbc, ubc))  # views
+        h, f = built[0], built[1].reshape(-1)
+        nz, ns, nb = self._nz, self._nz + self._nsoft, self.n * NC
+        lbc, ubc = self._lower[nz:ns], self._upper[nz:ns]
         if self.cost is not None:
             h, f = self.cost
-        elif np.any(self.input_offset):
+        elif self.input_offset.any():
             # a_ref -> clip(a_ref + offset): f = 2 R (abar - a_ref) moves by -2 R (shift)
-            a_ref = built[_A_REF].reshape(-1)
-            shift = np.clip(a_ref + np.tile(self.input_offset, self.n), -1.0, 1.0) - a_ref
-            f = f - 2.0 * np.tile(self.weights[WEIGHT_LAYOUT["r_u"]], self.n) * shift
+            a_ref = built[_A_REF]  # (N, 8): interval k's reference in row k
+            shift = np.clip(a_ref + self.input_offset, -1.0, 1.0) - a_ref
+            f = f - self._r_twice * shift.reshape(-1)
         if self.extra is not None:
             out = self._build.outputs
             c_x, lo_x, up_x = self.extra.rows(self.xbar, out[_G_T], out[_E].reshape(-1))
-            c = np.vstack([c, c_x])
-            lbc, ubc = np.concatenate([lbc, lo_x]), np.concatenate([ubc, up_x])
-        nz, ns = self._nz, self._nz + self._nsoft
-        self._lower[:nz], self._upper[:nz] = lb, ub
-        self._lower[nz:ns], self._upper[nz:ns] = lbc, ubc
+            self._c[nb : self._nsoft] = c_x
+            self._lower[nz + nb : ns], self._upper[nz + nb : ns] = lo_x, up_x
         if self.max_step is not None:
             d = self.max_step
             if self.a_prev is not None:  # |a_0 - a_prev| <= d, within the [-1, 1] box
-                lo0 = np.maximum(lb[:NU], self.a_prev - d - self.abar[0])
-                self._lower[:NU] = lo0
+                lo0 = np.maximum(self._lower[:NU], self.a_prev - d - self.abar[0])
                 self._upper[:NU] = np.maximum(
-                    lo0, np.minimum(ub[:NU], self.a_prev + d - self.abar[0])
+                    lo0, np.minimum(self._upper[:NU], self.a_prev + d - self.abar[0])
                 )
+                self._lower[:NU] = lo0
             diff = (self.abar[1:] - self.abar[:-1]).reshape(-1)
             self._lower[ns:], self._upper[ns:] = -d - diff, d - diff
-            c = np.vstack([c, self._step_c])
         self._qp, da, cda, info = solve_daqp(
-            self._qp, h, f, c, self._upper, self._lower, self._sense, self._soft
+            self._qp, h, f, self._c, self._upper, self._lower, self._sense, self._soft, self._hard
         )
         return da, {
             "status": info["status"],

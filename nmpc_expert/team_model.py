@@ -57,21 +57,23 @@ class TeamModel:
         parameters: np.ndarray | None = None,
         object_parameters: np.ndarray | None = None,
     ) -> None:
-        """``parameters`` (N, NP) and ``object_parameters`` (NPO,): those the model is
-        evaluated at; None: the nominal ones (the simulator's before a mismatch draw)."""
+        """``parameters`` (N, NP) and ``object_parameters`` (the object's p_O, its shape
+        included): those the model is evaluated at; None: the nominal ones (the
+        simulator's before a mismatch draw)."""
         s = self.scenario = scenario
         self.n, self.horizon = n, hz = s.n_agents, int(horizon)
         self.period, self.substeps = s.period, s.substeps
         self.nx, self.nu = state_size(n), NU * n
         uvms = default_model()
         nominal = np.tile(uvms.nominal_parameters(), (n, 1))
-        nominal_object = ObjectModel(s.object_shape, s.ring_radius).nominal_parameters()
+        obj = ObjectModel(s.object_shape, s.ring_radius)
+        nominal_object = obj.nominal_parameters()
         self.parameters = _checked(parameters, nominal, "parameters")
         self.object_parameters = _checked(object_parameters, nominal_object, "object_parameters")
         self.grasp = grasp_parameters(s)
         self.tau_max = np.asarray(uvms.params.limits.tau_max, dtype=float)
         self.functions: CentralFunctions = central_functions(
-            n, s.object_shape, float(s.ring_radius), s.period, s.substeps, hz + 1
+            n, obj.capacity, s.period, s.substeps, hz + 1
         )
         self._step = BufferCall(self.functions.step)
         self._lin = BufferCall(self.functions.linearization)

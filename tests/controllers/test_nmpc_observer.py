@@ -18,7 +18,7 @@ import uvms_env
 from nmpc_expert import NMPCPolicy, NMPCSettings, make_policy
 from nmpc_expert.observation_reader import OBSERVATION_STRUCTURE
 from uvms_env.dynamics import NQ, NU, ObjectModel
-from uvms_env.dynamics.local_model import NTHETA, NX, local_terms
+from uvms_env.dynamics.local_model import NX, local_terms, theta_size
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.policy import AgentSpec
 
@@ -40,7 +40,7 @@ def _plant(spec: AgentSpec, settings: NMPCSettings, force: np.ndarray):
     controller's compiled prediction."""
     uvms = default_model()
     obj = ObjectModel(spec.object_shape, spec.object_ring_radius)
-    x, a, th = cs.SX.sym("x", NX), cs.SX.sym("a", NU), cs.SX.sym("th", NTHETA)
+    x, a, th = cs.SX.sym("x", NX), cs.SX.sym("a", NU), cs.SX.sym("th", theta_size(obj))
     f = cs.SX.sym("f", NQ)
     q, zeta = x[:NQ], x[NQ:]
     m_loc, r = local_terms(uvms, obj, q, zeta, th)

@@ -11,7 +11,7 @@ import pytest
 
 import uvms_env
 from uvms_env.dynamics import NQ, NU
-from uvms_env.dynamics.local_model import NTHETA, local_terms
+from uvms_env.dynamics.local_model import local_terms, theta_size
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.robot.memory import DISTURBANCE_GAIN, DISTURBANCE_LIMIT, RobotMemory
 from uvms_env.robot.observation import OBSERVATION_STRUCTURE as ST
@@ -52,10 +52,10 @@ def _reference_blocks(raw: np.ndarray, ring: float, period: float) -> np.ndarray
     numpy around the local model's mass matrix and forces: w = M dzeta/h - B tau_max u - r,
     d <- clip(d + g (B^T w / tau_max - d))."""
     uvms = default_model()
-    q, zeta, theta = cs.SX.sym("q", NQ), cs.SX.sym("z", NQ), cs.SX.sym("t", NTHETA)
-    terms = cs.Function(
-        "terms", [q, zeta, theta], list(local_terms(uvms, object_model(ring), q, zeta, theta))
-    )
+    obj = object_model(ring)
+    q, zeta = cs.SX.sym("q", NQ), cs.SX.sym("z", NQ)
+    theta = cs.SX.sym("t", theta_size(obj))
+    terms = cs.Function("terms", [q, zeta, theta], list(local_terms(uvms, obj, q, zeta, theta)))
     b, tau_max = np.asarray(uvms.B), np.asarray(uvms.params.limits.tau_max, float)
     commands = np.clip(_actions(raw.shape[1]), -1, 1).astype(np.float32).astype(np.float64)
     out = np.zeros((len(raw), raw.shape[1], 2 * NU))

@@ -59,6 +59,32 @@ def _cpu_identity() -> bytes:
     return ident.encode()
 
 
+def machine_description() -> str:
+    """The CPU the libraries are compiled for, as benchmarks report it: its model name,
+    whether it has AVX-512 (avx512f) and AVX2, and the cores this process may use."""
+    model, flags = platform.processor() or platform.machine(), set()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                key, _, value = line.partition(":")
+                if key.strip() == "model name":
+                    model = value.strip()
+                elif key.strip() == "flags":
+                    flags = set(value.split())
+                if flags and model:
+                    break
+    except OSError:
+        pass
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        cores = os.cpu_count() or 1
+    yes = {True: "yes", False: "no"}
+    return (
+        f"{model} (avx512f: {yes['avx512f' in flags]}, avx2: {yes['avx2' in flags]}), {cores} cores"
+    )
+
+
 def cache_dir() -> Path:
     root = os.environ.get("UVMS_ENV_CACHE") or platformdirs.user_cache_dir("uvms_env")
     path = Path(root)
@@ -91,24 +117,40 @@ def generated_source(fn: cs.Function) -> str:
 
 def compile_function(fn: cs.Function) -> cs.Function:
     """A compiled, cached equivalent of ``fn`` (same name, inputs and outputs)."""
-    cc = find_compiler()
-    if os.environ.get("UVMS_ENV_NO_COMPILE") or cc is None:
+    if compiler_off():
         return fn
-    code = cut_long_functions(generated_source(fn))
+    return cs.external(fn.name(), str(compiled_library(fn.name(), generated_source(fn))))
+
+
+def compiler_off() -> bool:
+    """No compilation here: ``UVMS_ENV_NO_COMPILE`` is set or there is no C compiler."""
+    return bool(os.environ.get("UVMS_ENV_NO_COMPILE")) or find_compiler() is None
+
+
+def compiled_library(name: str, source: str) -> Path:
+    """The shared library of the C ``source`` (CasADi's generated C, and what a caller
+    appends to it in CasADi's calling convention), compiled once and cached under a key of
+    the source, the flags, the CasADi version and the CPU; ``name`` names the file. Call
+    only where ``compiler_off()`` is false."""
+    cc = find_compiler()
+    assert cc is not None
+    code = cut_long_functions(source)
     key = hashlib.sha256(
         code.encode() + " ".join(CFLAGS).encode() + cs.__version__.encode() + _cpu_identity()
     )
-    lib = cache_dir() / f"{fn.name()}_{key.hexdigest()[:16]}.so"
+    lib = cache_dir() / f"{name}_{key.hexdigest()[:16]}.so"
     if not lib.exists():
         units = translation_units(code, default_units(code))
-        build_library(fn.name(), lib, cc, CFLAGS, units, ".c")
-    return cs.external(fn.name(), str(lib))
+        build_library(name, lib, cc, CFLAGS, units, ".c")
+    return lib
 
 
 # Seconds per generated line and translation unit, compiled at -O3 on one core, where this
-# machine has no record yet (measured on the 2-core reference machine: the controller's
-# QP builder 10.4 s for 130,000 lines in 2 units, the chain step 5.0 s for 52,000)
-SECONDS_PER_LINE = 1.8e-4
+# machine has no record yet (measured on the 2-core AVX-512 machine, 2026-12-01: the chain
+# step 8.4-9.2 s for 50,000-52,000 lines in 2 units, the controller's library 14.5-22 s for
+# 115,000-130,000: 2.2e-4 to 3.7e-4; the first announcement is within 2x of either, the
+# log's own rate takes over after it). A 3x slower machine is 3x off until its first record.
+SECONDS_PER_LINE = 2.6e-4
 _LOG = "compile_log.jsonl"
 
 
@@ -216,6 +258,21 @@ class BufferCall:
                 self._inputs[i] = a
         self._eval()
         return self.outputs
+
+    def bind_output(self, i: int, array: np.ndarray) -> None:
+        """Output ``i`` written into ``array`` from now on: a C-contiguous float64 array of
+        as many entries (e.g. a view into a larger array the caller hands on), in the
+        output's layout; ``outputs[i]`` becomes its view of the output's shape."""
+        shape = self.outputs[i].shape
+        if array.size != self.outputs[i].size or not (
+            array.flags.c_contiguous and array.dtype == np.float64
+        ):
+            raise ValueError(
+                f"output {i} of {self.fn.name()} needs a C-contiguous float64 array of "
+                f"{self.outputs[i].size} entries, got {array.dtype} {array.shape}"
+            )
+        self.outputs[i] = array.reshape(shape)
+        self._buf.set_res(i, memoryview(self.outputs[i]))
 
     def again(self) -> None:
         """Evaluate on the arrays bound by the last call (their contents may have been

@@ -15,7 +15,9 @@ maintained Python library offers Fossen-type hydrodynamics in CasADi.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as cs
 import numpy as np
@@ -148,19 +150,38 @@ def diagonal_damping(v_r: Sym, d_lin: Sym, d_quad: Sym) -> Sym:
 
 def strip_damping(v_r: Sym, strips: Strips, coef: TubeCoefficients, scale: Sym) -> Sym:
     """Resisting wrench (LHS sign) of drag integrated over the strips, about the body origin."""
+    return strip_drag(
+        v_r,
+        [cs.DM(r) for r in strips.centers],
+        [cs.DM(u) for u in strips.axes],
+        [float(ell) for ell in strips.lengths],
+        (coef.drag_cross, coef.drag_axial, coef.drag_linear),
+        scale,
+    )
+
+
+def strip_drag(
+    v_r: Sym,
+    centers: Sequence[Any],
+    axes: Sequence[Any],
+    lengths: Sequence[Any],
+    drag: tuple[Any, Any, Any],
+    scale: Sym,
+) -> Sym:
+    """``strip_damping`` of strips given as numbers or symbols: each strip's centre and
+    unit axis (3-vectors) and length, and the per-metre drag (cross-flow, axial, linear).
+    Symbols make the strips an input of a compiled function (the object's, one library
+    for every object); a strip of length 0 adds exactly nothing."""
+    drag_cross, drag_axial, drag_linear = drag
     lin, ang = v_r[:3], v_r[3:]
     force = 0
     moment = 0
-    for r, u, ell in zip(strips.centers, strips.axes, strips.lengths, strict=True):
-        vs = lin + cs.cross(ang, cs.DM(r))
-        va = cs.dot(cs.DM(u), vs)
-        vp = vs - va * cs.DM(u)
+    for r, u, ell in zip(centers, axes, lengths, strict=True):
+        vs = lin + cs.cross(ang, r)
+        va = cs.dot(u, vs)
+        vp = vs - va * u
         speed_p = cs.sqrt(cs.dot(vp, vp) + _EPS**2)
-        f = ell * (
-            coef.drag_cross * speed_p * vp
-            + coef.drag_axial * _abs(va) * va * cs.DM(u)
-            + coef.drag_linear * vs
-        )
+        f = ell * (drag_cross * speed_p * vp + drag_axial * _abs(va) * va * u + drag_linear * vs)
         force = force + f
-        moment = moment + cs.cross(cs.DM(r), f)
+        moment = moment + cs.cross(r, f)
     return scale * cs.vertcat(force, moment)

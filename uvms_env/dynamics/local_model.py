@@ -1,19 +1,20 @@
 """The local (distributed) prediction model of one UVMS and its object estimate.
 
 Used by the NMPC expert (its prediction model) and by the environment's priors (the
-steady input a_ss, ``uvms_env.robot.priors``), so both read the same functions. MODEL
-section 5: UVMS i carries the share c_i of the object's dynamics (the equation:
-docs/expert.md, "Prediction model").
+steady input a_ss, ``uvms_env.robot.priors``), so both read the same functions. UVMS i
+carries the share c_i of the object's dynamics (the equation: docs/expert.md, "Prediction
+model").
 
 Everything is built from the same CasADi functions as the truth simulator, at the
 nominal parameters and zero current: the controller knows no more than its own model.
-The grasp (l_i, R_Oi), the load share c_i and the object's nominal parameters are
-*inputs* of the functions, not constants, so one compiled library serves every robot
-that carries the same object shape.
+The grasp (l_i, R_Oi), the load share c_i and the object's nominal parameters (its
+shape included: ``uvms_env.dynamics.payload``) are *inputs* of the functions, not
+constants, so one compiled library serves every robot and every object of a strip
+capacity.
 
 State x = [q (10); zeta (10)]; input a (8) normalized by the saturation tau_max.
 Parameter vector ``theta`` (see ``ModelParams``): [l_i (3); R_Oi (9, column-major); c_i;
-p_O (4)].
+p_O (``ObjectModel.parameter_count``)], ``theta_size`` numbers.
 
 May import: numpy, casadi and ``uvms_env.dynamics`` / ``uvms_env.models``.
 """
@@ -26,11 +27,15 @@ import casadi as cs
 import numpy as np
 
 from uvms_env.dynamics import NQ, NU, ObjectModel, UVMSModel
-from uvms_env.dynamics.payload import NPO
 from uvms_env.dynamics.spatial import rot_zyx, skew, wrap_angle_sx
 
 NX = 2 * NQ  # state of the prediction model: [q; zeta]
-NTHETA = 3 + 9 + 1 + NPO  # grasp offset, grasp rotation, load share, object parameters
+GRASP_THETA = 3 + 9 + 1  # theta before p_O: grasp offset, grasp rotation, load share
+
+
+def theta_size(obj: ObjectModel) -> int:
+    """The length of theta for robots that carry ``obj`` (or any object of its capacity)."""
+    return GRASP_THETA + obj.parameter_count
 
 
 def euler_zyx(rot: cs.SX) -> cs.SX:
@@ -55,7 +60,7 @@ class ModelParams:
     grasp_offset: np.ndarray  # (3,) l_i in the object frame
     grasp_rotation: np.ndarray  # (3, 3) R_Oi
     load_share: float  # c_i
-    object_parameters: np.ndarray  # (NPO,) nominal p_O
+    object_parameters: np.ndarray  # nominal p_O (``ObjectModel.nominal_parameters``)
 
     def pack(self) -> np.ndarray:
         return np.concatenate(
@@ -82,13 +87,15 @@ class LocalModel:
     object_state: cs.Function
     manipulability: cs.Function
     tau_max: np.ndarray
+    theta_size: int
 
 
 def build_local_model(uvms: UVMSModel, obj: ObjectModel) -> LocalModel:
-    """The local model of MODEL section 5 on top of ``uvms`` and ``obj`` (nominal, v_c = 0)."""
+    """The local model (docs/expert.md, "Prediction model") on top of ``uvms`` and ``obj``
+    (nominal, v_c = 0)."""
     x = cs.SX.sym("x", NX)
     a = cs.SX.sym("a", NU)
-    theta = cs.SX.sym("theta", NTHETA)
+    theta = cs.SX.sym("theta", theta_size(obj))
     q, zeta = x[:NQ], x[NQ:]
     tau_max = np.asarray(uvms.params.limits.tau_max, float)
     x_o, v_o, *_ = _grasp_kinematics(uvms, q, zeta, theta)
@@ -101,6 +108,7 @@ def build_local_model(uvms: UVMSModel, obj: ObjectModel) -> LocalModel:
         object_state=cs.Function("local_object_state", [x, theta], [x_o, v_o], {"cse": True}),
         manipulability=cs.Function("local_manipulability", [x], [uvms.manipulability(q)]),
         tau_max=tau_max,
+        theta_size=theta_size(obj),
     )
 
 
@@ -129,7 +137,7 @@ def _grasp_kinematics(uvms: UVMSModel, q, zeta, theta):
 def local_terms(uvms, obj: ObjectModel, q, zeta, theta):
     """(M_i + c_i A_i^T M_O A_i, -h_i - c_i A_i^T (M_O Adot_i zeta + h_O)) of the local model
     (nominal parameters; the controller does not know the current)."""
-    share, p_o = theta[12], theta[13 : 13 + NPO]
+    share, p_o = theta[GRASP_THETA - 1], theta[GRASP_THETA : GRASP_THETA + obj.parameter_count]
     zero3 = cs.DM.zeros(3)
     x_o, v_o, a_i, adot_zeta = _grasp_kinematics(uvms, q, zeta, theta)
     mass, bias = uvms.dynamics(q, zeta, zero3, cs.DM(uvms.nominal_parameters()))
@@ -137,17 +145,41 @@ def local_terms(uvms, obj: ObjectModel, q, zeta, theta):
     return mass + share * a_i.T @ m_o @ a_i, -bias - share * a_i.T @ (m_o @ adot_zeta + h_o)
 
 
+def local_velocity_jacobian(uvms, obj: ObjectModel, q, zeta, theta):
+    """d r / d zeta of ``local_terms``'s r (10 x 10): the robot's terms differentiated in
+    its ten velocities, the object's bias h_O in the object's six twist directions and
+    chained through v_O = A_i zeta (the same derivative, with the object's strips
+    differentiated six times instead of ten)."""
+    share, p_o = theta[GRASP_THETA - 1], theta[GRASP_THETA : GRASP_THETA + obj.parameter_count]
+    zero3 = cs.DM.zeros(3)
+    x_o, v_o, a_i, adot_zeta = _grasp_kinematics(uvms, q, zeta, theta)
+    _, bias = uvms.dynamics(q, zeta, zero3, cs.DM(uvms.nominal_parameters()))
+    m_o, _ = obj.dynamics(x_o, v_o, zero3, p_o)  # M_O depends on the pose only
+    twist = cs.SX.sym("v_O", 6)
+    _, h_o = obj.dynamics(x_o, twist, zero3, p_o)
+    dh_o = cs.substitute(cs.jacobian(h_o, twist), twist, v_o)
+    robot = -bias - share * a_i.T @ (m_o @ adot_zeta)
+    return cs.jacobian(robot, zeta) - share * a_i.T @ dh_o @ a_i
+
+
+def steady_twist(model: LocalModel, x, theta, vd):
+    """The rigid motion with the object at its desired twist ``vd`` from the state ``x``:
+    the robot's q with the velocities zeta_ss (vehicle twist from the rigid motion, arm
+    joints still), ``build_steady_input``'s point."""
+    q = x[:NQ]
+    x_o, _ = model.object_state(x, theta)
+    r_v = rot_zyx(q[3:6])
+    lin = vd[:3] + cs.cross(vd[3:], q[:3] - x_o[:3])
+    return cs.vertcat(q, r_v.T @ lin, r_v.T @ vd[3:], cs.DM.zeros(4))
+
+
 def build_steady_input(uvms, obj: ObjectModel, model: LocalModel) -> cs.Function:
     """a_ss: the nominal input that keeps the robot moving rigidly with the object at the
     desired twist v_d (arm joints still, vehicle twist from the rigid motion), balancing
     drag, Coriolis and weight of the local model at zero acceleration. Roll and pitch are
     passive: their rows are left to the restoring moments. Clipped to the saturation."""
-    x, theta, vd = cs.SX.sym("x", NX), cs.SX.sym("theta", NTHETA), cs.SX.sym("vd", 6)
-    q = x[:NQ]
-    x_o, _ = model.object_state(x, theta)
-    r_v = rot_zyx(q[3:6])
-    lin = vd[:3] + cs.cross(vd[3:], q[:3] - x_o[:3])
-    zeta_ss = cs.vertcat(r_v.T @ lin, r_v.T @ vd[3:], cs.DM.zeros(4))
-    _, r = local_terms(uvms, obj, q, zeta_ss, theta)
+    x, theta, vd = cs.SX.sym("x", NX), cs.SX.sym("theta", theta_size(obj)), cs.SX.sym("vd", 6)
+    x_ss = steady_twist(model, x, theta, vd)
+    _, r = local_terms(uvms, obj, x_ss[:NQ], x_ss[NQ:], theta)
     a_ss = (cs.DM(uvms.B).T @ -r) / cs.DM(uvms.params.limits.tau_max)
     return cs.Function("nmpc_steady_input", [x, theta, vd], [cs.fmin(cs.fmax(a_ss, -1), 1)])

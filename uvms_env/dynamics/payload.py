@@ -7,20 +7,29 @@ object origin at its centroid. The body-frame Newton-Euler equations with added 
 (Kirchhoff), strip-theory drag and net weight are mapped to inertial coordinates:
 V = blkdiag(R^T, R^T) v_O and Vdot = blkdiag(R^T, R^T) v_O_dot + [-w x v; 0].
 
-``p_O`` holds what a scenario may perturb: mass, displaced volume, added-mass and drag
-scales. Grasp kinematics (paper eq3-eq4): end effector i sits at p_O + R_O l_i with
-rotation R_O R_Oi; its inertial twist is J_Oi v_O, J_Oi = [[I, -S(R_O l_i)], [0, I]].
+``p_O`` holds what a scenario may perturb (mass, displaced volume, added-mass and drag
+scales: the first ``NPO`` entries) and then the object's shape: its rigid inertia per kg
+and added mass (6x6 each), the drag per metre of its tube and its strips (``Strips``:
+centre, unit axis and length of each, padded with strips of length 0 to the capacity
+``strip_capacity``). Every number that tells one object from another is an input of the
+functions, none is a constant of their code, so one compiled library serves every object
+of a capacity (a ring of any radius and a bar of up to 5.4 m share one; layout:
+``parameter_layout``).
+
+Grasp kinematics (paper eq3-eq4): end effector i sits at p_O + R_O l_i with rotation
+R_O R_Oi; its inertial twist is J_Oi v_O, J_Oi = [[I, -S(R_O l_i)], [0, I]].
 
 An object is a shape and a size: a ring's radius or a bar's length (0: the parameter
 file's bar, ``object.bar.length``). ``object_key`` writes both as one number, the name
-the compiled functions, the priors and the datasets use (``object_ring_radius``): the
-ring's radius, 0 for the parameter file's bar, minus the length for another bar.
+the priors and the datasets use (``object_ring_radius``): the ring's radius, 0 for the
+parameter file's bar, minus the length for another bar.
 
 May import: numpy, casadi, ``uvms_env.models`` and the sibling ``dynamics`` modules.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import casadi as cs
@@ -31,7 +40,7 @@ from uvms_env.dynamics.hydro import (
     TubeCoefficients,
     current_twist_rate,
     kirchhoff_coriolis,
-    strip_damping,
+    strip_drag,
     tube_added_mass,
     tube_rigid_inertia,
 )
@@ -44,13 +53,39 @@ OBJECT_PARAMETER_LAYOUT: dict[str, int] = {
     "added_mass_scale": 2,
     "drag_scale": 3,
 }
-NPO = 4
+NPO = 4  # the physical parameters above; the shape follows them in p_O
+# The shape's parts after them (``parameter_layout``): rigid inertia per kg and added mass
+# (6x6, column-major), the drag per metre (cross-flow, axial, linear), then the strips.
+_SHAPE_SIZES = {"unit_inertia": 36, "added_mass": 36, "drag": 3}
+STRIP_SIZE = 7  # one strip: centre (3), unit axis (3), length (object frame)
 DEFAULT_RING_RADIUS = 1.6  # m, a ring built without a size
 # Strip length of a bar's strip theory: the parameter file's 1.8 m bar in 8 strips; a
 # longer bar keeps the strip length (more strips), so its drag is resolved alike.
 BAR_STRIP_LENGTH = 0.225  # m
 # Two sizes of one shape closer than this are the same object.
 SIZE_TOLERANCE = 1e-9
+
+
+def strip_capacity(strips: int, params: Parameters | None = None) -> int:
+    """The strip slots of an object of ``strips`` strips: whole blocks of a ring's strip
+    count (``object.ring.segments``), so that every ring and the bars of as many strips or
+    fewer (up to 5.4 m) share one capacity, hence one compiled library."""
+    block = (params or load_parameters()).object.ring_segments
+    return block * max(1, math.ceil(strips / block))
+
+
+def parameter_layout(capacity: int) -> dict[str, slice]:
+    """Where each part of p_O lies for a strip ``capacity``: ``physical`` (the ``NPO``
+    entries of ``OBJECT_PARAMETER_LAYOUT``), ``unit_inertia``, ``added_mass``, ``drag``
+    and ``strips`` (``STRIP_SIZE`` x capacity, column-major: one strip per column)."""
+    sizes = {"physical": NPO, **_SHAPE_SIZES, "strips": STRIP_SIZE * capacity}
+    ends = list(itertools.accumulate(sizes.values()))
+    return {k: slice(e - n, e) for (k, n), e in zip(sizes.items(), ends, strict=True)}
+
+
+def parameter_count(capacity: int) -> int:
+    """The length of p_O for a strip ``capacity``."""
+    return parameter_layout(capacity)["strips"].stop
 
 
 def bar_length(size: float | None, params: Parameters | None = None) -> float:
@@ -99,9 +134,13 @@ def ring_segments(radius: float, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
 
 
 class ObjectModel:
-    """Symbolic model of the object. ``shape`` is "bar" or "ring"; ``size`` (m) a ring's
-    radius (default 1.6) or a bar's length (``bar_length``: None, 0 or the object key's
-    negative length all name a bar)."""
+    """Model of the object. ``shape`` is "bar" or "ring"; ``size`` (m) a ring's radius
+    (default 1.6) or a bar's length (``bar_length``: None, 0 or the object key's negative
+    length all name a bar).
+
+    Its numbers (``nominal_parameters``) and its functions (``dynamics``, ``energy``,
+    ``pose_rate``), whose code depends on the strip ``capacity`` only: objects of one
+    capacity build the same functions and differ in the parameters they are given."""
 
     def __init__(
         self, shape: str = "bar", size: float | None = None, params: Parameters | None = None
@@ -123,6 +162,8 @@ class ObjectModel:
         self.key = object_key(shape, size, prm)
         self.segments = segments
         self.strips = Strips.along(segments, obj.tube_radius, per)
+        self.capacity = strip_capacity(len(self.strips.lengths), prm)
+        self.parameter_count = parameter_count(self.capacity)
         self.length = self.strips.total_length
         self.radius = obj.tube_radius
         rho, g = prm.water_density, prm.gravity
@@ -157,14 +198,17 @@ class ObjectModel:
         self._build_functions(prm.water_density, prm.gravity)
 
     def _build_functions(self, rho: float, g: float) -> None:
-        """The object's compiled-graph functions: ``dynamics`` (mass matrix and bias in
-        the world frame), ``energy`` and ``pose_rate``."""
-        coef = self.coef
+        """The object's functions of (x_O, v_O, v_c, p_O): ``dynamics`` (mass matrix and
+        bias in the world frame), ``energy`` and ``pose_rate``; the shape read from p_O."""
         x, v = cs.SX.sym("x_O", 6), cs.SX.sym("v_O", 6)
-        v_c, p = cs.SX.sym("v_c", 3), cs.SX.sym("p_O", NPO)
+        v_c, p = cs.SX.sym("v_c", 3), cs.SX.sym("p_O", self.parameter_count)
+        part = parameter_layout(self.capacity)
         mass = p[OBJECT_PARAMETER_LAYOUT["mass"]]
-        m_rb = mass * cs.DM(self.unit_inertia)
-        m_a = p[OBJECT_PARAMETER_LAYOUT["added_mass_scale"]] * cs.DM(self.added_mass)
+        m_rb = mass * cs.reshape(p[part["unit_inertia"]], 6, 6)
+        m_a = p[OBJECT_PARAMETER_LAYOUT["added_mass_scale"]] * cs.reshape(
+            p[part["added_mass"]], 6, 6
+        )
+        strips = cs.reshape(p[part["strips"]], STRIP_SIZE, self.capacity)
         rot = rot_zyx(x[3:6])
         rb = cs.diagcat(rot.T, rot.T)
         body = rb @ v
@@ -172,12 +216,20 @@ class ObjectModel:
         v_r = body - cs.vertcat(vc_body, cs.DM.zeros(3))
         m_tot = m_rb + m_a
         frame_rate = cs.vertcat(-cs.cross(body[3:], body[:3]), cs.DM.zeros(3))
+        drag = strip_drag(
+            v_r,
+            [strips[0:3, k] for k in range(self.capacity)],
+            [strips[3:6, k] for k in range(self.capacity)],
+            [strips[6, k] for k in range(self.capacity)],
+            tuple(p[part["drag"]][k] for k in range(3)),
+            p[OBJECT_PARAMETER_LAYOUT["drag_scale"]],
+        )
         h_body = (
             m_tot @ frame_rate
             - m_a @ current_twist_rate(body[3:], vc_body)
             + kirchhoff_coriolis(m_rb, body)
             + kirchhoff_coriolis(m_a, v_r)
-            + strip_damping(v_r, self.strips, coef, p[OBJECT_PARAMETER_LAYOUT["drag_scale"]])
+            + drag
         )
         net_weight = (mass - rho * p[OBJECT_PARAMETER_LAYOUT["displaced_volume"]]) * g
         g_w = cs.vertcat(0, 0, -net_weight, 0, 0, 0)
@@ -199,12 +251,39 @@ class ObjectModel:
         """The object named by ``object_key``'s number."""
         return cls("ring", key) if key > 0 else cls("bar", key)
 
+    @classmethod
+    def of_capacity(cls, capacity: int) -> ObjectModel:
+        """An object of ``capacity`` strip slots, for the functions of every object of that
+        capacity (their code depends on nothing else): the default ring for the first
+        block, a bar with as many strips beyond it."""
+        ring = cls("ring")
+        if ring.capacity == capacity:
+            return ring
+        bar = cls("bar", capacity * BAR_STRIP_LENGTH)
+        if bar.capacity != capacity:
+            raise ValueError(f"no object has a strip capacity of {capacity}")
+        return bar
+
     def nominal_parameters(self) -> np.ndarray:
-        p = np.zeros(NPO)
+        """p_O of the parameter file: the physical parameters, then the shape, its strips
+        padded to the capacity (a padding strip: at the origin, along x, of length 0)."""
+        part = parameter_layout(self.capacity)
+        p = np.zeros(self.parameter_count)
         p[OBJECT_PARAMETER_LAYOUT["mass"]] = self.nominal_mass
         p[OBJECT_PARAMETER_LAYOUT["displaced_volume"]] = self.nominal_volume
         p[OBJECT_PARAMETER_LAYOUT["added_mass_scale"]] = 1.0
         p[OBJECT_PARAMETER_LAYOUT["drag_scale"]] = 1.0
+        p[part["unit_inertia"]] = self.unit_inertia.T.reshape(-1)  # column-major
+        p[part["added_mass"]] = self.added_mass.T.reshape(-1)
+        c = self.coef
+        p[part["drag"]] = [c.drag_cross, c.drag_axial, c.drag_linear]
+        strips = np.zeros((self.capacity, STRIP_SIZE))
+        strips[:, 3] = 1.0
+        count = len(self.strips.lengths)
+        strips[:count, 0:3] = self.strips.centers
+        strips[:count, 3:6] = self.strips.axes
+        strips[:count, 6] = self.strips.lengths
+        p[part["strips"]] = strips.reshape(-1)  # strip k: entries 7k .. 7k + 6
         return p
 
 

@@ -10,18 +10,22 @@ the correction of least kinetic-energy norm; see ``manifold_projection``), and t
 residuals before and after it, which the simulator's error control reads. The period's
 length is an input, so a period that must be refined is integrated as two halves by the
 same compiled function. Every solve is an SX expression (no data-dependent branch), so
-the same generated C can also run one environment per SIMD lane or GPU thread.
+the same generated C can also run one environment per SIMD lane or GPU thread. The object
+is its parameters P_O (its shape included: ``uvms_env.dynamics.payload``), so one library
+serves every object of a strip capacity; the per-robot functions are built once per
+model, so that the generated code holds each once.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cache
 
 import casadi as cs
 
 from uvms_env.dynamics import NP, NQ, NU, ObjectModel, UVMSModel
-from uvms_env.dynamics.payload import NPO, grasp_jacobian, grasp_jdot_v
+from uvms_env.dynamics.payload import grasp_jacobian, grasp_jdot_v
 from uvms_env.dynamics.spatial import euler_rate_matrix, rot_zyx, rotation_error
 
 NG = 12  # grasp description per robot: offset l_i (3) and R_Oi (9, column-major)
@@ -53,6 +57,7 @@ class ChainFunctions:
     projection: cs.Function  # (x, P, P_O, grasp) -> x on the grasp manifold
 
 
+@cache
 def grasp_residual(uvms: UVMSModel) -> cs.Function:
     """Grasp pose error e_i (position, rotation; inertial frame) and twist error e_dot_i."""
     q, zeta, grasp = cs.SX.sym("q", NQ), cs.SX.sym("zeta", NQ), cs.SX.sym("grasp", NG)
@@ -103,6 +108,7 @@ def robot_stage(uvms: UVMSModel, stabilization: float) -> cs.Function:
     )
 
 
+@cache
 def _solve6() -> cs.Function:
     """6x6 linear solve as SX: expanded, branch-free (an MX ``cs.solve`` becomes CasADi's
     QR linear solver, whose pivoting branches have no meaning per SIMD lane)."""
@@ -146,7 +152,8 @@ def manifold_projection(
     called by name (an inlined projection tripled the generated code, and compile times
     with it, for a few percent of speed)."""
     x = cs.MX.sym("x", state_size(n))
-    pp, po, grasp = cs.MX.sym("P", NP, n), cs.MX.sym("P_O", NPO), cs.MX.sym("grasp", NG, n)
+    pp, grasp = cs.MX.sym("P", NP, n), cs.MX.sym("grasp", NG, n)
+    po = cs.MX.sym("P_O", obj.parameter_count)
     metric, residual, solve6 = robot_metric(uvms), grasp_residual(uvms), _solve6()
     q = [x[NQ * i : NQ * (i + 1)] for i in range(n)]
     zeta = [x[NQ * (n + i) : NQ * (n + i + 1)] for i in range(n)]
@@ -218,7 +225,7 @@ def build_chain(
     tau = cs.MX.sym("tau", NU, n)
     v_c = cs.MX.sym("v_c", 3)
     pp = cs.MX.sym("P", NP, n)
-    po = cs.MX.sym("P_O", NPO)
+    po = cs.MX.sym("P_O", obj.parameter_count)
     grasp = cs.MX.sym("grasp", NG, n)
     args = [x, tau, v_c, pp, po, grasp]
     solve6 = _solve6()

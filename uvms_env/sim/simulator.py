@@ -45,23 +45,39 @@ STABILIZATION = 10.0
 WEIGHED_FRACTION = 0.1
 
 
-@cache
 def _chain(
-    n: int, shape: str, ring_radius: float, period: float, substeps: int
-) -> tuple[ChainFunctions, object]:
+    n: int, shape: str, size: float, period: float, substeps: int
+) -> tuple[ChainFunctions, cs.Function]:
+    """The chain for the object ``shape`` and ``size`` (a scenario's ``ring_radius``):
+    the one of every object of its strip capacity (the object is in P_O)."""
+    return chain_of_capacity(n, _capacity(shape, size), period, substeps)
+
+
+@cache
+def _capacity(shape: str, size: float) -> int:
+    return ObjectModel(shape, size).capacity
+
+
+@cache
+def chain_of_capacity(
+    n: int, capacity: int, period: float, substeps: int
+) -> tuple[ChainFunctions, cs.Function]:
+    """``compiled_chain`` for every object of a strip ``capacity``
+    (``ObjectModel.capacity``)."""
     uvms = default_model()
-    obj = ObjectModel(shape, ring_radius)
+    obj = ObjectModel.of_capacity(capacity)
     chain = build_chain(n, uvms, obj, period, substeps, STABILIZATION)
     return chain, compile_function(chain.step)
 
 
 def compiled_chain(
-    n: int, shape: str, ring_radius: float, period: float, substeps: int
+    n: int, shape: str, size: float, period: float, substeps: int
 ) -> tuple[ChainFunctions, cs.Function]:
     """The closed chain of ``n`` robots and its compiled period step, the very ones the
-    simulator integrates with (one build per process, the library cached on disk): for a
-    controller whose prediction model is the simulator's (``nmpc_expert.central``)."""
-    return _chain(n, shape, float(ring_radius), period, substeps)  # type: ignore[return-value]
+    simulator integrates with (one build per process and strip capacity, the library
+    cached on disk): for a controller whose prediction model is the simulator's
+    (``nmpc_expert.central``). ``size``: the object's (``Scenario.ring_radius``)."""
+    return _chain(n, shape, float(size), period, substeps)
 
 
 def grasp_parameters(scenario: Scenario) -> np.ndarray:
@@ -73,8 +89,8 @@ def grasp_parameters(scenario: Scenario) -> np.ndarray:
 
 
 @cache
-def _internal_wrench_function(n: int, shape: str, ring_radius: float, period: float, substeps: int):
-    chain, _ = _chain(n, shape, ring_radius, period, substeps)
+def _internal_wrench_function(n: int, capacity: int, period: float, substeps: int):
+    chain, _ = chain_of_capacity(n, capacity, period, substeps)
     return compile_function(chain.internal_wrench)
 
 
@@ -103,8 +119,10 @@ def draw_truth_parameters(
     rng: np.random.Generator,
     mismatch: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """An episode's truth model: the robots' (N, NP) and the object's (NPO,) parameters,
-    perturbed by ``mismatch`` (None: the scenario's) and scaled by its ``damping_scale``."""
+    """An episode's truth model: the robots' (N, NP) and the object's parameters (its p_O),
+    perturbed by ``mismatch`` (None: the scenario's) and scaled by its ``damping_scale``.
+    Only the object's physical parameters (its first ``NPO``) are uncertain, not its
+    shape."""
     p = nominal.copy()
     po = nominal_object.copy()
     m = s.mismatch if mismatch is None else float(mismatch)
@@ -123,12 +141,12 @@ def draw_truth_parameters(
             * rng.uniform(-1, 1, (len(p), 1))
             * default_model().params.vehicle.mass
         )
-        rel_o = np.full(po.shape, 1.0)
+        rel_o = np.full(NPO, 1.0)
         rel_o[OBJECT_PARAMETER_LAYOUT["mass"]] = WEIGHED_FRACTION
         rel_o[OBJECT_PARAMETER_LAYOUT["displaced_volume"]] = WEIGHED_FRACTION
-        po = po * (1 + m * rel_o * rng.uniform(-1, 1, po.shape))
+        po[:NPO] = po[:NPO] * (1 + m * rel_o * rng.uniform(-1, 1, NPO))
     p = np.ascontiguousarray(np.stack([scale_damping(pi, s.damping_scale) for pi in p]))
-    po[3] *= s.damping_scale  # object drag scale
+    po[OBJECT_PARAMETER_LAYOUT["drag_scale"]] *= s.damping_scale
     return p, np.ascontiguousarray(po)
 
 
@@ -183,7 +201,7 @@ class Simulator(RebuiltOnUnpickle):
         self.nominal_parameters = np.tile(self.uvms.nominal_parameters(), (self.n, 1))
         self.nominal_object_parameters = self.object.nominal_parameters()
         self.parameters = np.zeros((self.n, NP))
-        self.object_parameters = np.zeros(NPO)
+        self.object_parameters = np.zeros(self.object.parameter_count)
         self.currents = Currents(self.uvms.params.currents[s.current], 1)
         self.t = 0.0
         self.reset(seed=s.seed)
@@ -333,7 +351,10 @@ class Simulator(RebuiltOnUnpickle):
         (null space of the grasp matrix G^T = [J_O1^T ... J_ON^T]), under inputs ``tau``
         (default: the last applied) and the current of the last period. Compiled."""
         if self._internal is None:
-            self._internal = BufferCall(_internal_wrench_function(self.n, *self.chain_key))
+            s = self.scenario
+            self._internal = BufferCall(
+                _internal_wrench_function(self.n, self.object.capacity, s.period, s.substeps)
+            )
         if tau is not None:  # into a fixed buffer: re-binding a new array costs
             np.clip(tau, -self.tau_max, self.tau_max, out=self._tau_wrench)
         else:

@@ -1,7 +1,7 @@
 """Batched simulation: K environments stepped together, on CPU lanes and threads or a GPU.
 
-Built from the same CasADi graphs as the single environment (ARCHITECTURE: one graph,
-three targets): ``kernels`` compiles a generated function for K environments per call,
+Built from the same CasADi graphs as the single environment (docs/batched.md: one graph
+for every target): ``kernels`` compiles a generated function for K environments per call,
 ``batched_simulator`` steps K truth simulators of one team size and object through it,
 ``env`` is the whole environment batched (``VectorEnv``), ``bank`` keeps the seeded
 families' geometries on disk, ``gym_vector`` and ``sb3`` adapt ``VectorEnv`` to Gymnasium's

@@ -25,7 +25,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from uvms_env.dynamics import NP, NQ, NU, ObjectModel
-from uvms_env.dynamics.payload import NPO
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.sim.chain import NG, state_size
 from uvms_env.sim.current import Currents
@@ -97,7 +96,7 @@ class BatchedSimulator:
         self._kp = kp
         self.x = xp.zeros((state_size(n), kp), real)
         self.parameters = xp.zeros((NP * n, kp), real)
-        self.object_parameters = xp.zeros((NPO, kp), real)
+        self.object_parameters = xp.zeros((self.object.parameter_count, kp), real)
         self.grasp = xp.zeros((NG * n, kp), real)
         self._tau = xp.zeros((NU * n, kp), real)
         self._vc = xp.zeros((3, kp), real)
@@ -153,7 +152,7 @@ class BatchedSimulator:
         presets = [None] * len(ids) if current is None else list(current)
         x = np.zeros((state_size(self.n), len(ids)))
         p = np.zeros((NP * self.n, len(ids)))
-        po = np.zeros((NPO, len(ids)))
+        po = np.zeros((self.object.parameter_count, len(ids)))
         generators, drawn = [], []
         for col, (i, seed, m) in enumerate(zip(ids.tolist(), seeds, mismatches, strict=True)):
             s = self.scenarios[i]

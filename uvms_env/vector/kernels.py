@@ -13,8 +13,8 @@ GPU warp reads consecutive addresses. K is padded to a multiple of the lane coun
 caller (``BatchedFunction.padded``).
 
 No hand-written C++ or CUDA library could be used instead: the physics is CasADi's
-generated code and must stay the single source of truth (ARCHITECTURE: one graph, three
-targets); this module only adds the loops around it.
+generated code and must stay the single source of truth (docs/batched.md: the single
+simulator's C for every target); this module only adds the loops around it.
 
 May import: numpy, casadi, ``uvms_env.dynamics.compiled`` (cache folder, CPU identity,
 the announced build) and ``uvms_env.dynamics.split_source`` (the cut into parallel units).
@@ -240,7 +240,16 @@ class BatchedFunction:
     build's dtype, C-contiguous; outputs are written to preallocated arrays (``out=``)
     or new ones. K must be a multiple of ``lanes`` (``padded(K)``)."""
 
-    def __init__(self, fn: cs.Function, dtype: str = "float64", lanes: int | None = None):
+    def __init__(
+        self,
+        fn: cs.Function,
+        dtype: str = "float64",
+        lanes: int | None = None,
+        source: str | None = None,
+    ):
+        """``source``: the C that defines ``fn`` in CasADi's calling convention, where CasADi
+        cannot generate it (a compiled library's entry point written around generated
+        functions, e.g. ``nmpc_expert.ocp``'s); None: CasADi's code of ``fn``."""
         if dtype not in DTYPES:
             raise ValueError(f"dtype must be one of {sorted(DTYPES)}, got {dtype!r}")
         self.signature = Signature.of(fn)
@@ -249,7 +258,8 @@ class BatchedFunction:
         self.lanes = default_lanes(dtype) if lanes is None else int(lanes)
         if self.lanes not in (1, 2, 4, 8, 16):
             raise ValueError(f"lanes must be 1, 2, 4, 8 or 16, got {lanes}")
-        self._lib = _build_cpu(generated_source(fn), self.signature, dtype, self.lanes)
+        code = generated_source(fn) if source is None else source
+        self._lib = _build_cpu(code, self.signature, dtype, self.lanes)
         self._call = batch_entry(self._lib.uvms_batch, ctypes.c_int)
         # the addresses of the argument lists seen last, by the arrays' identities: hot
         # paths pass the same buffers every call, and reading 20-30 addresses costs more
