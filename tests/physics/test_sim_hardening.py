@@ -161,7 +161,9 @@ def test_divergence_ends_the_episode_on_the_step_it_happens(substeps):
         pos, rot = env.sim.grasp_error()
         assert pos.max() <= GRASP_TOL and rot.max() <= GRASP_TOL
         assert all(np.all(np.isfinite(o)) for o in obs.values())
-        assert all(np.isfinite(r) and abs(r) < 1e3 for r in rew.values())
+        # bounded: at most the failure's price of the rest of the episode beyond 1e3
+        bound = 1e3 + env.reward_weights.failure_penalty(env.max_cycles)
+        assert all(np.isfinite(r) and abs(r) < bound for r in rew.values())
         if not env.agents:
             break
         last_obs = obs
@@ -243,3 +245,30 @@ def test_simulator_pickles_mid_episode():
         sim.step(u)
         twin.step(u)
     assert np.array_equal(sim.flat_state, twin.flat_state) and sim.t == twin.t
+
+
+def test_single_precision_checks_its_periods_at_its_own_resolution():
+    """float32 cannot hold a 1e-6 grasp error at positions of 10-50 m (their resolution is
+    1-4 um): its error control's bounds are the float64 ones times
+    ``FLOAT32_TOLERANCE_SCALE``, in the batched simulator's control and in the CUDA
+    kernel's refinement alike; float64 keeps the model's."""
+    from uvms_env.sim.period import (
+        DRIFT_TOL_POSE,
+        DRIFT_TOL_TWIST,
+        FLOAT32_TOLERANCE_SCALE,
+        PeriodControl,
+        tolerances,
+    )
+    from uvms_env.vector.kernel_list import period_refinement
+
+    assert tolerances(np.float64) == (DRIFT_TOL_POSE, DRIFT_TOL_TWIST, GRASP_TOL)
+    single = tolerances(np.float32)
+    assert single == pytest.approx(
+        tuple(FLOAT32_TOLERANCE_SCALE * t for t in tolerances(np.float64))
+    )
+    assert np.spacing(np.float32(50.0)) > GRASP_TOL  # why: below float32's resolution
+    bounds = PeriodControl(2, np, np.float32)._bounds[:, 0]
+    assert bounds[:6] == pytest.approx(single[0]) and bounds[24:36] == pytest.approx(single[2])
+    refine = period_refinement(2, "float32")
+    assert (refine.tol_pose, refine.tol_twist, refine.grasp_tol) == pytest.approx(single)
+    assert period_refinement(2).grasp_tol == GRASP_TOL

@@ -37,6 +37,12 @@ MAX_REFINEMENTS = 4  # halvings: down to 1/16 of a period (128 substeps at the d
 # What the simulator promises at the end of every period (README): the grasp pose error
 # after the projection. One Newton step from an accepted drift lands at ~1e-9 or below.
 GRASP_TOL = 1e-6  # m and rad
+# Single precision (the batched env's fast mode) resolves a position of 10-50 m to 1-4 um:
+# it cannot meet 1e-6 after a projection, and with the float64 tolerances a float32 period
+# was refused as "drifted" in half the episodes of random N = 2 and nearly every one of
+# N = 6 bars under exploration noise (float64: none and 1 of 16 in 1,500 periods). Ten
+# times the tolerances gave float32 the float64 rate.
+FLOAT32_TOLERANCE_SCALE = 10.0
 # The physical envelope: no input the saturations admit drives a UVMS or the object near
 # these speeds with the model's damping (docs/model.md, "Divergence"). A state beyond them
 # means the model was driven out of its validity (e.g. damping_scale=0): refused as diverged.
@@ -49,6 +55,13 @@ OK, INACCURATE, ENVELOPE = 0, 1, 2
 # padding columns past m. A refined part's x_next must outlive later calls (the first
 # call's may be the caller's own buffer); drift and error are read before the next call.
 Evaluate = Callable[[Any, Any, float], tuple[Any, Any, Any]]
+
+
+def tolerances(real: Any = np.float64) -> tuple[float, float, float]:
+    """(pose drift, twist drift, grasp error) tolerances of the period's error control in
+    the precision ``real`` (numpy's float32 or float64)."""
+    scale = FLOAT32_TOLERANCE_SCALE if np.dtype(real) == np.float32 else 1.0
+    return DRIFT_TOL_POSE * scale, DRIFT_TOL_TWIST * scale, GRASP_TOL * scale
 
 
 def speed_limits(n: int) -> np.ndarray:
@@ -90,9 +103,10 @@ class PeriodControl:
         # the bounds of one column: |drift| (12 per robot: pose, then twist residuals),
         # |grasp error| (6 per robot), |state| (finite: at most the largest float), in the
         # arrays' own precision as the kernel compares them (float32: 1e-5 rounded)
-        drift = np.tile(np.r_[[DRIFT_TOL_POSE] * 6, [DRIFT_TOL_TWIST] * 6], n)
+        pose, twist, grasp = tolerances(real)
+        drift = np.tile(np.r_[[pose] * 6, [twist] * 6], n)
         big = np.finfo(real).max
-        bounds = np.r_[drift, [GRASP_TOL] * (6 * n), [big] * (2 * NQ * n + 12)]
+        bounds = np.r_[drift, [grasp] * (6 * n), [big] * (2 * NQ * n + 12)]
         self._bounds = xp.asarray(bounds[:, None], real)
         self._drift_rows, self._state_row = 12 * n, 18 * n
         self._limits = xp.asarray(speed_limits(n)[:, None], real)

@@ -81,7 +81,7 @@ class BatchedSimulator:
             # the error control runs inside the kernel, in the thread of each environment
             # that needs it: refining a few environments costs no extra launches
             self._fn = cuda_function(
-                self.chain.step, dtype, device, self.threads, refine=period_refinement(n)
+                self.chain.step, dtype, device, self.threads, refine=period_refinement(n, dtype)
             )
             self.xp = self._fn.xp
         xp, real = self.xp, DTYPES[dtype][1]

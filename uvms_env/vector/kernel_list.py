@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from uvms_env.robot.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT
 from uvms_env.robot.priors import prior_functions
 from uvms_env.sim import period
@@ -49,9 +51,9 @@ def kernel_functions(
     return fns
 
 
-def period_refinement(n: int) -> Refinement:
+def period_refinement(n: int, dtype: str = "float64") -> Refinement:
     """The period routine's error control (``uvms_env.sim.period``) for the CUDA kernel of
-    the period step of ``n`` robots: its constants, from there."""
-    return Refinement(
-        n, period.DRIFT_TOL_POSE, period.DRIFT_TOL_TWIST, period.GRASP_TOL, period.MAX_REFINEMENTS
-    )
+    the period step of ``n`` robots in ``dtype``: its constants, from there (the
+    tolerances in that precision)."""
+    pose, twist, grasp = period.tolerances(np.dtype(dtype))
+    return Refinement(n, pose, twist, grasp, period.MAX_REFINEMENTS)

@@ -277,13 +277,23 @@ def backend_kernels(n_agents: int) -> tuple[Kernel, ...]:
     return tuple(kernels)
 
 
+def refinement(kernel: Kernel, n_agents: int, dtype: str) -> Refinement | None:
+    """The error control ``kernel`` carries in ``dtype`` (its tolerances are the
+    precision's, as the backend builds it)."""
+    if kernel.refine is None:
+        return None
+    from uvms_env.vector.kernel_list import period_refinement
+
+    return period_refinement(n_agents, dtype)
+
+
 def compile_report(
     kernel: Kernel, n_agents: int, dtype: str, arch: str, tools: tuple[Path, Path]
 ) -> Report:
     """NVRTC then ptxas on ``kernel``'s backend source for ``arch`` (e.g. "90")."""
     import time
 
-    source, _ = cuda_source(kernel.fn, DTYPES[dtype][0], kernel.refine)
+    source, _ = cuda_source(kernel.fn, DTYPES[dtype][0], refinement(kernel, n_agents, dtype))
     lib, ptxas = tools
     t0 = time.perf_counter()
     ptx = compile_ptx(lib, source, nvrtc_options(arch))
@@ -336,8 +346,9 @@ def check(
     for n in n_agents:
         for index, kernel in enumerate(backend_kernels(n)):
             for dtype in dtypes:
+                refine = refinement(kernel, n, dtype)
                 key = hashlib.sha256(
-                    cuda_source(kernel.fn, DTYPES[dtype][0], kernel.refine)[0].encode()
+                    cuda_source(kernel.fn, DTYPES[dtype][0], refine)[0].encode()
                 ).hexdigest()
                 for arch in archs:
                     if (key, arch) not in seen:  # the same source compiles the same

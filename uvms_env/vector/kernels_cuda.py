@@ -213,7 +213,7 @@ def main(argv: list[str] | None = None) -> None:
         chain, _ = _chain(n, s.object_shape, float(s.ring_radius), s.period, s.substeps)
         for dtype in args.dtype:
             for arch in args.arch:
-                path = build_cubin(chain.step, dtype, arch, period_refinement(n))
+                path = build_cubin(chain.step, dtype, arch, period_refinement(n, dtype))
                 print(path if path else "nvcc not found: the kernel will be compiled by NVRTC")
 
 
