@@ -217,3 +217,17 @@ def add_evaluation_arguments(g: Any, episodes: int, episodes_help: str | None = 
         help="cap on the evaluation episodes and an RL run's final record (default: the "
         "scenarios' own length)",
     )
+
+
+def add_batch_argument(g: Any) -> None:
+    """``--batch K``: a per-robot policy's episodes of a case K at a time through the
+    batched environment (``baselines.evaluation.batched``)."""
+    g.add_argument(
+        "--batch",
+        type=non_negative_int,
+        default=0,
+        metavar="K",
+        help="play each per-robot policy's episodes of a case K at a time in one batched "
+        "environment per worker (0: one by one; team policies, the channel and replays "
+        "always play one by one); the rows are the same",
+    )

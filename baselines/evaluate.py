@@ -20,6 +20,7 @@ from typing import Any
 
 from baselines.command_line import (
     SCENARIOS,
+    add_batch_argument,
     add_condition_arguments,
     command_parser,
     non_negative_int,
@@ -53,6 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_split_arguments(ap, non_negative_int, positive_int, default_seed=0)
     ap.add_argument("--workers", type=positive_int, default=2)
+    add_batch_argument(ap)
     ap.add_argument("--max-cycles", type=positive_int, default=None)
     add_condition_arguments(ap, draws=False)  # the trainers' flags, one value each
     ap.add_argument(
@@ -129,6 +131,7 @@ def main(argv: list[str] | None = None) -> None:
         backend=args.backend,
         address=args.address,
         replay_dir=args.out if args.replay else None,
+        batch=args.batch,
     )
     # a policy that cannot be loaded, a case the environment refuses: before any episode
     with usage_errors(ap, (UsageError,)):

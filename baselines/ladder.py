@@ -24,6 +24,7 @@ from typing import Any
 
 from baselines.command_line import (
     CURRENT_PRESETS,
+    add_batch_argument,
     command_parser,
     existing_path,
     model_mismatch,
@@ -172,6 +173,7 @@ def add_case_arguments(
         ap.add_argument("--bars", action="store_true", help="add the bar cases")
     add_split_arguments(ap, non_negative_int, positive_int, DEFAULT_SEED)
     ap.add_argument("--workers", type=positive_int, default=2)
+    add_batch_argument(ap)
     ap.add_argument("--current", default=CONDITIONS["current"], choices=CURRENT_PRESETS)
     ap.add_argument("--mismatch", type=model_mismatch, default=CONDITIONS["mismatch"])
     ap.add_argument("--max-cycles", type=positive_int, default=None)
@@ -189,6 +191,7 @@ def settings_of(args: argparse.Namespace) -> Settings:
         workers=args.workers,
         conditions=conditions,
         max_cycles=args.max_cycles,
+        batch=args.batch,
     )
 
 

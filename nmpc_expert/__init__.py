@@ -1,5 +1,6 @@
-"""nmpc_expert: the distributed NMPC of Heshmati-alamdari, Karras and Kyriakopoulos, one
-controller per robot, behind the shared policy interface (``uvms_env.policy``).
+"""nmpc_expert: a reproduction of the distributed NMPC of Heshmati-alamdari, Karras and
+Kyriakopoulos (with the repairs docs/expert.md lists), one controller per robot, behind the
+shared policy interface (``uvms_env.policy``).
 
     from nmpc_expert import NMPCPolicy, SafetyFilter, make_policy
     policy = NMPCPolicy(AgentSpec.from_scenario(scenario, i), solver="rti")   # or "ipopt"
@@ -8,7 +9,7 @@ controller per robot, behind the shared policy interface (``uvms_env.policy``).
 
 One job per module, each said in its docstring: the OCP and its solvers (``ocp``, ``rti``,
 ``ipopt_solver``), the safety filter (``safety_filter``, ``filter_batch``,
-``filter_workspace_rows``), the centralized NMPC (``central``, ``central_rti``,
+``filter_workspace_rows``), the full-information reference (``central``, ``central_rti``,
 ``team_model``, ``central_model``), the talking expert (``comm``). The prediction model
 (docs/model.md) and the steady input are ``uvms_env.dynamics.local_model``.
 Reference: docs/expert.md.

@@ -1,6 +1,6 @@
 """The centralized NMPC: one optimal control problem over the whole team's inputs.
 
-The full-information bound of the ladder (docs/expert.md, "Centralized bound"): a team policy
+The full-information reference of the ladder (docs/expert.md, "Full-information reference"): a team policy
 (``uvms_env.team_policy``) that reads the global state and decides the N x 8 normalized
 inputs of every robot at once. What it has that no robot of the distributed expert has:
 the exact coupled team-and-object model and the internal (squeeze) wrench.
@@ -16,7 +16,7 @@ real-time iteration per period; a failed solve never raises (a counted fallback)
 modelled: the current, parameter mismatch and sensor noise; what they do is estimated
 from the global state sequence as offset-free MPC does (``DISTURBANCE_GAIN``) and the
 expert's goal integral removes what is left at the goal. Reference: docs/expert.md,
-"Centralized bound".
+"Full-information reference".
 
 May import: numpy, ``uvms_env`` and this package (``central_rti``, ``team_model``,
 ``policy``, ``reference``, ``settings``).
@@ -53,7 +53,7 @@ SQUEEZE_WEIGHT = 0.01
 DISTURBANCE_GAIN = 0.3
 
 
-# [rad] the bound's goal-integral clip per Euler angle: with the team's torque in one
+# [rad] the reference's goal-integral clip per Euler angle: with the team's torque in one
 # plan its attitude offset at the goal stays within this (central_settings)
 ATTITUDE_CLIP = 0.3
 
@@ -65,7 +65,7 @@ def central_settings(**changes: Any) -> NMPCSettings:
     model's error), then ``changes``. The tighter angular back-off is kept although the
     team model has no internal-wrench error to cover: the same constraints for both. The
     goal integral keeps its attitude clip at ``ATTITUDE_CLIP``: the distributed expert's
-    wider one cost the bound 2 of 10 random N = 2 episodes (docs/expert.md, "Tuning
+    wider one cost the reference 2 of 10 random N = 2 episodes (docs/expert.md, "Tuning
     record")."""
     changes = {"goal_integral_angle_limit": ATTITUDE_CLIP, **changes}
     return NMPCSettings.paper(**changes)  # type: ignore[arg-type]

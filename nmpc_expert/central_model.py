@@ -10,7 +10,7 @@ minutes of compilation per team size): one compiled call (``linearization``) giv
 the measured state, the Jacobians of ``chain.rhs`` (over the state by forward
 differences, over the inputs exactly: the rhs is affine in them), the internal (squeeze)
 wrench at every node with its exact input Jacobian at the first, and the manipulability
-of every robot with its gradient. Reference: docs/expert.md, "Centralized bound".
+of every robot with its gradient. Reference: docs/expert.md, "Full-information reference".
 
 May import: numpy, casadi, ``uvms_env`` (dynamics, sim).
 """

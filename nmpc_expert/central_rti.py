@@ -3,7 +3,7 @@
 ``CentralRTI`` is a ``rti.RealTimeIteration`` solved by ``rti.solve_daqp``, as the
 distributed robot's ``rti.RTISolver``; its own is the team's condensed Gauss-Newton QP in
 the horizon x N x 8 input steps, with the cost and soft rows of ``ocp`` per robot plus
-``squeeze_weight`` times the squared internal wrench (docs/expert.md, "Centralized bound").
+``squeeze_weight`` times the squared internal wrench (docs/expert.md, "Full-information reference").
 
 Why numpy here and not ``ocp.build_qp_builder``: that builder is a compiled graph of one
 robot's 20-state local model with a linearization per interval. The team's problem is

@@ -1,6 +1,6 @@
 """The team-policy interface: one controller for the whole team, from the global state.
 
-The sanctioned exception to the per-robot rule (ARCHITECTURE: "a team policy"): a
+The one exception to the per-robot rule: a
 full-information controller that sees ``env.state()`` (``uvms_env.env.options.
 state_structure``) and returns every robot's normalized inputs at once, to measure the
 price of decentralization (docs/evaluation.md, "Full-information rows"). It is kept apart

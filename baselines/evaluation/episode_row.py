@@ -133,8 +133,6 @@ def checked(source: PolicySource, seed: int) -> PolicyFactory:
 def within_reach(scenario: Any) -> bool:
     """Whether the team can hold against the scenario's current at all
     (``uvms_env.scenarios.reach``); no current is always within reach."""
-    if scenario.current == "none":
-        return True
-    from uvms_env.scenarios.reach import current_within_reach
+    from uvms_env.scenarios.reach import reachable
 
-    return current_within_reach(scenario)[0]
+    return reachable(scenario)

@@ -11,7 +11,7 @@ a case the environment refuses or a policy that cannot be loaded is a ``UsageErr
 naming it, not a column of failed episodes. A policy that fails while it plays (a solver error)
 still ends its episodes as failures, each with its error.
 
-May import: the standard library, tqdm, ``baselines.evaluation`` (episode_row, splits),
+May import: the standard library, tqdm, ``baselines.evaluation`` (episode_row, batched, splits),
 ``baselines.loaders.sources``, ``baselines.evaluation.ray_backend`` (``backend="ray"``) and
 ``uvms_env``.
 """
@@ -28,6 +28,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from baselines.evaluation.batched import batchable, group_key, play_batched
 from baselines.evaluation.episode_row import EpisodeJob, run_episode
 from baselines.evaluation.splits import SPLITS
 from baselines.loaders.sources import PolicySource
@@ -83,6 +84,7 @@ def evaluate(
     address: str | None = None,
     replay_dir: Path | None = None,
     check: bool = True,
+    batch: int = 0,
 ) -> list[dict[str, Any]]:
     """Run every (policy, scenario, episode) and return the per-episode rows, sorted.
     ``scenarios``: names, or ``Case``s whose keywords go over ``overrides``. ``episodes``:
@@ -92,10 +94,16 @@ def evaluate(
     page (``uvms_env.replay.replay_path``).
     ``backend``: ``process`` (a process pool of ``workers``; 1: in this process) or
     ``ray`` (Ray tasks on a local Ray of ``workers`` CPUs, or on the cluster at
-    ``address``); the rows do not depend on it. ``check``: ``preflight`` first. What is
-    refused before any episode raises ``UsageError``."""
+    ``address``); the rows do not depend on it. ``batch``: with the process backend,
+    play each per-robot policy's episodes of a case ``batch`` at a time through the
+    batched environment (``baselines.evaluation.batched``; 0 or 1: one by one); the rows
+    equal the one-by-one rows to the float64 batched step's ~1e-9 per step (a closed loop
+    can grow it over an episode). ``check``: ``preflight`` first. What is refused before
+    any episode raises ``UsageError``."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {BACKENDS}")
+    if batch > 1 and backend != "process":
+        raise UsageError("batched episodes (batch > 1) play on the process backend only")
     if backend == "ray":
         from baselines.evaluation.ray_backend import require_ray
 
@@ -129,7 +137,7 @@ def evaluate(
         for c in cases
         for k in range(count(p))
     ]
-    rows = _play(jobs, workers, backend, address, progress)
+    rows = _play(jobs, workers, backend, address, progress, batch)
     order = list(policies)
     rows.sort(key=lambda r: (order.index(r["policy"]), labels.index(r["scenario"]), r["episode"]))
     return rows
@@ -178,10 +186,16 @@ def preflight(
 
 
 def _play(
-    jobs: list[EpisodeJob], workers: int, backend: str, address: str | None, progress: bool
+    jobs: list[EpisodeJob],
+    workers: int,
+    backend: str,
+    address: str | None,
+    progress: bool,
+    batch: int = 0,
 ) -> list[dict[str, Any]]:
     """The jobs' rows, in the order they finish; the bar counts the failed episodes."""
     rows: list[dict[str, Any]] = []
+    units = _units(jobs, workers, batch)
     if backend != "process" or workers > 1:
         # Build each (policy, scenario) once here first: compiled controllers and
         # simulators land in the disk cache before the workers would race to build them.
@@ -201,8 +215,11 @@ def _play(
         bar.update()
 
     if backend == "process" and workers <= 1:
-        for job in jobs:
-            done(run_episode(job))
+        for unit in units:
+            if isinstance(unit, EpisodeJob):
+                done(run_episode(unit))
+            else:
+                play_batched(unit, batch, done)
     elif backend == "ray":
         from baselines.evaluation.ray_backend import run_jobs
 
@@ -210,10 +227,42 @@ def _play(
             done(row)
     else:
         with ProcessPoolExecutor(max_workers=workers) as pool:
-            for fut in as_completed([pool.submit(run_episode, j) for j in jobs]):
-                done(fut.result())
+            futures = [pool.submit(_play_unit, u, batch) for u in units]
+            for fut in as_completed(futures):
+                for row in fut.result():
+                    done(row)
     bar.close()
     return rows
+
+
+Unit = EpisodeJob | list[EpisodeJob]  # one episode, or a chunk of one batched group
+
+
+def _units(jobs: list[EpisodeJob], workers: int, batch: int) -> list[Unit]:
+    """The jobs as units of work: each batchable (policy, case) group in chunks (one per
+    worker at least, of ``batch`` episodes or more), every other job alone."""
+    if batch <= 1:
+        return list(jobs)
+    groups: dict[tuple[Any, ...], list[EpisodeJob]] = {}
+    units: list[Unit] = []
+    for job in jobs:
+        if batchable(job) is None:
+            groups.setdefault(group_key(job), []).append(job)
+        else:
+            units.append(job)
+    for group in groups.values():
+        # every worker busy before the chunks grow past ``batch``
+        chunks = max(min(max(1, workers), len(group)), -(-len(group) // batch))
+        size = -(-len(group) // chunks)
+        units += [group[i : i + size] for i in range(0, len(group), size)]
+    return units
+
+
+def _play_unit(unit: Unit, batch: int) -> list[dict[str, Any]]:
+    """A worker's rows of one unit (``_units``)."""
+    if isinstance(unit, EpisodeJob):
+        return [run_episode(unit)]
+    return play_batched(unit, batch)
 
 
 @dataclass(frozen=True)
@@ -235,6 +284,7 @@ class Settings:
     replay_dir: Path | None = None
     check: bool = True  # ``evaluate``'s preflight
     split: str | None = None
+    batch: int = 0  # episodes per batched environment (``evaluate``'s ``batch``)
 
     def __post_init__(self) -> None:
         if self.split is None and self.episodes is None:

@@ -303,7 +303,7 @@ def test_team_teacher_labels_each_robot_with_its_row_and_hears_the_students():
 
 
 def test_the_centralized_bound_teaches_the_team_it_would_drive():
-    """``nmpc:central`` as the DAgger teacher with beta = 1: the labels are the bound's own
+    """``nmpc:central`` as the DAgger teacher with beta = 1: the labels are the reference's own
     episode, row by row (the same team decisions ``play_team`` makes)."""
     pytest.importorskip("daqp")
     from baselines.loaders.sources import PolicySource

@@ -11,7 +11,7 @@ import pytest
 from uvms_env.dynamics.spatial import rot_zyx
 from uvms_env.models.parameters import PARAMETER_FILE
 from uvms_env.scenarios import current_within_reach, team_top_speed
-from uvms_env.scenarios.reach import _Team
+from uvms_env.scenarios.reach import _Team, reachable
 from uvms_env.sim import Simulator
 
 PRESETS = tomllib.loads(PARAMETER_FILE.read_text())["current"]  # the file itself
@@ -25,6 +25,20 @@ def test_paper_team_holds_the_mild_current_but_not_the_strong(paper):
         within, current, best = current_within_reach(dataclasses.replace(paper, current=name))
         assert current == PRESETS[name]["mean"] and best == pytest.approx(top)
         assert within == (name != "strong")
+
+
+@pytest.mark.parametrize("damping", [0.5, 1.0, 2.0])
+def test_the_quick_reach_test_decides_as_the_top_speed(paper, damping):
+    """``reachable`` (one drag per direction) against ``current_within_reach`` (the root
+    search): the same answer for every preset, both answers reached."""
+    answers = []
+    for name in ("none", "mild", "strong"):
+        s = dataclasses.replace(paper, current=name, damping_scale=damping)
+        answers.append(reachable(s))
+        assert answers[-1] == current_within_reach(s)[0], name
+    assert answers[0]
+    if damping == 1.0:  # the paper team: mild within reach, strong beyond
+        assert answers == [True, True, False]
 
 
 def test_top_speed_balances_thrust_and_drag(paper):

@@ -454,3 +454,30 @@ def test_anchor_penalty_is_the_distance_to_the_clones_residual():
             residual = (clone(x) - x[:, -8:]).numpy()
     with pytest.raises(ValueError, match="reads 100 numbers"):
         AnchorPenalty(VectorVecEnv(VectorEnv("random", num_envs=1, n_agents=2)), clone, 0.5, 1.0)
+
+
+def test_the_audit_tables_read_a_tiny_runs_records(memory_run):
+    """``baselines.rl.audit``: each rung's first and last evaluation as the CSV holds them,
+    the early-end share and the objective over the progress rows' quarters."""
+    from baselines.rl.audit import markdown, start_and_end, training_quarters
+
+    evaluations = _rows(memory_run / "evaluations.csv")
+    table = start_and_end(memory_run)
+    assert [r["rung"] for r in table] == ["random_n2", "random_n3"]
+    for row in table:
+        mine = [e for e in evaluations if e["rung"] == row["rung"]]
+        assert row["steps_start"] == float(mine[0]["robot_steps"])
+        assert row["steps_end"] == float(mine[-1]["robot_steps"]) > row["steps_start"]
+        assert row["return_end"] == pytest.approx(float(mine[-1]["mean_return"]))
+        assert row["clean_end"] == float(mine[-1]["clean_success_rate"])
+    progress = _rows(memory_run / "progress.csv")
+    q = training_quarters(memory_run)
+    assert q is not None and q["iterations"] == len(progress)
+    quarter = max(1, len(progress) // 4)
+    last = progress[-quarter:]
+    ended = sum(float(r[k]) for r in last for k in r if k.startswith("ends_"))
+    assert q["episodes_last"] == int(ended)
+    multiplier = np.mean([float(r["multiplier"]) for r in last])
+    assert q["multiplier_last"] == pytest.approx(multiplier)
+    text = markdown([memory_run])
+    assert text.count("| ppo_memory | random_n") == 2 and "ended early" in text

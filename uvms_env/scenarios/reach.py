@@ -27,7 +27,7 @@ from uvms_env.dynamics.uvms import default_model, scale_damping
 from uvms_env.models import load_parameters
 from uvms_env.scenarios.config import Scenario
 
-__all__ = ["current_within_reach", "team_top_speed"]
+__all__ = ["current_within_reach", "reachable", "team_top_speed"]
 
 _SWEEP = 36  # directions over a half turn (top speed along d and -d is the same)
 _V_MAX = 20.0  # m/s, bracket of the root search
@@ -126,3 +126,20 @@ def current_within_reach(scenario: Scenario) -> tuple[bool, float, float]:
     current = load_parameters().currents[scenario.current].mean
     top = team_top_speed(scenario)
     return bool(current < top), float(current), float(top)
+
+
+def reachable(scenario: Scenario) -> bool:
+    """``current_within_reach(scenario)[0]`` at a fraction of its cost (an evaluator asks
+    once per episode): the drag grows with the speed, so the top speed along a direction
+    d exceeds the current's speed c exactly where the drag at c d is below the thrust
+    along d; the sweep's directions are tried first (one drag each, no root search), and
+    only where none has it does the whole search decide."""
+    if scenario.current == "none":
+        return True
+    current = load_parameters().currents[scenario.current].mean
+    team = _Team(scenario)
+    for a in np.pi * np.arange(_SWEEP) / _SWEEP:
+        d = _heading(a)
+        if team.drag(current * d) < team.thrust(d):
+            return True
+    return current_within_reach(scenario)[0]

@@ -294,15 +294,37 @@ class VectorEnv(CoreViews):
             infos,
         )
 
-    def restart(self, env_ids: Any) -> Any:
+    def restart(self, env_ids: Any, seeds: Sequence[int] | None = None) -> Any:
         """End the episodes of ``env_ids`` where they stand and start their next ones, as the
         automatic reset does (a partial reset, e.g. for TorchRL's ``_reset`` mask); returns
-        their first observations (len(env_ids), N, 79). The other environments go on."""
+        their first observations (len(env_ids), N, 79). The other environments go on.
+        ``seeds`` (one per id, in the ids' order): each restarts as ``reset(seed=...)`` of
+        a single env would (a seeded family: that seed's geometry), as an evaluator that
+        hands an ended copy its next seeded episode needs."""
         if not self._started:
             raise RuntimeError("restart() called before reset()")
-        ids = np.unique(np.asarray(env_ids, dtype=np.int64).reshape(-1))
+        raw = np.asarray(env_ids, dtype=np.int64).reshape(-1)
+        ids = np.unique(raw)
         if len(ids) and (ids[0] < 0 or ids[-1] >= self.num_envs):
             raise ValueError(f"env_ids must lie in 0..{self.num_envs - 1}, got {env_ids!r}")
+        if seeds is not None:
+            seeds = list(seeds)
+            if len(seeds) != len(raw) or len(ids) != len(raw):
+                raise ValueError(
+                    f"restart got {len(seeds)} seeds for {len(raw)} env ids "
+                    "(one seed per id, no id twice)"
+                )
+            checked = [
+                RESET_SEED.check(f"seed of environment {i}", s)
+                for i, s in zip(raw, seeds, strict=True)
+            ]
+            rows = raw.tolist()
+            self._episode_base[raw], self._episode[raw] = checked, 0
+            self._seeds_now[raw] = checked
+            self._core.seed(rows, checked)
+            self._core.reset(rows)
+            on = raw if self.xp is np else self.xp.asarray(raw)
+            return self._export(self._core.view(on))
         if len(ids):
             self._autoreset(ids)
         on = ids if self.xp is np else self.xp.asarray(ids)

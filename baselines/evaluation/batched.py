@@ -1,0 +1,211 @@
+"""Episodes of one per-robot policy played K at a time through the batched environment.
+
+``play_batched(jobs, copies)`` plays jobs of one (policy, case) on a ``VectorEnv`` of
+``copies`` environments in float64: each copy starts its job's episode from the job's
+seed (``VectorEnv.reset(seed=[...])``, ``restart(ids, seeds)`` when a copy's episode ends
+and another job waits), so episode k is the single evaluator's episode k (the float64
+batched step equals the single one to ~1e-9, docs/batched.md). Every robot of every copy
+keeps its own policy object, built from the job's seed and the copy's scenario as
+``uvms_env.episode.play`` builds it, so memories, priors and random generators are the
+single evaluator's; what is shared is the environment's step, one compiled call for all
+copies, and no environment is built per episode. The rows are ``run_episode``'s, with
+``wall_s`` the chunk's time shared over its episodes.
+
+Not batched (``batchable`` says why; the caller plays them one by one): team policies,
+the acoustic channel, replays and recorded paths.
+
+May import: the standard library, numpy, ``baselines.evaluation.episode_row``,
+``baselines.loaders.sources`` and ``uvms_env``.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from baselines.evaluation.episode_row import ERROR_END, EpisodeJob, checked, within_reach
+from baselines.loaders.sources import PolicySource
+from uvms_env.dynamics import NU
+from uvms_env.episode import decision_time_summary
+from uvms_env.policy import AgentSpec, Policy
+
+
+def batchable(job: EpisodeJob) -> str | None:
+    """Why ``job`` must be played alone (None: it can be batched)."""
+    if PolicySource.parse(job.policy).team:
+        return "a team policy decides from the global state, one episode at a time"
+    if dict(job.overrides).get("comm") is not None:
+        return "the acoustic channel's messages are played by the single environment"
+    if job.replay is not None or job.record_path:
+        return "a replay or a recorded path reads the single environment's state"
+    return None
+
+
+def group_key(job: EpisodeJob) -> tuple[Any, ...]:
+    """Jobs with one key share a batched environment."""
+    return (job.policy, job.scenario, job.overrides, job.max_cycles, job.label)
+
+
+class _Copy:
+    """One copy's current episode: its job, its robots' policies and what it has recorded."""
+
+    def __init__(self, job: EpisodeJob, policies: list[Policy], scenario: Any, cap: int) -> None:
+        self.job, self.policies = job, policies
+        self.row = _row_head(job)
+        self.row["current_within_reach"] = within_reach(scenario)
+        self.row["max_cycles"] = cap
+        self.times: list[np.ndarray] = []
+        self.filtered = self.interventions = 0
+        self.deviation = 0.0
+
+    def decide(self, obs: np.ndarray) -> np.ndarray:
+        ms = np.zeros(len(self.policies))
+        actions = np.zeros((len(self.policies), NU), np.float32)
+        for i, policy in enumerate(self.policies):
+            begin = time.perf_counter()
+            actions[i] = policy.act(obs[i])
+            ms[i] = (time.perf_counter() - begin) * 1e3
+            stats = getattr(policy, "stats", {})
+            if "intervened" in stats:
+                self.filtered += 1
+                self.interventions += bool(stats["intervened"])
+                self.deviation += float(stats["intervention"])
+        self.times.append(ms)
+        return actions
+
+    def finish(
+        self, metrics: dict[str, Any] | None, end: str, error: Exception | None = None
+    ) -> dict[str, Any]:
+        row = self.row
+        if metrics is not None:
+            row.update(metrics)
+        row["episode_end"] = end
+        if error is not None:
+            row["error"] = f"{type(error).__name__}: {error}"
+            row["traceback"] = "".join(traceback.format_exception(error, limit=5))
+            row.update(success=False, episode_end=ERROR_END)
+            row.update(violation_periods=0, clean_success=False, clean_success_tol=False)
+            row["return"] = float("nan")
+        row["interventions"] = self.interventions
+        row["filtered_decisions"] = self.filtered
+        row["intervention_rate"] = self.interventions / self.filtered if self.filtered else None
+        row["intervention_mean"] = self.deviation / self.filtered if self.filtered else None
+        ms = np.concatenate(self.times) if self.times else np.zeros(0)
+        timing = decision_time_summary(ms)
+        for key in ("median", "p95", "max"):
+            row[f"policy_time_ms_{key}"] = timing[key] if timing else float("nan")
+        row["_decision_ms"] = ms.tolist()
+        row["_path"] = []
+        return row
+
+
+def _row_head(job: EpisodeJob) -> dict[str, Any]:
+    return {
+        "policy": job.policy,
+        "information": PolicySource.parse(job.policy).information,
+        "scenario": job.label or job.scenario,
+        "episode": job.index,
+        "seed": job.seed,
+        "error": "",
+    }
+
+
+def play_batched(
+    jobs: Sequence[EpisodeJob],
+    copies: int,
+    done: Callable[[dict[str, Any]], None] | None = None,
+) -> list[dict[str, Any]]:
+    """The rows of ``jobs`` (one ``group_key``, each ``batchable``), played on up to
+    ``copies`` environments at once; ``done(row)`` as each episode ends. Never raises for
+    a policy's error: that episode fails with its error, the others go on; an error of the
+    environment's step fails every episode then running."""
+    from uvms_env.vector import VectorEnv
+
+    jobs = list(jobs)
+    if not jobs:
+        return []
+    if len({group_key(j) for j in jobs}) != 1:
+        raise ValueError("play_batched plays jobs of one policy and case (group_key)")
+    first = jobs[0]
+    kwargs = dict(first.overrides)
+    if first.max_cycles is not None:
+        kwargs["max_cycles"] = first.max_cycles
+    k = min(int(copies), len(jobs))
+    source = PolicySource.parse(first.policy)
+    start = time.perf_counter()
+    rows: list[dict[str, Any]] = []
+
+    def report(row: dict[str, Any]) -> None:
+        rows.append(row)
+        if done is not None:
+            done(row)
+
+    venv = VectorEnv(first.scenario, num_envs=k, dtype="float64", threads=1, **kwargs)
+    waiting = iter(jobs)
+    running: list[_Copy | None] = [None] * k
+    obs, _ = venv.reset(seed=[j.seed for j in jobs[:k]])
+    for slot in range(k):
+        running[slot] = _begin(next(waiting), venv, slot, source, report)
+    while any(c is not None for c in running):
+        actions = np.zeros((k, venv.n, 8), np.float32)
+        for slot, copy in enumerate(running):
+            if copy is None:
+                continue
+            try:
+                actions[slot] = copy.decide(obs[slot])
+            except Exception as exc:  # a failing policy fails its episode only
+                report(copy.finish(None, ERROR_END, exc))
+                running[slot] = None
+        try:
+            obs, _, _, _, infos = venv.step(actions)
+        except Exception as exc:  # the step of every copy failed: so did their episodes
+            for copy in filter(None, running):
+                report(copy.finish(None, ERROR_END, exc))
+            break
+        ended = [
+            s for s, c in enumerate(running) if c is not None and infos["metrics"][s] is not None
+        ]
+        for slot in ended:
+            copy = running[slot]
+            assert copy is not None
+            report(copy.finish(infos["metrics"][slot], infos["episode_end"][slot]))
+            running[slot] = None
+        # idle copies (ended, nothing left to play) keep stepping on zero inputs, unread
+        for slot in ended:
+            job = next(waiting, None)
+            if job is not None:
+                fresh = venv.restart([slot], seeds=[job.seed])
+                obs[slot] = fresh[0]
+                running[slot] = _begin(job, venv, slot, source, report)
+    share = (time.perf_counter() - start) / len(jobs)
+    for row in rows:
+        row["wall_s"] = share  # the chunk's compute, spread over its episodes
+    return rows
+
+
+def _begin(
+    job: EpisodeJob,
+    venv: Any,
+    slot: int,
+    source: PolicySource,
+    report: Callable[[dict[str, Any]], None],
+) -> _Copy | None:
+    """The copy's robots' policies for ``job`` (None, the episode reported failed, where
+    they cannot be built)."""
+    scenario = venv.scenarios[slot]
+    build = checked(source, job.seed)
+    policies: list[Policy] = []
+    try:
+        for i in range(venv.n):
+            policy = build(AgentSpec.from_scenario(scenario, i, None))
+            policy.reset()
+            policies.append(policy)
+    except Exception as exc:
+        copy = _Copy(job, [], scenario, int(venv.max_cycles))
+        report(copy.finish(None, ERROR_END, exc))
+        return None
+    return _Copy(job, policies, scenario, int(venv.max_cycles))
