@@ -12,8 +12,8 @@ naming it, not a column of failed episodes. A policy that fails while it plays (
 still ends its episodes as failures, each with its error.
 
 May import: the standard library, tqdm, ``baselines.evaluation`` (episode_row, splits),
-``baselines.loaders.sources``, ``baselines.evaluation.ray_backend`` (``backend="ray"``) and
-``uvms_env``.
+``baselines.loaders.sources``, ``baselines.evaluation.ray_backend`` and ``baselines.ray_runtime``
+(``backend="ray"``) and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -97,7 +97,7 @@ def evaluate(
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {BACKENDS}")
     if backend == "ray":
-        from baselines.evaluation.ray_backend import require_ray
+        from baselines.ray_runtime import require_ray
 
         require_ray()  # before the warm-up episodes
     for p in policies:
