@@ -1,7 +1,7 @@
 """The centralized NMPC: one optimal control problem over the whole team's inputs.
 
-The full-information reference of the ladder (docs/expert.md, "Full-information reference"): a team policy
-(``uvms_env.team_policy``) that reads the global state and decides the N x 8 normalized
+The ladder's full-information reference (docs/expert.md, "Full-information reference"): a
+team policy (``uvms_env.team_policy``) that reads the global state and decides the N x 8 normalized
 inputs of every robot at once. What it has that no robot of the distributed expert has:
 the exact coupled team-and-object model and the internal (squeeze) wrench.
 

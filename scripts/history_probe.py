@@ -33,8 +33,8 @@ import torch
 
 from baselines.imitation.bc import loss_weights, train_epochs
 from baselines.imitation.dataset import read_dataset, split_path
-from baselines.imitation.features import prepare
-from baselines.imitation.network import MLPPolicyNet
+from baselines.networks.features import prepare
+from baselines.networks.mlp import MLPPolicyNet
 
 ACT = 8
 VARIANTS = ("current", "+ previous observation", "+ previous action", "+ both")

@@ -12,5 +12,6 @@ metrics, on use) import ``summary``; nothing here imports a command.
 
 May import: the standard library, numpy, tqdm, matplotlib, ``baselines.loaders.sources``,
 ``baselines.stats``, ``baselines.registry`` and ``uvms_env``; Ray only in ``ray_backend``
-(on request) and ``marl_eval`` (merging marl-eval's JSON).
+(on request, through ``baselines.ray_runtime`` and ``runner``'s install check) and
+``marl_eval`` (merging marl-eval's JSON).
 """

@@ -11,9 +11,9 @@ a case the environment refuses or a policy that cannot be loaded is a ``UsageErr
 naming it, not a column of failed episodes. A policy that fails while it plays (a solver error)
 still ends its episodes as failures, each with its error.
 
-May import: the standard library, tqdm, ``baselines.evaluation`` (episode_row, batched, splits),
-``baselines.loaders.sources``, ``baselines.evaluation.ray_backend`` (``backend="ray"``) and
-``uvms_env``.
+May import: the standard library, tqdm, ``baselines.evaluation`` (episode_row, batched,
+splits), ``baselines.loaders.sources``, ``baselines.evaluation.ray_backend`` and
+``baselines.ray_runtime`` (``backend="ray"``) and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -105,7 +105,7 @@ def evaluate(
     if batch > 1 and backend != "process":
         raise UsageError("batched episodes (batch > 1) play on the process backend only")
     if backend == "ray":
-        from baselines.evaluation.ray_backend import require_ray
+        from baselines.ray_runtime import require_ray
 
         require_ray()  # before the warm-up episodes
     for p in policies:

@@ -22,8 +22,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from baselines.imitation.features import prepare
-from baselines.imitation.network import MLPPolicyNet
+from baselines.networks.features import prepare
+from baselines.networks.mlp import MLPPolicyNet
 
 LOG_FIELDS = ["stage", "epoch", "samples", "train_loss", "val_loss"]
 LOSS_SCALES = ("none", "std")

@@ -46,10 +46,10 @@ from baselines.command_line import (
 from baselines.evaluation.during_training import evaluate_rungs
 from baselines.imitation import bc, dataset
 from baselines.imitation.dataset import AgentStream
-from baselines.imitation.features import FEATURES
 from baselines.imitation.labelled_rollouts import RolloutJob, parallel_rollouts
-from baselines.imitation.network import MLPPolicyNet
 from baselines.loaders.sources import PolicySource
+from baselines.networks.features import FEATURES
+from baselines.networks.mlp import MLPPolicyNet
 from baselines.runs import EVAL_KEEP, hardware, training_env_options, write_json
 
 # ``--expert`` value of safe distillation: the safety filter around the current network

@@ -1,6 +1,7 @@
 """A saved ``policy.pt`` as a per-agent policy for the evaluator and DAgger rollouts.
 
-One decision is one call of a compiled function, observation to action (``decision``).
+One decision is one call of a compiled function, observation to action
+(``baselines.networks.mlp_decision``).
 Where nothing is compiled (``UVMS_ENV_NO_COMPILE``, no C compiler), or with
 ``compiled=False``, a network with hidden layers runs its layers in numpy float32 after
 the compiled input function instead. The torch network (``MLPPolicyNet.predict``) is the
@@ -8,8 +9,8 @@ reference both are tested against. The same network serves every robot; on ``mem
 features each robot's policy keeps its own ``RobotMemory``. Finding, caching and the
 memory: ``baselines.loaders.saved``.
 
-May import: numpy, torch, ``uvms_env``, ``baselines.loaders.saved`` and this package's
-network, features and decision.
+May import: numpy, torch, ``uvms_env``, ``baselines.loaders.saved`` and ``baselines.networks``
+(the network, its features and its compiled decision).
 """
 
 from __future__ import annotations
@@ -18,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.imitation.decision import decision_function
-from baselines.imitation.features import INPUT_CLIP, CompiledInputs, input_dim, object_ring
-from baselines.imitation.network import MLPPolicyNet
 from baselines.loaders.saved import LoadedPolicy, ObservationStats, load_once
+from baselines.networks.features import INPUT_CLIP, CompiledInputs, input_dim, object_ring
+from baselines.networks.mlp import MLPPolicyNet
+from baselines.networks.mlp_decision import decision_function
 from uvms_env.policy import AgentSpec
 from uvms_env.robot.observation import OBSERVATION_SIZE
 from uvms_env.robot.priors import MEMORY_BLOCK, Priors

@@ -9,7 +9,7 @@ other policy. The policy acts deterministically: the mean of the Gaussian, clipp
 priors: ``baselines.loaders.saved``.
 
 May import: numpy, torch, ray.rllib (inside functions), ``uvms_env.policy``,
-``baselines.loaders.saved`` and ``baselines.evaluation.ray_backend``.
+``baselines.loaders.saved`` and ``baselines.ray_runtime`` (the install check).
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def module_dir(checkpoint: Path) -> Path:
 
 def load_module(folder: Path) -> Any:
     """The ``RLModule`` saved in ``folder``, in evaluation mode."""
-    from baselines.evaluation.ray_backend import require_ray
+    from baselines.ray_runtime import require_ray
 
     require_ray()
     from ray.rllib.core.rl_module.rl_module import RLModule

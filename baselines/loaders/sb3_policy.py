@@ -6,7 +6,7 @@ its own observation with the saved statistics and acts deterministically. Findin
 caching, the run's priors and the statistics: ``baselines.loaders.saved``.
 
 May import: numpy, stable-baselines3 and sb3-contrib (inside functions),
-``baselines.loaders.saved``, ``baselines.registry``, ``baselines.rl.actor`` and
+``baselines.loaders.saved``, ``baselines.registry``, ``baselines.networks.ppo_decision`` and
 ``uvms_env``.
 """
 
@@ -52,7 +52,7 @@ def load_model(saved: Path, algo: str) -> tuple[Any, ObservationStats | None]:
 class SB3Policy(LoadedPolicy):
     """``act(obs)``: the run's deterministic action for one robot's raw observation, as
     the normalized input. ``compiled`` (default): the whole decision as one compiled call
-    (``baselines.rl.actor``) where the model allows it, else SB3's ``predict``;
+    (``baselines.networks.ppo_decision``) where the model allows it, else SB3's ``predict``;
     ``self.compiled`` says which. A recurrent model (``recurrent_ppo``) also keeps its
     LSTM state, cleared by ``reset``."""
 
@@ -77,7 +77,7 @@ class SB3Policy(LoadedPolicy):
         self._pad = np.zeros(full - local, np.float32) if local is not None else None
         self._decision = None
         if compiled and algo == "ppo" and self.comm is None:
-            from baselines.rl.actor import compiled_actor
+            from baselines.networks.ppo_decision import compiled_actor
 
             ring = spec.object_ring_radius
             self._decision = compiled_actor(self.model, self.priors, ring, obs_stats, local)

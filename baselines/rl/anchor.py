@@ -16,7 +16,7 @@ The wrapper sits on the raw robot sub-environments (below ``VecNormalize``), rea
 observation each action answered and evaluates the clone's network on all of them in
 one torch call; ``infos[i]["anchor_penalty"]`` holds the step's penalty.
 
-May import: numpy, torch, stable-baselines3 and ``baselines.imitation``.
+May import: numpy, torch, stable-baselines3 and ``baselines.networks`` (the clone's network).
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ import torch
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
-from baselines.imitation.features import ACT_DIM
-from baselines.imitation.network import MLPPolicyNet
+from baselines.networks.features import ACT_DIM
+from baselines.networks.mlp import MLPPolicyNet
 
 
 class AnchorPenalty(VecEnvWrapper):

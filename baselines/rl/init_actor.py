@@ -1,7 +1,7 @@
 """Expert-initialized PPO: the SB3 PPO actor starts as a behaviour clone of the expert
 (``--init-actor dagger:pretrained``, ``dagger:PATH`` or ``bc:PATH``).
 
-The clones on ``features`` or ``memory`` (``baselines.imitation.network``) compute
+The clones on ``features`` or ``memory`` (``baselines.networks.mlp``) compute
 a = clip(a_ss + f(z), -1, 1), z = clip((x - m) / s_x, -10, 10), f a tanh MLP, x the 84
 (100) features of the robot's own observation (and memory). PPO with
 ``action_mode=residual``, ``observation_mode`` the clone's and no joint hold computes
@@ -13,7 +13,8 @@ VecNormalize starts from the clone's input statistics (clip 10) with a large cou
 |f(z)| <= s; with s = 1 (``residual_scale=1``) that is wherever the clone's residual
 stays within the saturation. The critic starts untrained.
 
-May import: numpy, torch, stable-baselines3 and ``baselines.imitation``.
+May import: numpy, torch, stable-baselines3, ``baselines.networks`` (the clone's network) and
+``baselines.loaders.clone_policy`` (inside ``load_clone``: where a named clone's ``policy.pt`` is).
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 
-from baselines.imitation.features import FEEDFORWARD, INPUT_CLIP
-from baselines.imitation.network import MLPPolicyNet
+from baselines.networks.features import FEEDFORWARD, INPUT_CLIP
+from baselines.networks.mlp import MLPPolicyNet
 
 SOURCES = ("dagger", "bc")
 # VecNormalize's count for the clone's statistics: a few hundred thousand robot-steps of

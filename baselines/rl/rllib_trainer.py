@@ -153,7 +153,7 @@ def check_options(settings: Any, algo: str, args: argparse.Namespace) -> None:
     if settings.hyperparameters:
         import inspect
 
-        from baselines.evaluation.ray_backend import require_ray
+        from baselines.ray_runtime import require_ray
 
         require_ray()
         from ray.rllib.algorithms.ppo import PPOConfig
@@ -196,7 +196,7 @@ class Trainer:
         self.robot_steps = 0
 
     def build(self) -> dict[str, Any]:
-        from baselines.evaluation.ray_backend import init_ray, require_ray
+        from baselines.ray_runtime import init_ray, require_ray
 
         require_ray()
         import torch

@@ -1,4 +1,4 @@
-"""The cloned MLP's whole decision as one compiled function (``baselines.imitation.decision``)
+"""The cloned MLP's whole decision as one compiled function (``baselines.networks.mlp_decision``)
 against the torch network it was built from."""
 
 from __future__ import annotations
@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 
 import uvms_env
-from baselines.imitation.decision import (
+from baselines.loaders.clone_policy import ClonedPolicy
+from baselines.networks.mlp import MLPPolicyNet
+from baselines.networks.mlp_decision import (
     TANH_LIMIT,
     TANH_P,
     TANH_Q,
     dense_c,
     mlp_decision_function,
 )
-from baselines.imitation.network import MLPPolicyNet
-from baselines.loaders.clone_policy import ClonedPolicy
 from uvms_env.dynamics.compiled import compile_function
 from uvms_env.policy import AgentSpec
 
@@ -88,7 +88,7 @@ def test_compiled_mlp_clips_as_the_torch_network(rollout):
     obs[:, 32:38] += rng.normal(size=(len(obs), 6)) * 20.0  # far waypoints
     spec, policy = specs[0], policies[0]
     net = policy.net
-    from baselines.imitation.features import INPUT_CLIP, prepare
+    from baselines.networks.features import INPUT_CLIP, prepare
 
     x = prepare(obs, net.features, spec.object_ring_radius)
     z = (x - net.obs_mean.numpy()) / net.obs_std.numpy()

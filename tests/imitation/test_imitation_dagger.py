@@ -194,8 +194,8 @@ def test_safe_distillation_labels_are_the_filters_correction_of_the_network(tmp_
     filter's answer to the current network's own action, per robot, from its own
     observations; the network is fine-tuned, its input normalization kept."""
     pytest.importorskip("daqp")
-    from baselines.imitation.network import MLPPolicyNet
     from baselines.loaders.clone_policy import ClonedPolicy
+    from baselines.networks.mlp import MLPPolicyNet
     from nmpc_expert import make_filter
     from uvms_env.policy import AgentSpec
 

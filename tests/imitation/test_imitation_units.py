@@ -10,15 +10,15 @@ from features_reference import featurize_reference
 from gymnasium.spaces import Box
 
 from baselines.imitation import bc, dataset
-from baselines.imitation.features import (
+from baselines.loaders.clone_policy import ClonedPolicy
+from baselines.networks.features import (
     FEATURE_DIMS,
     FEATURES,
     FEEDFORWARD,
     CompiledInputs,
     prepare,
 )
-from baselines.imitation.network import MLPPolicyNet
-from baselines.loaders.clone_policy import ClonedPolicy
+from baselines.networks.mlp import MLPPolicyNet
 from uvms_env.policy import AgentSpec
 from uvms_env.robot.memory import RobotMemory
 from uvms_env.robot.priors import featurize

@@ -280,8 +280,8 @@ def test_imitation_cli_collects_and_clones_memory_over_the_distribution(tmp_path
     import uvms_env
     from baselines.imitation.cli import main as imitate
     from baselines.imitation.dataset import read_many
-    from baselines.imitation.network import MLPPolicyNet
     from baselines.loaders.clone_policy import ClonedPolicy
+    from baselines.networks.mlp import MLPPolicyNet
     from uvms_env.policy import AgentSpec
     from uvms_env.robot.memory import RobotMemory
 
@@ -417,7 +417,7 @@ def test_anchor_penalty_is_the_distance_to_the_clones_residual():
     own action, the formula otherwise (recomputed here from the network's layers)."""
     import torch
 
-    from baselines.imitation.network import MLPPolicyNet
+    from baselines.networks.mlp import MLPPolicyNet
     from baselines.rl.anchor import AnchorPenalty
     from uvms_env.vector import VectorEnv
     from uvms_env.vector.sb3 import VectorVecEnv

@@ -1,4 +1,4 @@
-"""PPO's compiled decision (``baselines.rl.actor``) against SB3's own ``predict`` path:
+"""PPO's compiled decision (``baselines.networks.ppo_decision``) against SB3's own ``predict`` path:
 the same inputs to 1e-5 for every prior setting and for the central critic's actor."""
 
 from __future__ import annotations

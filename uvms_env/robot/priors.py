@@ -101,7 +101,7 @@ def _rows(call: Any, flat: np.ndarray, width: int, dtype: Any) -> np.ndarray:
 
 
 def featurize_sx(o: cs.SX) -> cs.SX:
-    """(79,) observation -> (76,) ``uvms-v1`` features, symbolically (see network.py)."""
+    """(79,) observation -> (76,) ``uvms-v1`` features, symbolically (see baselines/networks)."""
     at = {name: sl.start for name, sl in OBSERVATION_STRUCTURE.items()}
     q, pose, twist = at["q"], at["object_pose"], at["object_twist"]
     psi = o[q + 5]  # vehicle yaw
@@ -395,8 +395,8 @@ class Priors:
 
     def command_sx(self, o: cs.MX, action: cs.MX, steady: cs.MX) -> cs.MX:
         """``command`` of one symbolic (79,) observation ``o`` with its a_ss ``steady``
-        (that of ``steady_source(o)``), for compiled decisions (``baselines.rl.actor``);
-        ``action`` is clipped here."""
+        (that of ``steady_source(o)``), for compiled decisions
+        (``baselines.networks.ppo_decision``); ``action`` is clipped here."""
         if self.action_mode == "torque":
             return cs.fmin(1.0, cs.fmax(-1.0, action))
         if self.action_mode == "setpoint":

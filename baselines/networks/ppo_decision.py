@@ -3,7 +3,7 @@
 The decision is one generated-C call (instead of the model's ``predict``, torch and
 numpy): the run's priors (features and a_ss, ``uvms_env.robot.priors`` in CasADi),
 the saved observation normalization, the actor's layers (the cloned networks' loop nest,
-``baselines.imitation.decision.dense_c``) and the action's way to the input (clip to
+``baselines.networks.mlp_decision.dense_c``) and the action's way to the input (clip to
 [-1, 1]; in residual mode clip(a_ss + h + s a, -1, 1) with the joint hold h).
 
 Supported: PPO with an MLP actor of tanh layers (SB3's default), the central-critic
@@ -11,8 +11,9 @@ policy's local actor included. Anything else (SAC's ReLU actor, other activation
 returns None and the policy keeps ``predict``. The hidden tanh is the clones' rational
 approximation and the layers run in float32, so actions agree with torch's to ~1e-6.
 
-May import: numpy, casadi, torch (through the model), ``uvms_env`` and
-``baselines.imitation`` (its compiled-network code).
+May import: numpy, casadi, torch and stable-baselines3 (inside ``ppo_layers``, on the
+model), ``uvms_env`` and this package's ``features`` and ``mlp_decision`` (the clones'
+compiled-network code).
 """
 
 from __future__ import annotations
@@ -22,8 +23,8 @@ from typing import Any
 import casadi as cs
 import numpy as np
 
-from baselines.imitation.decision import layers_digest, network_graph
-from baselines.imitation.features import FEEDFORWARD, CompiledInputs, input_dim, inputs_sx
+from baselines.networks.features import FEEDFORWARD, CompiledInputs, input_dim, inputs_sx
+from baselines.networks.mlp_decision import layers_digest, network_graph
 from uvms_env.dynamics.compiled import compile_function
 from uvms_env.robot.priors import ACT_DIM, OBS_DIM, Priors, steady_sx
 

@@ -29,7 +29,7 @@ import hashlib
 import casadi as cs
 import numpy as np
 
-from baselines.imitation.features import inputs_sx
+from baselines.networks.features import inputs_sx
 from uvms_env.dynamics.compiled import compile_function
 
 # tanh(x) ~ x P(x^2) / Q(x^2) on [-9, 9], and +-tanh(9) beyond (1 - tanh(9) = 3e-8):

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from baselines.imitation.features import (
+from baselines.networks.features import (
     ACT_DIM,
     FEEDFORWARD,
     INPUT_CLIP,
