@@ -27,10 +27,16 @@ from typing import Any
 
 import numpy as np
 
-from baselines.evaluation.episode_row import ERROR_END, EpisodeJob, checked, within_reach
+from baselines.evaluation.episode_row import (
+    ERROR_END,
+    EpisodeJob,
+    checked,
+    row_head,
+    row_tail,
+    within_reach,
+)
 from baselines.loaders.sources import PolicySource
 from uvms_env.dynamics import NU
-from uvms_env.episode import decision_time_summary
 from uvms_env.policy import AgentSpec, Policy
 
 
@@ -55,7 +61,7 @@ class _Copy:
 
     def __init__(self, job: EpisodeJob, policies: list[Policy], scenario: Any, cap: int) -> None:
         self.job, self.policies = job, policies
-        self.row = _row_head(job)
+        self.row = row_head(job)
         self.row["current_within_reach"] = within_reach(scenario)
         self.row["max_cycles"] = cap
         self.times: list[np.ndarray] = []
@@ -88,30 +94,9 @@ class _Copy:
             row["error"] = f"{type(error).__name__}: {error}"
             row["traceback"] = "".join(traceback.format_exception(error, limit=5))
             row.update(success=False, episode_end=ERROR_END)
-            row.update(violation_periods=0, clean_success=False, clean_success_tol=False)
-            row["return"] = float("nan")
-        row["interventions"] = self.interventions
-        row["filtered_decisions"] = self.filtered
-        row["intervention_rate"] = self.interventions / self.filtered if self.filtered else None
-        row["intervention_mean"] = self.deviation / self.filtered if self.filtered else None
-        ms = np.concatenate(self.times) if self.times else np.zeros(0)
-        timing = decision_time_summary(ms)
-        for key in ("median", "p95", "max"):
-            row[f"policy_time_ms_{key}"] = timing[key] if timing else float("nan")
-        row["_decision_ms"] = ms.tolist()
+        row_tail(row, self.times, (self.filtered, self.interventions, self.deviation))
         row["_path"] = []
         return row
-
-
-def _row_head(job: EpisodeJob) -> dict[str, Any]:
-    return {
-        "policy": job.policy,
-        "information": PolicySource.parse(job.policy).information,
-        "scenario": job.label or job.scenario,
-        "episode": job.index,
-        "seed": job.seed,
-        "error": "",
-    }
 
 
 def play_batched(

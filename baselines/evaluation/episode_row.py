@@ -49,15 +49,7 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
     import uvms_env
     from uvms_env.episode import Step, play, play_team
 
-    row: dict[str, Any] = {
-        "policy": job.policy,
-        # "full": a team policy, the full-information reference, never a decentralized entry
-        "information": PolicySource.parse(job.policy).information,
-        "scenario": job.label or job.scenario,
-        "episode": job.index,
-        "seed": job.seed,
-        "error": "",
-    }
+    row = row_head(job)
     times: list[np.ndarray] = []  # kept here too: a failed episode reports its decisions
     path: list[list[float]] = []
     filtered, interventions, deviation = 0, 0, 0.0  # safety-filter decisions (``+filter``)
@@ -97,21 +89,44 @@ def run_episode(job: EpisodeJob) -> dict[str, Any]:
         row["traceback"] = traceback.format_exc(limit=5)
         row["success"] = False
         row["episode_end"] = ERROR_END
+    row_tail(row, times, (filtered, interventions, deviation))
+    row["wall_s"] = time.perf_counter() - start  # the episode's compute, for the tables' cost
+    row["_path"] = path
+    return row
+
+
+def row_head(job: EpisodeJob) -> dict[str, Any]:
+    """The row's columns known before the episode."""
+    return {
+        "policy": job.policy,
+        # "full": a team policy, the full-information reference, never a decentralized entry
+        "information": PolicySource.parse(job.policy).information,
+        "scenario": job.label or job.scenario,
+        "episode": job.index,
+        "seed": job.seed,
+        "error": "",
+    }
+
+
+def row_tail(
+    row: dict[str, Any], times: list[np.ndarray], filtered: tuple[int, int, float]
+) -> None:
+    """The row's columns after the episode: a failed one's metrics, the safety filter's
+    interventions (``filtered``: decisions filtered, interventions, summed deviation) and
+    the decision times (``times``: each step's per-robot ms)."""
     if row["error"]:  # no env metrics: the episode did not end
         row.update(violation_periods=0, clean_success=False, clean_success_tol=False)
         row["return"] = float("nan")
+    count, interventions, deviation = filtered
     row["interventions"] = interventions
-    row["filtered_decisions"] = filtered
-    row["intervention_rate"] = interventions / filtered if filtered else None
-    row["intervention_mean"] = deviation / filtered if filtered else None
+    row["filtered_decisions"] = count
+    row["intervention_rate"] = interventions / count if count else None
+    row["intervention_mean"] = deviation / count if count else None
     ms = np.concatenate(times) if times else np.zeros(0)
     timing = decision_time_summary(ms)
     for key in ("median", "p95", "max"):
         row[f"policy_time_ms_{key}"] = timing[key] if timing else float("nan")
-    row["wall_s"] = time.perf_counter() - start  # the episode's compute, for the tables' cost
     row["_decision_ms"] = ms.tolist()
-    row["_path"] = path
-    return row
 
 
 def checked(source: PolicySource, seed: int) -> PolicyFactory:

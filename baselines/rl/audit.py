@@ -9,8 +9,8 @@
   ``baselines.evaluate`` on the same episodes; docs/rl.md).
 * **What PPO optimizes and how episodes end**: per run, the mean episode objective
   (reward minus the Lagrangian's priced cost, ``episode_objective_mean``), the episode
-  cost, the multiplier and the share of episodes that ended early (diverged, collision,
-  constraint) over the first and the last quarter of its training rows.
+  cost, the episode length, the multiplier and the share of episodes that ended early
+  (diverged, collision, constraint) over the first and the last quarter of its training rows.
 
 May import: the standard library, numpy, ``baselines.rl.plot`` (the CSV readers) and
 ``baselines.command_line``.
@@ -27,6 +27,7 @@ from baselines.rl.plot import columns, read_rows
 
 EARLY_ENDS = ("ends_diverged", "ends_collision", "ends_constraint")
 ALL_ENDS = (*EARLY_ENDS, "ends_success", "ends_max_cycles")
+QUARTER_MEANS = ("episode_objective_mean", "episode_cost_mean", "episode_len_mean", "multiplier")
 
 
 def start_and_end(run: Path) -> list[dict[str, object]]:
@@ -59,7 +60,7 @@ def training_quarters(run: Path) -> dict[str, object] | None:
     quarter = max(1, n // 4)
     out: dict[str, object] = {"run": run.name, "iterations": n}
     for name, part in (("first", slice(0, quarter)), ("last", slice(n - quarter, n))):
-        for key in ("episode_objective_mean", "episode_cost_mean", "multiplier"):
+        for key in QUARTER_MEANS:
             values = p.get(key, np.full(n, np.nan))[part]
             out[f"{key}_{name}"] = float(np.nanmean(values)) if np.isfinite(values).any() else None
         ends = {k: float(np.nansum(p[k][part])) for k in ALL_ENDS if k in p}
@@ -87,9 +88,9 @@ def markdown(runs: list[Path]) -> str:
             )
     lines += [
         "",
-        "| run | iterations | objective | cost per robot-episode | multiplier | "
-        "ended early (episodes) |",
-        "|---|---|---|---|---|---|",
+        "| run | iterations | objective | cost per robot-episode | episode periods | "
+        "multiplier | ended early (episodes) |",
+        "|---|---|---|---|---|---|---|",
     ]
     for run in runs:
         q = training_quarters(run)
@@ -98,7 +99,8 @@ def markdown(runs: list[Path]) -> str:
         lines.append(
             f"| {q['run']} | {q['iterations']} | {_fmt(q['episode_objective_mean_first'])} -> "
             f"{_fmt(q['episode_objective_mean_last'])} | {_fmt(q['episode_cost_mean_first'])}"
-            f" -> {_fmt(q['episode_cost_mean_last'])} | {_fmt(q['multiplier_first'], 1)} -> "
+            f" -> {_fmt(q['episode_cost_mean_last'])} | {_fmt(q['episode_len_mean_first'], 0)}"
+            f" -> {_fmt(q['episode_len_mean_last'], 0)} | {_fmt(q['multiplier_first'], 1)} -> "
             f"{_fmt(q['multiplier_last'], 1)} | {_share(q['early_share_first'])} "
             f"({q['episodes_first']}) -> {_share(q['early_share_last'])} "
             f"({q['episodes_last']}) |"
