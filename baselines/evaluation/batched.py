@@ -52,8 +52,9 @@ def batchable(job: EpisodeJob) -> str | None:
 
 
 def group_key(job: EpisodeJob) -> tuple[Any, ...]:
-    """Jobs with one key share a batched environment."""
-    return (job.policy, job.scenario, job.overrides, job.max_cycles, job.label)
+    """Jobs with one key share a batched environment (the keywords by their text: a
+    value may be a dict, ``randomize``'s)."""
+    return (job.policy, job.scenario, repr(job.overrides), job.max_cycles, job.label)
 
 
 class _Copy:

@@ -46,11 +46,12 @@ DEFAULTS: dict[str, Any] = {"num_envs": 64, "geometry_pool": 1024}
 SEVERAL_TEAM_SIZES = True  # one group of env copies per team size (``make_vec_env``)
 ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
     # PPO, chosen for learning (docs/rl.md, "Why the defaults"): rollouts of 128 steps per
-    # sub-env (2-4x the throughput setting's 32, still many copies), 5 epochs of 4
+    # sub-env (4x the throughput setting's 32, still many copies), 5 epochs of 4
     # minibatches, gamma 0.995 (a ~200-period horizon on 700-3,000-period episodes: a
-    # success 500 periods ahead counts 8 %, under 0.99 0.7 %). The throughput setting (32 steps,
-    # 4 epochs: benchmarks/train_throughput.py) is ~1.3x faster and learned no better in
-    # the from-scratch audit (docs/notes/2026-12-02-from-scratch-audit.md).
+    # success 500 periods ahead counts 8 %, under 0.99 0.7 %). The throughput setting
+    # (32 steps, 4 epochs, gamma 0.99: benchmarks/train_throughput.py) learned no better
+    # and ran no faster on the distribution in the from-scratch audit
+    # (docs/notes/2026-12-02-from-scratch-audit.md).
     # SAC: SB3 defaults except a short warm-up, a replay buffer sized to
     # our budgets and one gradient step per collected robot-step (gradient_steps = the
     # number of sub-environments, set in ``build``).

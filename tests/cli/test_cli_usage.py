@@ -344,3 +344,10 @@ def test_the_bank_builder_refuses_a_bad_value_naming_the_option(argv, named, cap
     err = usage_error(bank.main, argv, capsys)
     assert all(n in err for n in named), err
     assert "usage: python -m uvms_env.vector.build_bank" in err
+
+
+def test_the_audit_refuses_a_folder_that_is_no_run(tmp_path, capsys):
+    from baselines.rl import audit
+
+    err = usage_error(audit.main, [str(tmp_path)], capsys)
+    assert "not a run folder" in err and str(tmp_path) in err

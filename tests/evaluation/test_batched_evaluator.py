@@ -57,6 +57,19 @@ def test_batched_rows_equal_the_single_rows(policy: str) -> None:
     assert_same_rows(single, batched)
 
 
+def test_episodes_that_draw_their_conditions_batch_as_they_play_alone() -> None:
+    # a training run's evaluations: each episode draws its current and mismatch
+    draws = (("n_agents", 2), ("randomize", {"current": ["none", "mild"], "mismatch": [0, 0.1]}))
+    todo = [
+        EpisodeJob("prior", "random", k, case_episode_seed(3, "random", k), draws, CYCLES, False)
+        for k in range(3)
+    ]
+    single = [run_episode(j) for j in todo]
+    batched = sorted(play_batched(todo, 2), key=lambda r: r["episode"])
+    assert all(not r["error"] for r in single + batched)
+    assert_same_rows(single, batched)
+
+
 def test_the_runner_batches_without_changing_its_rows() -> None:
     cases = ["short"]
     one = evaluate(["prior", "zero"], cases, 3, 11, 1, dict(CONDITIONS[:2]), CYCLES, False)
