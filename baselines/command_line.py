@@ -229,5 +229,7 @@ def add_batch_argument(g: Any) -> None:
         metavar="K",
         help="play each per-robot policy's episodes of a case K at a time in one batched "
         "environment per worker (0: one by one; team policies, the channel and replays "
-        "always play one by one); the rows are the same",
+        "always play one by one): the same episodes, their numbers equal to ~1e-6 over "
+        "hundreds of periods, but a marginal episode can end otherwise over thousands; "
+        "play every rung of one table alike",
     )

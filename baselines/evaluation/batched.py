@@ -4,7 +4,8 @@
 ``copies`` environments in float64: each copy starts its job's episode from the job's
 seed (``VectorEnv.reset(seed=[...])``, ``restart(ids, seeds)`` when a copy's episode ends
 and another job waits), so episode k is the single evaluator's episode k (the float64
-batched step equals the single one to ~1e-9, docs/batched.md). Every robot of every copy
+batched step equals the single one to ~1e-9, docs/batched.md; over thousands of periods a
+marginal closed loop can still end otherwise, docs/evaluation.md). Every robot of every copy
 keeps its own policy object, built from the job's seed and the copy's scenario as
 ``uvms_env.episode.play`` builds it, so memories, priors and random generators are the
 single evaluator's; what is shared is the environment's step, one compiled call for all

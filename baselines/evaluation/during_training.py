@@ -66,7 +66,7 @@ def evaluate_rungs(
             max_cycles,
             progress=False,
             check=False,  # a training run goes on: failed episodes are warned of below
-            batch=episodes,  # the rung's episodes on one batched env (the same rows)
+            batch=episodes,  # the rung's episodes on one batched env (the same episodes)
         )
         summary = aggregate(rows, seed)[0]
         failed = [r["error"] for r in rows if r["error"]]
