@@ -19,7 +19,7 @@ from baselines.benchmarl_tasks.episode_logs import attach
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("checkpoint_file", type=Path, help="a checkpoint_<frames>.pt")
     args = parser.parse_args(argv)
     experiment = reload_experiment_from_file(str(args.checkpoint_file.resolve()))
