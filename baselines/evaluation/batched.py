@@ -61,10 +61,13 @@ def group_key(job: EpisodeJob) -> tuple[Any, ...]:
 class _Copy:
     """One copy's current episode: its job, its robots' policies and what it has recorded."""
 
-    def __init__(self, job: EpisodeJob, policies: list[Policy], scenario: Any, cap: int) -> None:
+    def __init__(
+        self, job: EpisodeJob, policies: list[Policy], scenario: Any | None, cap: int
+    ) -> None:
         self.job, self.policies = job, policies
         self.row = row_head(job)
-        self.row["current_within_reach"] = within_reach(scenario)
+        if scenario is not None:  # None: an episode that never started
+            self.row["current_within_reach"] = within_reach(scenario)
         self.row["max_cycles"] = cap
         self.times: list[np.ndarray] = []
         self.filtered = self.interventions = 0
@@ -137,8 +140,18 @@ def play_batched(
     obs, _ = venv.reset(seed=[j.seed for j in jobs[:k]])
     for slot in range(k):
         running[slot] = _begin(next(waiting), venv, slot, source, report)
-    while any(c is not None for c in running):
-        actions = np.zeros((k, venv.n, 8), np.float32)
+    while True:
+        # a free copy (its episode ended, failed or never began) takes the next job;
+        # copies with nothing left to play step on zero inputs, unread
+        for slot in [s for s, c in enumerate(running) if c is None]:
+            job = next(waiting, None)
+            if job is None:
+                break
+            obs[slot] = venv.restart([slot], seeds=[job.seed])[0]
+            running[slot] = _begin(job, venv, slot, source, report)
+        if all(c is None for c in running):
+            break
+        actions = np.zeros((k, venv.n, NU), np.float32)
         for slot, copy in enumerate(running):
             if copy is None:
                 continue
@@ -149,25 +162,15 @@ def play_batched(
                 running[slot] = None
         try:
             obs, _, _, _, infos = venv.step(actions)
-        except Exception as exc:  # the step of every copy failed: so did their episodes
-            for copy in filter(None, running):
+        except Exception as exc:  # the step failed: so did every episode not yet ended
+            cap = int(venv.max_cycles)
+            for copy in [*filter(None, running), *(_Copy(j, [], None, cap) for j in waiting)]:
                 report(copy.finish(None, ERROR_END, exc))
             break
-        ended = [
-            s for s, c in enumerate(running) if c is not None and infos["metrics"][s] is not None
-        ]
-        for slot in ended:
-            copy = running[slot]
-            assert copy is not None
-            report(copy.finish(infos["metrics"][slot], infos["episode_end"][slot]))
-            running[slot] = None
-        # idle copies (ended, nothing left to play) keep stepping on zero inputs, unread
-        for slot in ended:
-            job = next(waiting, None)
-            if job is not None:
-                fresh = venv.restart([slot], seeds=[job.seed])
-                obs[slot] = fresh[0]
-                running[slot] = _begin(job, venv, slot, source, report)
+        for slot, copy in enumerate(running):
+            if copy is not None and infos["metrics"][slot] is not None:
+                report(copy.finish(infos["metrics"][slot], infos["episode_end"][slot]))
+                running[slot] = None
     share = (time.perf_counter() - start) / len(jobs)
     for row in rows:
         row["wall_s"] = share  # the chunk's compute, spread over its episodes

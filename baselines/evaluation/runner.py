@@ -96,9 +96,10 @@ def evaluate(
     ``ray`` (Ray tasks on a local Ray of ``workers`` CPUs, or on the cluster at
     ``address``); the rows do not depend on it. ``batch``: with the process backend,
     play each per-robot policy's episodes of a case ``batch`` at a time through the
-    batched environment (``baselines.evaluation.batched``; 0 or 1: one by one); the rows
-    equal the one-by-one rows to the float64 batched step's ~1e-9 per step (a closed loop
-    can grow it over an episode). ``check``: ``preflight`` first. What is refused before
+    batched environment (``baselines.evaluation.batched``; 0 or 1: one by one): the same
+    episodes, their numbers as the one-by-one ones to ~1e-6 over hundreds of periods, but
+    over thousands a marginal episode can end otherwise (docs/evaluation.md), so a table
+    plays every rung alike. ``check``: ``preflight`` first. What is refused before
     any episode raises ``UsageError``."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {BACKENDS}")

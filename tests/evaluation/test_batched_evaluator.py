@@ -99,6 +99,25 @@ def test_a_failing_policy_fails_its_episodes_not_the_others(monkeypatch) -> None
     assert rows[1]["episode_end"] == "error" and math.isnan(rows[1]["return"])
 
 
+def test_a_copy_freed_by_a_failure_plays_the_waiting_episodes(monkeypatch) -> None:
+    from baselines.evaluation import batched
+
+    real = batched._Copy.decide
+
+    def failing_first(self, obs):  # the first episode's policy raises at once
+        if self.job.index == 0:
+            raise RuntimeError("no solution")
+        return real(self, obs)
+
+    monkeypatch.setattr(batched._Copy, "decide", failing_first)
+    todo = jobs("prior", 3)
+    rows = sorted(play_batched(todo, 1), key=lambda r: r["episode"])  # one copy for all
+    assert [r["episode"] for r in rows] == [0, 1, 2]
+    assert rows[0]["error"] == "RuntimeError: no solution"
+    monkeypatch.setattr(batched._Copy, "decide", real)
+    assert_same_rows([run_episode(j) for j in todo[1:]], rows[1:])
+
+
 def test_what_plays_one_by_one_says_why() -> None:
     job = jobs("prior", 1)[0]
     assert batchable(job) is None
@@ -119,3 +138,12 @@ def test_restart_with_seeds_starts_the_single_envs_episode() -> None:
     np.testing.assert_array_equal(again[0], first[0])
     with pytest.raises(ValueError, match="one seed per id"):
         venv.restart([0, 1], seeds=[3])
+
+
+def test_restart_with_seeds_follows_the_geometry_pool_as_reset_does() -> None:
+    venv = VectorEnv("random", num_envs=2, n_agents=2, geometry_pool=3)
+    first, infos = venv.reset(seed=[4, 5])  # pool seeds 4 % 3 and 5 % 3
+    venv.step(np.zeros((2, 2, 8), np.float32))
+    again = venv.restart([1], seeds=[5])
+    np.testing.assert_array_equal(again[0], first[1])
+    assert infos["episode_seed"].tolist() == [1, 2]

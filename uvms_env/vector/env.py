@@ -226,17 +226,24 @@ class VectorEnv(CoreViews):
             return self._export(self._core.view(ALL)), {
                 "episode_seed": self._pool_seeds(np.arange(k))
             }
-        if seed is not None:
-            seeds = self._seed_list(seed)
-            self._episode_base[:] = seeds
-            self._episode[:] = 0
-            if self.geometry_pool is not None:
-                seeds = self._pool_seeds(np.arange(k)).tolist()
-            self._seeds_now = np.array(seeds)
-            self._core.seed(every, seeds)
         self._started = True
-        self._core.reset(every)
+        if seed is not None:
+            self._start(np.arange(k), self._seed_list(seed))
+        else:
+            self._core.reset(every)
         return self._export(self._core.view(ALL)), {"episode_seed": self._seeds_now.copy()}
+
+    def _start(self, ids: np.ndarray, seeds: list[int]) -> None:
+        """Environments ``ids`` start episode 0 of their ``seeds`` (with a geometry pool,
+        the pool's seed of it), as ``reset(seed=...)`` does."""
+        self._episode_base[ids] = seeds
+        self._episode[ids] = 0
+        if self.geometry_pool is not None:
+            seeds = self._pool_seeds(ids).tolist()
+        self._seeds_now[ids] = seeds
+        rows = ids.tolist()
+        self._core.seed(rows, seeds)
+        self._core.reset(rows)
 
     def _seed_list(self, seed: int | Sequence[int]) -> list[int]:
         k = self.num_envs
@@ -298,9 +305,10 @@ class VectorEnv(CoreViews):
         """End the episodes of ``env_ids`` where they stand and start their next ones, as the
         automatic reset does (a partial reset, e.g. for TorchRL's ``_reset`` mask); returns
         their first observations (len(env_ids), N, 79). The other environments go on.
-        ``seeds`` (one per id, in the ids' order): each restarts as ``reset(seed=...)`` of
-        a single env would (a seeded family: that seed's geometry), as an evaluator that
-        hands an ended copy its next seeded episode needs."""
+        ``seeds`` (one per id, in the ids' order): each restarts as ``reset(seed=...)``
+        starts it (a seeded family: that seed's geometry, or with a geometry pool the
+        pool's seed of it), as an evaluator that hands an ended copy its next seeded
+        episode needs."""
         if not self._started:
             raise RuntimeError("restart() called before reset()")
         raw = np.asarray(env_ids, dtype=np.int64).reshape(-1)
@@ -318,11 +326,7 @@ class VectorEnv(CoreViews):
                 RESET_SEED.check(f"seed of environment {i}", s)
                 for i, s in zip(raw, seeds, strict=True)
             ]
-            rows = raw.tolist()
-            self._episode_base[raw], self._episode[raw] = checked, 0
-            self._seeds_now[raw] = checked
-            self._core.seed(rows, checked)
-            self._core.reset(rows)
+            self._start(raw, checked)
             on = raw if self.xp is np else self.xp.asarray(raw)
             return self._export(self._core.view(on))
         if len(ids):
