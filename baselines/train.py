@@ -10,13 +10,15 @@ the env and the model (the environment's own checks, the library's: ``check_libr
 a refusal is a usage error. Reference: docs/rl.md, docs/scale-out.md.
 
 May import: ``baselines.runs``, ``baselines.command_line``, ``baselines.lagrangian``,
-``baselines.registry`` and the trainer modules it names (imported on demand: a library
+``baselines.loaders.saved`` (the run folder's config file), ``baselines.registry`` and
+the trainer modules it names (imported on demand: a library
 loads only when it is chosen), and ``uvms_env`` (its checks of the environment options).
 """
 
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from dataclasses import fields
 from pathlib import Path
@@ -40,6 +42,7 @@ from baselines.command_line import (
     usage_errors,
 )
 from baselines.lagrangian import COSTS, CostSettings
+from baselines.loaders.saved import CONFIG_FILE, read_config
 from baselines.registry import DEFAULT_LIBRARY, LIBRARIES, library, trainer_module
 from baselines.runs import RunSettings
 
@@ -212,7 +215,9 @@ def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> RunSett
         | {key: value for key, value in given.items() if value is not None}
         | {
             "overrides": overrides,
-            "out": args.out or Path(f"runs/{args.library}_{args.algo}"),
+            "out": args.out
+            or _resumed_folder(args.resume)
+            or Path(f"runs/{args.library}_{args.algo}"),
             "cost": cost,
             "hyperparameters": key_value_pairs(args.hp),
             "progress": not args.no_progress,
@@ -289,6 +294,51 @@ def check_library(name: str, algo: str, settings: Any, args: argparse.Namespace)
     previous_record(settings, name)
 
 
+def resumed_argv(ap: argparse.ArgumentParser, argv: list[str]) -> list[str]:
+    """The command line of a run resumed by ``argv``: the run's recorded one (its
+    config.json ``command``, itself merged so at every resume) with every option that
+    ``argv`` gives again replaced by ``argv``'s, so that a resume continues the run as it
+    was configured (its cost, reward, seed, env options) and changes only what it names
+    (a next scenario, a larger budget); ``argv`` itself where nothing is recorded."""
+    args, _ = ap.parse_known_args(argv)
+    folder = _resumed_folder(args.resume)
+    recorded = (read_config(folder) if folder is not None else {}).get("command")
+    if not recorded:
+        return argv
+    words = shlex.split(recorded)
+    if "baselines.train" in words:
+        words = words[words.index("baselines.train") + 1 :]
+    actions = ap._option_string_actions  # argparse's own table of option -> action
+    given = {actions[w.split("=")[0]].dest for w in argv if w.split("=")[0] in actions}
+    kept: list[str] = []
+    skipping = False
+    for word in words:
+        name = word.split("=")[0]
+        if name in actions:
+            skipping = actions[name].dest in given
+            if not skipping:
+                kept.append(word)
+        elif not skipping:
+            kept.append(word)
+    return [*kept, *argv]
+
+
+def known_resume(argv: list[str]) -> bool:
+    """Whether ``argv`` resumes a run."""
+    return any(w.split("=")[0] == "--resume" for w in argv)
+
+
+def _resumed_folder(resume: Path | None) -> Path | None:
+    """The run folder ``--resume`` names (a checkpoint's run), where a resumed run goes on
+    unless ``--out`` says otherwise."""
+    if resume is None:
+        return None
+    folder = resume if resume.is_dir() else resume.parent
+    if not (folder / CONFIG_FILE).exists() and (folder.parent / CONFIG_FILE).exists():
+        return folder.parent
+    return folder
+
+
 def train(
     name: str,
     algo: str,
@@ -341,6 +391,7 @@ def main(argv: list[str] | None = None) -> None:
     add_library_argument(pre, DEFAULT_LIBRARY)
     known, _ = pre.parse_known_args(argv)
     ap = build_parser(known.library)
+    argv = resumed_argv(ap, argv) if known_resume(argv) else argv
     args = ap.parse_args(argv)
     with usage_errors(ap):  # every check before the run folder, the env and the model
         settings = settings_from(args, trainer_module(args.library).DEFAULTS)

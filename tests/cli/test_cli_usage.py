@@ -6,6 +6,7 @@ training budget rounded to whole rollouts is announced and the build is timed ap
 from __future__ import annotations
 
 import json
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -98,6 +99,51 @@ def test_resume_of_a_missing_or_foreign_run_is_refused(tmp_path, capsys):
     (other / "config.json").write_text(json.dumps({"library": "benchmarl"}))
     err = usage_error(train.main, ["--resume", str(other), "--out", str(other)], capsys)
     assert "--resume" in err and "trained with benchmarl, not sb3" in err
+
+
+def test_a_resume_continues_the_run_as_it_was_configured_in_its_own_folder(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    first = [
+        "--scenario", "short", "--seed", "3", "--cost", "magnitude", "--cost-limit", "1",
+        "--env-option", "observation_mode=memory",
+        "--env-option", 'reward_weights={"violation": 0}',
+        "--robot-steps", "1000", "--out", str(run),
+    ]  # fmt: skip
+    command = shlex.join(["python", "-m", "baselines.train", *first])
+    (run / "config.json").write_text(json.dumps({"library": "sb3", "command": command}))
+    ap = train.build_parser("sb3")
+
+    def settings(argv):
+        return train.settings_from(ap.parse_args(argv), {"num_envs": 2, "geometry_pool": None})
+
+    # a resume naming only the budget keeps the cost, the reward, the seed and the folder
+    again = train.resumed_argv(ap, ["--resume", str(run), "--robot-steps", "2000"])
+    resumed, original = settings(again), settings(first)
+    assert resumed.cost == original.cost and resumed.cost is not None
+    assert resumed.overrides == original.overrides and resumed.seed == 3
+    assert resumed.robot_steps == 2000 and resumed.out == run
+    # what it names again replaces the recorded option (a next scenario; new env options)
+    moved = settings(
+        train.resumed_argv(
+            ap, ["--resume", str(run), "--scenario", "random", "--env-option", "current=mild"]
+        )
+    )
+    assert moved.scenario == "random" and moved.overrides["current"] == "mild"
+    assert "reward_weights" not in moved.overrides and moved.cost == original.cost
+    # the merged command is what the next resume reads: nothing is lost at the second
+    (run / "config.json").write_text(
+        json.dumps(
+            {"library": "sb3", "command": shlex.join(["python", "-m", "baselines.train", *again])}
+        )
+    )
+    twice = settings(train.resumed_argv(ap, ["--resume", str(run)]))
+    assert twice.cost == original.cost and twice.robot_steps == 2000
+    # without --out, a resume from a checkpoint goes on in the checkpoint's run
+    checkpoint = run / "checkpoints" / "rl_model_64_steps.zip"
+    checkpoint.parent.mkdir()
+    checkpoint.touch()
+    assert settings(["--resume", str(checkpoint)]).out == run
 
 
 def test_a_usage_error_prints_no_traceback_from_the_command_line(tmp_path):
