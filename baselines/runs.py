@@ -1,22 +1,23 @@
 """The run layer every RL library's trainer writes through: one run folder, one
 ``config.json``, one ``progress.csv`` and one ``evaluations.csv`` schema, periodic
-evaluation through ``baselines.evaluate`` and resuming.
+evaluation through ``baselines.evaluate``, the best snapshot and resuming.
 
     run = Run.start(settings, library="sb3", algo="ppo", command=argv)
     trainer = Trainer(run, algo, args)         # the library's trainer (``Trainer``)
     run.write_config(**trainer.build())        # env and model; config.json
-    steps = trainer.learn()                    # run.begin(...) once its envs are reset, then
-                                               # run.after_iteration(...) each iteration
+    steps = trainer.learn()                    # see ``Trainer.learn``
     run.end()                                  # the training time ends here
     trainer.save(run.folder); trainer.close()
     run.finish(steps)                          # robot-steps, times, recorded evaluation
 
-``baselines.train.train`` is that sequence. Every budget and cadence counts robot-steps.
-The progress bar, its rate and its ETA, and the robot-steps/s of the records count the
-stepping and the updates only: the build before ``begin`` (env, geometries, compiled
-kernels, model) and the periodic evaluations and checkpoints are timed apart
-(``build_s``, ``eval_s`` beside ``train_s`` in config.json). The run folder's files:
-docs/rl.md.
+``baselines.train.train`` is that sequence. The run never calls the trainer: the
+trainer's loop (SB3's: its callbacks, ``baselines.rl.sb3_callbacks``) writes a row
+(``iteration``), saves what is due (``due``) and hands the run a saved snapshot to
+evaluate (``evaluate``), each save and evaluation inside ``apart``. Every budget and
+cadence counts robot-steps. The progress bar, its rate and its ETA, and the robot-steps/s
+of the records count the stepping and the updates only: the build before ``begin`` (env,
+geometries, compiled kernels, model) and what runs ``apart`` are timed apart (``build_s``,
+``eval_s`` beside ``train_s`` in config.json). The run folder's files: docs/rl.md.
 
 May import: the standard library, numpy, tqdm, ``baselines.evaluation`` (the periodic
 evaluations: ``during_training``), ``baselines.ladder``, ``baselines.lagrangian``,
@@ -33,6 +34,8 @@ import platform
 import shlex
 import shutil
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -112,17 +115,16 @@ class Trainer(Protocol):
 
     def learn(self) -> int:
         """Train until ``run.settings.robot_steps``: ``run.begin`` once the envs are reset
-        and stepping starts, ``run.after_iteration`` after each iteration; return the
+        and stepping starts; after each iteration ``run.iteration`` (its row), then, each
+        inside ``run.apart()``, a numbered checkpoint under the run folder where
+        ``run.due("checkpoint_every", ...)`` and a snapshot saved to ``run.snapshot`` and
+        handed to ``run.evaluate`` where ``run.due("eval_every", ...)``; return the
         robot-steps done in all."""
         ...
 
     def save(self, folder: Path) -> None:
         """Write what the policy's loader (``baselines.registry``) and a resume need into
         ``folder``."""
-        ...
-
-    def checkpoint(self, robot_steps: int) -> None:
-        """Save a numbered checkpoint under the run folder."""
         ...
 
     def results(self) -> dict[str, Any]:
@@ -435,33 +437,19 @@ class Run:
             self.advance(robot_steps)
         return row
 
-    def after_iteration(self, trainer: Trainer, robot_steps: int, **stats: Any) -> None:
-        """The progress row (``iteration``'s arguments), then a checkpoint and an
-        evaluation of a fresh snapshot when due."""
-        self.iteration(robot_steps, **stats)
+    @contextmanager
+    def apart(self) -> Iterator[None]:
+        """What runs inside (a checkpoint, a periodic evaluation) is no training: neither
+        the bar's rate nor the current iteration's time counts it (``eval_s``)."""
         start = time.perf_counter()
-        if self.due("checkpoint_every", robot_steps):
-            trainer.checkpoint(robot_steps)
-        if self.due("eval_every", robot_steps):
-            trainer.save(self.snapshot)
-            rows = self.evaluate(robot_steps, self.policy_spec(self.snapshot))
-            self.keep_best(robot_steps, rows)
-            # success and clean success (means over the rungs): the bar's postfix and a line
-            success = float(np.mean([r["success_rate"] for r in rows]))
-            clean = float(np.mean([r["clean_success_rate"] for r in rows]))
-            self._postfix.update(success=f"{success:.2f}", clean=f"{clean:.2f}")
+        try:
+            yield
+        finally:
+            spent = time.perf_counter() - start
+            self._eval_s += spent
+            self._tick += spent
             if self._bar is not None:
-                self._bar.set_postfix(self._postfix)
-                self._bar.write(
-                    f"evaluation at {robot_steps} robot-steps: success {success:.2f}, clean "
-                    f"success {clean:.2f} ({', '.join(r['rung'] for r in rows)})"
-                )
-        # neither the rate nor the next iteration's time counts the checkpoint or evaluation
-        now = time.perf_counter()
-        self._eval_s += now - start
-        self._tick = now
-        if self._bar is not None:
-            self._bar.unpause()
+                self._bar.unpause()
 
     def due(self, every: str, robot_steps: int) -> bool:
         """Whether the cadence ``every`` of the settings (``eval_every``,
@@ -473,17 +461,17 @@ class Run:
         self._next[every] = self._after(cadence, robot_steps)
         return True
 
-    def evaluate(self, robot_steps: int, policy: str) -> list[dict[str, Any]]:
-        """The saved ``policy`` (an evaluator ``--policy`` spec, the snapshot's) on every
-        rung (``evaluate_rungs``). The snapshot gets config.json (the policy rebuilds the
-        run's priors from it)."""
-        if self.snapshot.is_dir():
-            write_json(self.snapshot / CONFIG_FILE, self.config)
+    def evaluate(self, robot_steps: int) -> list[dict[str, Any]]:
+        """The snapshot the trainer just saved (``snapshot``, with config.json: its policy
+        rebuilds the run's priors from it) on every rung (``evaluate_rungs``), kept as the
+        best where it is (``keep_best``); its success and clean success (means over the
+        rungs) go to the bar's postfix and a line. Returns the rows."""
+        write_json(self.snapshot / CONFIG_FILE, self.config)
         s = self.settings
-        return evaluate_rungs(
+        rows = evaluate_rungs(
             self.folder,
             s.rungs(),
-            policy,
+            self.policy_spec(self.snapshot),
             s.eval_episodes,
             s.evaluation_seed,
             robot_steps,
@@ -492,6 +480,17 @@ class Run:
             elapsed=time.perf_counter() - self._start,
             max_cycles=s.eval_max_cycles,
         )
+        self.keep_best(robot_steps, rows)
+        success = float(np.mean([r["success_rate"] for r in rows]))
+        clean = float(np.mean([r["clean_success_rate"] for r in rows]))
+        self._postfix.update(success=f"{success:.2f}", clean=f"{clean:.2f}")
+        if self._bar is not None:
+            self._bar.set_postfix(self._postfix)
+            self._bar.write(
+                f"evaluation at {robot_steps} robot-steps: success {success:.2f}, clean "
+                f"success {clean:.2f} ({', '.join(r['rung'] for r in rows)})"
+            )
+        return rows
 
     def keep_best(self, robot_steps: int, rows: list[dict[str, Any]]) -> bool:
         """Copy the snapshot just evaluated to ``best/`` when its ``evaluation_score``

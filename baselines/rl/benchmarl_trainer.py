@@ -362,10 +362,6 @@ class Trainer:
             state["state"]["n_iters_performed"] = experiment.n_iters_performed + 1
         torch.save(state, checkpoints / name)
 
-    def checkpoint(self, robot_steps: int) -> None:
-        """Nothing: BenchMARL writes its checkpoints itself, every ``checkpoint_interval``
-        frames (``--checkpoint-every`` in whole iterations), in its experiment folder."""
-
     def results(self) -> dict[str, Any]:
         e = self.experiment
         return {"frames": int(e.total_frames), "iterations": int(e.n_iters_performed)}
@@ -421,15 +417,20 @@ class Trainer:
         if self.lagrangian is not None:
             cost = self.lagrangian.end_rollout()
             multiplier = self.lagrangian.multiplier
-        self.run.after_iteration(
-            self,
-            self.robot_steps,
+        run, steps = self.run, self.robot_steps
+        run.iteration(
+            steps,
             returns=self.returns,
             lengths=self.lengths,
             episode_cost=cost,
             multiplier=multiplier,
             ends=self.ends,
         )
+        # no checkpoint of ours: BenchMARL writes its own (``checkpoint_interval``)
+        if run.due("eval_every", steps):
+            with run.apart():
+                self.save(run.snapshot)
+                run.evaluate(steps)
         self._in_iteration = False
 
 

@@ -243,9 +243,14 @@ class Trainer:
             self.robot_steps += iteration_robot_steps(self.algorithm.train())
             iteration += 1
             returns, lengths = self.episodes()
-            self.run.after_iteration(
-                self, self.robot_steps, returns=returns, lengths=lengths, **self.dual_step()
-            )
+            run, steps = self.run, self.robot_steps
+            run.iteration(steps, returns=returns, lengths=lengths, **self.dual_step())
+            with run.apart():
+                if run.due("checkpoint_every", steps):
+                    self.checkpoint(steps)
+                if run.due("eval_every", steps):
+                    self.save(run.snapshot)
+                    run.evaluate(steps)
         self.iterations_done = iteration
         return self.robot_steps
 
@@ -286,6 +291,8 @@ class Trainer:
         self.algorithm.save_to_path(str(target.resolve()))
 
     def checkpoint(self, robot_steps: int) -> None:
+        """A numbered checkpoint under the run folder (``learn``, every
+        ``--checkpoint-every``)."""
         folder = self.run.folder / "checkpoints" / f"robot_steps_{robot_steps}"
         self.algorithm.save_to_path(str(folder.resolve()))
 

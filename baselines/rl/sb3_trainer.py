@@ -33,7 +33,6 @@ from baselines.runs import (
     add_step_arguments,
     seeded_pool,
 )
-from uvms_env.env.infos import EPISODE_END_NAMES
 
 if TYPE_CHECKING:
     from baselines.lagrangian import CostSettings
@@ -90,8 +89,6 @@ POLICY_KWARGS: dict[str, dict[str, Any]] = {
     "recurrent_ppo": {"log_std_init": -1.0, "lstm_hidden_size": 64},
 }
 ON_POLICY = ("ppo", "recurrent_ppo")
-# SAC has no rollouts: one progress row per this many steps of every sub-environment.
-SAC_ROW_STEPS = 256
 DEFAULT_GEOMETRY_POOL = DEFAULTS["geometry_pool"]
 
 
@@ -290,12 +287,14 @@ def find_resume(path: Path) -> tuple[Path, Path, Path | None]:
     """(model.zip, vecnormalize.pkl, replay buffer or None) to resume from ``path``: a run
     folder (its ``model.zip``, or its newest checkpoint when it has none or the
     checkpoint is newer) or a checkpoint ``.zip``."""
+    from baselines.rl.sb3_callbacks import CHECKPOINTS
+
     path = Path(path)
     if path.is_file():
         model = path
     else:
         candidates = sorted(
-            (path / "checkpoints").glob("rl_model_*_steps.zip"), key=_checkpoint_steps
+            (path / CHECKPOINTS).glob("rl_model_*_steps.zip"), key=_checkpoint_steps
         )
         model = candidates[-1] if candidates else path / "model.zip"
         final = path / "model.zip"
@@ -303,7 +302,7 @@ def find_resume(path: Path) -> tuple[Path, Path, Path | None]:
             model = final
     if not model.exists():
         raise FileNotFoundError(f"nothing to resume at {path}")
-    if model.parent.name == "checkpoints":
+    if model.parent.name == CHECKPOINTS:
         steps = _checkpoint_steps(model)
         norm = model.parent / f"rl_model_vecnormalize_{steps}_steps.pkl"
         buffer = model.parent / f"rl_model_replay_buffer_{steps}_steps.pkl"
@@ -477,38 +476,33 @@ class Trainer:
         return model, venv
 
     def learn(self) -> int:
-        from stable_baselines3.common.callbacks import CheckpointCallback
+        from baselines.rl.sb3_callbacks import run_callbacks
 
         s = self.run.settings
         remaining = max(0, s.robot_steps - self.model.num_timesteps)
-        callbacks = [_progress_callback(self)]
-        if s.checkpoint_every > 0:  # SB3's own files: what ``find_resume`` reads back
-            every = max(1, s.checkpoint_every // self.model.n_envs)  # env.step calls
-            callbacks.append(
-                CheckpointCallback(
-                    every,
-                    str(self.run.folder / "checkpoints"),
-                    save_replay_buffer=self.algo == "sac",
-                    save_vecnormalize=True,
-                )
-            )
+        callbacks = run_callbacks(
+            self.run,
+            self.algo in ON_POLICY,
+            self.model.n_envs,
+            self.args,
+            self.penalty,
+            self.shield,
+            replay_buffer=self.algo == "sac",
+        )
         self.model.learn(
             total_timesteps=remaining,
             callback=callbacks,
-            reset_num_timesteps=self.run.settings.resume is None,
+            reset_num_timesteps=s.resume is None,
             progress_bar=False,
         )
         return int(self.model.num_timesteps)
 
     def save(self, folder: Path) -> None:
-        folder.mkdir(parents=True, exist_ok=True)
-        self.model.save(folder / "model.zip")
-        self.model.get_vec_normalize_env().save(str(folder / "vecnormalize.pkl"))
-        if self.algo == "sac" and folder == self.run.folder:
-            self.model.save_replay_buffer(folder / "replay_buffer.pkl")
+        from baselines.rl.sb3_callbacks import save_model
 
-    def checkpoint(self, robot_steps: int) -> None:
-        """Nothing here: SB3's ``CheckpointCallback`` (``learn``) writes the checkpoints."""
+        save_model(
+            self.model, folder, replay_buffer=self.algo == "sac" and folder == self.run.folder
+        )
 
     def results(self) -> dict[str, Any]:
         return {}
@@ -517,81 +511,3 @@ class Trainer:
         if self.venv is not None:
             self.venv.close()
             self.venv = None
-
-
-def _progress_callback(trainer: Trainer) -> Any:
-    """After each PPO rollout (SAC: every ``SAC_ROW_STEPS`` steps of every sub-env): the
-    dual step of the cost's multiplier and ``Run.after_iteration`` with the team episodes
-    that ended (one per env copy: its first robot's)."""
-    from stable_baselines3.common.callbacks import BaseCallback
-
-    run, penalty, shield = trainer.run, trainer.penalty, trainer.shield
-
-    class ProgressCallback(BaseCallback):
-        def _on_training_start(self) -> None:
-            # after SB3's first reset of the envs: the build is over, stepping starts
-            n_envs = self.model.n_envs
-            if trainer.algo in ON_POLICY:
-                run.begin(self.model.n_steps * n_envs)
-            else:  # SAC steps every sub-env once per call
-                run.begin(n_envs, ("step of every robot sub-env", "steps of every robot sub-env"))
-
-        def _init_callback(self) -> None:
-            # each team's first robot: one per team episode (the wrappers' attribute look-up
-            # reaches down to the batched env's)
-            leaders = getattr(self.training_env, "team_leaders", None)
-            self.leaders = leaders if leaders is not None else [True] * self.model.n_envs
-            self.returns: list[float] = []
-            self.lengths: list[float] = []
-            self.ends: list[str] = []
-            self.last = self.model.num_timesteps
-            on_policy = trainer.algo in ON_POLICY
-            self.warmup = getattr(trainer.args, "critic_warmup", 0) if on_policy else 0
-
-        def _on_step(self) -> bool:
-            for i, info in enumerate(self.locals["infos"]):
-                if "episode" in info and self.leaders[i]:
-                    self.returns.append(float(info["episode"]["r"]))
-                    self.lengths.append(float(info["episode"]["l"]))
-                    if "episode_end" in info:
-                        self.ends.append(EPISODE_END_NAMES[int(info["episode_end"])])
-            run.advance(self.model.num_timesteps)
-            return True
-
-        def _on_rollout_end(self) -> None:
-            steps = self.model.num_timesteps
-            if self.warmup and steps >= self.warmup:  # the update that follows moves the actor
-                from baselines.rl.init_actor import freeze_actor, freeze_statistics
-
-                freeze_actor(self.model.policy, False)
-                if getattr(trainer.args, "obs_stats", "moving") == "warmup":
-                    freeze_statistics(self.model.get_vec_normalize_env(), False)
-                self.warmup = 0
-            if trainer.algo == "sac" and steps - self.last < SAC_ROW_STEPS * self.model.n_envs:
-                return
-            self._row(steps)
-
-        def _on_training_end(self) -> None:
-            if self.model.num_timesteps > self.last:  # SAC's last steps since a row
-                self._row(self.model.num_timesteps)
-
-        def _row(self, steps: int) -> None:
-            self.last = steps
-            cost = penalty.update_multiplier() if penalty is not None else None
-            run.after_iteration(
-                trainer,
-                steps,
-                returns=self.returns,
-                lengths=self.lengths,
-                episode_cost=cost,
-                multiplier=penalty.multiplier if penalty is not None else None,
-                ends=self.ends,
-            )
-            self.returns, self.lengths, self.ends = [], [], []
-            if shield is not None:  # the correction penalty, its own record (shield.csv)
-                from baselines.evaluation.during_training import append_row
-                from baselines.rl.shield import SHIELD_COLUMNS, SHIELD_FILE
-
-                append_row(run.folder / SHIELD_FILE, SHIELD_COLUMNS, shield.summary(steps))
-
-    return ProgressCallback()

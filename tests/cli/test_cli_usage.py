@@ -332,14 +332,6 @@ class _Clock:
         return self.now
 
 
-class _Trainer:
-    def __init__(self, clock: _Clock) -> None:
-        self.clock = clock
-
-    def checkpoint(self, robot_steps: int) -> None:
-        self.clock.now += 5.0  # a checkpoint is no training
-
-
 def test_a_rounded_budget_is_announced_and_the_build_timed_apart(tmp_path, monkeypatch, capsys):
     from baselines import runs
 
@@ -358,7 +350,10 @@ def test_a_rounded_budget_is_announced_and_the_build_timed_apart(tmp_path, monke
     assert "--robot-steps 20000 rounds up to 20480: 5 rollouts of 4096 robot-steps" in out
     for k in range(1, 6):
         clock.now += 2.0
-        run.after_iteration(_Trainer(clock), 4096 * k)
+        run.iteration(4096 * k)
+        if run.due("checkpoint_every", 4096 * k):
+            with run.apart():
+                clock.now += 5.0  # a checkpoint is no training
     config = run.finish(20_480)
     assert config["build_s"] == 40.0 and config["train_s"] == 10.0 and config["eval_s"] == 25.0
     assert config["robot_steps_per_s"] == 2048.0  # on the training time alone
