@@ -3,8 +3,10 @@
 * ``ladder``: per rung and case its summary (``rung_summary``), per group of cases (rings,
   bars, ``paper``) the pooled summary, and the paired comparisons (``paired.compare_all``,
   Holm within each table): of decentralization (each distributed expert against the
-  full-information reference), of learning (each other rung against the expert) and of
-  learning against the reference.
+  full-information reference), of the expert's variants (each other distributed expert,
+  an ablation's rows, against ``nmpc``), of learning (each other rung against the
+  expert), of learning against the reference and of learning against the prior (each
+  learned rung against its own starting point, the zero residual).
 * ``main_table``: one row per rung: what it was trained on, then per group clean success
   and success (Wilson intervals), and over every case the graded excess and the return
   (bootstrap intervals) and the paired clean-success test against the expert.
@@ -30,6 +32,10 @@ from baselines.stats import holm, mcnemar_exact
 
 CENTRAL = "nmpc:central"
 EXPERT = "nmpc"
+# the trivial rungs; ``prior`` (a_ss and the joint hold, a zero residual) is where every
+# learned residual policy starts, so each learned rung is also compared against it
+PRIOR = "prior"
+TRIVIAL = (PRIOR, "zero", "random")
 #: The groups of cases the main table pools: name -> the prefix of its cases' labels.
 CASE_GROUPS = {"rings": "random N=", "bars": "random bar N=", "paper": "paper"}
 #: The metrics of the figures against N: name -> (the summary's key, a rate or a mean).
@@ -74,10 +80,13 @@ def ladder(rows: Sequence[Row], policies: Sequence[str], labels: Sequence[str], 
             pooled.append({**rung_summary(everything, seed), "scenario": "all"})
     distributed = [p for p in policies if p.startswith("nmpc") and p != CENTRAL]
     others = [p for p in policies if not p.startswith("nmpc")]
+    learned = [p for p in others if p not in TRIVIAL]
     kinds = {
         "decentralization": [(p, CENTRAL) for p in distributed],
+        "the expert's variants": [(p, EXPERT) for p in distributed if p != EXPERT],
         "learning": [(p, EXPERT) for p in others],
         "learning against the reference": [(p, CENTRAL) for p in others],
+        "learning against the prior": [(p, PRIOR) for p in learned],
     }
     comparisons = {
         kind: compare_all(rows, pairs, labels, seed)

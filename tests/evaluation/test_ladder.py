@@ -74,6 +74,22 @@ def test_prices_are_paired_differences_over_every_episode_failures_at_the_cap():
     assert all(t["p_holm"] >= t["p"] for t in tests)  # corrected within the table
 
 
+def test_expert_variants_face_the_expert_and_learned_rungs_their_prior():
+    """An ablation's rows (other distributed experts) are priced against ``nmpc``; each
+    learned rung also against ``prior``, its zero residual; the trivial rungs are no
+    learned rung."""
+    policies = ["nmpc", "nmpc:paper", "ppo:run", "prior", "zero", "random"]
+    rows = [_row(p, k, k % 2 == 0, 600 + k, 1.0, 50.0) for p in policies for k in range(3)]
+    prices = ladder(rows, policies, ["random N=3"], seed=0)["prices"]
+    pairs = {kind: {(q["rung"], q["reference"]) for q in qs} for kind, qs in prices.items()}
+    assert pairs["the expert's variants"] == {("nmpc:paper", "nmpc")}
+    assert pairs["learning against the prior"] == {("ppo:run", "prior")}
+    assert ("prior", "nmpc") in pairs["learning"] and ("ppo:run", "nmpc") in pairs["learning"]
+    assert pairs["decentralization"] == set()  # no full-information rung played
+    without_prior = ladder(rows, ["nmpc", "ppo:run"], ["random N=3"], seed=0)["prices"]
+    assert without_prior["learning against the prior"] == []
+
+
 def test_a_case_plays_the_episodes_of_the_plain_evaluator_command():
     """``Case("random N=3", "random", n_agents=3)`` gives the rows of
     ``--scenario random --n-agents 3``: the same seeds and the same episode."""
