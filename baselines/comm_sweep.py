@@ -34,6 +34,7 @@ from baselines.ladder import (
     CENTRAL,
     EXPERT,
     PRICED,
+    TALKER,
     add_case_arguments,
     case_order,
     cases_of,
@@ -44,7 +45,6 @@ from baselines.ladder import (
 )
 from uvms_env.robot.channel import ChannelSettings, channel_settings
 
-TALKER = "nmpc:comm"
 IDEAL = "ideal"
 PRESET = "atm900"
 # the default grid: a micro-modem's rate and the atm900's; no loss and the loss of a bad

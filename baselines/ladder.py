@@ -9,11 +9,14 @@ selection, ``test`` played once per release of the tables) or on ``--seed``'s; t
 main table (what each rung was trained on, clean success and success per group of
 cases, the graded excess, the return, the paired test against the expert), the per-case
 table and the paired comparisons (``baselines.evaluation.ladder_tables``).
-``--from EPISODES_CSV`` aggregates earlier runs instead of playing.
+``--from EPISODES_CSV`` aggregates earlier runs instead of playing. The talking expert
+(``nmpc:comm``) plays the same episodes over an acoustic channel (``--comm``, default
+``atm900``); every other rung plays without one (the channel changes no physics draw).
 Reference: docs/evaluation.md, docs/results.md.
 
 May import: the standard library, numpy, ``baselines.evaluation``, ``baselines.loaders.sources``
-(the model cards), ``baselines.command_line`` and ``baselines.stats``.
+(the model cards, the talking option), ``baselines.command_line``, ``baselines.stats`` and
+``uvms_env.robot.channel`` (its presets).
 """
 
 from __future__ import annotations
@@ -48,14 +51,17 @@ from baselines.evaluation.outputs import read_episodes, run_and_write, write_res
 from baselines.evaluation.paired import PAIRED_METRICS, compare
 from baselines.evaluation.runner import Case, Settings, UsageError
 from baselines.evaluation.splits import SPLITS, add_split_arguments
-from baselines.loaders.sources import PolicySource
+from baselines.loaders.sources import TALK_OPTION, PolicySource
+from uvms_env.robot.channel import PRESETS
 
 __all__ = ["CENTRAL", "EXPERT", "PRICED", "case_order", "fmt", "interval", "price", "rung_summary"]
 
+TALKER = f"nmpc:{TALK_OPTION}"  # the distributed expert that talks over the channel
 # rungs, top (most information) to bottom; the learned ones with and without the filter
 LADDER = (
     CENTRAL,  # the full-information reference: one controller for the team, global state
     EXPERT,  # the distributed expert with its disturbance observer (default)
+    TALKER,  # the distributed expert talking over the acoustic channel (``--comm``)
     "nmpc:paper",  # the paper's controller
     "dagger:mix",  # DAgger over rings and bars, more two-robot bars; the paper held out
     "dagger:mix+filter",
@@ -78,6 +84,20 @@ CONDITIONS = {"current": "mild", "mismatch": 0.1}
 # what a price compares: name -> the row's key (``baselines.evaluation.paired``)
 PRICED = PAIRED_METRICS
 DEFAULT_SEED, DEFAULT_EPISODES = SPLITS["dev"].seed, 10
+# the talking rungs' channel: the atm900 modem's rate and latency, the preset
+# docs/channel.md measures
+TALKING_CHANNEL = "atm900"
+
+
+def talks(policy: str) -> bool:
+    """Whether ``policy`` is a talking expert (``nmpc:comm[,...]``), which needs a channel."""
+    name, _, options = policy.partition(":")
+    return name == "nmpc" and TALK_OPTION in options.split(",")
+
+
+def with_channel(chosen: list[Case], comm: str) -> list[Case]:
+    """The cases with the channel ``comm``: the same labels and episodes."""
+    return [Case(c.label, c.scenario, (*c.overrides, ("comm", comm))) for c in chosen]
 
 
 def price(rows: list[dict[str, Any]], rung: str, reference: str, case: str, seed: int) -> dict:
@@ -143,11 +163,26 @@ def merged(paths: list[Path], seed: int, out: Path) -> dict[str, Any]:
     return result
 
 
-def run(policies: list[str], chosen: list[Case], settings: Settings, out: Path) -> dict[str, Any]:
-    """Evaluate the rungs on the cases, write every output, return the ladder."""
-    rows, _ = run_and_write(settings, [(policies, chosen)], out)
+def run(
+    policies: list[str],
+    chosen: list[Case],
+    settings: Settings,
+    out: Path,
+    comm: str = TALKING_CHANNEL,
+) -> dict[str, Any]:
+    """Evaluate the rungs on the cases (the talking ones over the channel ``comm``), write
+    every output, return the ladder."""
+    talking = [p for p in policies if talks(p)]
+    silent = [p for p in policies if not talks(p)]
+    plays = [(silent, chosen)] if silent else []
+    if talking:
+        plays.append((talking, with_channel(chosen, comm)))
+    rows, _ = run_and_write(settings, plays, out)
     result = ladder(rows, policies, [c.label for c in chosen], settings.seed)
-    write(result, settings.record(), out)
+    record = settings.record()
+    if talking:
+        record["talking_channel"] = comm
+    write(result, record, out)
     return result
 
 
@@ -216,6 +251,14 @@ def main(argv: list[str] | None = None) -> None:
         help="no evaluation: the ladder of these runs' episodes.csv together (same seed or split)",
     )
     add_case_arguments(ap, TEAM_SIZES, "runs/ladder")
+    ap.add_argument(
+        "--comm",
+        default=TALKING_CHANNEL,
+        choices=sorted(PRESETS),
+        metavar="PRESET",
+        help=f"the talking rungs' (nmpc:comm) acoustic channel (default {TALKING_CHANNEL}; "
+        f"presets: {', '.join(sorted(PRESETS))}); the other rungs play without one",
+    )
     args = ap.parse_args(argv)
     settings = settings_of(args)
     if args.sources:
@@ -226,7 +269,7 @@ def main(argv: list[str] | None = None) -> None:
     policies = args.policy or list(LADDER)
     # a rung that cannot be loaded, a case the environment refuses: before any episode
     with usage_errors(ap, (UsageError,)):
-        run(policies, cases_of(args), settings, args.out)
+        run(policies, cases_of(args), settings, args.out, args.comm)
     print((args.out / "ladder.md").read_text())
     print(f"wrote {args.out}/ladder.md, ladder.json, the figures and the evaluator's outputs")
 

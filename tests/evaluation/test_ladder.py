@@ -12,7 +12,7 @@ from scipy import stats
 from baselines.evaluation.paired import significance_tests
 from baselines.evaluation.runner import Case, case_episode_seed, evaluate
 from baselines.evaluation.splits import DEV
-from baselines.ladder import PRICED, cases, ladder, main, price
+from baselines.ladder import PRICED, TALKER, cases, ladder, main, price, talks
 
 
 def _row(policy: str, episode: int, success: bool, steps: int, wrench: float, effort: float):
@@ -144,6 +144,36 @@ def test_the_ladder_command_runs_end_to_end(tmp_path):
     assert "Price of decentralization" in text and "Main table" in text and "CPU-hours" in text
     assert "| `nmpc:central` | full |  | 0/1 [0.00, 0.79] | 0/1 [0.00, 0.79] |" in text
     assert np.isfinite(central["decision_ms_median"])
+
+
+def test_the_talking_expert_plays_the_same_episodes_over_the_channel(tmp_path):
+    """``nmpc:comm`` is a rung: it plays each case's episodes (the same seeds) over the
+    ``--comm`` channel while the silent rungs play without one; a talking variant is
+    recognized by its option, nothing else is."""
+    assert TALKER == "nmpc:comm" and talks("nmpc:comm,q_v=0.3")
+    assert not any(talks(p) for p in ("nmpc", "nmpc:paper", "nmpc:central", "ppo:comm"))
+    main(
+        [
+            "--policy", "nmpc", "--policy", TALKER, "--n-agents", "2", "--no-bars",
+            "--no-paper", "--episodes", "1", "--split", "dev", "--workers", "1",
+            "--max-cycles", "6", "--comm", "ideal", "--out", str(tmp_path),
+        ]
+    )  # fmt: skip
+    result = json.loads((tmp_path / "ladder.json").read_text())
+    assert result["command"]["talking_channel"] == "ideal"
+    assert all(s["errors"] == 0 for s in result["rungs"])
+    rows = (tmp_path / "episodes.csv").read_text().splitlines()
+    head = rows[0].split(",")
+    seeds = {r.split(",")[head.index("policy")]: r.split(",")[head.index("seed")] for r in rows[1:]}
+    assert set(seeds) == {"nmpc", TALKER} and seeds["nmpc"] == seeds[TALKER]
+    assert {q["rung"] for q in result["prices"]["the expert's variants"]} == {TALKER}
+
+
+def test_an_unknown_channel_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--comm", "nonsense", "--out", "/nonexistent/ladder"])
+    assert exit_info.value.code == 2
+    assert "--comm" in capsys.readouterr().err
 
 
 def test_split_and_seed_exclude_each_other_before_any_work(capsys):
