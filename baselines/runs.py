@@ -13,7 +13,7 @@ evaluation through ``baselines.evaluate``, the best snapshot and resuming.
 ``baselines.train.train`` is that sequence. The run never calls the trainer: the
 trainer's loop (SB3's: its callbacks, ``baselines.rl.sb3_callbacks``) writes a row
 (``iteration``), saves what is due (``due``) and hands the run a saved snapshot to
-evaluate (``evaluate``), each save and evaluation inside ``apart``. Every budget and
+evaluate (``evaluate_snapshot``), each save and evaluation inside ``apart``. Every budget and
 cadence counts robot-steps. The progress bar, its rate and its ETA, and the robot-steps/s
 of the records count the stepping and the updates only: the build before ``begin`` (env,
 geometries, compiled kernels, model) and what runs ``apart`` are timed apart (``build_s``,
@@ -118,7 +118,7 @@ class Trainer(Protocol):
         and stepping starts; after each iteration ``run.iteration`` (its row), then, each
         inside ``run.apart()``, a numbered checkpoint under the run folder where
         ``run.due("checkpoint_every", ...)`` and a snapshot saved to ``run.snapshot`` and
-        handed to ``run.evaluate`` where ``run.due("eval_every", ...)``; return the
+        handed to ``run.evaluate_snapshot`` where ``run.due("eval_every", ...)``; return the
         robot-steps done in all."""
         ...
 
@@ -461,7 +461,7 @@ class Run:
         self._next[every] = self._after(cadence, robot_steps)
         return True
 
-    def evaluate(self, robot_steps: int) -> list[dict[str, Any]]:
+    def evaluate_snapshot(self, robot_steps: int) -> list[dict[str, Any]]:
         """The snapshot the trainer just saved (``snapshot``, with config.json: its policy
         rebuilds the run's priors from it) on every rung (``evaluate_rungs``), kept as the
         best where it is (``keep_best``); its success and clean success (means over the

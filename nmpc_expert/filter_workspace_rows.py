@@ -44,21 +44,21 @@ def _barrier(balls: list[tuple[cs.SX, float]], q: cs.SX, q_dot: cs.SX, ws: cs.SX
     return out, worst
 
 
-def object_points(shape: str, ring_radius: float) -> np.ndarray:
+def object_points(shape: str, size: float) -> np.ndarray:
     """The object's segment end points in its own frame, each once (K, 3)."""
-    points = np.array([p for seg in ObjectModel(shape, ring_radius).segments for p in seg])
+    points = np.array([p for seg in ObjectModel(shape, size).segments for p in seg])
     return np.unique(np.round(points, 12), axis=0)
 
 
 @cache
-def workspace_function(shape: str, ring_radius: float) -> cs.Function:
+def workspace_function(shape: str, size: float) -> cs.Function:
     """(x, theta, ws (6)) -> (r (2), dr/dx (2 x NX), h (2)) for the own bodies and the
     object: r = d/dt h + rate (h + margin), the largest over the group's balls, and h,
     the largest excess (compiled, disk-cached). ``ws``: centre, radius, margin, rate.
-    ``ring_radius``: the object's size or key (``uvms_env.dynamics.payload.object_key``)."""
+    ``size``: the object's size or key (``uvms_env.dynamics.payload.object_key``)."""
     uvms = default_model()
     prm = uvms.params
-    model = build_local_model(uvms, ObjectModel(shape, ring_radius))
+    model = build_local_model(uvms, ObjectModel(shape, size))
     x, theta = cs.SX.sym("x", NX), cs.SX.sym("theta", model.theta_size)
     ws = cs.SX.sym("ws", 6)  # centre, radius, margin, rate
     q = x[: NX // 2]
@@ -68,14 +68,11 @@ def workspace_function(shape: str, ring_radius: float) -> cs.Function:
     own += [(pts[:, k], prm.arm.tube_radius) for k in range(1, pts.shape[1])]
     x_o, _ = model.object_state(x, theta)
     rot = rot_zyx(x_o[3:])
-    obj = [
-        (x_o[:3] + rot @ cs.DM(p), prm.object.tube_radius)
-        for p in object_points(shape, ring_radius)
-    ]
+    obj = [(x_o[:3] + rot @ cs.DM(p), prm.object.tube_radius) for p in object_points(shape, size)]
     r_own, h_own = _barrier(own, q, q_dot, ws, ws[5])
     r_obj, h_obj = _barrier(obj, q, q_dot, ws, ws[5])
     r, h = cs.vertcat(r_own, r_obj), cs.vertcat(h_own, h_obj)
-    tag = f"{shape}_{object_tag(object_key(shape, ring_radius))}"
+    tag = f"{shape}_{object_tag(object_key(shape, size))}"
     fn = cs.Function(
         f"filter_workspace_{tag}", [x, theta, ws], [r, cs.jacobian(r, x), h], {"cse": True}
     )
@@ -99,7 +96,7 @@ class WorkspaceRows:
     def __init__(
         self,
         shape: str,
-        ring_radius: float,
+        size: float,
         theta: np.ndarray,
         workspace: tuple[np.ndarray, float],
         margin: float,
@@ -110,7 +107,7 @@ class WorkspaceRows:
     ) -> None:
         if not (scale > 0 and rate > 0 and margin >= 0 and l1 >= 0 and l2 > 0):
             raise ValueError("workspace rows need scale, rate, l2 > 0 and margin, l1 >= 0")
-        self._call = BufferCall(workspace_function(shape, ring_radius))
+        self._call = BufferCall(workspace_function(shape, size))
         self._theta = np.ascontiguousarray(theta, dtype=float)
         centre, radius = workspace
         self._ws = np.array([*np.asarray(centre, float), float(radius), margin, rate])
@@ -125,7 +122,7 @@ class WorkspaceRows:
         self.barrier = np.zeros(NW_ROWS)  # r at the plan's node 1 before the step [m/s]
         self.excess = np.zeros(NW_ROWS)  # h there [m]
 
-    def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def values_at(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(r [m/s], h [m]) of the two groups at the model state x (copies)."""
         self._x[:] = x
         r_t, _, h_t = self._call(self._x, self._theta, self._ws)

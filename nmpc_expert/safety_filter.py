@@ -111,7 +111,7 @@ class SafetyFilter(LocalController):
         if workspace:
             rows = WorkspaceRows(
                 spec.object_shape,
-                spec.object_ring_radius,
+                spec.object_key,
                 local_parameters(spec),
                 (np.asarray(spec.workspace.center), spec.workspace.radius),
                 workspace_margin,

@@ -52,7 +52,7 @@ class AgentSpec:
     comm: ChannelSettings | None = None  # the acoustic channel; None: the silent team
 
     @property
-    def object_ring_radius(self) -> float:
+    def object_key(self) -> float:
         """The object as one number, as the compiled functions name it (``object_key``):
         the ring's radius; 0 for the parameter file's bar, minus the length for another."""
         return object_key(self.object_shape, self.ring_radius)

@@ -90,12 +90,12 @@ def fit(
     progress: bool = True,
     loss_scale: str = "none",
     lr_schedule: str = "constant",
-    ring_radius: np.ndarray | float | None = None,
+    object_key: np.ndarray | float | None = None,
     margin_weight: float = 0.0,
 ) -> tuple[MLPPolicyNet, list[float]]:
     """Train a new network (or continue training ``net``, keeping its normalization) and
     return it with the per-epoch training losses (weighted as ``loss_scale`` says, and per
-    sample by ``margin_weights`` with ``margin_weight`` > 0). ``ring_radius``: the object
+    sample by ``margin_weights`` with ``margin_weight`` > 0). ``object_key``: the object
     per sample, for features that need it."""
     if obs.ndim != 2 or act.ndim != 2 or len(obs) != len(act):
         raise ValueError(f"obs (M, D) and act (M, A) must match, got {obs.shape} and {act.shape}")
@@ -104,7 +104,7 @@ def fit(
     weight = torch.as_tensor(loss_weights(act, loss_scale))
     torch.manual_seed(seed)
     torch.set_num_threads(1)
-    x_all = prepare(obs, net.features if net is not None else features, ring_radius)
+    x_all = prepare(obs, net.features if net is not None else features, object_key)
     if net is None:
         net = MLPPolicyNet(x_all.shape[1], act.shape[1], hidden, features=features)
         net.set_normalization(x_all)

@@ -201,7 +201,7 @@ def _fit(
     return bc.fit(
         obs,
         act,
-        ring_radius=ring,
+        object_key=ring,
         net=net,
         features=args.features if net is None else net.features,
         seed=seed,
@@ -485,7 +485,7 @@ def _stacked(
         blocks = np.concatenate([np.stack(s.memory[:-1]) for s in streams])
         obs = np.concatenate([obs, blocks], axis=1)
     act = np.concatenate([np.stack(s.actions) for s in streams])
-    ring = np.concatenate([np.full(len(s.actions), s.object_ring_radius) for s in streams])
+    ring = np.concatenate([np.full(len(s.actions), s.object_key) for s in streams])
     acted = np.concatenate([s.learner_acted for s in streams])
     return obs, act, ring, acted
 

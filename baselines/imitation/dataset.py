@@ -43,15 +43,15 @@ class AgentStream:
     iterations: list[int] = field(default_factory=list)  # expert solver iterations
     fallbacks: list[int] = field(default_factory=list)  # expert fallbacks so far
     learner_acted: list[bool] = field(default_factory=list)  # executed: learner (DAgger)
-    object_ring_radius: float = float("nan")  # the carried object's key (Scenario's)
+    object_key: float = float("nan")  # the carried object's key (Scenario's)
     # (T+1, 16): the robot's memory block at each observation (uvms_env.robot.memory)
     memory: list[np.ndarray] = field(default_factory=list)
 
     @staticmethod
-    def start(obs: np.ndarray, seed: int, object_ring_radius: float = float("nan")) -> AgentStream:
+    def start(obs: np.ndarray, seed: int, object_key: float = float("nan")) -> AgentStream:
         return AgentStream(
             [np.asarray(obs, np.float32)], [], [], [], [], [], seed,
-            object_ring_radius=object_ring_radius,
+            object_key=object_key,
         )  # fmt: skip
 
 
@@ -87,7 +87,8 @@ def _infos(s: AgentStream) -> dict[str, np.ndarray]:
         "expert_iterations": col(s.iterations, np.int64, 0),
         "expert_fallbacks": col(s.fallbacks, np.int64, 0),
         "learner_acted": col(s.learner_acted, np.bool_, False),
-        "object_ring_radius": np.full(t + 1, s.object_ring_radius, dtype=np.float64),
+        # the object's key under the datasets' name for it (saved datasets read it so)
+        "object_ring_radius": np.full(t + 1, s.object_key, dtype=np.float64),
         **({"memory": np.stack(s.memory).astype(np.float32)} if len(s.memory) == t + 1 else {}),
     }
 

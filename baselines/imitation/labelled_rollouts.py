@@ -126,7 +126,7 @@ class _Labelling:
     def start(self, env: Any, obs: dict[str, np.ndarray]) -> None:
         agents = env.possible_agents
         specs = [AgentSpec.from_scenario(env.scenario, i) for i in range(len(agents))]
-        ring = specs[0].object_ring_radius
+        ring = specs[0].object_key
         self.streams = {a: AgentStream.start(obs[a], self.ep_seed, ring) for a in agents}
         self.stream_list = list(self.streams.values())
         self.memories = [RobotMemory(spec.period, ring) for spec in specs]

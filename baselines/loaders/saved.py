@@ -139,7 +139,7 @@ class RobotInputs:
         if spec is None and not priors.plain:
             raise ValueError(f"{priors} need the robot's AgentSpec (its object)")
         self.priors, self.comm = priors, comm
-        self.ring = spec.object_ring_radius if spec is not None else 0.0
+        self.ring = spec.object_key if spec is not None else 0.0
         self.memory = None
         if priors.remembers:
             assert spec is not None

@@ -79,7 +79,7 @@ class SB3Policy(LoadedPolicy):
         if compiled and algo == "ppo" and self.comm is None:
             from baselines.networks.ppo_decision import compiled_actor
 
-            ring = spec.object_ring_radius
+            ring = spec.object_key
             self._decision = compiled_actor(self.model, self.priors, ring, obs_stats, local)
         self.compiled = self._decision is not None
 

@@ -58,7 +58,7 @@ def check_features(features: str) -> None:
         raise ValueError(f"features must be one of {FEATURES}, got {features!r}")
 
 
-def features_sx(o: cs.SX, features: str, ring_radius: float) -> cs.SX:
+def features_sx(o: cs.SX, features: str, object_key: float) -> cs.SX:
     """The features of ``o``: the raw observation, or (``memory``) the raw observation and
     the memory block after it."""
     check_features(features)
@@ -67,41 +67,41 @@ def features_sx(o: cs.SX, features: str, ring_radius: float) -> cs.SX:
     raw = o[:OBS_DIM]
     base = featurize_sx(raw)
     if features == "memory":
-        return cs.vertcat(base, o[OBS_DIM:MEMORY_INPUT], steady_sx(raw, ring_radius))
-    return cs.vertcat(base, steady_sx(raw, ring_radius)) if features in FEEDFORWARD else base
+        return cs.vertcat(base, o[OBS_DIM:MEMORY_INPUT], steady_sx(raw, object_key))
+    return cs.vertcat(base, steady_sx(raw, object_key)) if features in FEEDFORWARD else base
 
 
 def inputs_sx(
-    features: str, ring_radius: float, dim: int
+    features: str, object_key: float, dim: int
 ) -> tuple[list[cs.SX], cs.SX, cs.SX | cs.DM, str]:
     """Symbolic inputs [obs, mean, inv_std, clip], the normalized clipped features z, the
     steady input (zeros for feature sets without it) and a tag for function names."""
     o = cs.SX.sym("obs", dim)
-    x = features_sx(o, features, ring_radius)
+    x = features_sx(o, features, object_key)
     n = x.numel()
     mean, inv_std, clip = cs.SX.sym("mean", n), cs.SX.sym("inv_std", n), cs.SX.sym("clip")
     z = cs.fmin(clip, cs.fmax(-clip, (x - mean) * inv_std))
     ff = x[n - ACT_DIM :] if features in FEEDFORWARD else cs.DM.zeros(ACT_DIM)
-    tag = f"{features.replace('-', '')}_{object_tag(ring_radius)}_{dim}"
+    tag = f"{features.replace('-', '')}_{object_tag(object_key)}_{dim}"
     return [o, mean, inv_std, clip], z, ff, tag
 
 
 @functools.cache
-def input_function(features: str, ring_radius: float, dim: int = OBS_DIM) -> cs.Function:
+def input_function(features: str, object_key: float, dim: int = OBS_DIM) -> cs.Function:
     """Compiled (obs, mean, inv_std, clip) -> [z; 1; a_ss]: the normalized clipped
     features z, a constant 1 (the MLP's bias input, see ``policy``) and the steady input
     (zeros for feature sets without it), in one vector so a decision copies it once."""
-    args, z, ff, tag = inputs_sx(features, ring_radius, dim)
+    args, z, ff, tag = inputs_sx(features, object_key, dim)
     fn = cs.Function(f"cloned_inputs_{tag}", args, [cs.vertcat(z, 1.0, ff)], {"cse": True})
     return compile_function(fn)
 
 
-def object_ring(ring_radius: float | None, features: str) -> float:
-    """The object argument of the compiled functions: its key (``object_ring_radius``;
-    0 when unused)."""
-    if features in FEEDFORWARD and ring_radius is None:
-        raise ValueError(f"{features} features need the object (its object_ring_radius)")
-    return float(ring_radius or 0.0)
+def object_ring(object_key: float | None, features: str) -> float:
+    """The object argument of the compiled functions: its key (``Scenario.object_key``,
+    the datasets' ``object_ring_radius``; 0 when unused)."""
+    if features in FEEDFORWARD and object_key is None:
+        raise ValueError(f"{features} features need the object (its key, Scenario.object_key)")
+    return float(object_key or 0.0)
 
 
 def input_dim(features: str, n_features: int) -> int:
@@ -123,13 +123,13 @@ class CompiledInputs:
         features: str,
         mean: np.ndarray,
         inv_std: np.ndarray,
-        ring_radius: float | None = None,
+        object_key: float | None = None,
         clip: float = INPUT_CLIP,
         fn: cs.Function | None = None,
     ) -> None:
         dim = input_dim(features, len(mean))
         if fn is None:
-            fn = input_function(features, object_ring(ring_radius, features), dim)
+            fn = input_function(features, object_ring(object_key, features), dim)
         self._call = BufferCall(fn)
         self._obs = np.zeros(dim)
         self._consts = (
@@ -148,10 +148,10 @@ class CompiledInputs:
 
 
 def prepare(
-    obs: np.ndarray, features: str, ring_radius: np.ndarray | float | None = None
+    obs: np.ndarray, features: str, object_key: np.ndarray | float | None = None
 ) -> np.ndarray:
     """(M, 79) observations (``memory``: (M, 95), the memory block after each) -> (M, F)
-    float32 features; ``ring_radius`` per sample (or one value) for the feature sets that
+    float32 features; ``object_key`` per sample (or one value) for the feature sets that
     need the object."""
     check_features(features)
     obs = np.asarray(obs)
@@ -168,11 +168,11 @@ def prepare(
     base = featurize(obs)
     if features not in FEEDFORWARD:
         return base
-    if ring_radius is None:
-        raise ValueError(f"{features} features need the object (its object_ring_radius)")
+    if object_key is None:
+        raise ValueError(f"{features} features need the object (its key, Scenario.object_key)")
     single = obs.ndim == 1
     o2 = np.atleast_2d(obs)  # steady_inputs converts it chunk by chunk
-    rings = np.broadcast_to(np.asarray(ring_radius, dtype=np.float64), (len(o2),))
+    rings = np.broadcast_to(np.asarray(object_key, dtype=np.float64), (len(o2),))
     if np.isnan(rings).any():
         raise ValueError(
             f"{features} features need the object of every sample; "

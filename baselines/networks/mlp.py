@@ -108,9 +108,9 @@ class MLPPolicyNet(nn.Module):
         net.eval()
         return net
 
-    def predict(self, obs: np.ndarray, ring_radius: np.ndarray | float | None = None) -> np.ndarray:
-        """Actions for a batch (or one) of raw observations, through torch (``ring_radius``:
+    def predict(self, obs: np.ndarray, object_key: np.ndarray | float | None = None) -> np.ndarray:
+        """Actions for a batch (or one) of raw observations, through torch (``object_key``:
         the object, for ``features``; see ``features.prepare``)."""
         with torch.no_grad():
-            x = torch.as_tensor(prepare(obs, self.features, ring_radius))
+            x = torch.as_tensor(prepare(obs, self.features, object_key))
             return torch.clamp(self(x), -1.0, 1.0).numpy()

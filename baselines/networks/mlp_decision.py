@@ -131,13 +131,13 @@ def layers_digest(layers: list[np.ndarray]) -> str:
 
 
 def linear_decision_function(
-    features: str, ring_radius: float, weights: np.ndarray, residual: bool, dim: int
+    features: str, object_key: float, weights: np.ndarray, residual: bool, dim: int
 ) -> cs.Function:
     """Compiled (obs, mean, inv_std, clip) -> action of a network without hidden layers:
     clip(a_ss + W' [z; 1], -1, 1) (residual) or tanh(W' [z; 1]); ``weights`` (n + 1, 8)
     with the bias as the last row. A few hundred multiply-adds: as CasADi expressions
     they cost less than one numpy call."""
-    args, z, ff, tag = inputs_sx(features, ring_radius, dim)
+    args, z, ff, tag = inputs_sx(features, object_key, dim)
     out = cs.mtimes(cs.DM(np.asarray(weights, dtype=float).T), cs.vertcat(z, 1.0))
     act = cs.fmin(1.0, cs.fmax(-1.0, ff + out)) if residual else cs.tanh(out)
     name = f"cloned_linear_{tag}_{layers_digest([weights])}"
@@ -169,14 +169,14 @@ def network_graph(
 
 
 def mlp_decision_function(
-    features: str, ring_radius: float, layers: list[np.ndarray], residual: bool, dim: int
+    features: str, object_key: float, layers: list[np.ndarray], residual: bool, dim: int
 ) -> cs.Function | None:
     """Compiled (obs, mean, inv_std, clip) -> action of an MLP (``layers`` as in
     ``dense_c``; the last has 8 outputs), or None where nothing is compiled."""
-    key = (features, ring_radius, dim, residual, layers_digest(layers))
+    key = (features, object_key, dim, residual, layers_digest(layers))
     if key in _MLP_CACHE:  # spares generating and hashing the source again per robot
         return _MLP_CACHE[key]
-    args, z, ff, tag = inputs_sx(features, ring_radius, dim)
+    args, z, ff, tag = inputs_sx(features, object_key, dim)
     name = f"cloned_mlp_{tag}_{key[-1]}"
     sym, out, ff_mx = network_graph(name, args, z, ff, layers)
     act = cs.fmin(1.0, cs.fmax(-1.0, ff_mx + out)) if residual else cs.tanh(out)
@@ -189,10 +189,10 @@ def mlp_decision_function(
 
 
 def decision_function(
-    features: str, ring_radius: float, layers: list[np.ndarray], residual: bool, dim: int
+    features: str, object_key: float, layers: list[np.ndarray], residual: bool, dim: int
 ) -> cs.Function | None:
     """The whole decision of a network given by its ``layers`` (see ``dense_c``): one
     compiled function of (obs, mean, inv_std, clip), or None (see the module docstring)."""
     if len(layers) == 1:
-        return linear_decision_function(features, ring_radius, layers[0], residual, dim)
-    return mlp_decision_function(features, ring_radius, layers, residual, dim)
+        return linear_decision_function(features, object_key, layers[0], residual, dim)
+    return mlp_decision_function(features, object_key, layers, residual, dim)

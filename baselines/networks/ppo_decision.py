@@ -60,19 +60,19 @@ _CACHE: dict[tuple, cs.Function | None] = {}
 
 
 def actor_function(
-    priors: Priors, ring_radius: float, layers: list[np.ndarray]
+    priors: Priors, object_key: float, layers: list[np.ndarray]
 ) -> cs.Function | None:
     """Compiled (obs, mean, inv_std, clip) -> normalized input of a robot whose raw
     observation is ``obs``, or None where nothing is compiled (no C compiler)."""
-    key = (priors, float(ring_radius), layers_digest(layers))
+    key = (priors, float(object_key), layers_digest(layers))
     if key not in _CACHE:  # an evaluation builds a policy per robot and episode
-        _CACHE[key] = _build(priors, ring_radius, layers)
+        _CACHE[key] = _build(priors, object_key, layers)
     return _CACHE[key]
 
 
-def _build(priors: Priors, ring_radius: float, layers: list[np.ndarray]) -> cs.Function | None:
+def _build(priors: Priors, object_key: float, layers: list[np.ndarray]) -> cs.Function | None:
     features = priors.observation_mode  # the feature sets share the modes' names
-    args, z, ff, tag = inputs_sx(features, ring_radius, input_dim(features, OBS_DIM))
+    args, z, ff, tag = inputs_sx(features, object_key, input_dim(features, OBS_DIM))
     if z.numel() != len(layers[0]) - 1:
         raise ValueError(
             f"the actor reads {len(layers[0]) - 1} numbers, the run's priors give {z.numel()}"
@@ -80,9 +80,9 @@ def _build(priors: Priors, ring_radius: float, layers: list[np.ndarray]) -> cs.F
     if priors.action_mode == "torque":
         steady = cs.DM.zeros(ACT_DIM)
     elif priors.action_mode == "setpoint":  # the holding a_ss, not the features' own
-        steady = steady_sx(priors.steady_source(args[0]), ring_radius)
+        steady = steady_sx(priors.steady_source(args[0]), object_key)
     else:
-        steady = ff if features in FEEDFORWARD else steady_sx(args[0], ring_radius)
+        steady = ff if features in FEEDFORWARD else steady_sx(args[0], object_key)
     name = f"ppo_actor_{tag}_{layers_digest(layers)}"
     sym, out, steady_mx = network_graph(name, args, z, steady, layers)
     fn = cs.Function(name, sym, [priors.command_sx(sym[0], out, steady_mx)])
@@ -93,7 +93,7 @@ def _build(priors: Priors, ring_radius: float, layers: list[np.ndarray]) -> cs.F
 def compiled_actor(
     model: Any,
     priors: Priors,
-    ring_radius: float,
+    object_key: float,
     norm: tuple[np.ndarray, np.ndarray, float] | None,
     local_dim: int | None,
 ) -> CompiledInputs | None:
@@ -114,8 +114,8 @@ def compiled_actor(
     else:
         mean, std, clip = norm
         mean, inv_std = np.asarray(mean)[:width], 1.0 / np.asarray(std)[:width]
-    fn = actor_function(priors, ring_radius, layers)
+    fn = actor_function(priors, object_key, layers)
     if fn is None:
         return None
     features = priors.observation_mode  # the feature sets share the modes' names
-    return CompiledInputs(features, mean, inv_std, ring_radius=ring_radius, clip=clip, fn=fn)
+    return CompiledInputs(features, mean, inv_std, object_key=object_key, clip=clip, fn=fn)

@@ -430,7 +430,7 @@ class Trainer:
         if run.due("eval_every", steps):
             with run.apart():
                 self.save(run.snapshot)
-                run.evaluate(steps)
+                run.evaluate_snapshot(steps)
         self._in_iteration = False
 
 

@@ -250,7 +250,7 @@ class Trainer:
                     self.checkpoint(steps)
                 if run.due("eval_every", steps):
                     self.save(run.snapshot)
-                    run.evaluate(steps)
+                    run.evaluate_snapshot(steps)
         self.iterations_done = iteration
         return self.robot_steps
 

@@ -156,7 +156,7 @@ class RunCheckpoints(CheckpointCallback):
 class RunEvaluation(BaseCallback):
     """Every ``--eval-every`` robot-steps (at the first rollout's end at or past each
     multiple, ``Run.due``): ``self.model`` saved as the run's snapshot and evaluated by
-    ``Run.evaluate``, which keeps the best, apart from training.
+    ``Run.evaluate_snapshot``, which keeps the best, apart from training.
 
     Not SB3's ``EvalCallback``: that one plays an SB3 eval env and keeps the mean reward
     alone, while the run's evaluation plays the saved policy as the evaluator loads it
@@ -178,7 +178,7 @@ class RunEvaluation(BaseCallback):
             return
         with self.run.apart():
             save_model(self.model, self.run.snapshot)
-            rows = self.run.evaluate(steps)
+            rows = self.run.evaluate_snapshot(steps)
         for key in ("success_rate", "clean_success_rate"):
             self.logger.record(f"eval/{key}", float(np.mean([r[key] for r in rows])))
 

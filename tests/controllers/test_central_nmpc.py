@@ -123,7 +123,7 @@ def test_the_team_rows_are_every_robots_expert_constraints(controller):
     values = solver._node_rows(1, gk, ek, lin)[1] * solver._scale
     solver.reset()
     scenario = controller.scenario
-    obj = ObjectModel(scenario.object_shape, scenario.object_ring_radius)
+    obj = ObjectModel(scenario.object_shape, scenario.object_key)
     outputs = build_outputs(build_local_model(default_model(), obj))
     pitch = CONSTRAINT_NAMES.index("object_pitch")
     own = [k for k in range(len(CONSTRAINT_NAMES)) if k != pitch]

@@ -318,7 +318,7 @@ def test_constraint_names_are_the_rows_of_a_node(env):
     has its unit Jacobian there, and the others (object pitch, manipulability) depend on
     the configuration q only."""
     spec = AgentSpec.from_scenario(env.scenario, 0)
-    obj = ObjectModel(spec.object_shape, spec.object_ring_radius)
+    obj = ObjectModel(spec.object_shape, spec.object_key)
     outputs = build_outputs(build_local_model(default_model(), obj))
     x = np.random.default_rng(0).uniform(-0.3, 0.3, NX)
     jc = np.array(outputs(x, local_parameters(spec), np.zeros(6), np.zeros(6))[3])

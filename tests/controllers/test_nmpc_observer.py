@@ -39,7 +39,7 @@ def _plant(spec: AgentSpec, settings: NMPCSettings, force: np.ndarray):
     'truth' the observer must learn, built here from the model's terms, not from the
     controller's compiled prediction."""
     uvms = default_model()
-    obj = ObjectModel(spec.object_shape, spec.object_ring_radius)
+    obj = ObjectModel(spec.object_shape, spec.object_key)
     x, a, th = cs.SX.sym("x", NX), cs.SX.sym("a", NU), cs.SX.sym("th", theta_size(obj))
     f = cs.SX.sym("f", NQ)
     q, zeta = x[:NQ], x[NQ:]

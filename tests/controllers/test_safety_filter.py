@@ -124,7 +124,7 @@ def _barrier_after(filt: SafetyFilter, x0: np.ndarray, action: np.ndarray) -> np
     period after applying ``action`` from x0 (r <= 0: the prediction approaches the
     boundary no faster than the barrier allows)."""
     x1 = filt.funcs.interval(x0, action, filt.theta)[0].full().ravel()
-    return filt.workspace_rows.evaluate(x1)[0]
+    return filt.workspace_rows.values_at(x1)[0]
 
 
 def test_workspace_rows_stop_an_outward_proposal(env):
@@ -161,7 +161,7 @@ def test_workspace_rows_stop_an_outward_proposal(env):
     radius = 200.0  # a large ball: locally a plane with normal u
     centre = x0[:3] - radius * u
     shifted = dataclasses.replace(spec, workspace=Workspace(tuple(centre), radius))
-    outermost = SafetyFilter(shifted, Constant(hold)).workspace_rows.evaluate(x0)[1].max()
+    outermost = SafetyFilter(shifted, Constant(hold)).workspace_rows.values_at(x0)[1].max()
     for proposal, gap, unsafe in ((hold, 0.3, False), (push, 0.21, True)):
         # every ball moves by gap - outermost inward: the outermost sits gap inside
         near = dataclasses.replace(
@@ -188,7 +188,7 @@ def test_workspace_rows_stop_an_outward_proposal(env):
         x = filt._x0.copy()
         for a in filt.solver.abar:  # the plan's nonlinear prediction stays inside
             x = filt.funcs.interval(x, a, filt.theta)[0].full().ravel()
-            assert filt.workspace_rows.evaluate(x)[1].max() < 0.0
+            assert filt.workspace_rows.values_at(x)[1].max() < 0.0
 
 
 def test_replay_reproduces_outputs_no_shared_state(env):

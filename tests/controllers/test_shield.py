@@ -49,7 +49,7 @@ def test_the_training_filter_decides_as_the_evaluation_filter():
     env = _env(action_mode="residual", observation_mode="raw", residual_scale=1.0)
     shield = Shield(env, penalty=2.0)
     obs, _ = env.reset(seed=3)
-    ring = env.scenarios[0].object_ring_radius
+    ring = env.scenarios[0].object_key
     inner = [[Residual(env.priors, ring) for _ in range(N)] for _ in range(K)]
     ref = [
         [
@@ -103,7 +103,7 @@ def test_the_proposal_is_the_command_of_the_action():
     shield = Shield(env)
     obs, _ = env.reset(seed=5)
     r = np.random.default_rng(1).uniform(-1, 1, (K, N, 8))
-    steady = steady_inputs(obs, env.scenarios[0].object_ring_radius)
+    steady = steady_inputs(obs, env.scenarios[0].object_key)
     env.step(r)
     np.testing.assert_allclose(shield.proposal, np.clip(steady + 0.3 * r, -1, 1), atol=1e-9)
 

@@ -68,7 +68,7 @@ def test_compiled_mlp_acts_as_the_torch_network_on_a_rollout(rollout):
     seen, specs, policies = rollout
     for obs, spec, policy in zip(seen, specs, policies, strict=True):
         assert len(obs) >= 100
-        want = policy.net.predict(obs, spec.object_ring_radius)
+        want = policy.net.predict(obs, spec.object_key)
         got = np.stack([policy.act(o) for o in obs])
         assert got.dtype == np.float32
         np.testing.assert_allclose(got, want, rtol=0, atol=TOL)
@@ -90,12 +90,12 @@ def test_compiled_mlp_clips_as_the_torch_network(rollout):
     net = policy.net
     from baselines.networks.features import INPUT_CLIP, prepare
 
-    x = prepare(obs, net.features, spec.object_ring_radius)
+    x = prepare(obs, net.features, spec.object_key)
     z = (x - net.obs_mean.numpy()) / net.obs_std.numpy()
     assert (np.abs(z) > INPUT_CLIP).any()
     w, b = net.numpy_weights()[0]
     assert (np.abs(np.clip(z, -INPUT_CLIP, INPUT_CLIP) @ w + b) > TANH_LIMIT).any()
-    want = net.predict(obs, spec.object_ring_radius)
+    want = net.predict(obs, spec.object_key)
     got = np.stack([policy.act(o) for o in obs])
     assert (np.abs(want) == 1.0).mean() > 0.1
     assert np.all(np.abs(got) <= 1.0)
@@ -168,5 +168,5 @@ def test_without_a_compiler_the_policy_keeps_numpy_layers(monkeypatch, tmp_path,
     env = uvms_env.parallel_env(scenario="paper", seed=0)
     obs, _ = env.reset(seed=0)
     o = obs[env.agents[0]]
-    want = net.predict(o[None], spec.object_ring_radius)[0]
+    want = net.predict(o[None], spec.object_key)[0]
     np.testing.assert_allclose(policy.act(o), want, rtol=0, atol=TOL)

@@ -61,12 +61,12 @@ def test_saved_network_reproduces_its_decisions(tmp_path, paper_spec):
     rng = np.random.default_rng(1)
     obs = _observations(rng, 500, 1.0).astype(np.float32)
     blocks = rng.normal(0.0, 0.3, (len(obs), 16)).astype(np.float32)
-    ring = paper_spec.object_ring_radius
+    ring = paper_spec.object_key
     cases = [(f, (32, 32)) for f in FEATURES] + [("features", ())]  # (): linear feedback
     for features, hidden in cases:
         data = np.concatenate([obs, blocks], 1) if features == "memory" else obs
         net, _ = bc.fit(data, np.tanh(obs[:, :8]), epochs=2, features=features, hidden=hidden,
-                        progress=False, ring_radius=ring)  # fmt: skip
+                        progress=False, object_key=ring)  # fmt: skip
         net.save(tmp_path / "policy.pt")
         again = MLPPolicyNet.load(tmp_path / "policy.pt")
         assert again.features == features and again.residual == (features in FEEDFORWARD)
@@ -118,7 +118,7 @@ def test_steady_input_feature_is_the_experts_own(paper):
         obs, _ = env.reset(seed=4)
         for i, agent in enumerate(env.possible_agents):
             spec = AgentSpec.from_scenario(env.scenario, i)
-            ring = spec.object_ring_radius
+            ring = spec.object_key
             obj = ObjectModel(spec.object_shape, spec.ring_radius)
             steady = build_steady_input(
                 default_model(), obj, build_local_model(default_model(), obj)
@@ -196,7 +196,7 @@ def test_dataset_round_trip(tmp_path):
     rng = np.random.default_rng(2)
     streams = []
     for k in range(3):
-        s = dataset.AgentStream.start(rng.normal(size=79), seed=k, object_ring_radius=0.5 * k)
+        s = dataset.AgentStream.start(rng.normal(size=79), seed=k, object_key=0.5 * k)
         for t in range(5 + k):
             s.actions.append(rng.uniform(-1, 1, 8).astype(np.float32))
             s.observations.append(rng.normal(size=79).astype(np.float32))
@@ -216,7 +216,7 @@ def test_dataset_round_trip(tmp_path):
         assert np.array_equal(ep.rewards, np.array(s.rewards))
         assert np.array_equal(ep.terminations, np.array(s.terminations))
         assert np.allclose(ep.infos["solve_ms"][1:], s.solve_ms)
-        assert np.all(ep.infos["object_ring_radius"] == s.object_ring_radius)
+        assert np.all(ep.infos["object_ring_radius"] == s.object_key)
     assert obs.shape == (sum(len(s.actions) for s in streams), 79) and act.shape[1] == 8
     _, _, ring, n = dataset.read_many([tmp_path / "roundtrip"])
     assert n == 3 and np.array_equal(ring, np.repeat([0.0, 0.5, 1.0], [5, 6, 7]))

@@ -86,7 +86,7 @@ def test_memory_observation_is_features_with_the_memory_between(streams):
 
 def test_memory_block_matches_an_independent_recomputation(streams):
     env, raw, _, mem = streams
-    ring, period = env.scenario.object_ring_radius, env.scenario.period
+    ring, period = env.scenario.object_key, env.scenario.period
     ref = _reference_blocks(raw, ring, period)
     block = mem[..., BASE_FEATURES:-NU]
     np.testing.assert_allclose(block[..., :NU], ref[..., :NU], rtol=0, atol=1e-7)
@@ -98,7 +98,7 @@ def test_robot_memory_from_its_own_stream_is_the_environments(streams):
     """A policy's ``RobotMemory`` fed only that robot's raw observations and its own
     commands rebuilds the environment's memory block exactly: the block is local."""
     env, raw, _, mem = streams
-    spec_ring, period = env.scenario.object_ring_radius, env.scenario.period
+    spec_ring, period = env.scenario.object_key, env.scenario.period
     commands = _actions(raw.shape[1])
     for i in range(raw.shape[1]):
         memory = RobotMemory(period, spec_ring)
@@ -125,7 +125,7 @@ def test_vector_env_memory_matches_the_single_env(streams):
 def test_executed_replaces_the_issued_command():
     env = uvms_env.parallel_env("paper", observation_mode="raw")
     obs, _ = env.reset(seed=0)
-    ring, period = env.scenario.object_ring_radius, env.scenario.period
+    ring, period = env.scenario.object_key, env.scenario.period
     a, b = RobotMemory(period, ring), RobotMemory(period, ring)
     for m in (a, b):
         m.observe(obs["uvms_0"])

@@ -59,11 +59,11 @@ def test_one_number_names_each_object_and_every_consumer_builds_the_same_bar():
         s = make("random", seed=n, n_agents=n, object="bar")
         length = load_parameters().object.random_bar_length(n)
         spec = AgentSpec.from_scenario(s, 0)
-        assert spec.object_ring_radius == s.object_ring_radius == object_key("bar", length)
+        assert spec.object_key == s.object_key == object_key("bar", length)
         for model in (
             ObjectModel(s.object_shape, s.ring_radius),  # simulator, batched engine, reach
-            object_model(s.object_ring_radius),  # priors, memory
-            ObjectModel(spec.object_shape, spec.object_ring_radius),  # expert's OCP, filter
+            object_model(s.object_key),  # priors, memory
+            ObjectModel(spec.object_shape, spec.object_key),  # expert's OCP, filter
         ):
             assert model.length == pytest.approx(length)
             assert model.strips.lengths.max() <= 0.225 + 1e-9

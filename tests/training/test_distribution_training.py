@@ -300,13 +300,13 @@ def test_imitation_cli_collects_and_clones_memory_over_the_distribution(tmp_path
     env = uvms_env.parallel_env("random", n_agents=3)
     o, _ = env.reset(seed=1)
     spec = AgentSpec.from_scenario(env.scenario, 0)
-    ring = spec.object_ring_radius
+    ring = spec.object_key
     policy, memory = ClonedPolicy(spec, out / "policy.pt"), RobotMemory(spec.period, ring)
     policy.reset()
     for _ in range(4):
         x = np.concatenate([o["uvms_0"], memory.observe(o["uvms_0"])])
         a = policy.act(o["uvms_0"])
-        np.testing.assert_allclose(a, net.predict(x[None], spec.object_ring_radius)[0],
+        np.testing.assert_allclose(a, net.predict(x[None], spec.object_key)[0],
                                    atol=1e-5)  # fmt: skip
         memory.issued(a)
         o, *_ = env.step({x_: a if x_ == "uvms_0" else np.zeros(8) for x_ in env.agents})

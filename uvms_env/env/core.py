@@ -75,7 +75,7 @@ class Engine(Protocol):
     def measure(self, ids: Any, q_noise: Any, zeta_noise: Any) -> None:
         """The sensors of ``ids`` read the true state plus this noise, B' + (N, 10) each."""
 
-    def evaluate(
+    def run_kinematics(
         self, ids: Any, action: Any, elapsed: Any, robots: Any, team: Any, measured: bool = True
     ) -> tuple:
         """The kinematics kernel on the actions B' + (N, 8) (None: zeros), the fraction of
@@ -83,13 +83,13 @@ class Engine(Protocol):
         team's ``team`` B' + (5,) (``TEAM_INPUT``)
         and the sensors' readings (``measured=False``: the true state): observations
         B' + (N, 79) (waypoint and navigation twist after sequencing), team rows (T,) + B'
-        (the team's sequencer after this evaluation among them), constraint values
-        B' + (N, 8), costs B' + (N,) and the robots' sequencers after this evaluation
+        (the team's sequencer after this call among them), constraint values
+        B' + (N, 8), costs B' + (N,) and the robots' sequencers after this call
         B' + (N, 2)."""
 
     def wrench_sq(self, sampled: Any) -> Any:
         """B: the internal wrench's squared norm after the step where ``sampled``, from the
-        step's evaluation (its kernel samples the wrench wherever it is switched on)."""
+        step's kinematics call (its kernel samples the wrench wherever it is switched on)."""
 
     def object_pose(self, ids: Any) -> Any:
         """B' + (6,): the object's true pose."""
@@ -133,7 +133,7 @@ class EnvCore(NamespacePickled):
         self.all: Any = slice(0, k) if self.batched else ...
         self.n = n = setup.n_agents
         self.priors = setup.priors
-        self.ring = setup.scenario.object_ring_radius  # one object per core
+        self.ring = setup.scenario.object_key  # one object per core
         self.max_cycles = setup.max_cycles()
         s = setup.scenario
         self.task = Task(
@@ -258,10 +258,10 @@ class EnvCore(NamespacePickled):
         ids = self.ids_of(rows)
         self.task.max_cycles = self.max_cycles
         self.task.reset(ids)
-        team = self.evaluate(ids, rows, None)
+        team_rows = self.refresh_observations(ids, rows, None)
         if self.memory is not None:
             self.memory.reset(ids)
-        self.task.start(ids, team)
+        self.task.start(ids, team_rows)
         if self.channel is not None:
             self.channel.reset(ids, rows)
 
@@ -321,7 +321,7 @@ class EnvCore(NamespacePickled):
         previous = self.obs.copy() if self.memory is not None else None
         # the inputs measured (the input constraint, the effort term and metric, the extra
         # terms' action) are the ones applied: the priors' and the filter's command
-        team = self.evaluate(self.all, rows, command)
+        team_rows = self.refresh_observations(self.all, rows, command)
         if self.memory is not None:
             self.memory.update(self.all, previous, self.obs, command)
         wrench_sq = None
@@ -330,7 +330,7 @@ class EnvCore(NamespacePickled):
         state = None
         if task.extended:
             state = self.task_arrays(engine.object_pose(self.all), command)
-        out = task.step(team, self.g, self.cost, diverged, sampled, wrench_sq, state)
+        out = task.step(team_rows, self.g, self.cost, diverged, sampled, wrench_sq, state)
         return out, diverged
 
     def _filtered(self, command: Any) -> Any:
@@ -355,7 +355,7 @@ class EnvCore(NamespacePickled):
             t, pos, part = t.reshape(1), pos[None], part[None]
         self.channel.step(t, part, pos)
 
-    def evaluate(self, ids: Any, rows: list[int], action: Any) -> Any:
+    def refresh_observations(self, ids: Any, rows: list[int], action: Any) -> Any:
         """Measure, run the kinematics kernel (it sequences each robot's waypoints on its
         own estimate), note the state metrics: the raw observations of ``ids`` land in
         ``obs`` (their a_ss in ``steady``); returns the kernel's team rows."""
@@ -363,18 +363,18 @@ class EnvCore(NamespacePickled):
         if engine.noisy:
             self._measure(ids, rows)
         seq = task.sequencing
-        obs, team, g, cost, seq.robots[ids] = engine.evaluate(
+        obs, team_rows, g, cost, seq.robots[ids] = engine.run_kinematics(
             ids, action, task.time_fraction(ids), seq.robots[ids], seq.team[ids]
         )
         self.g, self.cost = g, cost
-        task.observe(ids, team)
+        task.observe(ids, team_rows)
         self.obs[ids] = obs
         if self.steady is not None:  # from the float32 observations the robots see
             self.steady[ids] = engine.steady(self.obs[ids], self.ring)
             if self.command_steady is not self.steady:  # the set-point loop's holding a_ss
                 source = self.priors.steady_source(self.obs[ids])
                 self.command_steady[ids] = engine.steady(source, self.ring)
-        return team
+        return team_rows
 
     def _measure(self, ids: Any, rows: list[int]) -> None:
         """Sensor noise from each environment's own generator."""
@@ -419,7 +419,7 @@ class EnvCore(NamespacePickled):
         (no measurement, no sequencing, the episode does not advance)."""
         engine, task = self.engine, self.task
         seq = task.sequencing
-        g = engine.evaluate(
+        g = engine.run_kinematics(
             self.all, None, task.time_fraction(), seq.robots, seq.team, measured=False
         )[2]
         if task.constraint_fns:

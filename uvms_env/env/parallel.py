@@ -300,7 +300,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
         """Observations of the simulator's current state, e.g. after ``sim.set_state`` in a
         replay or a test. Measures like a step (draws sensor noise, may advance the
         robots' waypoint sequencers) but does not advance time or touch the reward."""
-        self._core.evaluate(..., [0], None)
+        self._core.refresh_observations(..., [0], None)
         return self._observations()
 
     def constraint_values(self) -> dict[str, dict[str, float]]:

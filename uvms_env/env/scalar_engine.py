@@ -113,7 +113,7 @@ class ScalarEngine(Engine):
         self._q_meas = q_noise + self._q
         self._zeta_meas = zeta_noise + self._zeta
 
-    def evaluate(
+    def run_kinematics(
         self, ids: Any, action: Any, elapsed: Any, robots: Any, team: Any, measured: bool = True
     ) -> tuple:
         kin = self.kin

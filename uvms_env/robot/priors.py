@@ -135,20 +135,20 @@ def featurize_sx(o: cs.SX) -> cs.SX:
 
 
 @functools.cache
-def _steady_input(ring_radius: float) -> cs.Function:
-    """The expert's a_ss(x, theta, v_d) for the object ``ring_radius`` (its key)."""
-    uvms, obj = default_model(), object_model(ring_radius)
+def _steady_input(object_key: float) -> cs.Function:
+    """The expert's a_ss(x, theta, v_d) for the object ``object_key`` (its key)."""
+    uvms, obj = default_model(), object_model(object_key)
     return build_steady_input(uvms, obj, build_local_model(uvms, obj))
 
 
-def object_model(ring_radius: float) -> ObjectModel:
+def object_model(object_key: float) -> ObjectModel:
     """The carried object by the compiled functions' name for it, its key
     (``uvms_env.dynamics.payload.object_key``: a ring's radius, 0 for the parameter
     file's bar, minus the length for another bar)."""
-    return ObjectModel.from_key(ring_radius)
+    return ObjectModel.from_key(object_key)
 
 
-def own_model_inputs(o: cs.SX, ring_radius: float) -> tuple[cs.SX, cs.SX]:
+def own_model_inputs(o: cs.SX, object_key: float) -> tuple[cs.SX, cs.SX]:
     """(x, theta) of the robot's local model from its observation ``o``: own q and zeta,
     own grasp and load share and the object's nominal parameters (known before the task)."""
     f = OBSERVATION_STRUCTURE
@@ -158,24 +158,24 @@ def own_model_inputs(o: cs.SX, ring_radius: float) -> tuple[cs.SX, cs.SX]:
         o[f["grasp_offset"]],
         cs.reshape(r_t.T, 9, 1),  # R_Oi column-major
         o[f["load_share"]],
-        cs.DM(object_model(ring_radius).nominal_parameters()),
+        cs.DM(object_model(object_key).nominal_parameters()),
     )
     return o[f["q"].start : f["zeta"].stop], theta
 
 
-def steady_sx(o: cs.SX, ring_radius: float) -> cs.SX:
+def steady_sx(o: cs.SX, object_key: float) -> cs.SX:
     """a_ss (8) of the robot in observation ``o``: own q and zeta, own grasp and share,
     the object's nominal parameters, the observed navigation twist."""
-    own, theta = own_model_inputs(o, ring_radius)
-    return _steady_input(ring_radius)(own, theta, o[OBSERVATION_STRUCTURE["nav_velocity"]])
+    own, theta = own_model_inputs(o, object_key)
+    return _steady_input(object_key)(own, theta, o[OBSERVATION_STRUCTURE["nav_velocity"]])
 
 
 @functools.cache
-def _steady_one(ring_radius: float) -> cs.Function:
+def _steady_one(object_key: float) -> cs.Function:
     """a_ss alone, compiled (the features are ``featurize``'s own call)."""
     o = cs.SX.sym("obs", OBS_DIM)
-    name = f"prior_steady_{object_tag(ring_radius)}"
-    return compile_function(cs.Function(name, [o], [steady_sx(o, ring_radius)]))
+    name = f"prior_steady_{object_tag(object_key)}"
+    return compile_function(cs.Function(name, [o], [steady_sx(o, object_key)]))
 
 
 @functools.cache
@@ -190,27 +190,27 @@ def _features_call(count: int) -> BufferCall:
 
 
 @functools.cache
-def prior_functions(ring_radius: float) -> tuple[cs.Function, cs.Function]:
+def prior_functions(object_key: float) -> tuple[cs.Function, cs.Function]:
     """(a_ss, features) of one (79,) observation as CasADi functions, for batched
     kernels (the GPU backend evaluates them over every robot's column)."""
     o = cs.SX.sym("obs", OBS_DIM)
-    tag = object_tag(ring_radius)
-    steady = cs.Function(f"prior_steady_{tag}", [o], [steady_sx(o, ring_radius)])
+    tag = object_tag(object_key)
+    steady = cs.Function(f"prior_steady_{tag}", [o], [steady_sx(o, object_key)])
     return steady, cs.Function("prior_features", [o], [featurize_sx(o)])
 
 
 @functools.lru_cache(maxsize=16)
-def _steady_call(ring_radius: float, count: int) -> BufferCall:
+def _steady_call(object_key: float, count: int) -> BufferCall:
     # The buffer interface: an ordinary call's conversions cost more than the evaluation.
-    return BufferCall(_steady_one(ring_radius).map(count))
+    return BufferCall(_steady_one(object_key).map(count))
 
 
-def steady_inputs(obs: np.ndarray, ring_radius: float) -> np.ndarray:
+def steady_inputs(obs: np.ndarray, object_key: float) -> np.ndarray:
     """(..., 79) observations of robots carrying one object -> (..., 8) float64 a_ss."""
     o = np.asarray(obs)
     if o.shape[-1] != OBS_DIM:
         raise ValueError(f"steady inputs need {OBS_DIM}-number observations, got {o.shape}")
-    call = functools.partial(_steady_call, float(ring_radius))
+    call = functools.partial(_steady_call, float(object_key))
     return _rows(call, o.reshape(-1, OBS_DIM), ACT_DIM, np.float64).reshape(*o.shape[:-1], ACT_DIM)
 
 
@@ -248,7 +248,7 @@ def check_mode(name: str, value: object, allowed: tuple[str, ...]) -> str:
 class Priors:
     """The action and observation options. ``observe`` and ``command`` take (..., 79) raw
     observations of any leading shape (robots, environments x robots) of robots that
-    carry one object (``ring_radius``: its key, ``Scenario.object_ring_radius``)."""
+    carry one object (``object_key``: its key, ``Scenario.object_key``)."""
 
     action_mode: str = "torque"
     observation_mode: str = "raw"
@@ -301,7 +301,7 @@ class Priors:
     def observe(
         self,
         raw: np.ndarray,
-        ring_radius: float,
+        object_key: float,
         steady: np.ndarray | None = None,
         memory: np.ndarray | None = None,
     ) -> np.ndarray:
@@ -311,7 +311,7 @@ class Priors:
         if self.observation_mode == "raw":
             return raw
         if steady is None:
-            steady = steady_inputs(raw, ring_radius)
+            steady = steady_inputs(raw, object_key)
         parts = [featurize(raw), steady]
         if self.remembers:
             if memory is None:
@@ -323,7 +323,7 @@ class Priors:
         self,
         raw: np.ndarray,
         action: np.ndarray,
-        ring_radius: float,
+        object_key: float,
         steady: np.ndarray | None = None,
     ) -> np.ndarray:
         """The normalized input for ``action`` of robots whose last observation is ``raw``:
@@ -335,7 +335,7 @@ class Priors:
         if self.action_mode == "torque":
             return action
         if steady is None:
-            steady = steady_inputs(self.steady_source(raw), ring_radius)
+            steady = steady_inputs(self.steady_source(raw), object_key)
         if self.action_mode == "setpoint":
             speed = raw[..., _ZETA][..., list(SETPOINT_ZETA)] / setpoint_limits()
             return self._setpoint(steady, action, speed, np.minimum, np.maximum)

@@ -4,7 +4,7 @@
 naming the problem. ``current_within_reach(scenario)`` tells whether its ocean current
 is slower than the team's top speed (``uvms_env.scenarios.reach``); ``held_out`` whether
 a scenario is the paper's task, which the random family never draws; ``object_key`` the
-one number that names a scenario's object (``Scenario.object_ring_radius``).
+one number that names a scenario's object (``Scenario.object_key``).
 May import: numpy, scipy (in ``reach``, when called), ``uvms_env.models``,
 ``uvms_env.dynamics``, ``uvms_env.navigation``.
 """

@@ -59,7 +59,7 @@ class Scenario:
         validate(self)
 
     @property
-    def object_ring_radius(self) -> float:
+    def object_key(self) -> float:
         """The object as one number, as the compiled functions, the priors and the
         datasets name it (``uvms_env.dynamics.payload.object_key``): the ring's radius; 0
         for the parameter file's bar, minus the length for another bar."""

@@ -212,17 +212,17 @@ class Task(NamespacePickled):
         self.tally.reset(ids)
         self.sequencing.reset(ids)
 
-    def start(self, ids: Any, team: Any) -> None:
-        """After a reset's first evaluation (its team rows ``team`` (T,) + B'): the team's
-        sequencer takes what it saw of the true object, the reward's potential starts
-        there."""
-        self.sequencing.commit(ids, team)
-        self.potential[ids] = team[POTENTIAL_AFTER]
+    def start(self, ids: Any, team_rows: Any) -> None:
+        """After a reset's first kinematics call (its team rows ``team_rows`` (T,) + B'):
+        the team's sequencer takes what it saw of the true object, the reward's potential
+        starts there."""
+        self.sequencing.commit(ids, team_rows)
+        self.potential[ids] = team_rows[POTENTIAL_AFTER]
 
     # -- evaluation of the state --------------------------------------------------------
-    def observe(self, ids: Any, team: Any) -> None:
+    def observe(self, ids: Any, team_rows: Any) -> None:
         """The state metrics, from the kinematics kernel's team rows (T,) + B' of ``ids``."""
-        self.tally.observe(ids, team)
+        self.tally.observe(ids, team_rows)
 
     def tick(self, diverged: Any) -> Any:
         """A period passed in every environment (before the step's evaluation); returns
@@ -238,7 +238,7 @@ class Task(NamespacePickled):
     # -- one step ---------------------------------------------------------------------------
     def step(
         self,
-        team: Any,
+        team_rows: Any,
         constraint_values: Any,
         cost: Any,
         diverged: Any,
@@ -247,14 +247,19 @@ class Task(NamespacePickled):
         state: TaskArrays | None = None,
     ) -> StepOutcome:
         """The rules of one step of every environment, after ``tick`` and the evaluation:
-        ``team`` (T,) + B float64 the kernel's team rows,
+        ``team_rows`` (T,) + B float64 the kernel's team rows,
         ``constraint_values`` B + (N, 8) and ``cost`` B + (N,) the kernel's, ``diverged`` B
         (bool) the refused steps, ``sampled``/``wrench_sq`` B the internal wrench samples
         (``tick``), ``state`` what the extensions see (needed when ``extended``)."""
         xp = self.xp
-        kinds = team[KINDS].T > 0.0  # B + (8,)
-        n_violated = team[VIOLATED]
-        graded = (team[EXCESS].T, team[MAX_EXCESS].T, team[VIOLATED_ROBOTS].T, team[ANY_VIOLATED])
+        kinds = team_rows[KINDS].T > 0.0  # B + (8,)
+        n_violated = team_rows[VIOLATED]
+        graded = (
+            team_rows[EXCESS].T,
+            team_rows[MAX_EXCESS].T,
+            team_rows[VIOLATED_ROBOTS].T,
+            team_rows[ANY_VIOLATED],
+        )
         if self.constraint_fns:
             assert state is not None, "extra constraints need the state"
             extra = self.extra_constraint_values(state)
@@ -269,13 +274,13 @@ class Task(NamespacePickled):
         failed = diverged | collision
         if self.terminate:
             failed = failed | (n_violated > 0)
-        success = (team[AT_GOAL] > 0.0) & ~failed
+        success = (team_rows[AT_GOAL] > 0.0) & ~failed
         terminated = success | failed
         truncated = (self.steps >= self.max_cycles) & ~terminated
-        action_sq = team[ACTION_SQ]
+        action_sq = team_rows[ACTION_SQ]
         self.tally.add_step(kinds, graded, action_sq * self.period, sampled, wrench_sq)
-        self.sequencing.commit(ALL, team)
-        terms = self._reward_terms(team, success, failed, n_violated, action_sq, state)
+        self.sequencing.commit(ALL, team_rows)
+        terms = self._reward_terms(team_rows, success, failed, n_violated, action_sq, state)
         values = iter(terms.values())
         reward = next(values)
         for value in values:  # in order: REWARD_TERMS, then the extra terms
@@ -308,7 +313,7 @@ class Task(NamespacePickled):
 
     def _reward_terms(
         self,
-        team: Any,
+        team_rows: Any,
         success: Any,
         failed: Any,
         n_violated: Any,
@@ -316,15 +321,15 @@ class Task(NamespacePickled):
         state: TaskArrays | None,
     ) -> dict[str, Any]:
         """The shared reward's terms (``uvms_env.task.reward``), then the extra ones, from
-        the team rows: the potential towards the waypoint the team held, and where its
-        sequencer passed one this step; moves the potential on."""
+        the kernel's team rows: the potential towards the waypoint the team held, and where
+        its sequencer passed one this step; moves the potential on."""
         xp, w = self.xp, self.weights
         # potential-based progress towards the team's waypoint
-        progress = w.progress * (self.potential - team[POTENTIAL])
-        self.potential[...] = team[POTENTIAL_AFTER]
+        progress = w.progress * (self.potential - team_rows[POTENTIAL])
+        self.potential[...] = team_rows[POTENTIAL_AFTER]
         terms = {
             "progress": progress,
-            "waypoint": team[PASSED] * w.waypoint,
+            "waypoint": team_rows[PASSED] * w.waypoint,
             "success": success * w.success,
             # 0.0 - ...: a clean 0.0 rather than -0.0 when nothing is violated
             "violation": 0.0

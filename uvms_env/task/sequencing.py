@@ -80,7 +80,7 @@ class Sequencing(NamespacePickled):
         self.robots[ids] = 0.0
         self.team[ids, :2] = 0.0
 
-    def commit(self, ids: Any, team: Any) -> None:
-        """The team's sequencer of ``ids`` moves as the kernel's evaluation whose team rows
-        are ``team`` (T,) + B' found (an evaluation alone does not move it)."""
-        self.team[ids, :2] = team[TEAM_SEQUENCER].T
+    def commit(self, ids: Any, team_rows: Any) -> None:
+        """The team's sequencer of ``ids`` moves as the kernel's call whose team rows are
+        ``team_rows`` (T,) + B' found (a kernel call alone does not move it)."""
+        self.team[ids, :2] = team_rows[TEAM_SEQUENCER].T

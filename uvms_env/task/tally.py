@@ -57,15 +57,15 @@ class Tally(NamespacePickled):
         for name in PER_KIND:
             getattr(self, name)[ids] = 0
 
-    def observe(self, ids: Any, team: Any) -> None:
+    def observe(self, ids: Any, team_rows: Any) -> None:
         """The state's extremes, from the team kernel's rows (T,) + B' of ``ids`` (its
         clearance is +inf in a scene without obstacles: absent ones count nowhere)."""
         xp = self.xp
-        self.min_clearance[ids] = xp.minimum(self.min_clearance[ids], team[CLEARANCE])
+        self.min_clearance[ids] = xp.minimum(self.min_clearance[ids], team_rows[CLEARANCE])
         self.min_manipulability[ids] = xp.minimum(
-            self.min_manipulability[ids], team[MANIPULABILITY]
+            self.min_manipulability[ids], team_rows[MANIPULABILITY]
         )
-        self.grasp_drift[ids] = xp.maximum(self.grasp_drift[ids], team[GRASP_ERROR])
+        self.grasp_drift[ids] = xp.maximum(self.grasp_drift[ids], team_rows[GRASP_ERROR])
 
     def add_step(
         self,

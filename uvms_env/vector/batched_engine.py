@@ -93,7 +93,7 @@ class BatchedEngine(Engine):
             self.noisy,
             self.sim.chain,
             self._wrench,
-            priors_ring=base.object_ring_radius if priors else None,
+            priors_ring=base.object_key if priors else None,
             waypoints=w,
         )
         self._kinematics = self._kernel(fns["kinematics"])
@@ -227,7 +227,7 @@ class BatchedEngine(Engine):
         self._q_meas[:, ids] = q_noise.reshape(m, -1).T + x[: NQ * n, ids]
         self._zeta_meas[:, ids] = zeta_noise.reshape(m, -1).T + x[NQ * n : 2 * NQ * n, ids]
 
-    def evaluate(
+    def run_kinematics(
         self, ids: Any, action: Any, elapsed: Any, robots: Any, team: Any, measured: bool = True
     ) -> tuple:
         xp, n, k, s = self.xp, self.n, self.k, self.sim

@@ -268,7 +268,7 @@ def backend_kernels(n_agents: int) -> tuple[Kernel, ...]:
     n_seg = len(ObjectModel(s.object_shape, s.ring_radius).segments)
     kernels = [Kernel("period step", chain.step, period_refinement(n_agents))]
     for noisy in (True, False):
-        ring = s.object_ring_radius if noisy else None
+        ring = s.object_key if noisy else None
         fns = kernel_functions(n_agents, n_seg, noisy, chain, wrench=noisy, priors_ring=ring)
         for role, fn in fns.items():
             name = f"{role} (noiseless)" if role == "kinematics" and not noisy else role
