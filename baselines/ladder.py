@@ -65,7 +65,7 @@ LADDER = (
     "nmpc:paper",  # the paper's controller
     "dagger:mix",  # DAgger over rings and bars, more two-robot bars; the paper held out
     "dagger:mix+filter",
-    "ppo:scratch",  # MAPPO from scratch over the distribution (rings and bars), with the priors
+    "ppo:scratch",  # PPO-Lagrangian from scratch over the distribution, 10M robot-steps
     "ppo:scratch+filter",
     "dagger:pretrained",  # superseded by dagger:mix (trained before bars were in)
     "dagger:pretrained+filter",

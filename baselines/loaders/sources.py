@@ -64,8 +64,9 @@ class ZeroPolicy:
         return np.zeros(8, dtype=np.float32)
 
 
-#: The trivial rung ``prior``: the residual priors of the committed from-scratch runs
-#: (a_ss and the joint hold, ``ppo:scratch``'s config.json) with a zero residual.
+#: The trivial rung ``prior``: the residual action's priors with a zero residual: a_ss and
+#: the joint hold of the first from-scratch runs (MAPPO, 2026-11-27; ``ppo:scratch`` now
+#: starts from a_ss without the hold, docs/results/from-scratch.md).
 PRIOR = Priors(
     action_mode="residual", observation_mode="features", hold_stiffness=0.5, hold_damping=1.0
 )
