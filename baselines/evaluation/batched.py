@@ -9,14 +9,19 @@ marginal closed loop can still end otherwise, docs/evaluation.md). Every robot o
 keeps its own policy object, built from the job's seed and the copy's scenario as
 ``uvms_env.episode.play`` builds it, so memories, priors and random generators are the
 single evaluator's; what is shared is the environment's step, one compiled call for all
-copies, and no environment is built per episode. The rows are ``run_episode``'s, with
+copies, and no environment is built per episode. Where the robots' policies are saved
+networks of one ``batch_key`` (``baselines.loaders.policy_batch``), one ``PolicyBatch``
+decides for every robot of every copy in one call per period, with the memory and the
+priors each robot's own policy would keep: the same numbers, and each robot-decision's time
+is the call's shared over its robots. Should the call raise, each copy is decided alone to
+find the episode that fails; the others go on. The rows are ``run_episode``'s, with
 ``wall_s`` the chunk's time shared over its episodes.
 
 Not batched (``batchable`` says why; the caller plays them one by one): team policies,
 the acoustic channel, replays and recorded paths.
 
 May import: the standard library, numpy, ``baselines.evaluation.episode_row``,
-``baselines.loaders.sources`` and ``uvms_env``.
+``baselines.loaders.sources``, ``baselines.loaders.policy_batch`` and ``uvms_env``.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ from baselines.evaluation.episode_row import (
     row_tail,
     within_reach,
 )
+from baselines.loaders.policy_batch import PolicyBatch, batch_key
 from baselines.loaders.sources import PolicySource
 from uvms_env.dynamics import NU
 from uvms_env.policy import AgentSpec, Policy
@@ -72,6 +78,7 @@ class _Copy:
         self.times: list[np.ndarray] = []
         self.filtered = self.interventions = 0
         self.deviation = 0.0
+        self.batched = False  # decided by the chunk's PolicyBatch
 
     def decide(self, obs: np.ndarray) -> np.ndarray:
         ms = np.zeros(len(self.policies))
@@ -137,9 +144,23 @@ def play_batched(
     venv = VectorEnv(first.scenario, num_envs=k, dtype="float64", threads=1, **kwargs)
     waiting = iter(jobs)
     running: list[_Copy | None] = [None] * k
+    batch: PolicyBatch | None = None
+
+    def begin(job: EpisodeJob, slot: int) -> _Copy | None:
+        nonlocal batch
+        copy = _begin(job, venv, slot, source, report)
+        key = None if copy is None else batch_key(copy.policies)
+        if copy is not None and key is not None:
+            if batch is None:
+                batch = PolicyBatch(copy.policies[0], (k, venv.n))
+            if key == batch.key:
+                batch.reset(slot)
+                copy.batched = True
+        return copy
+
     obs, _ = venv.reset(seed=[j.seed for j in jobs[:k]])
     for slot in range(k):
-        running[slot] = _begin(next(waiting), venv, slot, source, report)
+        running[slot] = begin(next(waiting), slot)
     while True:
         # a free copy (its episode ended, failed or never began) takes the next job;
         # copies with nothing left to play step on zero inputs, unread
@@ -148,12 +169,23 @@ def play_batched(
             if job is None:
                 break
             obs[slot] = venv.restart([slot], seeds=[job.seed])[0]
-            running[slot] = _begin(job, venv, slot, source, report)
+            running[slot] = begin(job, slot)
         if all(c is None for c in running):
             break
         actions = np.zeros((k, venv.n, NU), np.float32)
+        together = [s for s, c in enumerate(running) if c is not None and c.batched]
+        if together:
+            try:
+                decide_together(batch, together, obs, actions, running)
+            except Exception:  # one call failed: decide each copy alone to find its episode
+                for slot in together:
+                    try:
+                        decide_together(batch, [slot], obs, actions, running)
+                    except Exception as exc:  # a failing policy fails its episode only
+                        report(running[slot].finish(None, ERROR_END, exc))  # type: ignore[union-attr]
+                        running[slot] = None
         for slot, copy in enumerate(running):
-            if copy is None:
+            if copy is None or copy.batched:
                 continue
             try:
                 actions[slot] = copy.decide(obs[slot])
@@ -175,6 +207,23 @@ def play_batched(
     for row in rows:
         row["wall_s"] = share  # the chunk's compute, spread over its episodes
     return rows
+
+
+def decide_together(
+    batch: PolicyBatch | None,
+    slots: list[int],
+    obs: np.ndarray,
+    actions: np.ndarray,
+    running: list[_Copy | None],
+) -> None:
+    """``actions[slots]`` from one call of ``batch``; each robot's time is the call's
+    share."""
+    assert batch is not None
+    begin = time.perf_counter()
+    actions[slots] = batch.act(obs, slots)
+    ms = (time.perf_counter() - begin) * 1e3 / (len(slots) * actions.shape[1])
+    for slot in slots:
+        running[slot].times.append(np.full(actions.shape[1], ms))  # type: ignore[union-attr]
 
 
 def _begin(

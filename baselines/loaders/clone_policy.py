@@ -15,7 +15,9 @@ May import: numpy, torch, ``uvms_env``, ``baselines.loaders.saved`` and ``baseli
 
 from __future__ import annotations
 
+from collections.abc import Hashable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -80,6 +82,13 @@ class ClonedPolicy(LoadedPolicy):
         self._first = np.ones(n_in + 8, dtype=np.float32)
         self._x, self._steady = self._first[:n_in], self._first[n_in:]
         self._buffers = [np.ones(len(w), dtype=np.float32) for w in layers[1:]]
+
+    def batch_key(self) -> Hashable | None:
+        # the numpy layers decide row by row: only the compiled decision batches
+        return self.stateless_key(self.net) if self.compiled else None
+
+    def whole_decision(self) -> tuple[Any, tuple[np.ndarray, ...]] | None:
+        return self._network_inputs.whole if self.compiled else None
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs)

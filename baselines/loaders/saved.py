@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Hashable, Iterable
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, ClassVar, NamedTuple
@@ -258,3 +258,29 @@ class LoadedPolicy:
         """The network's deterministic numbers for its input ``x`` (the priors' observation,
         then the inbox)."""
         raise NotImplementedError
+
+    # -- deciding for many robots at once (``baselines.loaders.policy_batch``) ---------------
+    def batch_key(self) -> Hashable | None:
+        """Robots whose policies have one key (not None) can decide in one call: the same
+        network and statistics, priors, object and period. None (the default): this
+        policy decides alone (a recurrent network's state, a channel's inbox)."""
+        return None
+
+    def stateless_key(self, network: Any) -> Hashable | None:
+        """``batch_key`` of a loader whose decision keeps no state and whose ``network`` is
+        the object ``load_once`` shares between its robots."""
+        if self.comm is not None or self.spec is None:
+            return None
+        # the statistics come with the network (loaded with it, or its own)
+        return (type(self), id(network), self.priors, self.inputs.ring, self.spec.period)
+
+    def whole_decision(self) -> tuple[Any, tuple[np.ndarray, ...]] | None:
+        """The compiled function of ([raw observation; memory block], constants...) that is
+        this policy's whole decision, priors included, and its constants; None where the
+        decision is ``decide`` between the priors."""
+        return None
+
+    def decide_many(self, x: np.ndarray) -> np.ndarray:
+        """``decide`` of each row of ``x`` (robots, inputs): one call of the network where
+        the loader can (the default decides row by row)."""
+        return np.stack([np.asarray(self.decide(row)) for row in x])

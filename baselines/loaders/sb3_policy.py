@@ -13,6 +13,7 @@ May import: numpy, stable-baselines3 and sb3-contrib (inside functions),
 from __future__ import annotations
 
 import pickle
+from collections.abc import Hashable
 from pathlib import Path
 from typing import Any
 
@@ -105,6 +106,19 @@ class SB3Policy(LoadedPolicy):
         block = self.inputs.block(obs)
         full = obs if block is None else np.concatenate([obs, block])
         return self.inputs.sent(self._decision(full).astype(np.float32))
+
+    def batch_key(self) -> Hashable | None:
+        return None if self._recurrent else self.stateless_key(self.model)
+
+    def whole_decision(self) -> tuple[Any, tuple[np.ndarray, ...]] | None:
+        return None if self._decision is None else self._decision.whole
+
+    def decide_many(self, x: np.ndarray) -> np.ndarray:
+        if self._recurrent:
+            return super().decide_many(x)
+        if self._pad is not None:
+            x = np.concatenate([x, np.broadcast_to(self._pad, (len(x), len(self._pad)))], 1)
+        return self.model.predict(self.normalize(x), deterministic=True)[0]
 
     def decide(self, x: np.ndarray) -> np.ndarray:
         if self._pad is not None:

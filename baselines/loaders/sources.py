@@ -16,7 +16,7 @@ from __future__ import annotations
 import ast
 import importlib
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
@@ -82,6 +82,12 @@ class PriorPolicy(LoadedPolicy):
 
     def decide(self, x: np.ndarray) -> np.ndarray:
         return np.zeros(NU, np.float32)
+
+    def batch_key(self) -> Hashable | None:
+        return self.stateless_key(PRIOR)
+
+    def decide_many(self, x: np.ndarray) -> np.ndarray:
+        return np.zeros((len(x), NU), np.float32)
 
 
 def _nmpc(arg: str | None, seed: int) -> PolicyFactory:

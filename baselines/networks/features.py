@@ -139,6 +139,12 @@ class CompiledInputs:
         )
         self._out = self._call(self._obs, *self._consts)[0][0]  # binds every buffer once
 
+    @property
+    def whole(self) -> tuple[cs.Function, tuple[np.ndarray, ...]]:
+        """The compiled function and its constant inputs after the observation (mean,
+        inv_std, clip): what a batch of robots maps (``baselines.loaders.policy_batch``)."""
+        return self._call.fn, self._consts
+
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         if obs.shape != self._obs.shape:
             raise ValueError(f"observation must have shape {self._obs.shape}, got {obs.shape}")

@@ -79,7 +79,51 @@ def test_the_runner_batches_without_changing_its_rows() -> None:
     assert_same_rows(one, many)
 
 
+@pytest.mark.parametrize("policy", ["ppo:scratch", "dagger:mix"])
+def test_saved_networks_decide_every_robot_in_one_call_with_the_single_rows(
+    policy: str, monkeypatch
+) -> None:
+    # memory-mode networks: the batch keeps every robot's memory as its own policy would
+    from baselines.evaluation import batched
+
+    def alone(self, obs):
+        raise AssertionError("a saved network's robot decided alone")
+
+    todo = jobs(policy, 3)
+    single = [run_episode(j) for j in todo]
+    monkeypatch.setattr(batched._Copy, "decide", alone)
+    rows = sorted(play_batched(todo, 2), key=lambda r: r["episode"])
+    assert all(not r["error"] for r in single + rows)
+    assert_same_rows(single, rows)
+
+
 def test_a_failing_policy_fails_its_episodes_not_the_others(monkeypatch) -> None:
+    # the batch's call fails inside the decision, after the memory's estimate: the copies
+    # decided again one by one play on as if nothing had happened
+    from baselines.loaders.policy_batch import PolicyBatch
+
+    calls = {"n": 0}
+    real = PolicyBatch._decide
+
+    def flaky(self, obs, raw, ids, block):  # copy 1's decisions fail from its fifth on
+        if 1 in ids:
+            calls["n"] += 1
+            if calls["n"] >= 5:
+                raise RuntimeError("solver failed")
+        return real(self, obs, raw, ids, block)
+
+    todo = jobs("ppo:scratch", 3)
+    monkeypatch.setattr(PolicyBatch, "_decide", flaky)
+    rows = sorted(play_batched(todo, 3), key=lambda r: r["episode"])
+    assert [bool(r["error"]) for r in rows] == [False, True, False]
+    assert rows[1]["error"] == "RuntimeError: solver failed" and not rows[1]["success"]
+    assert rows[1]["episode_end"] == "error" and math.isnan(rows[1]["return"])
+    assert len(rows[1]["_decision_ms"]) == 4 * 2  # its four decisions, two robots
+    monkeypatch.setattr(PolicyBatch, "_decide", real)
+    assert_same_rows([run_episode(todo[0]), run_episode(todo[2])], [rows[0], rows[2]])
+
+
+def test_a_failing_robot_by_robot_policy_fails_its_episode_only(monkeypatch) -> None:
     from baselines.evaluation import batched
 
     calls = {"n": 0}
@@ -93,28 +137,33 @@ def test_a_failing_policy_fails_its_episodes_not_the_others(monkeypatch) -> None
         return real(self, obs)
 
     monkeypatch.setattr(batched._Copy, "decide", flaky)
-    rows = sorted(play_batched(jobs("prior", 3), 3), key=lambda r: r["episode"])
+    rows = sorted(play_batched(jobs("random", 3), 3), key=lambda r: r["episode"])
     assert [bool(r["error"]) for r in rows] == [False, True, False]
     assert rows[1]["error"] == "RuntimeError: solver failed" and not rows[1]["success"]
-    assert rows[1]["episode_end"] == "error" and math.isnan(rows[1]["return"])
 
 
 def test_a_copy_freed_by_a_failure_plays_the_waiting_episodes(monkeypatch) -> None:
-    from baselines.evaluation import batched
+    from baselines.loaders.policy_batch import PolicyBatch
 
-    real = batched._Copy.decide
+    episodes = {"n": 0}
+    real_reset, real_act = PolicyBatch.reset, PolicyBatch.act
 
-    def failing_first(self, obs):  # the first episode's policy raises at once
-        if self.job.index == 0:
+    def counted(self, slot):
+        episodes["n"] += 1
+        real_reset(self, slot)
+
+    def failing_first(self, obs, slots):  # the first episode's policy raises at once
+        if episodes["n"] == 1:
             raise RuntimeError("no solution")
-        return real(self, obs)
+        return real_act(self, obs, slots)
 
-    monkeypatch.setattr(batched._Copy, "decide", failing_first)
+    monkeypatch.setattr(PolicyBatch, "reset", counted)
+    monkeypatch.setattr(PolicyBatch, "act", failing_first)
     todo = jobs("prior", 3)
     rows = sorted(play_batched(todo, 1), key=lambda r: r["episode"])  # one copy for all
     assert [r["episode"] for r in rows] == [0, 1, 2]
     assert rows[0]["error"] == "RuntimeError: no solution"
-    monkeypatch.setattr(batched._Copy, "decide", real)
+    monkeypatch.setattr(PolicyBatch, "act", real_act)
     assert_same_rows([run_episode(j) for j in todo[1:]], rows[1:])
 
 

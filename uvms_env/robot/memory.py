@@ -100,6 +100,13 @@ class Memory:
     def update(self, ids: Any, previous: Any, raw: Any, command: Any) -> None:
         """One period of ``ids``: ``previous`` raw observations, ``command`` the inputs
         sent after them, ``raw`` the observations that followed."""
+        u = sent(command, self.xp)
+        self.disturbance[ids] = self.estimate(ids, previous, raw, u)
+        self.command[ids] = u
+
+    def estimate(self, ids: Any, previous: Any, raw: Any, command: Any) -> Any:
+        """The disturbance estimate of ``ids`` after the period ``update`` folds in, without
+        changing the memory."""
         xp = self.xp
         u = sent(command, xp)
         host = np.asarray if xp is np else xp.asnumpy
@@ -113,8 +120,7 @@ class Memory:
             np.full((rows, 1), self.period),
         )
         out = _update_call(self.ring, rows)(*(np.ascontiguousarray(c) for c in columns))[0]
-        self.disturbance[ids] = xp.asarray(out.reshape(shape))
-        self.command[ids] = u
+        return xp.asarray(out.reshape(shape).copy())
 
     def block(self, ids: Any) -> Any:
         """The memory of ``ids`` as an observation block ``(..., 16)`` float32."""
