@@ -37,6 +37,49 @@ def test_committed_urdf_is_the_rendering_of_the_parameter_file():
     assert URDF_PATH.read_text() == render_urdf()
 
 
+def _differentiated_motion(uvms, frame: str) -> cs.Function:
+    """The independent computation ``chain_motion`` replaces: ``frame``'s body twist from
+    its forward kinematics differentiated along q_dot = T(q) zeta, its Jacobian in zeta and
+    Jdot zeta by differentiating that again; and the inertial [p_dot; omega] of the frame."""
+    q, zeta = cs.SX.sym("q", 10), cs.SX.sym("zeta", 10)
+    qdot = uvms.qdot_map(q) @ zeta
+    p, r = _frame_pose(uvms, frame)(q)
+    rdot = cs.reshape(cs.jtimes(cs.reshape(r, 9, 1), q, qdot), 3, 3)
+    spin = rdot @ r.T
+    omega = 0.5 * cs.vertcat(
+        spin[2, 1] - spin[1, 2], spin[0, 2] - spin[2, 0], spin[1, 0] - spin[0, 1]
+    )
+    v_w = cs.jtimes(p, q, qdot)
+    body = cs.vertcat(r.T @ v_w, r.T @ omega)
+    world = cs.vertcat(v_w, omega)
+    outputs = [body, cs.jacobian(body, zeta), cs.jtimes(body, q, qdot)]
+    outputs += [cs.jacobian(world, zeta), cs.jtimes(world, q, qdot)]
+    return cs.Function(f"{frame}_motion", [q, zeta], outputs)
+
+
+def test_the_chains_pass_equals_differentiated_forward_kinematics(uvms, rng):
+    q_s, zeta_s = cs.SX.sym("q", 10), cs.SX.sym("zeta", 10)
+    chain = uvms.chain_motion(q_s[6:], zeta_s)
+    passed = cs.Function("chain", [q_s, zeta_s], [x for _, *m in chain for x in m])
+    frames = ("link_1", "link_2", "link_3", "link_4", "ee")
+    references = [_differentiated_motion(uvms, f) for f in frames]
+    for _ in range(20):
+        q, zeta = random_q(rng), rng.normal(size=10)
+        got = [np.array(x) for x in passed(q, zeta)]
+        for k, ref in enumerate(references):
+            body, jac, jdot, jac_world, jdot_world = (np.array(x) for x in ref(q, zeta))
+            for mine, theirs in zip(got[3 * k : 3 * k + 3], (body, jac, jdot), strict=True):
+                np.testing.assert_allclose(mine, theirs, rtol=1e-11, atol=1e-11)
+        # the end effector's inertial Jacobian, its rate and the manipulability built on it
+        np.testing.assert_allclose(np.array(uvms.ee_jacobian(q)), jac_world, atol=1e-11)
+        np.testing.assert_allclose(
+            np.array(uvms.ee_jdot_zeta(q, zeta)), jdot_world, rtol=1e-11, atol=1e-11
+        )
+        jbar = jac_world[:, [0, 1, 2, 5, 6, 7, 8, 9]]
+        manipulability = float(uvms.manipulability(q))
+        assert manipulability == pytest.approx(np.linalg.det(jbar @ jbar.T), rel=1e-10)
+
+
 def test_mass_matrix_symmetric_positive_definite(uvms, rng):
     p = uvms.nominal_parameters()
     for _ in range(50):

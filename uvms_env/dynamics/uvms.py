@@ -31,9 +31,9 @@ from uvms_env.dynamics.hydro import (
     strip_damping,
     tube_added_mass,
 )
-from uvms_env.dynamics.spatial import euler_rate_matrix, homogeneous, rot_zyx, vee
+from uvms_env.dynamics.spatial import euler_rate_matrix, homogeneous, rot_zyx, skew
 from uvms_env.models import Parameters, load_parameters, render_urdf
-from uvms_env.models.urdf import JOINT_NAMES, LINK_NAMES, dh_tail
+from uvms_env.models.urdf import JOINT_NAMES, LINK_NAMES, chain_origins, dh_tail
 
 NQ = 10  # generalized coordinates / velocities of one UVMS
 NU = 8  # inputs: surge, sway, heave, yaw, 4 joint torques
@@ -57,6 +57,12 @@ DAMPING_ENTRIES = (
     "arm_drag_scale",
     "joint_damping",
 )
+
+
+def _unit(rows: int, columns: int, i: int, j: int) -> np.ndarray:
+    out = np.zeros((rows, columns))
+    out[i, j] = 1.0
+    return out
 
 
 def actuation_matrix() -> np.ndarray:
@@ -98,7 +104,6 @@ class UVMSModel:
         pos, theta, qm = q[:3], q[3:6], q[6:]
         rot = rot_zyx(theta)
         base = homogeneous(pos, rot)
-        qdot = self.qdot_map(q) @ zeta
 
         m_rb = self.kindyn.mass_matrix(base, qm) + cs.diag(
             cs.vertcat(cs.DM.zeros(6), cs.DM(prm.arm.armature))
@@ -108,16 +113,23 @@ class UVMSModel:
         m_veh, h_veh = self._vehicle_hydro(zeta[:6], rot, v_c, p)
         mass = m_rb + cs.diagcat(m_veh, cs.DM.zeros(4, 4))
         bias = h_rb + cs.vertcat(h_veh, p[PARAMETER_LAYOUT["joint_damping"]] * zeta[6:])
-        mass, bias = self._add_arm_hydro(mass, bias, base, q, zeta, qdot, v_c, p)
+        chain = self.chain_motion(qm, zeta)
+        mass, bias = self._add_arm_hydro(mass, bias, chain, rot.T @ v_c, p)
 
         pot = self._potential(base, qm, p)
         bias = bias + self.qdot_map(q).T @ cs.gradient(pot, q)
         mass = 0.5 * (mass + mass.T)  # exact symmetry despite round-off in the sums
 
         p_ee, r_ee = self._fk("ee", base, qm)
-        v_ee = cs.vertcat(cs.jtimes(p_ee, q, qdot), self._omega(r_ee, q, qdot))
-        j_ee = cs.jacobian(v_ee, zeta)
-        jbar = j_ee[:, list(ACTUATED_DOFS)]
+        # the end effector's body motion, turned into the inertial frame: the velocity of
+        # its point and its angular velocity, J_ee = blkdiag(R, R) J^b; at zeta_dot = 0 their
+        # rates are R (w^b x v^b + a_v^b) and R a_w^b (R_dot = R [w^b]x)
+        _, v_b, j_b, a_b = chain[-1]
+        rot2 = cs.diagcat(r_ee, r_ee)
+        j_ee = rot2 @ j_b
+        jdot_zeta = rot2 @ cs.vertcat(cs.cross(v_b[3:], v_b[:3]) + a_b[:3], a_b[3:])
+        # det(Jbar Jbar^T) is the same in the end effector's axes (a rotation's det is 1)
+        jbar = j_b[:, list(ACTUATED_DOFS)]
 
         points = [pos] + [self._fk(n, base, qm)[0] for n in (*LINK_NAMES, "ee")]
 
@@ -127,7 +139,7 @@ class UVMSModel:
         self.potential = cs.Function("uvms_potential", [q, p], [pot])
         self.ee_pose = cs.Function("ee_pose", [q], [p_ee, r_ee])
         self.ee_jacobian = cs.Function("ee_jacobian", [q], [j_ee])
-        self.ee_jdot_zeta = cs.Function("ee_jdot_zeta", [q, zeta], [cs.jtimes(v_ee, q, qdot)])
+        self.ee_jdot_zeta = cs.Function("ee_jdot_zeta", [q, zeta], [jdot_zeta])
         self.manipulability = cs.Function("manipulability", [q], [cs.det(jbar @ jbar.T)])
         self.body_points = cs.Function("body_points", [q], [cs.horzcat(*points)])
         self.qdot_matrix = cs.Function("qdot_matrix", [q], [self.qdot_map(q)])
@@ -154,30 +166,62 @@ class UVMSModel:
         )
         return m_a + m_extra, h_veh
 
+    def chain_motion(self, qm: cs.SX, zeta: cs.SX) -> list[tuple[cs.SX, cs.SX, cs.SX, cs.SX]]:
+        """(R, V, J, a) of links 1..4 and the end effector, one pass out from the vehicle:
+        R the frame's rotation from its parent, V its body twist (velocity of its origin,
+        angular velocity; its own axes), J = dV/dzeta (6 x 10), a = J_dot zeta (V's rate at
+        zeta_dot = 0). Each frame sits at its origin in its parent (``chain_origins``),
+        turned by its joint about z: V = Ad^-1 V_parent + s qdot, a = Ad^-1 a_parent + V x s
+        qdot (s = the z rotation). The vehicle's V is zeta[:6] and its a is 0."""
+        v, w = zeta[:3], zeta[3:6]
+        jv = cs.DM(np.eye(3, NQ))
+        jw = cs.DM(np.eye(3, NQ, 3))
+        av, aw = cs.DM.zeros(3), cs.DM.zeros(3)
+        mount, *joints, tip = chain_origins(self.params)
+        out = []
+        for k, (xyz, rpy) in enumerate([*joints, tip]):
+            rot = cs.DM(rot_zyx(rpy))
+            if k == 0:  # joint 1's origin is the mount's frame
+                rot = cs.DM(rot_zyx(mount[1])) @ rot
+                xyz = mount[0] + np.asarray(cs.DM(rot_zyx(mount[1]))) @ xyz
+            if k < len(joints):  # a joint turns the frame by q about its z
+                c, s = cs.cos(qm[k]), cs.sin(qm[k])
+                rot = rot @ cs.vertcat(
+                    cs.horzcat(c, -s, 0), cs.horzcat(s, c, 0), cs.horzcat(0, 0, 1)
+                )
+            rt, arm = rot.T, cs.DM(skew(xyz))
+            v, w = rt @ (v - arm @ w), rt @ w
+            jv, jw = rt @ (jv - arm @ jw), rt @ jw
+            av, aw = rt @ (av - arm @ aw), rt @ aw
+            if k < len(joints):
+                spin = cs.vertcat(0, 0, zeta[6 + k])
+                w = w + spin
+                jw = jw + cs.DM(_unit(3, NQ, 2, 6 + k))  # the joint's rate turns it about z
+                av = av + cs.cross(v, spin)
+                aw = aw + cs.cross(w, spin)
+            out.append((rot, cs.vertcat(v, w), cs.vertcat(jv, jw), cs.vertcat(av, aw)))
+        return out
+
     def _add_arm_hydro(
         self,
         mass: cs.SX,
         bias: cs.SX,
-        base: cs.SX,
-        q: cs.SX,
-        zeta: cs.SX,
-        qdot: cs.SX,
-        v_c: cs.SX,
+        chain: list[tuple[cs.SX, cs.SX, cs.SX, cs.SX]],
+        vc_body: cs.SX,
         p: cs.SX,
     ) -> tuple[cs.SX, cs.SX]:
         """``mass`` and ``bias`` plus the arm links' hydrodynamics: strip theory in each
-        link frame."""
-        qm = q[6:]
+        link frame, on the links' body motion (``chain_motion``) and the current in the
+        link's axes (``vc_body``, the current in the vehicle's, turned down the chain)."""
         am_scale = p[PARAMETER_LAYOUT["arm_added_mass_scale"]]
         drag_scale = p[PARAMETER_LAYOUT["arm_drag_scale"]]
-        for link in self.links:
-            v_l, r_l = self._body_twist(link.name, base, qm, q, zeta, qdot)
-            j_l = cs.jacobian(v_l, zeta)
-            jdot_l = cs.jtimes(v_l, q, qdot)
-            v_r = v_l - cs.vertcat(r_l.T @ v_c, cs.DM.zeros(3))
+        v_c = vc_body
+        for link, (rot, v_l, j_l, jdot_l) in zip(self.links, chain, strict=False):
+            v_c = rot.T @ v_c
+            v_r = v_l - cs.vertcat(v_c, cs.DM.zeros(3))
             m_al = am_scale * cs.DM(link.added_mass)
             wrench = (
-                m_al @ (jdot_l - current_twist_rate(v_l[3:], r_l.T @ v_c))
+                m_al @ (jdot_l - current_twist_rate(v_l[3:], v_c))
                 + kirchhoff_coriolis(m_al, v_r)
                 + strip_damping(v_r, link.strips, link.coef, drag_scale)
             )
@@ -194,16 +238,6 @@ class UVMSModel:
     def _fk(self, frame: str, base: cs.SX, qm: cs.SX) -> tuple[cs.SX, cs.SX]:
         h = self.kindyn.forward_kinematics(frame, base, qm)
         return h[:3, 3], h[:3, :3]
-
-    @staticmethod
-    def _omega(rot: cs.SX, q: cs.SX, qdot: cs.SX) -> cs.SX:
-        rdot = cs.reshape(cs.jtimes(cs.reshape(rot, 9, 1), q, qdot), 3, 3)
-        return vee(rdot @ rot.T)
-
-    def _body_twist(self, frame, base, qm, q, zeta, qdot) -> tuple[cs.SX, cs.SX]:
-        p_l, r_l = self._fk(frame, base, qm)
-        v_w = cs.jtimes(p_l, q, qdot)
-        return cs.vertcat(r_l.T @ v_w, r_l.T @ self._omega(r_l, q, qdot)), r_l
 
     def _link_hydro(self) -> list[LinkHydro]:
         arm, rho = self.params.arm, self.params.water_density

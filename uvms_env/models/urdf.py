@@ -29,6 +29,22 @@ def dh_tail(a: float, alpha: float, d: float, offset: float) -> tuple[np.ndarray
     return xyz, np.array([alpha, 0.0, offset])
 
 
+def as_written(values: np.ndarray | tuple) -> np.ndarray:
+    """The numbers as the URDF writes them (``_vec``: 10 significant digits): what a
+    model read from it (adam's rigid body) holds."""
+    return np.array([float(f"{float(x):.10g}") for x in values])
+
+
+def chain_origins(params: Parameters | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(xyz, rpy) of the arm's joint origins, each in its parent's frame, as the URDF
+    writes them: the mount (vehicle to ``arm_base``), joints 1..4 (link i rotates about
+    its origin's z) and ``ee_fixed`` (link 4 to ``ee``)."""
+    arm = (params or load_parameters()).arm
+    tails = [dh_tail(*row) for row in arm.dh]
+    origins = [(arm.mount_xyz, arm.mount_rpy), (np.zeros(3), np.zeros(3)), *tails]
+    return [(as_written(xyz), as_written(rpy)) for xyz, rpy in origins]
+
+
 def tube_inertia(mass: float, radius: float, axis: np.ndarray) -> np.ndarray:
     """Inertia about the centre of a uniform thin tube of the given direction and length."""
     length = float(np.linalg.norm(axis))
@@ -82,16 +98,19 @@ def render_urdf(params: Parameters | None = None) -> str:
     )
     housing = tube_inertia(arm.base_housing_mass, arm.tube_radius, np.array([0.0, 0.0, 0.05]))
     out += _link("arm_base", _inertial(arm.base_housing_mass, np.zeros(3), housing))
-    out += _joint("arm_mount", "fixed", "vehicle", "arm_base", arm.mount_xyz, arm.mount_rpy)
-    parent, xyz, rpy = "arm_base", np.zeros(3), np.zeros(3)
+    mount, *joints, ee = chain_origins(p)
+    out += _joint("arm_mount", "fixed", "vehicle", "arm_base", *mount)
+    parent = "arm_base"
     limits = (-lim.joint_position, lim.joint_position, lim.joint_torque, lim.joint_speed)
-    for jname, lname, mass, row in zip(JOINT_NAMES, LINK_NAMES, arm.link_mass, arm.dh, strict=True):
-        out += _joint(jname, "revolute", parent, lname, xyz, rpy, limits)
-        tail_xyz, tail_rpy = dh_tail(*row)
+    for jname, lname, mass, row, origin in zip(
+        JOINT_NAMES, LINK_NAMES, arm.link_mass, arm.dh, joints, strict=True
+    ):
+        out += _joint(jname, "revolute", parent, lname, *origin, limits)
+        tail_xyz, _ = dh_tail(*row)
         inertia = tube_inertia(mass, arm.tube_radius, tail_xyz)
         out += _link(lname, _inertial(mass, tail_xyz / 2, inertia))
-        parent, xyz, rpy = lname, tail_xyz, tail_rpy
-    out += _joint("ee_fixed", "fixed", parent, "ee", xyz, rpy)
+        parent = lname
+    out += _joint("ee_fixed", "fixed", parent, "ee", *ee)
     out += _link("ee")
     return out + "</robot>\n"
 
