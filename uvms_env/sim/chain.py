@@ -27,6 +27,7 @@ import casadi as cs
 from uvms_env.dynamics import NP, NQ, NU, ObjectModel, UVMSModel
 from uvms_env.dynamics.payload import grasp_jacobian, grasp_jdot_v
 from uvms_env.dynamics.spatial import euler_rate_matrix, rot_zyx, rotation_error
+from uvms_env.dynamics.spd import spd_inverse, spd_solve
 
 NG = 12  # grasp description per robot: offset l_i (3) and R_Oi (9, column-major)
 # Newton steps of the position projection. The simulator refines a period whose drift
@@ -85,10 +86,9 @@ def robot_stage(uvms: UVMSModel, stabilization: float) -> cs.Function:
     w = stabilization
     c = grasp_jdot_v(r_o, offset, v_o) - 2 * w * err_dot - w * w * err
 
-    sol = cs.solve(mass, cs.horzcat(cs.DM(uvms.B) @ tau - bias, jac.T))
+    sol = spd_solve(mass, cs.horzcat(cs.DM(uvms.B) @ tau - bias, jac.T))
     acc_free, minv_jt = sol[:, 0], sol[:, 1:]
-    lam = cs.inv(jac @ minv_jt)  # operational-space inertia Lambda_i (6x6, SPD)
-    lam = 0.5 * (lam + lam.T)
+    lam = spd_inverse(jac @ minv_jt)  # operational-space inertia Lambda_i (6x6, SPD)
     a_free = jac @ acc_free + jdot
     lam_a = lam @ (a_free - c)
     lam_jo = lam @ j_o
@@ -110,10 +110,11 @@ def robot_stage(uvms: UVMSModel, stabilization: float) -> cs.Function:
 
 @cache
 def _solve6() -> cs.Function:
-    """6x6 linear solve as SX: expanded, branch-free (an MX ``cs.solve`` becomes CasADi's
-    QR linear solver, whose pivoting branches have no meaning per SIMD lane)."""
+    """6x6 solve with the object's coupled inertia (SPD) as SX: expanded, branch-free (an MX
+    ``cs.solve`` becomes CasADi's QR linear solver, whose pivoting branches have no meaning
+    per SIMD lane)."""
     a, b = cs.SX.sym("A", 6, 6), cs.SX.sym("b", 6)
-    return cs.Function("solve6", [a, b], [cs.solve(a, b)], {"cse": True})
+    return cs.Function("solve6", [a, b], [spd_solve(a, b)], {"cse": True})
 
 
 def robot_metric(uvms: UVMSModel) -> cs.Function:
@@ -133,8 +134,7 @@ def robot_metric(uvms: UVMSModel) -> cs.Function:
     grasp, x_o = cs.SX.sym("grasp", NG), cs.SX.sym("x_O", 6)
     jac = uvms.ee_jacobian(q)
     minv_jt = minv @ jac.T
-    lam = cs.inv(jac @ minv_jt)
-    lam = 0.5 * (lam + lam.T)
+    lam = spd_inverse(jac @ minv_jt)
     j_o = grasp_jacobian(rot_zyx(x_o[3:]), grasp[:3])
     w = j_o.T @ lam
     pp = minv_jt @ lam
@@ -161,7 +161,7 @@ def manifold_projection(
     zero3 = cs.MX.zeros(3)
     qs, ps = cs.SX.sym("q", NQ), cs.SX.sym("p", NP)
     mass_inverse = cs.Function(
-        "uvms_mass_inverse", [qs, ps], [cs.inv(uvms.mass_matrix(qs, ps))], {"cse": True}
+        "uvms_mass_inverse", [qs, ps], [spd_inverse(uvms.mass_matrix(qs, ps))], {"cse": True}
     )
     masses = [mass_inverse(q[i], pp[:, i]) for i in range(n)]
     m_o = obj.dynamics(x_o, v_o, zero3, po)[0]
