@@ -3,7 +3,7 @@
     python -m baselines.train --library sb3 --algo ppo --scenario short --robot-steps 200000 \\
         --num-envs 4 --seed 0 --out runs/ppo --eval-every 50000
 
-Libraries (``baselines.registry``): ``sb3`` (default), ``torchrl``, ``rllib``; each trainer
+Libraries (``baselines.registry``): ``sb3`` (default), ``benchmarl``, ``rllib``; each trainer
 only builds, learns and saves, and ``baselines.runs`` keeps the run folder. ``--engine`` is
 the flag's earlier name, still accepted. Every option is checked before the run folder,
 the env and the model (the environment's own checks, the library's: ``check_library``);
