@@ -114,8 +114,7 @@ class SB3Policy(LoadedPolicy):
         return None if self._decision is None else self._decision.whole
 
     def decide_many(self, x: np.ndarray) -> np.ndarray:
-        if self._recurrent:
-            return super().decide_many(x)
+        # (a recurrent model never batches: ``batch_key`` is None)
         if self._pad is not None:
             x = np.concatenate([x, np.broadcast_to(self._pad, (len(x), len(self._pad)))], 1)
         return self.model.predict(self.normalize(x), deterministic=True)[0]

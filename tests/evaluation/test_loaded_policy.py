@@ -96,6 +96,35 @@ def test_the_robots_of_a_committed_model_share_one_loaded_network():
     assert loaded_policy.PRIOR_OPTIONS[:2] == ("action_mode", "observation_mode")
 
 
+def test_a_batch_of_robots_decides_as_each_robot_alone():
+    """``decide_many`` (one forward for many robots) against ``decide`` row by row, for
+    SB3's ``predict`` path (the loader's own batch) and the base's default; and a robot's
+    ``batch_key`` is shared by its teammates and by the same model on another episode."""
+    import numpy as np
+
+    from baselines.loaders.sources import PriorPolicy
+    from uvms_env.policy import AgentSpec
+    from uvms_env.scenarios import make
+
+    scenario = make("random", n_agents=3, seed=5)
+    specs = [AgentSpec.from_scenario(scenario, i) for i in range(3)]
+    policies = [SB3Policy(s, "ppo", PRETRAINED / "ppo_scratch", compiled=False) for s in specs]
+    width = policies[0].priors.observation_size  # what decide reads: the priors' features
+    x = np.random.default_rng(0).normal(size=(7, width)).astype(np.float32)
+    rows = np.stack([policies[0].decide(row) for row in x])
+    np.testing.assert_allclose(policies[0].decide_many(x), rows, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(LoadedPolicy.decide_many(policies[0], x), rows, atol=0)
+    assert len({p.batch_key() for p in policies}) == 1
+    other = SB3Policy(
+        AgentSpec.from_scenario(make("random", n_agents=3, seed=6), 1),
+        "ppo",
+        PRETRAINED / "ppo_scratch",
+        compiled=False,
+    )
+    assert other.batch_key() == policies[0].batch_key()
+    assert PriorPolicy(specs[0]).batch_key() != policies[0].batch_key()
+
+
 def test_the_committed_from_scratch_model_is_a_rung_and_acts_on_a_bar():
     """``ppo:scratch`` (MAPPO from scratch over rings and bars: its critic reads the team's
     padded state, its actor one robot's observation) is found by its bare word, sits on

@@ -216,7 +216,7 @@ class UVMSModel:
         am_scale = p[PARAMETER_LAYOUT["arm_added_mass_scale"]]
         drag_scale = p[PARAMETER_LAYOUT["arm_drag_scale"]]
         v_c = vc_body
-        for link, (rot, v_l, j_l, jdot_l) in zip(self.links, chain, strict=False):
+        for link, (rot, v_l, j_l, jdot_l) in zip(self.links, chain[:-1], strict=True):
             v_c = rot.T @ v_c
             v_r = v_l - cs.vertcat(v_c, cs.DM.zeros(3))
             m_al = am_scale * cs.DM(link.added_mass)
