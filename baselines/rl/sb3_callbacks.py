@@ -4,7 +4,7 @@ SB3's ``learn`` with the model SB3 hands them (``self.model``), never the traine
 * ``RunProgress``: the progress row of every rollout (SAC: every ``SAC_ROW_STEPS`` steps
   of every sub-env), the bar, the cost's dual step, the end of ``--critic-warmup``;
 * ``RunCheckpoints``: SB3's ``CheckpointCallback`` (its files are what ``--resume`` reads
-  back), timed apart from training;
+  back) with the cost's multiplier beside each checkpoint, timed apart from training;
 * ``RunEvaluation``: the periodic evaluation through the project's evaluator.
 
 May import: stable-baselines3, ``baselines.runs``, ``baselines.evaluation.during_training``
@@ -13,6 +13,7 @@ May import: stable-baselines3, ``baselines.runs``, ``baselines.evaluation.during
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,22 @@ from uvms_env.env.infos import EPISODE_END_NAMES
 # SAC has no rollouts: one progress row per this many steps of every sub-environment.
 SAC_ROW_STEPS = 256
 CHECKPOINTS = "checkpoints"
+# the multiplier in force when a checkpoint was saved: SB3's naming, a JSON of one key
+MULTIPLIER_CHECKPOINT = "multiplier_"
+MULTIPLIER_KEY = "multiplier"
+
+
+def checkpoint_multiplier(model: Path) -> float | None:
+    """The cost's multiplier saved with the checkpoint ``model``
+    (``checkpoints/rl_model_<steps>_steps.zip``); None for another file or a checkpoint
+    saved without one (no cost, or a run older than these files)."""
+    if model.parent.name != CHECKPOINTS:
+        return None
+    steps = model.stem.split("_")[-2]
+    saved = model.parent / f"rl_model_{MULTIPLIER_CHECKPOINT}{steps}_steps.json"
+    if not saved.is_file():
+        return None
+    return float(json.loads(saved.read_text())[MULTIPLIER_KEY])
 
 
 def save_model(model: BaseAlgorithm, folder: Path, replay_buffer: bool = False) -> None:
@@ -134,23 +151,33 @@ class RunProgress(BaseCallback):
 class RunCheckpoints(CheckpointCallback):
     """SB3's checkpoints every ``--checkpoint-every`` robot-steps (in env.step calls of
     all sub-envs) under ``checkpoints/``: ``rl_model_<steps>_steps.zip``,
-    ``rl_model_vecnormalize_<steps>_steps.pkl`` (SAC: the replay buffer), the files
-    ``find_resume`` reads back; their saving is no training (``Run.apart``)."""
+    ``rl_model_vecnormalize_<steps>_steps.pkl`` (SAC: the replay buffer) and, with a
+    cost (``penalty``), ``rl_model_multiplier_<steps>_steps.json``: the multiplier in
+    force during the rollout the checkpoint was saved in, which a resume from it starts
+    from (a killed session writes no ``final_multiplier``). The files ``find_resume``
+    and ``checkpoint_multiplier`` read back; their saving is no training
+    (``Run.apart``)."""
 
-    def __init__(self, run: Run, every: int, n_envs: int, replay_buffer: bool) -> None:
+    def __init__(
+        self, run: Run, every: int, n_envs: int, replay_buffer: bool, penalty: Any = None
+    ) -> None:
         super().__init__(
             max(1, every // n_envs),
             str(run.folder / CHECKPOINTS),
             save_replay_buffer=replay_buffer,
             save_vecnormalize=True,
         )
-        self.run = run
+        self.run, self.penalty = run, penalty
 
     def _on_step(self) -> bool:
         if self.n_calls % self.save_freq:
             return True
         with self.run.apart():
-            return super()._on_step()
+            going_on = super()._on_step()
+            if self.penalty is not None:
+                saved = Path(self._checkpoint_path(MULTIPLIER_CHECKPOINT, extension="json"))
+                saved.write_text(json.dumps({MULTIPLIER_KEY: self.penalty.multiplier}))
+            return going_on
 
 
 class RunEvaluation(BaseCallback):
@@ -208,7 +235,7 @@ def run_callbacks(
         )
     ]
     if s.checkpoint_every > 0:
-        callbacks.append(RunCheckpoints(run, s.checkpoint_every, n_envs, replay_buffer))
+        callbacks.append(RunCheckpoints(run, s.checkpoint_every, n_envs, replay_buffer, penalty))
     if s.eval_every > 0:
         callbacks.append(RunEvaluation(run))
     return CallbackList(callbacks)

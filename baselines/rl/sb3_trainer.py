@@ -328,6 +328,7 @@ class Trainer:
         self.venv: Any = None
         self.penalty: Any = None
         self.shield: Any = None
+        self.resumed_from: Path | None = None
 
     def build(self) -> dict[str, Any]:
         import torch
@@ -366,6 +367,8 @@ class Trainer:
         self.model, self.venv = model, venv
         self._hold(model, venv)
         self.penalty = find_layer(venv, CostPenalty)
+        if s.resume is not None and self.penalty is not None:
+            self._resume_multiplier()
         from baselines.rl.shield import ShieldPenalty
 
         shielded = find_layer(venv, ShieldPenalty)
@@ -437,6 +440,7 @@ class Trainer:
         from stable_baselines3.common.vec_env import VecNormalize
 
         model_path, norm_path, buffer_path = find_resume(Path(self.run.settings.resume))
+        self.resumed_from = model_path
         venv = VecNormalize.load(str(norm_path), venv)
         venv.training = True
         model = algorithm_class(self.algo).load(model_path, env=venv, device="cpu")
@@ -446,6 +450,24 @@ class Trainer:
             hp["gradient_steps"] = model.gradient_steps
         print(f"resuming {model_path} at {model.num_timesteps} robot-steps")
         return model, venv
+
+    def _resume_multiplier(self) -> None:
+        """A resume from a checkpoint starts from the multiplier saved with it (config.json
+        records it as the session's start); from the run's final model, from the previous
+        session's last (``Run.start``)."""
+        from baselines.rl.sb3_callbacks import CHECKPOINTS, checkpoint_multiplier
+
+        if self.resumed_from is None:
+            return
+        saved = checkpoint_multiplier(self.resumed_from)
+        if saved is not None:
+            self.penalty.multiplier = saved
+            self.run.config["cost"]["multiplier"] = saved
+        elif self.resumed_from.parent.name == CHECKPOINTS:
+            print(
+                f"no multiplier saved with {self.resumed_from}: the multiplier starts at "
+                f"{self.penalty.multiplier:g} (the previous session's last or --cost's start)"
+            )
 
     def _new_model(
         self, venv: Any, hp: dict[str, Any], policy_kwargs: dict[str, Any], clone: Any

@@ -319,6 +319,36 @@ def test_ppo_lagrangian_takes_the_dual_step_from_each_rollouts_episode_cost(
         assert held == [pytest.approx([float(r["multiplier"])] * 2, rel=1e-5) for r in rows]
 
 
+def test_sb3_resumes_a_killed_run_with_the_multiplier_saved_at_its_checkpoint(tmp_path):
+    """Each checkpoint keeps the multiplier in force while it was saved (the one the row
+    before it set); a session killed after a checkpoint writes no final multiplier, and its
+    resume from that checkpoint goes on from the saved one, not from --cost's start."""
+    out = tmp_path / "sb3"
+    _cost_run("sb3", out, 192, DUAL, "--checkpoint-every", "64")
+    rows = _rows(out / "progress.csv")
+    checkpoints = out / "checkpoints"
+    saved = {
+        int(p.stem.split("_")[-2]): json.loads(p.read_text())["multiplier"]
+        for p in checkpoints.glob("rl_model_multiplier_*_steps.json")
+    }
+    expected = [0.5, float(rows[0]["multiplier"]), float(rows[1]["multiplier"])]
+    assert [saved[s] for s in (64, 128, 192)] == pytest.approx(expected, rel=1e-5)
+    assert expected[1] != 0.5
+    # killed between the checkpoints at 128 and 192: no final model, no final multiplier
+    for name in ("model.zip", "vecnormalize.pkl", *(p.name for p in checkpoints.glob("*_192_*"))):
+        (checkpoints / name if "192" in name else out / name).unlink()
+    config = json.loads((out / "config.json").read_text())
+    del config["cost"]["final_multiplier"]
+    (out / "config.json").write_text(json.dumps(config))
+    _cost_run("sb3", out, 192, DUAL, "--checkpoint-every", "64", "--resume", str(out))
+    config = json.loads((out / "config.json").read_text())
+    assert config["resumes"] == 1 and config["cost"]["multiplier"] == pytest.approx(expected[1])
+    resumed = _rows(out / "progress.csv")[3:]
+    assert [int(r["robot_steps"]) for r in resumed] == [192]
+    last = _check_dual_steps(resumed, expected[1], 0.1, 0.2)
+    assert config["cost"]["final_multiplier"] == pytest.approx(last, rel=1e-5)
+
+
 def test_rllib_resumes_with_the_last_multiplier(local_ray, tmp_path):
     out = tmp_path / "rllib"
     _cost_run("rllib", out, 64, DUAL)
