@@ -32,19 +32,6 @@ MULTIPLIER_CHECKPOINT = "multiplier_"
 MULTIPLIER_KEY = "multiplier"
 
 
-def checkpoint_multiplier(model: Path) -> float | None:
-    """The cost's multiplier saved with the checkpoint ``model``
-    (``checkpoints/rl_model_<steps>_steps.zip``); None for another file or a checkpoint
-    saved without one (no cost, or a run older than these files)."""
-    if model.parent.name != CHECKPOINTS:
-        return None
-    steps = model.stem.split("_")[-2]
-    saved = model.parent / f"rl_model_{MULTIPLIER_CHECKPOINT}{steps}_steps.json"
-    if not saved.is_file():
-        return None
-    return float(json.loads(saved.read_text())[MULTIPLIER_KEY])
-
-
 def save_model(model: BaseAlgorithm, folder: Path, replay_buffer: bool = False) -> None:
     """``model.zip`` and ``vecnormalize.pkl`` in ``folder`` (what ``ppo:FOLDER`` loads
     and a resume reads), with ``replay_buffer`` SAC's ``replay_buffer.pkl`` too."""
@@ -154,9 +141,9 @@ class RunCheckpoints(CheckpointCallback):
     ``rl_model_vecnormalize_<steps>_steps.pkl`` (SAC: the replay buffer) and, with a
     cost (``penalty``), ``rl_model_multiplier_<steps>_steps.json``: the multiplier in
     force during the rollout the checkpoint was saved in, which a resume from it starts
-    from (a killed session writes no ``final_multiplier``). The files ``find_resume``
-    and ``checkpoint_multiplier`` read back; their saving is no training
-    (``Run.apart``)."""
+    from (a killed session writes no ``final_multiplier``). The files that
+    ``baselines.rl.sb3_trainer``'s ``find_resume`` and ``checkpoint_multiplier`` read
+    back; their saving is no training (``Run.apart``)."""
 
     def __init__(
         self, run: Run, every: int, n_envs: int, replay_buffer: bool, penalty: Any = None

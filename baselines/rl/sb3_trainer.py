@@ -16,6 +16,7 @@ May import: numpy, torch and stable-baselines3 (inside the trainer), ``baselines
 from __future__ import annotations
 
 import argparse
+import json
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -314,6 +315,21 @@ def find_resume(path: Path) -> tuple[Path, Path, Path | None]:
     return model, norm, buffer if buffer.exists() else None
 
 
+def checkpoint_multiplier(model: Path) -> float | None:
+    """The cost's multiplier saved with the checkpoint ``model``
+    (``checkpoints/rl_model_<steps>_steps.zip``, ``RunCheckpoints``); None for another file
+    or a checkpoint saved without one (no cost, or a run older than these files)."""
+    from baselines.rl.sb3_callbacks import CHECKPOINTS, MULTIPLIER_CHECKPOINT, MULTIPLIER_KEY
+
+    if model.parent.name != CHECKPOINTS:
+        return None
+    steps = _checkpoint_steps(model)
+    saved = model.parent / f"rl_model_{MULTIPLIER_CHECKPOINT}{steps}_steps.json"
+    if not saved.is_file():
+        return None
+    return float(json.loads(saved.read_text())[MULTIPLIER_KEY])
+
+
 def _checkpoint_steps(path: Path) -> int:
     return int(path.stem.split("_")[-2])
 
@@ -455,7 +471,7 @@ class Trainer:
         """A resume from a checkpoint starts from the multiplier saved with it (config.json
         records it as the session's start); from the run's final model, from the previous
         session's last (``Run.start``)."""
-        from baselines.rl.sb3_callbacks import CHECKPOINTS, checkpoint_multiplier
+        from baselines.rl.sb3_callbacks import CHECKPOINTS
 
         if self.resumed_from is None:
             return
