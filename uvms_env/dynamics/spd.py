@@ -48,6 +48,7 @@ def spd_inverse(a: cs.SX) -> cs.SX:
 
 
 def _dot(u: list[cs.SX], v: list[cs.SX]) -> cs.SX:
+    # over u's length: below the diagonal, v (the pivots so far) already holds column j's
     total = cs.SX(0)
     for p, q in zip(u, v, strict=False):
         total = total + p * q
