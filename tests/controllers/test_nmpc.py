@@ -16,7 +16,7 @@ from nmpc_expert.local_controller import local_parameters
 from nmpc_expert.observation_reader import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
 from nmpc_expert.ocp import CONSTRAINT_NAMES, CONSTRAINT_STATE, NC, WEIGHT_LAYOUT, build_outputs
 from uvms_env.dynamics import ObjectModel
-from uvms_env.dynamics.local_model import NX, build_local_model
+from uvms_env.dynamics.local_model import GRASP_THETA, NX, build_local_model
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.env.infos import constraint_values
 from uvms_env.policy import AgentSpec, Policy
@@ -51,6 +51,26 @@ def short_run(env):
         violations.append({k: v for a in pols for k, v in constraint_values(infos[a]).items()})
         assert not any(term.values())
     return pols, start, env.sim.state.x_O.copy(), violations, stream, actions
+
+
+def test_the_piece_load_model_carries_its_piece_whole(env):
+    """``load_model="piece"``: the robot's model carries the piece of the object nearest its
+    grasp with load share 1 (``ObjectModel.piece_parameters``); "share" (the default) its
+    share of the whole object."""
+    spec = AgentSpec.from_scenario(env.scenario, 1)
+    obj = ObjectModel(spec.object_shape, spec.ring_radius)
+    share_at = GRASP_THETA - 1
+    piece = make_policy("rti", load_model="piece")(spec)
+    assert piece.theta[share_at] == 1.0
+    np.testing.assert_array_equal(
+        piece.theta[GRASP_THETA:], obj.piece_parameters(spec.grasp_offset, spec.load_share)
+    )
+    np.testing.assert_array_equal(piece.theta[:share_at], local_parameters(spec)[:share_at])
+    default = make_policy("rti")(spec)
+    assert default.theta[share_at] == spec.load_share
+    np.testing.assert_array_equal(default.theta[GRASP_THETA:], obj.nominal_parameters())
+    with pytest.raises(ValueError, match="load_model"):
+        NMPCSettings(load_model="halves")
 
 
 def test_policy_protocol(env):

@@ -135,3 +135,55 @@ def test_a_ring_and_the_bar_share_the_chain_and_differ_by_their_parameters():
     step_ring = np.array(ring[1](*args, po_ring, grasp, 0.12)[0]).ravel()
     assert np.all(np.isfinite(step_bar)) and np.all(np.isfinite(step_ring))
     assert np.max(np.abs(step_bar - step_ring)) > 1e-6
+
+
+def _ring_grasps(radius: float, angles_deg: list[float]) -> list[np.ndarray]:
+    a = np.radians(angles_deg)
+    return [np.array([radius * np.cos(t), radius * np.sin(t), 0.0]) for t in a]
+
+
+# objects cut exactly by their grasps: each share's piece is whole strips around the grasp
+TILINGS = [
+    (("bar", 0.0), [np.array([0.0, y, 0.0]) for y in (-0.8, 0.8)], [0.5, 0.5]),
+    (("bar", 3.6), [np.array([0.0, y, 0.0]) for y in (-1.35, -0.45, 0.45, 1.35)], [0.25] * 4),
+    (("bar", 3.6), [np.array([0.0, y, 0.0]) for y in (-1.6, 0.45)], [0.25, 0.75]),
+    (("ring", 1.6), _ring_grasps(1.6, [45, 135, 225, 315]), [0.25] * 4),
+]
+
+
+@pytest.mark.parametrize(("obj", "grasps", "shares"), TILINGS)
+def test_pieces_that_tile_the_object_add_up_to_its_dynamics(obj, grasps, shares, rng):
+    """The object's (M_O, h_O) are linear in its strips, mass and volume: pieces that cut it
+    into disjoint parts sum to the whole at any pose, twist and current."""
+    o = ObjectModel(*obj)
+    pieces = [o.piece_parameters(g, c) for g, c in zip(grasps, shares, strict=True)]
+    for _ in range(3):
+        x = np.concatenate([rng.normal(size=3), rng.uniform(-0.6, 0.6, 3)])
+        v, v_c = 0.3 * rng.normal(size=6), 0.2 * rng.normal(size=3)
+        whole = [np.array(t) for t in o.dynamics(x, v, v_c, o.nominal_parameters())]
+        parts = [[np.array(t) for t in o.dynamics(x, v, v_c, p)] for p in pieces]
+        for k in range(2):
+            np.testing.assert_allclose(sum(p[k] for p in parts), whole[k], rtol=1e-12, atol=1e-12)
+
+
+def test_a_piece_lies_around_its_grasp_and_a_whole_share_is_the_object():
+    o = ObjectModel("bar", 8.2)
+    layout, mass = parameter_layout(o.capacity), OBJECT_PARAMETER_LAYOUT["mass"]
+    np.testing.assert_array_equal(
+        o.piece_parameters(np.array([0.0, 3.9, 0.0]), 1.0), o.nominal_parameters()
+    )
+    for y, share in ((3.9, 0.1), (0.0, 0.2), (-2.0, 0.3)):
+        p = o.piece_parameters(np.array([0.0, y, 0.0]), share)
+        assert p[mass] == pytest.approx(share * o.nominal_mass)
+        strips = p[layout["strips"]].reshape(o.capacity, STRIP_SIZE)
+        centers = strips[strips[:, 6] > 0, 1]
+        # a share of the length, in whole strips, shifted inwards at the bar's end
+        held = strips[:, 6].sum()
+        assert share * o.length <= held < share * o.length + 0.226
+        lo, hi = max(-o.length / 2, y - held), min(o.length / 2, y + held)
+        assert lo <= centers.min() and centers.max() <= hi
+        # the piece's centre of mass, from its first moment about the origin
+        first = p[layout["unit_inertia"]].reshape(6, 6).T[3:, :3]
+        assert abs(first[2, 0]) == pytest.approx(abs(np.mean(centers)), abs=1e-9)
+    with pytest.raises(ValueError, match="share"):
+        o.piece_parameters(np.zeros(3), 0.0)

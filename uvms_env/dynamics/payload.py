@@ -268,23 +268,69 @@ class ObjectModel:
     def nominal_parameters(self) -> np.ndarray:
         """p_O of the parameter file: the physical parameters, then the shape, its strips
         padded to the capacity (a padding strip: at the origin, along x, of length 0)."""
+        return self._parameters(
+            self.nominal_mass, self.nominal_volume, self.unit_inertia, self.added_mass, self.strips
+        )
+
+    def piece_parameters(self, grasp_offset: np.ndarray, share: float) -> np.ndarray:
+        """p_O of the piece of the object that a robot grasping it at ``grasp_offset``
+        (object frame) carries with load share ``share`` in (0, 1]: the strips nearest the
+        grasp, taken in order of distance until they hold ``share`` of the tube's length
+        (more from the inner side where the grasp is near a bar's end), with ``share`` of
+        the mass and displaced volume and the hydrodynamics of ``share`` of the length.
+        Expressed about the object's origin like ``nominal_parameters``, so a local model
+        with load share 1 carries the piece where it is: near its own grasp, not the
+        share of the whole object at the centroid, whose lever arm makes every robot of a
+        long bar push a large moment that its teammates push back (docs/results/expert.md)."""
+        if not 0.0 < share <= 1.0:
+            raise ValueError(f"share must lie in (0, 1], got {share!r}")
+        near = np.linalg.norm(self.strips.centers - np.asarray(grasp_offset, float), axis=1)
+        order = np.argsort(near, kind="stable")
+        target = share * self.length
+        before = np.cumsum(self.strips.lengths[order]) - self.strips.lengths[order]
+        keep = np.sort(order[before < target - SIZE_TOLERANCE])
+        piece = Strips(
+            self.strips.centers[keep],
+            self.strips.axes[keep],
+            self.strips.lengths[keep],
+            self.strips.radius,
+        )
+        fill = target / piece.total_length  # the last strip is whole: scale to the share
+        return self._parameters(
+            share * self.nominal_mass,
+            share * self.nominal_volume,
+            tube_rigid_inertia(piece, 1.0),
+            tube_added_mass(piece, self.coef) * fill,
+            piece,
+            drag_scale=fill,
+        )
+
+    def _parameters(
+        self,
+        mass: float,
+        volume: float,
+        unit_inertia: np.ndarray,
+        added_mass: np.ndarray,
+        strips: Strips,
+        drag_scale: float = 1.0,
+    ) -> np.ndarray:
         part = parameter_layout(self.capacity)
         p = np.zeros(self.parameter_count)
-        p[OBJECT_PARAMETER_LAYOUT["mass"]] = self.nominal_mass
-        p[OBJECT_PARAMETER_LAYOUT["displaced_volume"]] = self.nominal_volume
+        p[OBJECT_PARAMETER_LAYOUT["mass"]] = mass
+        p[OBJECT_PARAMETER_LAYOUT["displaced_volume"]] = volume
         p[OBJECT_PARAMETER_LAYOUT["added_mass_scale"]] = 1.0
-        p[OBJECT_PARAMETER_LAYOUT["drag_scale"]] = 1.0
-        p[part["unit_inertia"]] = self.unit_inertia.T.reshape(-1)  # column-major
-        p[part["added_mass"]] = self.added_mass.T.reshape(-1)
+        p[OBJECT_PARAMETER_LAYOUT["drag_scale"]] = drag_scale
+        p[part["unit_inertia"]] = unit_inertia.T.reshape(-1)  # column-major
+        p[part["added_mass"]] = added_mass.T.reshape(-1)
         c = self.coef
         p[part["drag"]] = [c.drag_cross, c.drag_axial, c.drag_linear]
-        strips = np.zeros((self.capacity, STRIP_SIZE))
-        strips[:, 3] = 1.0
-        count = len(self.strips.lengths)
-        strips[:count, 0:3] = self.strips.centers
-        strips[:count, 3:6] = self.strips.axes
-        strips[:count, 6] = self.strips.lengths
-        p[part["strips"]] = strips.reshape(-1)  # strip k: entries 7k .. 7k + 6
+        rows = np.zeros((self.capacity, STRIP_SIZE))
+        rows[:, 3] = 1.0
+        count = len(strips.lengths)
+        rows[:count, 0:3] = strips.centers
+        rows[:count, 3:6] = strips.axes
+        rows[:count, 6] = strips.lengths
+        p[part["strips"]] = rows.reshape(-1)  # strip k: entries 7k .. 7k + 6
         return p
 
 
