@@ -44,14 +44,16 @@ def navigator_for(spec: AgentSpec) -> WaypointNavigator:
     return task_navigator(spec.waypoints, spec.workspace, spec.obstacles, spec.team_radius)
 
 
-def local_parameters(spec: AgentSpec, load_model: str = "share") -> np.ndarray:
+def local_parameters(spec: AgentSpec, piece_fraction: float = 0.0) -> np.ndarray:
     """theta of the robot's local model from its spec: its grasp, and the object it
-    carries (``NMPCSettings.load_model``): ``share``, its load share of the whole object
-    at the centroid (the paper's); ``piece``, the piece of the object nearest its grasp
-    that holds its load share (``ObjectModel.piece_parameters``), carried whole."""
+    carries (``NMPCSettings.piece_fraction``): at 0 its load share of the whole object at
+    the centroid (the paper's); above, with load share 1, what
+    ``ObjectModel.carried_parameters`` blends of that and of the piece of the object
+    nearest its grasp."""
     obj = ObjectModel(spec.object_shape, spec.ring_radius)
-    if load_model == "piece":
-        carried = 1.0, obj.piece_parameters(spec.grasp_offset, spec.load_share)
+    if piece_fraction > 0:
+        p_o = obj.carried_parameters(spec.grasp_offset, spec.load_share, piece_fraction)
+        carried = 1.0, p_o
     else:
         carried = spec.load_share, obj.nominal_parameters()
     return ModelParams(spec.grasp_offset, spec.grasp_rotation, *carried).pack()
@@ -140,7 +142,7 @@ class LocalController:
         self.settings = s = settings or default_settings(solver)
         if abs(s.period - spec.period) > 1e-12:
             raise ValueError(f"settings.period {s.period} != scenario period {spec.period}")
-        self.theta = local_parameters(spec, s.load_model)
+        self.theta = local_parameters(spec, s.piece_fraction)
         self.funcs = ocp_functions(object_capacity(spec), s.horizon, s.period, s.substeps)
         self.weights = controller_weights(s)
         self._steady = BufferCall(self.funcs.steady_input)

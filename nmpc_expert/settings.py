@@ -27,7 +27,6 @@ from uvms_env.task import constraints as task_constraints
 
 # The control period is the scenario's (one definition: ``Scenario.period``'s default).
 _SCENARIO_PERIOD: float = {f.name: f.default for f in fields(Scenario)}["period"]
-LOAD_MODELS = ("share", "piece")  # ``NMPCSettings.load_model``
 
 
 @dataclass(frozen=True)
@@ -139,11 +138,11 @@ class NMPCSettings:
     backoff: float = 0.85
     """The NMPC uses backoff * limit for speeds and joint positions, so that model error
     and the soft-constraint slack do not reach the true limit."""
-    load_model: str = "share"
-    """What object a robot's local model carries: "share" (its load share c_i of the whole
-    object at the centroid, the paper's) or "piece" (the piece of the object nearest its
-    grasp that holds c_i of its length, ``ObjectModel.piece_parameters``); what each does on
-    the bars and rings: docs/results/expert.md."""
+    piece_fraction: float = 0.0
+    """What object a robot's local model carries, in [0, 1]: 0, its load share c_i of the
+    whole object at the centroid (the paper's); 1, the piece of the object nearest its
+    grasp that holds c_i of its length; between, a blend (``ObjectModel.carried_parameters``).
+    What each does on the bars and rings: docs/results/expert.md."""
     fallback_after_ms: float = 50.0
     """A decision slower than this counts as 'slow' in the stats (never blocks)."""
 
@@ -188,8 +187,8 @@ class NMPCSettings:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.r_u <= 0:
             raise ValueError("r_u must be > 0 (the QP needs a positive definite input weight)")
-        if self.load_model not in LOAD_MODELS:
-            raise ValueError(f"load_model must be one of {LOAD_MODELS}, got {self.load_model!r}")
+        if not 0 <= self.piece_fraction <= 1:
+            raise ValueError(f"piece_fraction must lie in [0, 1], got {self.piece_fraction}")
         if self.input_reference not in ("zero", "steady_state"):
             raise ValueError(
                 f"input_reference must be 'zero' or 'steady_state', got {self.input_reference!r}"

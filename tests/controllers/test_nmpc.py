@@ -53,24 +53,25 @@ def short_run(env):
     return pols, start, env.sim.state.x_O.copy(), violations, stream, actions
 
 
-def test_the_piece_load_model_carries_its_piece_whole(env):
-    """``load_model="piece"``: the robot's model carries the piece of the object nearest its
-    grasp with load share 1 (``ObjectModel.piece_parameters``); "share" (the default) its
-    share of the whole object."""
+def test_piece_fraction_sets_what_the_local_model_carries(env):
+    """``piece_fraction`` above 0: the robot's model carries, with load share 1, what
+    ``ObjectModel.carried_parameters`` gives; 0 (the default) its load share of the whole
+    object, the paper's model."""
     spec = AgentSpec.from_scenario(env.scenario, 1)
     obj = ObjectModel(spec.object_shape, spec.ring_radius)
     share_at = GRASP_THETA - 1
-    piece = make_policy("rti", load_model="piece")(spec)
+    piece = make_policy("rti", piece_fraction=0.5)(spec)
     assert piece.theta[share_at] == 1.0
     np.testing.assert_array_equal(
-        piece.theta[GRASP_THETA:], obj.piece_parameters(spec.grasp_offset, spec.load_share)
+        piece.theta[GRASP_THETA:],
+        obj.carried_parameters(spec.grasp_offset, spec.load_share, 0.5),
     )
     np.testing.assert_array_equal(piece.theta[:share_at], local_parameters(spec)[:share_at])
     default = make_policy("rti")(spec)
     assert default.theta[share_at] == spec.load_share
     np.testing.assert_array_equal(default.theta[GRASP_THETA:], obj.nominal_parameters())
-    with pytest.raises(ValueError, match="load_model"):
-        NMPCSettings(load_model="halves")
+    with pytest.raises(ValueError, match="piece_fraction"):
+        NMPCSettings(piece_fraction=1.5)
 
 
 def test_policy_protocol(env):

@@ -156,7 +156,7 @@ def test_pieces_that_tile_the_object_add_up_to_its_dynamics(obj, grasps, shares,
     """The object's (M_O, h_O) are linear in its strips, mass and volume: pieces that cut it
     into disjoint parts sum to the whole at any pose, twist and current."""
     o = ObjectModel(*obj)
-    pieces = [o.piece_parameters(g, c) for g, c in zip(grasps, shares, strict=True)]
+    pieces = [o.carried_parameters(g, c) for g, c in zip(grasps, shares, strict=True)]
     for _ in range(3):
         x = np.concatenate([rng.normal(size=3), rng.uniform(-0.6, 0.6, 3)])
         v, v_c = 0.3 * rng.normal(size=6), 0.2 * rng.normal(size=3)
@@ -170,10 +170,10 @@ def test_a_piece_lies_around_its_grasp_and_a_whole_share_is_the_object():
     o = ObjectModel("bar", 8.2)
     layout, mass = parameter_layout(o.capacity), OBJECT_PARAMETER_LAYOUT["mass"]
     np.testing.assert_array_equal(
-        o.piece_parameters(np.array([0.0, 3.9, 0.0]), 1.0), o.nominal_parameters()
+        o.carried_parameters(np.array([0.0, 3.9, 0.0]), 1.0), o.nominal_parameters()
     )
     for y, share in ((3.9, 0.1), (0.0, 0.2), (-2.0, 0.3)):
-        p = o.piece_parameters(np.array([0.0, y, 0.0]), share)
+        p = o.carried_parameters(np.array([0.0, y, 0.0]), share)
         assert p[mass] == pytest.approx(share * o.nominal_mass)
         strips = p[layout["strips"]].reshape(o.capacity, STRIP_SIZE)
         centers = strips[strips[:, 6] > 0, 1]
@@ -186,4 +186,27 @@ def test_a_piece_lies_around_its_grasp_and_a_whole_share_is_the_object():
         first = p[layout["unit_inertia"]].reshape(6, 6).T[3:, :3]
         assert abs(first[2, 0]) == pytest.approx(abs(np.mean(centers)), abs=1e-9)
     with pytest.raises(ValueError, match="share"):
-        o.piece_parameters(np.zeros(3), 0.0)
+        o.carried_parameters(np.zeros(3), 0.0)
+    with pytest.raises(ValueError, match="piece"):
+        o.carried_parameters(np.zeros(3), 0.5, 1.5)
+
+
+@pytest.mark.parametrize(("shape", "size", "grasp"), [("bar", 8.2, 3.1), ("ring", 1.6, 0.0)])
+def test_what_a_robot_carries_blends_its_share_of_the_whole_and_its_piece(shape, size, grasp, rng):
+    """``piece`` 0: the share of the whole object's dynamics (the paper's model); between
+    0 and 1, the blend of that and of the piece's, at any state."""
+    o = ObjectModel(shape, size)
+    g = np.array([0.0, grasp, 0.0]) if shape == "bar" else np.array([size, 0.0, 0.0])
+    share = 0.3
+    x = np.concatenate([rng.normal(size=3), rng.uniform(-0.6, 0.6, 3)])
+    v, v_c = 0.3 * rng.normal(size=6), 0.2 * rng.normal(size=3)
+
+    def dyn(p):
+        return [np.array(t) for t in o.dynamics(x, v, v_c, p)]
+
+    whole, piece = dyn(o.nominal_parameters()), dyn(o.carried_parameters(g, share, 1.0))
+    for alpha in (0.0, 0.4):
+        blend = dyn(o.carried_parameters(g, share, alpha))
+        for k in range(2):
+            expected = (1 - alpha) * share * whole[k] + alpha * piece[k]
+            np.testing.assert_allclose(blend[k], expected, rtol=1e-12, atol=1e-12)

@@ -272,37 +272,48 @@ class ObjectModel:
             self.nominal_mass, self.nominal_volume, self.unit_inertia, self.added_mass, self.strips
         )
 
-    def piece_parameters(self, grasp_offset: np.ndarray, share: float) -> np.ndarray:
-        """p_O of the piece of the object that a robot grasping it at ``grasp_offset``
-        (object frame) carries with load share ``share`` in (0, 1]: the strips nearest the
-        grasp, taken in order of distance until they hold ``share`` of the tube's length
-        (more from the inner side where the grasp is near a bar's end), with ``share`` of
-        the mass and displaced volume and the hydrodynamics of ``share`` of the length.
-        Expressed about the object's origin like ``nominal_parameters``, so a local model
-        with load share 1 carries the piece where it is: near its own grasp, not the
-        share of the whole object at the centroid, whose lever arm makes every robot of a
-        long bar push a large moment that its teammates push back (docs/results/expert.md)."""
+    def carried_parameters(
+        self, grasp_offset: np.ndarray, share: float, piece: float = 1.0
+    ) -> np.ndarray:
+        """p_O of what a robot grasping the object at ``grasp_offset`` (object frame) with
+        load share ``share`` in (0, 1] carries whole (load share 1 in its model): ``share``
+        of the mass and displaced volume, and of the inertia, added mass and drag a blend,
+        ``1 - piece`` of the share of the whole object (the paper's model: its share at
+        the centroid) and ``piece`` of its piece: the strips nearest the grasp, taken in
+        order of distance until they hold ``share`` of the tube's length (more from the
+        inner side where the grasp is near a bar's end). Expressed about the object's
+        origin like ``nominal_parameters``. Why a piece: the whole object's share sits at
+        the centroid, whose lever arm makes every robot of a long bar push a large moment
+        that its teammates push back (docs/results/expert.md)."""
         if not 0.0 < share <= 1.0:
             raise ValueError(f"share must lie in (0, 1], got {share!r}")
+        if not 0.0 <= piece <= 1.0:
+            raise ValueError(f"piece must lie in [0, 1], got {piece!r}")
         near = np.linalg.norm(self.strips.centers - np.asarray(grasp_offset, float), axis=1)
         order = np.argsort(near, kind="stable")
         target = share * self.length
         before = np.cumsum(self.strips.lengths[order]) - self.strips.lengths[order]
-        keep = np.sort(order[before < target - SIZE_TOLERANCE])
-        piece = Strips(
-            self.strips.centers[keep],
-            self.strips.axes[keep],
-            self.strips.lengths[keep],
+        held = np.zeros(len(near), dtype=bool)
+        held[order[before < target - SIZE_TOLERANCE]] = True
+        own = Strips(
+            self.strips.centers[held],
+            self.strips.axes[held],
+            self.strips.lengths[held],
             self.strips.radius,
         )
-        fill = target / piece.total_length  # the last strip is whole: scale to the share
+        fill = target / own.total_length  # the last strip is whole: scale to the share
+        # every number below is linear in the strips' weights: the blend is exact
+        weight = (1.0 - piece) * share + piece * fill * held
+        strips = Strips(
+            self.strips.centers, self.strips.axes, self.strips.lengths * weight, self.strips.radius
+        )
         return self._parameters(
             share * self.nominal_mass,
             share * self.nominal_volume,
-            tube_rigid_inertia(piece, 1.0),
-            tube_added_mass(piece, self.coef) * fill,
-            piece,
-            drag_scale=fill,
+            (1.0 - piece) * self.unit_inertia + piece * tube_rigid_inertia(own, 1.0),
+            (1.0 - piece) * share * self.added_mass
+            + piece * fill * tube_added_mass(own, self.coef),
+            strips,
         )
 
     def _parameters(
@@ -312,14 +323,13 @@ class ObjectModel:
         unit_inertia: np.ndarray,
         added_mass: np.ndarray,
         strips: Strips,
-        drag_scale: float = 1.0,
     ) -> np.ndarray:
         part = parameter_layout(self.capacity)
         p = np.zeros(self.parameter_count)
         p[OBJECT_PARAMETER_LAYOUT["mass"]] = mass
         p[OBJECT_PARAMETER_LAYOUT["displaced_volume"]] = volume
         p[OBJECT_PARAMETER_LAYOUT["added_mass_scale"]] = 1.0
-        p[OBJECT_PARAMETER_LAYOUT["drag_scale"]] = drag_scale
+        p[OBJECT_PARAMETER_LAYOUT["drag_scale"]] = 1.0
         p[part["unit_inertia"]] = unit_inertia.T.reshape(-1)  # column-major
         p[part["added_mass"]] = added_mass.T.reshape(-1)
         c = self.coef
