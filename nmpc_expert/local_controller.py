@@ -51,7 +51,7 @@ def local_parameters(spec: AgentSpec, piece_fraction: float = 0.0) -> np.ndarray
     ``ObjectModel.carried_parameters`` blends of that and of the piece of the object
     nearest its grasp."""
     obj = ObjectModel(spec.object_shape, spec.ring_radius)
-    if piece_fraction > 0:
+    if piece_fraction > 0:  # 0 keeps the paper's numbers to the bit (the same model)
         p_o = obj.carried_parameters(spec.grasp_offset, spec.load_share, piece_fraction)
         carried = 1.0, p_o
     else:

@@ -177,7 +177,7 @@ def test_a_piece_lies_around_its_grasp_and_a_whole_share_is_the_object():
         assert p[mass] == pytest.approx(share * o.nominal_mass)
         strips = p[layout["strips"]].reshape(o.capacity, STRIP_SIZE)
         centers = strips[strips[:, 6] > 0, 1]
-        # a share of the length, in whole strips, shifted inwards at the bar's end
+        # the strips nearest the grasp, scaled to the share's length, shifted inwards at the end
         held = strips[:, 6].sum()
         assert share * o.length <= held < share * o.length + 0.226
         lo, hi = max(-o.length / 2, y - held), min(o.length / 2, y + held)
