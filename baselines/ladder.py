@@ -51,7 +51,7 @@ from baselines.evaluation.outputs import read_episodes, run_and_write, write_res
 from baselines.evaluation.paired import PAIRED_METRICS, compare
 from baselines.evaluation.runner import Case, Settings, UsageError
 from baselines.evaluation.splits import SPLITS, add_split_arguments
-from baselines.loaders.sources import TALK_OPTION, PolicySource
+from baselines.loaders.sources import TALK_OPTION, PolicySource, nmpc_options
 from uvms_env.robot.channel import PRESETS
 
 __all__ = ["CENTRAL", "EXPERT", "PRICED", "case_order", "fmt", "interval", "price", "rung_summary"]
@@ -92,7 +92,7 @@ TALKING_CHANNEL = "atm900"
 def talks(policy: str) -> bool:
     """Whether ``policy`` is a talking expert (``nmpc:comm[,...]``), which needs a channel."""
     name, _, options = policy.partition(":")
-    return name == "nmpc" and TALK_OPTION in options.split(",")
+    return name == "nmpc" and TALK_OPTION in nmpc_options(options)
 
 
 def with_channel(chosen: list[Case], comm: str) -> list[Case]:

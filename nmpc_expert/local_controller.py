@@ -142,7 +142,9 @@ class LocalController:
         self.settings = s = settings or default_settings(solver)
         if abs(s.period - spec.period) > 1e-12:
             raise ValueError(f"settings.period {s.period} != scenario period {spec.period}")
-        self.theta = local_parameters(spec, s.piece_fraction)
+        self.theta = local_parameters(
+            spec, s.piece_fraction_for(float(np.linalg.norm(spec.grasp_offset)))
+        )
         self.funcs = ocp_functions(object_capacity(spec), s.horizon, s.period, s.substeps)
         self.weights = controller_weights(s)
         self._steady = BufferCall(self.funcs.steady_input)
@@ -179,6 +181,7 @@ class LocalController:
         k = max(s.margin_gain, 1e-12)
         self._innovation_var0 = (s.margin_initial * scale[: NX // 2] / k) ** 2
         self.innovation_var[:] = self._innovation_var0
+        self.decisions = 0
         if s.disturbance_observer:
             self._apply_margin()
         # anti-windup: each rate's actuating input (B's one-hot rows; none for roll and
@@ -191,7 +194,6 @@ class LocalController:
         self._x0 = np.zeros(NX)
         self.stats: dict[str, Any] = {}
         self.fallbacks = 0
-        self.decisions = 0
 
     def reset(self) -> None:
         self.solver.reset()
@@ -201,13 +203,13 @@ class LocalController:
             self.solver.input_offset[:] = 0.0
         self.innovation_var[:] = self._innovation_var0
         self._lower[:], self._upper[:] = self._bounds[0], self._bounds[1]
+        self.decisions = 0  # before the margin: its start floor counts the decisions
         if self.settings.disturbance_observer:
             self._apply_margin()
         self._applied = None
         self._predicted_zeta = None
         self.stats = {}
         self.fallbacks = 0
-        self.decisions = 0
 
     def _measure(self, obs: np.ndarray) -> np.ndarray:
         """The checked observation (float64); the model state ``_x0`` = [q; zeta] from it,
@@ -311,13 +313,16 @@ class LocalController:
         return self.disturbance
 
     def _apply_margin(self) -> None:
-        """Speed bounds tightened by min(k sigma, margin_limit) (observer controller)."""
+        """Speed bounds tightened by min(k sigma, margin_limit), and at least the start
+        floor (``NMPCSettings.start_margin``: that fraction of each bound) at this
+        decision (observer controller)."""
         s = self.settings
         lower, upper, scale = self._bounds
         m = NX // 2
         margin = np.minimum(
             s.margin_gain * np.sqrt(self.innovation_var) / scale[:m], s.margin_limit
         )
+        np.maximum(margin, s.start_floor(self.decisions * s.period) * upper[:m], out=margin)
         self._lower[:m] = lower[:m] + margin
         self._upper[:m] = upper[:m] - margin
 

@@ -103,6 +103,15 @@ class NMPCSettings:
     """The margin before any measurement (a fraction of each speed limit; the moving
     average starts from the variance that gives it): at the start every robot
     accelerates at once and the observer knows nothing yet."""
+    start_margin: float = 0.0
+    """A floor under the adaptive margin at the episode's start, as a fraction in [0, 1)
+    of each speed bound (``backoff`` or ``angular_backoff`` of the limit), falling
+    linearly to 0 over ``start_margin_s`` (observer controller only). Why: on a long bar every robot's first plans accelerate at once
+    and the chain turns their disagreement into joint speed before any innovation is
+    measured (docs/results/expert.md); a margin_limit that high for the whole episode
+    leaves the team too little speed to hold the bar."""
+    start_margin_s: float = 0.0
+    """[s] How long ``start_margin`` takes to fall to 0 (0: no start margin)."""
     input_step: float | None = 0.15
     """delta: hard bound on the normalized input's change per period, |a_0 - a_prev| <=
     delta and along the plan (None: none, the paper's); why: docs/expert.md. A full
@@ -143,6 +152,14 @@ class NMPCSettings:
     whole object at the centroid (the paper's); 1, the piece of the object nearest its
     grasp that holds c_i of its length; between, a blend (``ObjectModel.carried_parameters``).
     What each does on the bars and rings: docs/results/expert.md."""
+    piece_lever_start: float = 0.0
+    """[m] With ``piece_lever_full`` > 0, the fraction a robot uses grows with its own lever
+    arm |l_i| (``piece_fraction_for``): 0 up to this, ``piece_fraction`` from
+    ``piece_lever_full`` on, linear between. Why: the share's moment about the grasp,
+    c_i l_i x f, is what the piece removes, and it grows with |l_i|."""
+    piece_lever_full: float = 0.0
+    """[m] Where the lever ramp reaches ``piece_fraction``; 0: no ramp, every robot uses
+    ``piece_fraction``."""
     fallback_after_ms: float = 50.0
     """A decision slower than this counts as 'slow' in the stats (never blocks)."""
 
@@ -177,6 +194,21 @@ class NMPCSettings:
         ``manipulability_factor``."""
         return self.manipulability_factor * task_constraints.MANIPULABILITY_EPS
 
+    def piece_fraction_for(self, lever: float) -> float:
+        """The piece fraction of a robot whose grasp is ``lever`` [m] from the object's
+        origin: ``piece_fraction``, ramped by ``piece_lever_start``/``piece_lever_full``."""
+        if self.piece_lever_full == 0:
+            return self.piece_fraction
+        start, full = self.piece_lever_start, self.piece_lever_full
+        return self.piece_fraction * min(1.0, max(0.0, (lever - start) / (full - start)))
+
+    def start_floor(self, elapsed: float) -> float:
+        """The margin floor ``elapsed`` seconds into the episode, as a fraction of each
+        speed bound (``start_margin``)."""
+        if self.start_margin_s == 0:
+            return 0.0
+        return self.start_margin * max(0.0, 1.0 - elapsed / self.start_margin_s)
+
     def __post_init__(self) -> None:
         if self.horizon < 1 or self.substeps < 1:
             raise ValueError("horizon and substeps must be >= 1")
@@ -189,6 +221,29 @@ class NMPCSettings:
             raise ValueError("r_u must be > 0 (the QP needs a positive definite input weight)")
         if not 0 <= self.piece_fraction <= 1:
             raise ValueError(f"piece_fraction must lie in [0, 1], got {self.piece_fraction}")
+        if not 0 <= self.start_margin < 1 or not self.start_margin_s >= 0:
+            raise ValueError(
+                "start_margin must lie in [0, 1) and start_margin_s be >= 0, got "
+                f"start_margin={self.start_margin}, start_margin_s={self.start_margin_s}"
+            )
+        if (self.start_margin > 0) != (self.start_margin_s > 0):
+            raise ValueError(
+                "start_margin and start_margin_s go together (both 0, or both above), got "
+                f"start_margin={self.start_margin}, start_margin_s={self.start_margin_s}"
+            )
+        if self.start_margin > 0 and not self.disturbance_observer:
+            raise ValueError(
+                "start_margin floors the observer controller's adaptive margin: it needs "
+                "disturbance_observer=True"
+            )
+        start, full = self.piece_lever_start, self.piece_lever_full
+        if full != 0 and not 0 <= start < full:
+            raise ValueError(
+                "piece_lever_full must be 0 (no ramp) or above piece_lever_start >= 0, got "
+                f"piece_lever_start={start}, piece_lever_full={full}"
+            )
+        if full == 0 and start != 0:
+            raise ValueError(f"piece_lever_start={start} needs piece_lever_full > it")
         if self.input_reference not in ("zero", "steady_state"):
             raise ValueError(
                 f"input_reference must be 'zero' or 'steady_state', got {self.input_reference!r}"

@@ -90,6 +90,18 @@ class PriorPolicy(LoadedPolicy):
         return np.zeros((len(x), NU), np.float32)
 
 
+def nmpc_options(arg: str | None) -> list[str]:
+    """The options of ``nmpc:OPTIONS``: split at the commas outside brackets, so that a
+    tuple VALUE keeps its own (``vehicle_speed_fraction=(1.0, 0.8)``)."""
+    text, parts, depth, start = arg or "", [], 0, 0
+    for i, char in enumerate(text):
+        depth += (char in "([{") - (char in ")]}")
+        if char == "," and depth == 0:
+            parts.append(text[start:i])
+            start = i + 1
+    return [*parts, text[start:]]
+
+
 def _nmpc(arg: str | None, seed: int) -> PolicyFactory:
     """``nmpc[:OPTIONS]``, OPTIONS comma-separated: a solver (rti, ipopt), a controller
     (observer, paper) and/or settings ``NAME=VALUE`` (``nmpc_expert.NMPCSettings``' fields,
@@ -103,7 +115,7 @@ def _nmpc(arg: str | None, seed: int) -> PolicyFactory:
 
     solver, controller, talk = "rti", None, False
     settings: dict[str, Any] = {}
-    for option in (arg or "").split(","):
+    for option in nmpc_options(arg):
         if "=" in option:  # VALUE a Python literal (0.3, None, (1.0, 0.8)), else the text
             name, value = (part.strip() for part in option.split("=", 1))
             try:

@@ -74,6 +74,28 @@ def test_piece_fraction_sets_what_the_local_model_carries(env):
         NMPCSettings(piece_fraction=1.5)
 
 
+def test_piece_lever_ramp_sets_each_robots_fraction(env):
+    """With a lever ramp each robot's fraction follows its own |l_i|: 0 at or below
+    ``piece_lever_start`` (the paper's model, to the bit), ``piece_fraction`` from
+    ``piece_lever_full`` on, linear between; bad ramps are refused by name."""
+    s = NMPCSettings(piece_fraction=0.8, piece_lever_start=1.0, piece_lever_full=3.0)
+    assert [s.piece_fraction_for(x) for x in (0.0, 1.0, 2.0, 2.5, 3.0, 9.0)] == pytest.approx(
+        [0.0, 0.0, 0.4, 0.6, 0.8, 0.8]
+    )
+    assert NMPCSettings(piece_fraction=0.3).piece_fraction_for(7.0) == 0.3  # no ramp
+    spec = AgentSpec.from_scenario(env.scenario, 0)
+    lever = float(np.linalg.norm(spec.grasp_offset))
+    below = make_policy("rti", piece_fraction=1.0, piece_lever_start=lever, piece_lever_full=5)
+    np.testing.assert_array_equal(below(spec).theta, local_parameters(spec))
+    half = make_policy(
+        "rti", piece_fraction=1.0, piece_lever_start=0.0, piece_lever_full=2 * lever
+    )(spec)
+    np.testing.assert_allclose(half.theta, local_parameters(spec, 0.5), rtol=1e-15, atol=0)
+    for bad in ({"piece_lever_start": 2.0, "piece_lever_full": 1.0}, {"piece_lever_start": 1.0}):
+        with pytest.raises(ValueError, match="piece_lever"):
+            NMPCSettings(**bad)
+
+
 def test_policy_protocol(env):
     pol = make_policy("rti")(AgentSpec.from_scenario(env.scenario, 0))
     assert isinstance(pol, Policy)

@@ -121,6 +121,44 @@ def test_observer_converges_to_an_injected_generalized_force(env):
     np.testing.assert_array_equal(pol._upper[NQ:], upper[NQ:])
 
 
+def test_start_margin_floors_the_adaptive_margin_then_falls_to_zero(env):
+    """``start_margin``: at decision k the speed rows' margin is max(min(k sigma,
+    margin_limit), start_margin (1 - k h / start_margin_s) times the row's bound): the
+    floor binds at the start (above margin_initial), is gone after ``start_margin_s``, and
+    comes back at reset; the settings refuse a floor without its duration or without the
+    observer."""
+    obs, _ = env.reset(seed=0)
+    spec = AgentSpec.from_scenario(env.scenario, 0)
+    pol = make_policy("rti", start_margin=0.6, start_margin_s=0.6)(spec)
+    s = pol.settings
+    lower, upper, scale = pol._bounds
+    o = obs[env.possible_agents[0]]
+    np.testing.assert_allclose(pol._upper[:NQ], 0.4 * upper[:NQ])
+    for k in range(8):  # decision k, at k periods into the episode
+        pol.act(o)
+        floor = 0.6 * max(0.0, 1 - k * s.period / 0.6)
+        assert s.start_floor(k * s.period) == pytest.approx(floor)
+        adaptive = np.minimum(
+            s.margin_gain * np.sqrt(pol.innovation_var) / scale[:NQ], s.margin_limit
+        )
+        margin = np.maximum(adaptive, floor * upper[:NQ])
+        np.testing.assert_allclose(pol._upper[:NQ], upper[:NQ] - margin)
+        np.testing.assert_allclose(pol._lower[:NQ], lower[:NQ] + margin)
+        assert not pol.stats["status"].startswith("fallback")
+    assert floor == 0  # the eighth decision, 0.84 s in: past the 0.6 s
+    pol.reset()
+    np.testing.assert_allclose(pol._upper[:NQ], 0.4 * upper[:NQ])
+    for bad in (
+        {"start_margin": 0.5},
+        {"start_margin_s": 2.0},
+        {"start_margin": 1.0, "start_margin_s": 2.0},
+    ):
+        with pytest.raises(ValueError, match="start_margin"):
+            NMPCSettings(**bad)
+    with pytest.raises(ValueError, match="disturbance_observer"):
+        NMPCSettings.paper(start_margin=0.5, start_margin_s=2.0)
+
+
 def test_paper_controller_reproduces_the_decisions_before_the_observer():
     """``NMPCSettings.paper()`` (and ``make_policy(controller="paper")``), fed each robot's
     recorded observations, reproduce the recorded actions of the controller before the

@@ -142,6 +142,10 @@ def test_nmpc_settings_from_the_policy_name():
     policy = PolicySource.parse("nmpc:paper,goal_integral_angle_limit=0.3,q_v=0.5").factory(0)(spec)
     expected = NMPCSettings.paper(goal_integral_angle_limit=0.3, q_v=0.5)
     assert policy.settings == expected
+    # a tuple VALUE keeps its commas: the options split outside brackets only
+    name = "nmpc:vehicle_speed_fraction=(0.9, 0.8),rti,piece_fraction=0.5"
+    policy = PolicySource.parse(name).factory(0)(spec)
+    assert policy.settings == NMPCSettings(vehicle_speed_fraction=(0.9, 0.8), piece_fraction=0.5)
     assert PolicySource.parse("nmpc").factory(0)(spec).settings == NMPCSettings()
 
 
