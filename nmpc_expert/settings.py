@@ -106,10 +106,11 @@ class NMPCSettings:
     start_margin: float = 0.0
     """A floor under the adaptive margin at the episode's start, as a fraction in [0, 1)
     of each speed bound (``backoff`` or ``angular_backoff`` of the limit), falling
-    linearly to 0 over ``start_margin_s`` (observer controller only). Why: on a long bar every robot's first plans accelerate at once
-    and the chain turns their disagreement into joint speed before any innovation is
-    measured (docs/results/expert.md); a margin_limit that high for the whole episode
-    leaves the team too little speed to hold the bar."""
+    linearly to 0 over ``start_margin_s`` (observer controller only). Why: on a long bar
+    every robot's first plans accelerate at once and the chain turns their disagreement
+    into joint speed before any innovation is measured (docs/results/expert.md); a
+    margin_limit that high for the whole episode leaves the team too little speed to
+    hold the bar."""
     start_margin_s: float = 0.0
     """[s] How long ``start_margin`` takes to fall to 0 (0: no start margin)."""
     input_step: float | None = 0.15
