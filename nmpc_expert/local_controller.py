@@ -177,6 +177,7 @@ class LocalController:
             self.solver.disturbance[NX // 2 :] if solver == "rti" else np.zeros(NX // 2)
         )
         self.innovation_var = np.zeros(NX // 2)
+        self.innovation = np.zeros(NX // 2)  # nu of the last measurement (0 before one)
         # its prior: the cold-start margin (settings.margin_initial), as a variance
         k = max(s.margin_gain, 1e-12)
         self._innovation_var0 = (s.margin_initial * scale[: NX // 2] / k) ** 2
@@ -202,6 +203,7 @@ class LocalController:
         if self.solver_name == "rti":
             self.solver.input_offset[:] = 0.0
         self.innovation_var[:] = self._innovation_var0
+        self.innovation[:] = 0.0
         self._lower[:], self._upper[:] = self._bounds[0], self._bounds[1]
         self.decisions = 0  # before the margin: its start floor counts the decisions
         if self.settings.disturbance_observer:
@@ -255,6 +257,7 @@ class LocalController:
         if self._predicted_zeta is None or s.offset_gain == 0:
             return
         err = self._x0[NX // 2 :] - self._predicted_zeta
+        self.innovation[:] = err
         self.rate_offset += s.offset_gain * (err - self.rate_offset)
         lower, upper, scale = self._bounds
         m = NX // 2
@@ -272,6 +275,7 @@ class LocalController:
             return
         m = NX // 2
         nu = self._x0[m:] - self._predicted_zeta
+        self.innovation[:] = nu
         scale = self._bounds[2]
         limit = s.observer_limit * scale[:m]
         step = s.observer_gain * nu
@@ -379,6 +383,7 @@ class NMPCPolicy(LocalController):
             self.solver.a_prev = action.copy()  # the step bound's anchor (``executed``)
         self.decisions += 1
         elapsed = (time.perf_counter() - start) * 1e3
+        scale_joint = self._bounds[2][6:10]
         self.stats = {
             "solve_time_ms": elapsed,
             "iterations": info.get("iterations", 0),
@@ -388,6 +393,9 @@ class NMPCPolicy(LocalController):
             "rate_offset_max": float(np.max(np.abs(self.rate_offset / self._bounds[2][:10]))),
             "disturbance_max": float(np.max(np.abs(self.disturbance / self._bounds[2][:10]))),
             "margin_max": float(np.max(self._bounds[1][:10] - self._upper[:10])),
+            # what the prediction (the observer's estimate in it) missed of this period's
+            # joint rates, in joint-speed limits: the error a robot plans its bounds with
+            "innovation_joint_max": float(np.max(np.abs(self.innovation[6:] / scale_joint))),
             "slow": elapsed > self.settings.fallback_after_ms,
             **{k: v for k, v in info.items() if k not in ("iterations", "status")},
         }

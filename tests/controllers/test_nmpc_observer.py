@@ -13,6 +13,7 @@ from pathlib import Path
 import casadi as cs
 import numpy as np
 import pytest
+from script_loader import load_script
 
 import uvms_env
 from nmpc_expert import NMPCPolicy, NMPCSettings, make_policy
@@ -86,8 +87,12 @@ def test_observer_converges_to_an_injected_generalized_force(env):
         effect = (plant(x, a, pol.theta, True) - plant(x, a, pol.theta, False))[NQ:]
         x = plant(x, a, pol.theta, True)
     o[st["q"]], o[st["zeta"]] = x[:NQ], x[NQ:]
+    predicted = pol.solver.xbar[1, NQ:].copy()  # the plan's one-step prediction
     pol.act(o)  # measures the last period's innovation
     scale = pol._bounds[2][:NQ]
+    np.testing.assert_array_equal(pol.innovation, x[NQ:] - predicted)
+    joint = np.max(np.abs(pol.innovation[6:] / scale[6:]))
+    assert pol.stats["innovation_joint_max"] == pytest.approx(joint, rel=1e-12)
     assert np.max(np.abs(effect / scale)) > 0.05  # the force matters (in speed limits)
     # to 1% of the largest effect: the estimate also absorbs what the controller's own
     # prediction (2 RK4 substeps, linearized about the plan) misses of the plant's 8
@@ -116,6 +121,7 @@ def test_observer_converges_to_an_injected_generalized_force(env):
     assert not np.delete(shift, linear).any()
     pol.reset()  # back to the cold start: no estimate, the initial margin
     assert not pol.disturbance.any() and not pol.solver.input_offset.any()
+    assert not pol.innovation.any()
     np.testing.assert_allclose(pol._upper[:NQ], upper[:NQ] - s.margin_initial)
     np.testing.assert_allclose(pol._lower[:NQ], lower[:NQ] + s.margin_initial)
     np.testing.assert_array_equal(pol._upper[NQ:], upper[NQ:])
@@ -214,3 +220,18 @@ def test_observer_needs_rti_and_validates(env):
         NMPCSettings(observer_gain=0.0)
     with pytest.raises(ValueError, match="controller"):
         make_policy(controller="nonsense")
+
+
+def test_innovation_probe_reads_each_robots_own_misses():
+    """``scripts/innovation_probe.py``: per lever arm, one joint-innovation reading per
+    robot and period after the first decision, each the robot's own stat, and replayed
+    alike (the probe is deterministic for a seed)."""
+    probe = load_script("innovation_probe")
+    overrides = {"n_agents": 2, "object": "bar", "current": "mild", "max_cycles": 6}
+    found = probe.innovations("nmpc", 7, overrides)
+    env = uvms_env.parallel_env(scenario="random", seed=7, n_agents=2, object="bar")
+    levers = sorted({round(float(np.linalg.norm(g)), 1) for g in env.scenario.grasp_offsets})
+    assert sorted(found) == levers
+    readings = [v for values in found.values() for v in values]
+    assert len(readings) == 2 * 5 and all(v >= 0 for v in readings) and max(readings) > 0
+    assert probe.innovations("nmpc", 7, overrides) == found
