@@ -608,7 +608,10 @@ def previous_record(settings: RunSettings, library: str) -> dict[str, Any]:
         return {}
     resume = Path(settings.resume)
     folder = resume if resume.is_dir() else resume.parent
-    previous = read_config(folder) or read_config(folder.parent)
+    # a run folder, a file in it, or a checkpoint under its checkpoints/ (RLlib's: folders)
+    previous = (
+        read_config(folder) or read_config(folder.parent) or read_config(folder.parent.parent)
+    )
     trained_by = previous.get("library", previous.get("engine", library))
     if trained_by != library:  # "engine": the key's earlier name
         raise ValueError(f"--resume {resume} was trained with {trained_by}, not {library}")

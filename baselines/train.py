@@ -49,6 +49,9 @@ from baselines.runs import RunSettings
 SHARED_GROUP = "shared options (every library)"
 
 
+LIBRARY_FLAGS = ("--library", "--engine")
+
+
 def add_library_argument(g: Any, default: str) -> None:
     """``--library`` (and its earlier name ``--engine``, not listed)."""
     g.add_argument("--library", choices=tuple(LIBRARIES), default=default, help="the RL library")
@@ -389,8 +392,14 @@ def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else list(argv)
     pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     add_library_argument(pre, DEFAULT_LIBRARY)
+    pre.add_argument("--resume", type=Path)
     known, _ = pre.parse_known_args(argv)
-    ap = build_parser(known.library)
+    name = known.library
+    if known.resume is not None and not any(w.split("=")[0] in LIBRARY_FLAGS for w in argv):
+        # a resume without --library continues the run's own library: its options parse
+        folder = _resumed_folder(known.resume)
+        name = read_config(folder).get("library", name) if folder is not None else name
+    ap = build_parser(name if name in LIBRARIES else known.library)
     argv = resumed_argv(ap, argv) if known_resume(argv) else argv
     args = ap.parse_args(argv)
     with usage_errors(ap):  # every check before the run folder, the env and the model

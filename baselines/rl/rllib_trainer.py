@@ -5,11 +5,14 @@ shared by all robots.
         --env-option n_agents=2 --num-env-runners 2 [--address HEAD:6379] --out runs/rllib_ppo
 
 ``--num-env-runners`` actors collect episodes (``baselines.rl.rllib_env``); without
-``--address`` a local Ray starts. The run folder also gets ``checkpoints/robot_steps_S`` and
-the final ``checkpoint/``, which ``--resume`` restores. Reference: docs/scale-out.md.
+``--address`` a local Ray starts. The run folder also gets ``checkpoints/robot_steps_S``
+(with the multiplier in force beside each, under a cost) and the final ``checkpoint/``;
+``--resume RUN`` restores the newer of the final and the newest numbered one, so a killed
+run goes on from its last checkpoint (``find_resume``). Reference: docs/scale-out.md.
 
 May import: ray (inside functions), torch, ``baselines.runs``, ``baselines.lagrangian``,
-``baselines.registry``, ``baselines.command_line`` (the flags' types), ``baselines.rl.rllib_env``
+``baselines.registry``, ``baselines.command_line`` (the flags' types),
+``baselines.loaders.rllib_policy`` (the checkpoint's layout), ``baselines.rl.rllib_env``
 and ``uvms_env``.
 """
 
@@ -17,15 +20,16 @@ from __future__ import annotations
 
 import argparse
 import functools
+import json
 import os
 from pathlib import Path
 from typing import Any
 
 from baselines.command_line import non_negative_int, positive_int
 from baselines.lagrangian import Lagrangian
-from baselines.loaders.rllib_policy import POLICY_ID
+from baselines.loaders.rllib_policy import POLICY_ID, RLlibPolicy
 from baselines.registry import LIBRARIES
-from baselines.runs import Run, seeded_pool
+from baselines.runs import Run, seeded_pool, write_json
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -183,6 +187,35 @@ def iteration_robot_steps(result: dict[str, Any]) -> int:
     return int(agent_steps)
 
 
+CHECKPOINTS, NUMBERED = "checkpoints", "robot_steps_"  # checkpoints/robot_steps_<S>
+
+
+def find_resume(path: Path | str, recorded: dict[str, Any]) -> tuple[Path, int, float | None]:
+    """(checkpoint, robot-steps done, multiplier or None) that ``--resume PATH`` continues:
+    a run folder's final ``checkpoint/``, or its newest numbered checkpoint where it has no
+    final one or that one is newer (a killed run), or a checkpoint folder itself. A
+    numbered checkpoint's robot-steps are in its name and its multiplier beside it; the
+    final one's in the run's config.json (``recorded``)."""
+    path = Path(path)
+    numbered = sorted(
+        (p for p in path.glob(f"{CHECKPOINTS}/{NUMBERED}*") if RLlibPolicy.accepts(p)),
+        key=lambda p: int(p.name.removeprefix(NUMBERED)),
+    )
+    final = path / RLlibPolicy.SAVED
+    if numbered and (
+        not RLlibPolicy.accepts(final) or numbered[-1].stat().st_mtime > final.stat().st_mtime
+    ):
+        checkpoint = numbered[-1]
+    else:
+        checkpoint = RLlibPolicy.find(path)  # ValueError naming what it expected
+    if checkpoint.parent.name == CHECKPOINTS and checkpoint.name.startswith(NUMBERED):
+        saved = checkpoint.with_suffix(".json")
+        multiplier = json.loads(saved.read_text())["multiplier"] if saved.is_file() else None
+        return checkpoint, int(checkpoint.name.removeprefix(NUMBERED)), multiplier
+    final_multiplier = (recorded.get("cost") or {}).get("final_multiplier")
+    return checkpoint, int(recorded.get("robot_steps", 0)), final_multiplier
+
+
 class Trainer:
     """RLlib's PPO under a ``baselines.runs.Run`` (``baselines.runs.Trainer``)."""
 
@@ -212,11 +245,10 @@ class Trainer:
 
         self.algorithm = build_config(s, a, self.run.env_seed, pool, hp).build_algo()
         if s.resume is not None:
-            from baselines.loaders.rllib_policy import RLlibPolicy
-
-            checkpoint = RLlibPolicy.find(s.resume)
+            checkpoint, self.robot_steps, multiplier = find_resume(s.resume, self.run.previous)
             self.algorithm.restore_from_path(str(checkpoint.resolve()))
-            self.robot_steps = int(self.run.previous.get("robot_steps", 0))
+            if self.lagrangian is not None and multiplier is not None:
+                self.lagrangian.multiplier = multiplier
             print(f"resuming {checkpoint} at {self.robot_steps} robot-steps")
         if self.lagrangian is not None:  # the runners' envs may come from the checkpoint
             self.broadcast_multiplier()
@@ -292,9 +324,11 @@ class Trainer:
 
     def checkpoint(self, robot_steps: int) -> None:
         """A numbered checkpoint under the run folder (``learn``, every
-        ``--checkpoint-every``)."""
-        folder = self.run.folder / "checkpoints" / f"robot_steps_{robot_steps}"
+        ``--checkpoint-every``), and the multiplier in force beside it (``find_resume``)."""
+        folder = self.run.folder / CHECKPOINTS / f"{NUMBERED}{robot_steps}"
         self.algorithm.save_to_path(str(folder.resolve()))
+        if self.lagrangian is not None:
+            write_json(folder.with_suffix(".json"), {"multiplier": self.lagrangian.multiplier})
 
     def results(self) -> dict[str, Any]:
         return {"iterations_done": getattr(self, "iterations_done", 0)}

@@ -97,8 +97,12 @@ def test_resume_of_a_missing_or_foreign_run_is_refused(tmp_path, capsys):
     other = tmp_path / "other"
     other.mkdir()
     (other / "config.json").write_text(json.dumps({"library": "benchmarl"}))
-    err = usage_error(train.main, ["--resume", str(other), "--out", str(other)], capsys)
+    argv = ["--library", "sb3", "--resume", str(other), "--out", str(other)]
+    err = usage_error(train.main, argv, capsys)
     assert "--resume" in err and "trained with benchmarl, not sb3" in err
+    # without --library a resume continues the run's own library: BenchMARL's check speaks
+    err = usage_error(train.main, ["--resume", str(other), "--out", str(other)], capsys)
+    assert "--resume" in err and "checkpoint_<frames>.pt" in err
 
 
 def test_a_resume_continues_the_run_as_it_was_configured_in_its_own_folder(tmp_path):

@@ -156,9 +156,59 @@ def test_rllib_sub_envs_cycle_through_their_own_geometries(local_ray):
     assert [copy_reset_seed(10, 2, e, 4, 7) for e in range(3)] == [5, 2, 6]
 
 
-def test_rllib_ppo_smoke_on_the_local_runner(local_ray, tmp_path):
+def test_rllib_ppo_smoke_on_the_local_runner_then_resumed_after_a_kill(local_ray, tmp_path):
+    """One iteration, then the run as a kill after its numbered checkpoint leaves it (no
+    final checkpoint, config.json as at the start): ``--resume RUN`` goes on from the
+    checkpoint's robot-steps."""
     pytest.importorskip("ray.rllib")
+    import shutil
+
+    from baselines.train import main as train_main
+
     _train_and_evaluate(tmp_path, runners=0, iterations=1)
+    run = tmp_path / "rllib_ppo"
+    shutil.rmtree(run / "checkpoint")
+    config = json.loads((run / "config.json").read_text())
+    (run / "config.json").write_text(json.dumps({**config, "robot_steps": 0}))
+    train_main(f"--resume {run} --iterations 1 --no-progress".split())
+    config = json.loads((run / "config.json").read_text())
+    assert config["resumes"] == 1 and config["robot_steps"] == 256
+    progress = list(csv.DictReader(open(run / "progress.csv")))
+    assert [int(r["robot_steps"]) for r in progress] == [128, 256]
+
+
+def _fake_checkpoint(folder: Path) -> Path:
+    from baselines.loaders.rllib_policy import MODULE_DIR
+
+    folder.joinpath(*MODULE_DIR).mkdir(parents=True)
+    return folder
+
+
+def test_rllib_resume_finds_the_newest_checkpoint_its_steps_and_multiplier(tmp_path):
+    """``find_resume``: a killed run (numbered checkpoints, no final one) resumes from the
+    newest numbered one, its robot-steps from the name and its multiplier from beside it;
+    a final checkpoint newer than those from config.json's record; a checkpoint named
+    directly as itself; a folder with none is refused by name."""
+    import os
+
+    from baselines.rl.rllib_trainer import find_resume
+
+    run = tmp_path / "run"
+    for steps in (128, 1024, 256):  # 1024 newest by steps, not by name order
+        _fake_checkpoint(run / "checkpoints" / f"robot_steps_{steps}")
+    (run / "checkpoints" / "robot_steps_1024.json").write_text('{"multiplier": 0.7}')
+    recorded = {"robot_steps": 5000, "cost": {"final_multiplier": 2.5}}
+    assert find_resume(run, recorded) == (run / "checkpoints" / "robot_steps_1024", 1024, 0.7)
+    low = run / "checkpoints" / "robot_steps_256"
+    assert find_resume(low, recorded) == (low, 256, None)  # no multiplier saved beside it
+    final = _fake_checkpoint(run / "checkpoint")
+    newest = (run / "checkpoints" / "robot_steps_1024").stat().st_mtime
+    os.utime(final, (newest + 10, newest + 10))
+    assert find_resume(run, recorded) == (final, 5000, 2.5)
+    os.utime(final, (newest - 10, newest - 10))  # a kill after a later checkpoint
+    assert find_resume(run, recorded)[1] == 1024
+    with pytest.raises(ValueError, match="no RLlib checkpoint"):
+        find_resume(tmp_path / "empty", {})
 
 
 @pytest.mark.slow
