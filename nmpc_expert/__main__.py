@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--scenario", default="paper", choices=tuple(FAMILIES))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument(
-        "--n-agents", type=int, default=None, help="team size: random family only (2..6)"
+        "--n-agents", type=int, default=None, help="team size: random family only (2..8)"
     )
     for key in ("object", "course"):
         option = SCENARIO_OVERRIDES[key]

@@ -37,9 +37,9 @@ def usage_error(main, argv: list[str], capsys) -> str:
     ("argv", "named"),
     [
         (["--scenario", "nope"], ["--scenario", "'nope'", "paper", "random", "short"]),
-        (["--n-agents", "1"], ["--n-agents", "2..6"]),
+        (["--n-agents", "1"], ["--n-agents", "2..8"]),
         (["--scenario", "paper", "--n-agents", "3"], ["--scenario paper", "exactly 2 agents"]),
-        (["--scenario", "random", "--n-agents", "2", "7"], ["--n-agents", "2..6", "'7'"]),
+        (["--scenario", "random", "--n-agents", "2", "9"], ["--n-agents", "2..8", "'9'"]),
         (["--robot-steps", "-5"], ["--robot-steps", "int >= 1", "'-5'"]),
         (["--robot-steps", "0"], ["--robot-steps", "int >= 1"]),
         (["--num-envs", "0"], ["--num-envs", "int >= 1"]),
@@ -167,7 +167,7 @@ def test_a_usage_error_prints_no_traceback_from_the_command_line(tmp_path):
     ("argv", "named"),
     [
         (["--policy", "zero", "--scenario", "nope"], ["--scenario", "'nope'"]),
-        (["--policy", "zero", "--n-agents", "1"], ["--n-agents", "2..6"]),
+        (["--policy", "zero", "--n-agents", "1"], ["--n-agents", "2..8"]),
         (
             ["--policy", "zero", "--scenario", "paper", "--n-agents", "3"],
             ["scenario paper", "exactly 2 agents"],
@@ -202,7 +202,7 @@ def test_a_policy_that_cannot_be_loaded_fails_with_the_loaders_message(tmp_path,
 
 def test_the_ladder_sweep_and_seeds_check_their_values(tmp_path, capsys):
     out = str(tmp_path / "out")
-    assert "--n-agents" in usage_error(ladder.main, ["--n-agents", "7", "--out", out], capsys)
+    assert "--n-agents" in usage_error(ladder.main, ["--n-agents", "9", "--out", out], capsys)
     assert "--from" in usage_error(ladder.main, ["--from", f"{out}/nope.csv"], capsys)
     err = usage_error(comm_sweep.main, ["--bit-rates", "fast", "--out", out], capsys)
     assert "--bit-rates" in err and "'fast'" in err
@@ -256,7 +256,7 @@ def test_the_evaluator_writes_every_output_when_every_episode_fails(tmp_path, ca
     ("argv", "named"),
     [
         (["--scenario", "nope"], ["--scenario", "'nope'"]),
-        (["--n-agents", "1"], ["--n-agents", "2..6"]),
+        (["--n-agents", "1"], ["--n-agents", "2..8"]),
         (["--scenario", "paper", "--n-agents", "3"], ["--scenario paper", "exactly 2 agents"]),
         (["--max-cycles", "0"], ["--max-cycles", "int >= 1"]),
         (["--seed", "-1"], ["--seed", "int >= 0"]),
@@ -376,7 +376,7 @@ def test_a_rounded_budget_is_announced_and_the_build_timed_apart(tmp_path, monke
     ("argv", "named"),
     [
         (["random", "--n-agent", "3"], ["unrecognized arguments: --n-agent"]),
-        (["random", "--n-agents", "7"], ["--n-agents", "2..6", "'7'"]),
+        (["random", "--n-agents", "9"], ["--n-agents", "2..8", "'9'"]),
         (["random", "--workers", "0"], ["--workers", "int >= 1"]),
         (["random", "--seeds", "5:2"], ["--seeds", "START < STOP"]),
         (["random", "--seeds", "a:b"], ["--seeds", "START:STOP"]),

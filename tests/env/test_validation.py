@@ -47,8 +47,8 @@ def holding(env: CoopTransportEnv) -> dict[str, np.ndarray]:
 # -- constructor options: one schema for scenario overrides and environment options ------------
 BAD_OPTIONS = [
     # (keyword arguments, error type, message: names the argument and what is allowed)
-    ({"n_agents": 2.5}, TypeError, r"n_agents: expected int in 2\.\.6"),
-    ({"n_agents": "3"}, TypeError, r"n_agents: expected int in 2\.\.6"),
+    ({"n_agents": 2.5}, TypeError, r"n_agents: expected int in 2\.\.8"),
+    ({"n_agents": "3"}, TypeError, r"n_agents: expected int in 2\.\.8"),
     ({"n_agents": True}, TypeError, r"n_agents: expected int"),
     ({"max_cycles": 2.7}, TypeError, r"max_cycles: expected None or int >= 1"),
     ({"max_cycles": "10"}, TypeError, r"max_cycles: expected None or int >= 1"),
@@ -118,7 +118,7 @@ def test_unknown_keywords_list_every_allowed_key_with_its_range(paper):
     with pytest.raises(ValueError, match=r"unknown option.*'colour'") as exc:
         uvms_env.parallel_env("short", colour="red")
     text = str(exc.value)
-    for fragment in ("n_agents (int in 2..6)", "mismatch (finite float in [0, 0.5))",
+    for fragment in ("n_agents (int in 2..8)", "mismatch (finite float in [0, 0.5))",
                      "reseed_geometry (bool)", "max_cycles (None or int >= 1)"):  # fmt: skip
         assert fragment in text
     with pytest.raises(ValueError, match=r"unknown scenario override.*allowed: .*current"):
@@ -126,8 +126,8 @@ def test_unknown_keywords_list_every_allowed_key_with_its_range(paper):
 
 
 def test_random_family_n_agents_is_checked_against_its_range():
-    with pytest.raises(ValueError, match=r"n_agents: expected int in 2\.\.6"):
-        make("random", n_agents=7)
+    with pytest.raises(ValueError, match=r"n_agents: expected int in 2\.\.8"):
+        make("random", n_agents=9)
     with pytest.raises(ValueError, match="exactly 2 agents"):
         make("short", n_agents=3)
 

@@ -19,9 +19,11 @@ from uvms_env.robot.priors import object_model
 from uvms_env.scenarios import current_within_reach, families, held_out, make, obstacle_distance
 from uvms_env.scenarios.bank import GeometryBank
 from uvms_env.scenarios.geometry import nominal_hand, robot_radius
+from uvms_env.scenarios.overrides import RANDOM_MAX_AGENTS
 from uvms_env.sim.simulator import Simulator
 
 SEEDS = range(60)
+TEAM_SIZES = range(2, RANDOM_MAX_AGENTS + 1)  # every team the random family draws
 
 
 def _heading(rotation: np.ndarray) -> float:
@@ -55,7 +57,7 @@ def test_one_number_names_each_object_and_every_consumer_builds_the_same_bar():
     assert object_size("bar", bar_length) == 0.0 and object_size("bar", -8.2) == 8.2
     for key in (0.0, -5.0, 1.2):
         cs.Function(f"f_{object_tag(key)}", [cs.SX.sym("x")], [0])  # a valid compiled name
-    for n in range(2, 7):
+    for n in TEAM_SIZES:
         s = make("random", seed=n, n_agents=n, object="bar")
         length = load_parameters().object.random_bar_length(n)
         spec = AgentSpec.from_scenario(s, 0)
@@ -91,7 +93,7 @@ def test_bar_draws_are_seeded(drawn):
         assert not np.array_equal(a.waypoints[:1], c.waypoints[:1])
 
 
-@pytest.mark.parametrize("n", range(2, 7))
+@pytest.mark.parametrize("n", TEAM_SIZES)
 def test_robots_stand_apart_on_their_bar_in_their_formation(drawn, n):
     length = load_parameters().object.random_bar_length(n)
     gap = families.BAR_GAP * robot_radius()
@@ -261,7 +263,7 @@ def test_the_bank_keeps_bars_apart_and_serves_them(tmp_path):
 def test_bar_episodes_get_longer_with_the_team(drawn):
     """A turning course's legs grow with the team: its episodes too, one length per size."""
     assert drawn(seed=1, n_agents=6).settings["max_steps"] == families.RANDOM_MAX_STEPS
-    for n in range(2, 7):
+    for n in TEAM_SIZES:
         for seed in (1, 2):
             d = drawn(seed=seed, n_agents=n, object="bar", course="mixed")
             expected = families.RANDOM_MAX_STEPS + families.BAR_EXTRA_STEPS * (n - 2)

@@ -47,7 +47,7 @@ class CoopTransportEnv(ParallelEnv[str, np.ndarray, np.ndarray], CoreViews):
     | Import | `uvms_env.parallel_env(scenario="paper", render_mode=None, **overrides)` |
     | PettingZoo | `pettingzoo.make("parallel", "uvms_env/CoopTransport-v1")` |
     | Gymnasium | `gymnasium.make("uvms_env/CoopTransport-v1")`: centralized view |
-    | Agents | `uvms_0 ... uvms_{N-1}`; paper, short N = 2; random N = 2..6 (default 2) |
+    | Agents | `uvms_0 ... uvms_{N-1}`; paper, short N = 2; random N = 2..8 (default 2) |
     | Action space | `Box(-1, 1, (8,), float32)` per agent |
     | Observation space | `Box(79,)` float32 per agent, local only (layout below) |
     | State space | `Box(20 N + 19,)` float32, the global state for centralized critics only |

@@ -1,6 +1,6 @@
 """Scenario families: the paper's scenario, a seeded random family and a short one.
 
-``random`` draws a team (N = 2..6 robots around a ring, or along a bar: its ``object``
+``random`` draws a team (N = 2..8 robots around a ring, or along a bar: its ``object``
 option) and a course (obstacles off the path, or on it so that the path turns around
 them: its ``course`` option) from the seed; its defaults (ring, open) draw what they
 always drew. The paper's own geometry is held out of its draws (``held_out``).
@@ -31,7 +31,7 @@ from uvms_env.scenarios.geometry import (
     static_equilibrium,
     uvms_model,
 )
-from uvms_env.scenarios.overrides import SCENARIO_FIELDS, validate_overrides
+from uvms_env.scenarios.overrides import RANDOM_MAX_AGENTS, SCENARIO_FIELDS, validate_overrides
 
 # Keys every family accepts as overrides of make() (types and ranges: overrides.py);
 # families may accept more (n_agents; the random family's object and course).
@@ -223,7 +223,7 @@ def _refuse_random_options(family: str, settings: dict) -> None:
 
 
 def random(**settings) -> Scenario:
-    """Seeded random family: N = 2..6 robots carry a ring or a bar from a random start
+    """Seeded random family: N = 2..8 robots carry a ring or a bar from a random start
     through one to three waypoints among obstacles.
 
     ``n_agents`` defaults to 2 (``RANDOM_DEFAULT_AGENTS``) whatever the seed: the team
@@ -244,8 +244,8 @@ def random(**settings) -> Scenario:
     rng = np.random.default_rng(seed)
     rng.integers(2, 7)  # formerly the default team size; still drawn: seeded geometries kept
     n = settings.pop("n_agents", RANDOM_DEFAULT_AGENTS)
-    if not 2 <= n <= 6:
-        raise ValueError(f"the random family has 2..6 agents, got n_agents={n}")
+    if not 2 <= n <= RANDOM_MAX_AGENTS:
+        raise ValueError(f"the random family has 2..{RANDOM_MAX_AGENTS} agents, got n_agents={n}")
     shape = settings.pop("object", RANDOM_DEFAULT_OBJECT)
     course = settings.pop("course", RANDOM_DEFAULT_COURSE)
     draw_team = _ring_team if shape == "ring" else _bar_team
