@@ -398,7 +398,8 @@ def main(argv: list[str] | None = None) -> None:
     if known.resume is not None and not any(w.split("=")[0] in LIBRARY_FLAGS for w in argv):
         # a resume without --library continues the run's own library: its options parse
         folder = _resumed_folder(known.resume)
-        name = read_config(folder).get("library", name) if folder is not None else name
+        recorded = read_config(folder) if folder is not None else {}
+        name = recorded.get("library", recorded.get("engine", name))  # "engine": earlier
     ap = build_parser(name if name in LIBRARIES else known.library)
     argv = resumed_argv(ap, argv) if known_resume(argv) else argv
     args = ap.parse_args(argv)

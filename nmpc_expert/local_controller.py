@@ -326,7 +326,9 @@ class LocalController:
         margin = np.minimum(
             s.margin_gain * np.sqrt(self.innovation_var) / scale[:m], s.margin_limit
         )
-        np.maximum(margin, s.start_floor(self.decisions * s.period) * upper[:m], out=margin)
+        floor = s.start_floor(self.decisions * s.period)
+        if floor > 0:
+            np.maximum(margin, floor * upper[:m], out=margin)
         self._lower[:m] = lower[:m] + margin
         self._upper[:m] = upper[:m] - margin
 
