@@ -24,7 +24,7 @@ import numpy as np
 
 from nmpc_expert.observation_reader import OBSERVATION_STRUCTURE, check_observation
 from nmpc_expert.ocp import NC, WEIGHT_LAYOUT, ocp_functions, weight_vector
-from nmpc_expert.reference import GoalIntegral, HorizonReference
+from nmpc_expert.reference import AttitudeSlew, GoalIntegral, HorizonReference
 from nmpc_expert.rti import ExtraRows, RTISolver
 from nmpc_expert.settings import NMPCSettings, controller_settings
 from uvms_env.dynamics import NU, ObjectModel
@@ -351,11 +351,21 @@ class NMPCPolicy(LocalController):
         self._object_state = BufferCall(self.funcs.object_state)
         self.goal = GoalIntegral(s, spec.waypoints)
         self._wp = np.ascontiguousarray(spec.waypoints, dtype=float)
+        self.slew = None
+        if s.attitude_tip_speed > 0:
+            radius = ObjectModel(spec.object_shape, spec.ring_radius).bounding_radius
+            rate = s.attitude_tip_speed / radius
+            # an object the navigation law's own attitude rate turns slowly enough at its
+            # tip keeps the waypoint's attitude (the paper's reference)
+            if rate < self.navigator.max_att_rate:
+                self.slew = AttitudeSlew(rate, s.horizon, s.period)
 
     # -- Policy protocol -----------------------------------------------------------------
     def reset(self) -> None:
         super().reset()
         self.goal.reset()
+        if self.slew is not None:
+            self.slew.reset()
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         start = time.perf_counter()
@@ -363,6 +373,8 @@ class NMPCPolicy(LocalController):
         index = waypoint_index(self._wp, o[OBSERVATION_STRUCTURE["waypoint"]], "observation")
         x_o, _ = self._object_state(self._x0, self.theta)
         xd, vd = self.reference(x_o, index)
+        if self.slew is not None:
+            self.slew.apply(xd, vd, x_o)
         self.solver.xd[:] = xd + self.goal.shift(x_o, index)
         self.solver.vd[:] = vd
         status, info = "ok", {}

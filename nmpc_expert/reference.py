@@ -12,6 +12,7 @@ reference keeps the navigation law's rates.
 
 The propagation is one small CasADi function per waypoint, evaluated through the
 zero-copy buffer interface (no compilation, so a new scenario costs nothing).
+``AttitudeSlew``: that attitude reached at a bounded rate (a long object's turn).
 ``GoalIntegral``: the integral action near the last waypoint that both the distributed
 expert and the centralized NMPC apply to this reference.
 
@@ -77,6 +78,34 @@ class HorizonReference:
         self._x0[:] = x_o
         xd, vd = self._calls[index](self._x0)
         return xd, vd
+
+
+class AttitudeSlew:
+    """The pose reference's attitude moved toward the active waypoint's at no more than
+    ``rate`` rad/s per Euler angle (``NMPCSettings.attitude_tip_speed``), and the twist
+    reference's angular speed capped at ``rate``: node k of a decision asks for
+    a + clip(wrap(goal - a), +-rate k h), a the slewed attitude, which then advances one
+    period. ``a`` starts at the object's estimated attitude at the first decision and
+    follows the reference, not the estimate: every robot of a team slews alike."""
+
+    def __init__(self, rate: float, horizon: int, period: float) -> None:
+        self.rate = rate
+        self._reach = rate * period * np.arange(horizon + 1)[:, None]
+        self.attitude: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self.attitude = None
+
+    def apply(self, xd: np.ndarray, vd: np.ndarray, x_o: np.ndarray) -> None:
+        """Slew ``xd``'s attitude (the waypoint's, in every row) and cap ``vd``'s angular
+        speed, in place; advance the slewed attitude one period."""
+        if self.attitude is None:
+            self.attitude = np.array(x_o, dtype=float).reshape(-1)[3:6]
+        error = wrap_angle(xd[0, 3:] - self.attitude)
+        xd[:, 3:] = self.attitude + np.clip(error, -self._reach, self._reach)
+        speed = np.linalg.norm(vd[:, 3:], axis=1, keepdims=True)
+        vd[:, 3:] *= np.minimum(1.0, self.rate / np.maximum(speed, 1e-12))
+        self.attitude = xd[1, 3:].copy()
 
 
 class GoalIntegral:

@@ -58,6 +58,16 @@ class NMPCSettings:
     attitude_from_waypoint: bool = True
     """Pose reference attitude = the active waypoint's (True) or the navigation law's
     propagated Euler angles (False); see ``reference``."""
+    attitude_tip_speed: float = 0.0
+    """[m/s] 0: the pose reference's attitude is the active waypoint's at once. Above 0
+    (with ``attitude_from_waypoint``): it moves toward the waypoint's at no more than
+    attitude_tip_speed / R rad/s per Euler angle, R the object's bounding radius (known
+    before the task), and the twist reference's angular speed is capped alike, so that a
+    waypoint's turn asks about this speed of the object's farthest point whatever its
+    length (``reference.AttitudeSlew``); an object where that rate is not below the
+    navigation law's own attitude rate keeps the waypoint's attitude. Why: on a long bar a
+    turn asks the end robots for omega R, which their teammates feel only through the bar
+    (docs/results/expert.md)."""
     angular_backoff: float = 0.5
     """Tighter back-off for the joint rates and the vehicle's angular rates: the local
     model ignores the internal wrench, whose effect on these rates shows within one period
@@ -220,6 +230,13 @@ class NMPCSettings:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.r_u <= 0:
             raise ValueError("r_u must be > 0 (the QP needs a positive definite input weight)")
+        if not self.attitude_tip_speed >= 0 or not np.isfinite(self.attitude_tip_speed):
+            raise ValueError(f"attitude_tip_speed must be >= 0, got {self.attitude_tip_speed}")
+        if self.attitude_tip_speed > 0 and not self.attitude_from_waypoint:
+            raise ValueError(
+                "attitude_tip_speed slews the waypoint's attitude: it needs "
+                "attitude_from_waypoint=True"
+            )
         if not 0 <= self.piece_fraction <= 1:
             raise ValueError(f"piece_fraction must lie in [0, 1], got {self.piece_fraction}")
         if not 0 <= self.start_margin < 1 or not self.start_margin_s >= 0:

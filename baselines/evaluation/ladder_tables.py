@@ -308,7 +308,8 @@ def plot_metrics(result: Row, out: Path) -> list[Path]:
                     ax.plot([2.0], [by[p, "paper"][key]], marker="*", ms=8, color=f"C{k % 10}")
             ax.set_title(f"{group}" + (" (star: paper)" if group == "rings" else ""))
             ax.set_xlabel("robots N")
-            ax.set_xticks(range(2, 7))
+            sizes = {int(c.split("=")[1]) for _, c in by if c.startswith(prefix)}
+            ax.set_xticks(sorted(sizes) or range(2, 7))
         axes[0].set_ylabel(title)
         if key == "excess":  # from 0 to tens: a linear axis hides everything but the worst
             axes[0].set_yscale("symlog", linthresh=0.01)

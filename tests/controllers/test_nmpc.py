@@ -15,8 +15,10 @@ from nmpc_expert import NMPCPolicy, NMPCSettings, make_policy
 from nmpc_expert.local_controller import local_parameters
 from nmpc_expert.observation_reader import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
 from nmpc_expert.ocp import CONSTRAINT_NAMES, CONSTRAINT_STATE, NC, WEIGHT_LAYOUT, build_outputs
+from nmpc_expert.reference import AttitudeSlew
 from uvms_env.dynamics import ObjectModel
 from uvms_env.dynamics.local_model import GRASP_THETA, NX, build_local_model
+from uvms_env.dynamics.spatial import wrap_angle
 from uvms_env.dynamics.uvms import default_model
 from uvms_env.env.infos import constraint_values
 from uvms_env.policy import AgentSpec, Policy
@@ -353,6 +355,78 @@ def test_goal_integral_moves_the_reference_against_a_steady_offset(env):
     far[:3] += 1.0
     assert not pol.goal.shift(far, last).any()  # beyond the radius: no integration
     assert not pol.goal.integral.any()
+
+
+def test_attitude_slew_moves_the_reference_at_its_rate_the_short_way():
+    """``AttitudeSlew``: node k asks for a + clip(wrap(goal - a), +-rate k h) per Euler
+    angle (across +-pi the short way), the twist reference's angular speed is capped at
+    the rate and kept below it, ``a`` advances to node 1, reaches the goal and stays;
+    ``reset`` starts again from the estimate."""
+    rate, horizon, h = 0.1, 5, 0.12
+    slew = AttitudeSlew(rate, horizon, h)
+    goal = np.array([0.0, 0.01, 3.0])  # yaw 3.0 from -3.0: 0.283 rad the short way (down)
+    x_o = np.array([1.0, 2.0, 0.5, 0.0, 0.0, -3.0])
+    start = x_o[3:].copy()
+    for period in range(40):
+        xd = np.tile(np.r_[4.0, 5.0, 6.0, goal], (horizon + 1, 1))
+        vd = np.zeros((horizon + 1, 6))
+        vd[:, 3:] = [0.0, 0.003, 0.3]  # the navigation law's: faster than the rate
+        vd[0, 3:] = [0.0, 0.0, 0.01]  # and slower
+        slew.apply(xd, vd, x_o)
+        np.testing.assert_array_equal(xd[:, :3], np.tile([4.0, 5.0, 6.0], (horizon + 1, 1)))
+        a = start + np.clip(wrap_angle(goal - start), -rate * h * period, rate * h * period)
+        for k in range(horizon + 1):
+            step = rate * h * k
+            expected = a + np.clip(wrap_angle(goal - a), -step, step)
+            np.testing.assert_allclose(wrap_angle(xd[k, 3:] - expected), 0, atol=1e-12)
+        np.testing.assert_allclose(np.linalg.norm(vd[1:, 3:], axis=1), rate)
+        np.testing.assert_allclose(vd[0, 3:], [0.0, 0.0, 0.01])  # below the rate: kept
+    assert slew.attitude is not None
+    np.testing.assert_allclose(wrap_angle(slew.attitude - goal), 0, atol=1e-12)  # 24 x 12 mrad
+    assert slew.attitude[2] < -3.0  # went down through -pi, not up through 0
+    slew.reset()
+    xd = np.tile(np.r_[0, 0, 0, goal], (horizon + 1, 1))
+    slew.apply(xd, np.zeros((horizon + 1, 6)), x_o)
+    np.testing.assert_allclose(xd[0, 3:], start)
+
+
+def test_attitude_tip_speed_slews_the_policys_reference_by_the_objects_size():
+    """``attitude_tip_speed``: the distributed policy's rate is the tip speed over the
+    object's bounding radius, its solver's attitude reference is the slew's; off (0, the
+    default), or where the navigation law's own attitude rate is already no faster (a
+    short bar), the policy has none; bad values are refused by name."""
+    env = uvms_env.parallel_env(scenario="random", seed=3, n_agents=5, object="bar")
+    spec = AgentSpec.from_scenario(env.scenario, 0)
+    pol = NMPCPolicy(spec, settings=NMPCSettings(attitude_tip_speed=0.05))
+    radius = ObjectModel(spec.object_shape, spec.ring_radius).bounding_radius
+    assert radius > 3.0  # the 6.6 m bar
+    assert pol.slew is not None and pol.slew.rate == pytest.approx(0.05 / radius)
+    assert NMPCPolicy(spec).slew is None
+    assert pol.slew.rate < pol.navigator.max_att_rate
+    short_env = uvms_env.parallel_env(scenario="random", seed=3, n_agents=2, object="bar")
+    short = AgentSpec.from_scenario(short_env.scenario, 0)
+    short_radius = ObjectModel(short.object_shape, short.ring_radius).bounding_radius
+    law = NMPCPolicy(short).navigator.max_att_rate * short_radius  # its tip speed
+    assert NMPCPolicy(short, settings=NMPCSettings(attitude_tip_speed=1.1 * law)).slew is None
+    assert NMPCPolicy(short, settings=NMPCSettings(attitude_tip_speed=0.9 * law)).slew is not None
+    obs, _ = env.reset(seed=3)
+    o = obs[env.possible_agents[0]]
+    pol.act(o)
+    first = pol.solver.xd[:, 3:].copy()
+    waypoint = spec.waypoints[pol.stats["waypoint_index"], 3:]
+    step = pol.slew.rate * pol.settings.period
+    gap = np.abs(wrap_angle(waypoint - first[0]))
+    # node k is k steps nearer the waypoint's attitude, each angle at most its own gap
+    for k in range(1, first.shape[0]):
+        moved = np.abs(wrap_angle(first[k] - first[0]))
+        np.testing.assert_allclose(moved, np.minimum(gap, k * step), atol=1e-12)
+    pol.act(o)
+    np.testing.assert_allclose(pol.solver.xd[0, 3:], first[1], atol=1e-12)
+    for bad in ({"attitude_tip_speed": -0.1}, {"attitude_tip_speed": float("nan")}):
+        with pytest.raises(ValueError, match="attitude_tip_speed"):
+            NMPCSettings(**bad)
+    with pytest.raises(ValueError, match="attitude_from_waypoint"):
+        NMPCSettings(attitude_tip_speed=0.1, attitude_from_waypoint=False)
 
 
 def test_constraint_names_are_the_rows_of_a_node(env):
