@@ -102,9 +102,12 @@ class AttitudeSlew:
         if self.attitude is None:
             self.attitude = np.array(x_o, dtype=float).reshape(-1)[3:6]
         error = wrap_angle(xd[0, 3:] - self.attitude)
-        xd[:, 3:] = self.attitude + np.clip(error, -self._reach, self._reach)
-        speed = np.linalg.norm(vd[:, 3:], axis=1, keepdims=True)
-        vd[:, 3:] *= np.minimum(1.0, self.rate / np.maximum(speed, 1e-12))
+        xd[:, 3:] = self.attitude + np.minimum(np.maximum(error, -self._reach), self._reach)
+        w = vd[:, 3:]
+        speed = np.linalg.norm(w, axis=1)
+        over = speed > self.rate
+        if over.any():
+            w[over] *= (self.rate / speed[over])[:, None]
         self.attitude = xd[1, 3:].copy()
 
 
