@@ -107,7 +107,7 @@ class CentralRTI(RealTimeIteration):
         self._velocity_rows = np.r_[st["zeta"], self._twist]
         self._select_constraints(st)
         s = model.scenario
-        self._steady_fn = _steady_function(ObjectModel(s.object_shape, s.ring_radius).capacity)
+        self._steady_fn = _steady_function(ObjectModel(s.object_shape, s.object_size).capacity)
         self._steady: dict[int, BufferCall] = {}
         self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.steady_inputs(np.zeros((hz, model.nx)), np.zeros((hz, 6)))  # compile it now

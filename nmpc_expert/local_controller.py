@@ -50,7 +50,7 @@ def local_parameters(spec: AgentSpec, piece_fraction: float = 0.0) -> np.ndarray
     the centroid (the paper's); above, with load share 1, what
     ``ObjectModel.carried_parameters`` blends of that and of the piece of the object
     nearest its grasp."""
-    obj = ObjectModel(spec.object_shape, spec.ring_radius)
+    obj = ObjectModel(spec.object_shape, spec.object_size)
     if piece_fraction > 0:  # 0 keeps the paper's numbers to the bit (the same model)
         p_o = obj.carried_parameters(spec.grasp_offset, spec.load_share, piece_fraction)
         carried = 1.0, p_o
@@ -62,7 +62,7 @@ def local_parameters(spec: AgentSpec, piece_fraction: float = 0.0) -> np.ndarray
 def object_capacity(spec: AgentSpec) -> int:
     """The strip capacity of the robot's object: which compiled library it uses (one for
     every object of a capacity, ``uvms_env.dynamics.payload``)."""
-    return ObjectModel(spec.object_shape, spec.ring_radius).capacity
+    return ObjectModel(spec.object_shape, spec.object_size).capacity
 
 
 def default_settings(solver: str) -> NMPCSettings:
@@ -353,7 +353,7 @@ class NMPCPolicy(LocalController):
         self._wp = np.ascontiguousarray(spec.waypoints, dtype=float)
         self.slew = None
         if s.attitude_tip_speed > 0:
-            radius = ObjectModel(spec.object_shape, spec.ring_radius).bounding_radius
+            radius = ObjectModel(spec.object_shape, spec.object_size).bounding_radius
             rate = s.attitude_tip_speed / radius
             # an object the navigation law's own attitude rate turns slowly enough at its
             # tip keeps the waypoint's attitude (the paper's reference)

@@ -66,7 +66,7 @@ class TeamModel:
         self.nx, self.nu = state_size(n), NU * n
         uvms = default_model()
         nominal = np.tile(uvms.nominal_parameters(), (n, 1))
-        obj = ObjectModel(s.object_shape, s.ring_radius)
+        obj = ObjectModel(s.object_shape, s.object_size)
         nominal_object = obj.nominal_parameters()
         self.parameters = _checked(parameters, nominal, "parameters")
         self.object_parameters = _checked(object_parameters, nominal_object, "object_parameters")

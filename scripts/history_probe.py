@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from baselines.imitation.bc import loss_weights, train_epochs
-from baselines.imitation.dataset import read_dataset, split_path
+from baselines.imitation.dataset import object_key_of, read_dataset, split_path
 from baselines.networks.features import prepare
 from baselines.networks.mlp import MLPPolicyNet
 
@@ -51,7 +51,7 @@ def history_inputs(
     parts: dict[str, list[np.ndarray]] = {v: [] for v in VARIANTS}
     labels, held = [], []
     for j, ep in enumerate(episodes):
-        f = prepare(ep.observations[:-1], "features", ep.infos["object_ring_radius"][0])
+        f = prepare(ep.observations[:-1], "features", object_key_of(ep))
         act = np.clip(ep.actions, -1, 1).astype(np.float32)
         prev_f = np.vstack([f[:1], f[:-1]])[:, :-ACT]  # the first step repeats itself
         prev_a = np.vstack([np.clip(f[:1, -ACT:], -1, 1), act[:-1]])  # a_ss before any

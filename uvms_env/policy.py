@@ -41,7 +41,7 @@ class AgentSpec:
     grasp_rotation: np.ndarray  # (3, 3) R_Oi
     load_share: float  # c_i
     object_shape: str
-    ring_radius: float
+    object_size: float
     waypoints: np.ndarray  # (K, 6)
     obstacles: tuple[Cylinder | Sphere, ...]
     workspace: Workspace
@@ -55,7 +55,7 @@ class AgentSpec:
     def object_key(self) -> float:
         """The object as one number, as the compiled functions name it (``object_key``):
         the ring's radius; 0 for the parameter file's bar, minus the length for another."""
-        return object_key(self.object_shape, self.ring_radius)
+        return object_key(self.object_shape, self.object_size)
 
     @staticmethod
     def from_scenario(
@@ -70,7 +70,7 @@ class AgentSpec:
             grasp_rotation=scenario.grasp_rotations[index].copy(),
             load_share=float(scenario.load_shares[index]),
             object_shape=scenario.object_shape,
-            ring_radius=scenario.ring_radius,
+            object_size=scenario.object_size,
             waypoints=scenario.waypoints.copy(),
             obstacles=scenario.obstacles,
             workspace=scenario.workspace,

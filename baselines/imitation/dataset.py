@@ -27,6 +27,10 @@ from typing import Any
 import numpy as np
 
 NAMESPACE = "uvms"
+#: The ``infos`` key of the carried object's key (``Scenario.object_key``) ...
+OBJECT_KEY = "object_key"
+#: ... and its name in datasets recorded before the rename (still read: ``object_key_of``)
+OLD_OBJECT_KEY = "object_ring_radius"
 
 
 @dataclass
@@ -87,8 +91,8 @@ def _infos(s: AgentStream) -> dict[str, np.ndarray]:
         "expert_iterations": col(s.iterations, np.int64, 0),
         "expert_fallbacks": col(s.fallbacks, np.int64, 0),
         "learner_acted": col(s.learner_acted, np.bool_, False),
-        # the object's key under the datasets' name for it (saved datasets read it so)
-        "object_ring_radius": np.full(t + 1, s.object_key, dtype=np.float64),
+        # the object's key (read back with object_key_of, which knows the old name too)
+        OBJECT_KEY: np.full(t + 1, s.object_key, dtype=np.float64),
         **({"memory": np.stack(s.memory).astype(np.float32)} if len(s.memory) == t + 1 else {}),
     }
 
@@ -143,7 +147,7 @@ def write_dataset(
 def read_many(
     paths: list[Path], memory: bool = False
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Concatenated (observations, actions, object ring radius per sample; NaN where a
+    """Concatenated (observations, actions, object key per sample; NaN where a
     dataset did not record it) of several ``data/NAME`` datasets, and the number of
     robot streams. ``memory``: each observation followed by the robot's memory block
     (``memory`` features; ValueError where a dataset did not record it)."""
@@ -160,11 +164,19 @@ def read_many(
             o = np.concatenate([o, blocks.astype(np.float32)], axis=1)
         obs.append(o)
         act.append(a)
-        ring += [
-            np.full(len(ep.actions), ep.infos.get("object_ring_radius", [np.nan])[0]) for ep in eps
-        ]
+        ring += [np.full(len(ep.actions), object_key_of(ep)) for ep in eps]
         n += len(eps)
     return np.concatenate(obs), np.concatenate(act), np.concatenate(ring), n
+
+
+def object_key_of(episode) -> float:
+    """The carried object's key (``Scenario.object_key``) that a dataset episode recorded:
+    its ``infos``' ``object_key``, or ``object_ring_radius`` in datasets recorded before
+    the rename; NaN where it recorded neither."""
+    for key in (OBJECT_KEY, OLD_OBJECT_KEY):
+        if key in episode.infos:
+            return float(np.asarray(episode.infos[key])[0])
+    return float("nan")
 
 
 def load(path: Path):

@@ -98,7 +98,7 @@ def input_function(features: str, object_key: float, dim: int = OBS_DIM) -> cs.F
 
 def object_ring(object_key: float | None, features: str) -> float:
     """The object argument of the compiled functions: its key (``Scenario.object_key``,
-    the datasets' ``object_ring_radius``; 0 when unused)."""
+    the datasets' ``object_key``; 0 when unused)."""
     if features in FEEDFORWARD and object_key is None:
         raise ValueError(f"{features} features need the object (its key, Scenario.object_key)")
     return float(object_key or 0.0)
@@ -183,7 +183,7 @@ def prepare(
         raise ValueError(
             f"{features} features need the object of every sample; "
             f"{int(np.isnan(rings).sum())} samples come from data that did not record it "
-            "(object_ring_radius): collect them again"
+            "(no object_key in their infos): collect them again"
         )
     steady = np.zeros((len(o2), ACT_DIM), dtype=np.float32)
     for ring in np.unique(rings):

@@ -60,7 +60,7 @@ def test_piece_fraction_sets_what_the_local_model_carries(env):
     ``ObjectModel.carried_parameters`` gives; 0 (the default) its load share of the whole
     object, the paper's model."""
     spec = AgentSpec.from_scenario(env.scenario, 1)
-    obj = ObjectModel(spec.object_shape, spec.ring_radius)
+    obj = ObjectModel(spec.object_shape, spec.object_size)
     share_at = GRASP_THETA - 1
     piece = make_policy("rti", piece_fraction=0.5)(spec)
     assert piece.theta[share_at] == 1.0
@@ -398,14 +398,14 @@ def test_attitude_tip_speed_slews_the_policys_reference_by_the_objects_size():
     env = uvms_env.parallel_env(scenario="random", seed=3, n_agents=5, object="bar")
     spec = AgentSpec.from_scenario(env.scenario, 0)
     pol = NMPCPolicy(spec, settings=NMPCSettings(attitude_tip_speed=0.05))
-    radius = ObjectModel(spec.object_shape, spec.ring_radius).bounding_radius
+    radius = ObjectModel(spec.object_shape, spec.object_size).bounding_radius
     assert radius > 3.0  # the 6.6 m bar
     assert pol.slew is not None and pol.slew.rate == pytest.approx(0.05 / radius)
     assert NMPCPolicy(spec).slew is None
     assert pol.slew.rate < pol.navigator.max_att_rate
     short_env = uvms_env.parallel_env(scenario="random", seed=3, n_agents=2, object="bar")
     short = AgentSpec.from_scenario(short_env.scenario, 0)
-    short_radius = ObjectModel(short.object_shape, short.ring_radius).bounding_radius
+    short_radius = ObjectModel(short.object_shape, short.object_size).bounding_radius
     law = NMPCPolicy(short).navigator.max_att_rate * short_radius  # its tip speed
     assert NMPCPolicy(short, settings=NMPCSettings(attitude_tip_speed=1.1 * law)).slew is None
     assert NMPCPolicy(short, settings=NMPCSettings(attitude_tip_speed=0.9 * law)).slew is not None

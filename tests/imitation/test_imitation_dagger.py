@@ -154,7 +154,7 @@ def test_cli_collect_bc_dagger_evaluate(tmp_path):
     main(["bc", "--data", str(data), "--epochs", "2", "--hidden", "16", "16",
           "--out", str(bc_out)])  # fmt: skip
     # the steady-input features read the object that collect recorded per stream
-    assert np.all(episodes[0].infos["object_ring_radius"] == 0.0)  # short carries the bar
+    assert np.all(episodes[0].infos["object_key"] == 0.0)  # short carries the bar
     main(["bc", "--data", str(data), "--epochs", "2", "--hidden", "16", "--features",
           "features", "--out", str(ff_out)])  # fmt: skip
     main(["dagger", "--data", str(data), "--scenario", "short:1", "--iterations", "1",

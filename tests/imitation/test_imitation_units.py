@@ -119,7 +119,7 @@ def test_steady_input_feature_is_the_experts_own(paper):
         for i, agent in enumerate(env.possible_agents):
             spec = AgentSpec.from_scenario(env.scenario, i)
             ring = spec.object_key
-            obj = ObjectModel(spec.object_shape, spec.ring_radius)
+            obj = ObjectModel(spec.object_shape, spec.object_size)
             steady = build_steady_input(
                 default_model(), obj, build_local_model(default_model(), obj)
             )
@@ -192,7 +192,8 @@ def test_bc_rejects_mismatched_data():
         bc.fit(np.zeros((10, 3)), np.zeros((10, 8)), loss_scale="max", progress=False)
 
 
-def test_dataset_round_trip(tmp_path):
+def _streams() -> list[dataset.AgentStream]:
+    """Three short robot streams carrying objects of keys 0, 0.5 and 1."""
     rng = np.random.default_rng(2)
     streams = []
     for k in range(3):
@@ -205,9 +206,18 @@ def test_dataset_round_trip(tmp_path):
             s.truncations.append(False)
             s.solve_ms.append(1.0 + t)
         streams.append(s)
+    return streams
+
+
+def _write(streams: list[dataset.AgentStream], root: Path, name: str) -> None:
     space_o = Box(-np.inf, np.inf, (79,), np.float32)
     space_a = Box(-1, 1, (8,), np.float32)
-    dataset.write_dataset(streams, tmp_path, "roundtrip", space_o, space_a)
+    dataset.write_dataset(streams, root, name, space_o, space_a)
+
+
+def test_dataset_round_trip(tmp_path):
+    streams = _streams()
+    _write(streams, tmp_path, "roundtrip")
     obs, act, episodes = dataset.read_dataset(tmp_path, "roundtrip")
     assert len(episodes) == 3
     for s, ep in zip(streams, episodes, strict=True):
@@ -216,10 +226,33 @@ def test_dataset_round_trip(tmp_path):
         assert np.array_equal(ep.rewards, np.array(s.rewards))
         assert np.array_equal(ep.terminations, np.array(s.terminations))
         assert np.allclose(ep.infos["solve_ms"][1:], s.solve_ms)
-        assert np.all(ep.infos["object_ring_radius"] == s.object_key)
+        assert np.all(ep.infos["object_key"] == s.object_key)
     assert obs.shape == (sum(len(s.actions) for s in streams), 79) and act.shape[1] == 8
     _, _, ring, n = dataset.read_many([tmp_path / "roundtrip"])
     assert n == 3 and np.array_equal(ring, np.repeat([0.0, 0.5, 1.0], [5, 6, 7]))
+
+
+def test_a_dataset_recorded_under_the_old_object_key_name_still_loads(tmp_path, monkeypatch):
+    """Datasets recorded before the rename store the object's key as
+    ``object_ring_radius``: they read as if recorded now."""
+    streams = _streams()
+    write_infos = dataset._infos
+
+    def old_infos(s: dataset.AgentStream) -> dict[str, np.ndarray]:
+        infos = write_infos(s)
+        infos["object_ring_radius"] = infos.pop("object_key")
+        return infos
+
+    with monkeypatch.context() as m:
+        m.setattr(dataset, "_infos", old_infos)
+        _write(streams, tmp_path, "old")
+    _write(streams, tmp_path, "new")
+    _, _, episodes = dataset.read_dataset(tmp_path, "old")
+    assert all("object_key" not in ep.infos and "object_ring_radius" in ep.infos for ep in episodes)
+    assert [dataset.object_key_of(ep) for ep in episodes] == [0.0, 0.5, 1.0]
+    _, _, ring, n = dataset.read_many([tmp_path / "old", tmp_path / "new"])
+    keys = np.repeat([0.0, 0.5, 1.0], [5, 6, 7])
+    assert n == 6 and np.array_equal(ring, np.concatenate([keys, keys]))
 
 
 def test_a_clone_saved_under_the_earlier_feature_name_reads_as_features():

@@ -25,8 +25,8 @@ def _stack(obs: dict[str, np.ndarray], env) -> np.ndarray:
 
 
 @functools.cache
-def _steady_function(shape: str, ring_radius: float):
-    obj = ObjectModel(shape, ring_radius)
+def _steady_function(shape: str, object_size: float):
+    obj = ObjectModel(shape, object_size)
     return build_steady_input(default_model(), obj, build_local_model(default_model(), obj))
 
 
@@ -35,8 +35,8 @@ def _experts_steady(env, raw: np.ndarray) -> np.ndarray:
     out = []
     for i in range(env.n):
         spec = AgentSpec.from_scenario(env.scenario, i)
-        obj = ObjectModel(spec.object_shape, spec.ring_radius)
-        fn = _steady_function(spec.object_shape, spec.ring_radius)
+        obj = ObjectModel(spec.object_shape, spec.object_size)
+        fn = _steady_function(spec.object_shape, spec.object_size)
         theta = ModelParams(
             spec.grasp_offset, spec.grasp_rotation, spec.load_share, obj.nominal_parameters()
         ).pack()

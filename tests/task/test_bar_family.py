@@ -63,7 +63,7 @@ def test_one_number_names_each_object_and_every_consumer_builds_the_same_bar():
         spec = AgentSpec.from_scenario(s, 0)
         assert spec.object_key == s.object_key == object_key("bar", length)
         for model in (
-            ObjectModel(s.object_shape, s.ring_radius),  # simulator, batched engine, reach
+            ObjectModel(s.object_shape, s.object_size),  # simulator, batched engine, reach
             object_model(s.object_key),  # priors, memory
             ObjectModel(spec.object_shape, spec.object_key),  # expert's OCP, filter
         ):
@@ -130,7 +130,7 @@ def test_built_bar_teams_do_not_overlap(n):
         veh = s.initial_q[:, :3]
         d = np.linalg.norm(veh[:, None] - veh[None], axis=-1) + np.eye(n) * 1e9
         assert d.min() >= 2 * params.vehicle.bounding_radius
-        model = ObjectModel(s.object_shape, s.ring_radius)
+        model = ObjectModel(s.object_shape, s.object_size)
         (a, b) = model.segments[0]
         rot_o = _rot(s.object_start[3:])
         points = s.object_start[:3] + (a + np.linspace(0, 1, 400)[:, None] * (b - a)) @ rot_o.T

@@ -76,7 +76,7 @@ def _digest(s) -> str:
         s.grasp_offsets,
         s.grasp_rotations,
         s.load_shares,
-        np.array([s.ring_radius, s.workspace.radius, *s.workspace.center]),
+        np.array([s.object_size, s.workspace.radius, *s.workspace.center]),
         np.array(obstacles).reshape(-1),
     ]
     h = hashlib.sha256()

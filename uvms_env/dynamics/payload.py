@@ -22,7 +22,7 @@ R_O R_Oi; its inertial twist is J_Oi v_O, J_Oi = [[I, -S(R_O l_i)], [0, I]].
 An object is a shape and a size: a ring's radius or a bar's length (0: the parameter
 file's bar, ``object.bar.length``). ``object_key`` writes both as one number, the key
 the priors and the compiled functions take (``Scenario.object_key``; the datasets store
-it as ``object_ring_radius``): the ring's radius, 0 for the parameter file's bar, minus
+it as ``object_key``): the ring's radius, 0 for the parameter file's bar, minus
 the length for another bar.
 
 May import: numpy, casadi, ``uvms_env.models`` and the sibling ``dynamics`` modules.

@@ -29,8 +29,8 @@ class Scenario:
     n_agents: int
     object_shape: str
     # the object's size (m): a ring's radius, a bar's length (0: the parameter file's bar;
-    # canonical, ``uvms_env.dynamics.payload.object_size``); named for the ring it first was
-    ring_radius: float
+    # canonical, ``uvms_env.dynamics.payload.object_size``)
+    object_size: float
     grasp_offsets: np.ndarray  # (N, 3)
     grasp_rotations: np.ndarray  # (N, 3, 3)
     load_shares: np.ndarray  # (N,)
@@ -63,7 +63,7 @@ class Scenario:
         """The object as one number, as the compiled functions, the priors and the
         datasets name it (``uvms_env.dynamics.payload.object_key``): the ring's radius; 0
         for the parameter file's bar, minus the length for another bar."""
-        return object_key(self.object_shape, self.ring_radius)
+        return object_key(self.object_shape, self.object_size)
 
 
 def _shape(name: str, arr: np.ndarray, shape: tuple[int, ...]) -> None:
@@ -92,13 +92,11 @@ def validate(s: Scenario) -> None:
         raise ValueError(f"n_agents must be an integer >= 2, got {n!r}")
     if s.object_shape not in ("bar", "ring"):
         raise ValueError(f"object_shape must be 'bar' or 'ring', got {s.object_shape!r}")
-    size = s.ring_radius
+    size = s.object_size
     if not (isinstance(size, float | int | np.floating) and np.isfinite(size) and size >= 0):
-        raise ValueError(
-            f"ring_radius (the object's size) must be a finite float >= 0, got {size!r}"
-        )
+        raise ValueError(f"object_size must be a finite float >= 0, got {size!r}")
     if s.object_shape == "ring" and size == 0:
-        raise ValueError("ring_radius must be > 0 for a ring")
+        raise ValueError("object_size must be > 0 for a ring")
     _shape("grasp_offsets", s.grasp_offsets, (n, 3))
     _shape("grasp_rotations", s.grasp_rotations, (n, 3, 3))
     _shape("load_shares", s.load_shares, (n,))

@@ -129,7 +129,7 @@ def _configure(
         name=name,
         n_agents=len(offsets),
         object_shape=shape,
-        ring_radius=size,
+        object_size=size,
         grasp_offsets=offsets,
         grasp_rotations=rotations,
         load_shares=shares,
@@ -475,7 +475,7 @@ def held_out(scenario: Scenario) -> bool:
     course (within ``PAPER_HOLDOUT_TOLERANCE``). True for ``paper``; the random family
     draws again rather than produce one."""
     s = scenario
-    return _paper_team(s.object_shape, s.ring_radius, s.n_agents) and _paper_course(
+    return _paper_team(s.object_shape, s.object_size, s.n_agents) and _paper_course(
         s.object_start, s.waypoints
     )
 

@@ -52,7 +52,7 @@ class _Team:
     def __init__(self, scenario: Scenario) -> None:
         self.uvms = default_model()
         self.p = scale_damping(self.uvms.nominal_parameters(), scenario.damping_scale)
-        self.object = ObjectModel(scenario.object_shape, scenario.ring_radius)
+        self.object = ObjectModel(scenario.object_shape, scenario.object_size)
         self.po = self.object.nominal_parameters()
         self.po[OBJECT_PARAMETER_LAYOUT["drag_scale"]] *= scenario.damping_scale
         self.q = np.asarray(scenario.initial_q, dtype=float)

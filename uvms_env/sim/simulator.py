@@ -48,7 +48,7 @@ WEIGHED_FRACTION = 0.1
 def _chain(
     n: int, shape: str, size: float, period: float, substeps: int
 ) -> tuple[ChainFunctions, cs.Function]:
-    """The chain for the object ``shape`` and ``size`` (a scenario's ``ring_radius``):
+    """The chain for the object ``shape`` and ``size`` (a scenario's ``object_size``):
     the one of every object of its strip capacity (the object is in P_O)."""
     return chain_of_capacity(n, _capacity(shape, size), period, substeps)
 
@@ -76,7 +76,7 @@ def compiled_chain(
     """The closed chain of ``n`` robots and its compiled period step, the very ones the
     simulator integrates with (one build per process and strip capacity, the library
     cached on disk): for a controller whose prediction model is the simulator's
-    (``nmpc_expert.central``). ``size``: the object's (``Scenario.ring_radius``)."""
+    (``nmpc_expert.central``). ``size``: the object's (``Scenario.object_size``)."""
     return _chain(n, shape, float(size), period, substeps)
 
 
@@ -177,8 +177,8 @@ class Simulator(RebuiltOnUnpickle):
         s = scenario
         self.n = s.n_agents
         self.uvms = default_model()
-        self.object = ObjectModel(s.object_shape, s.ring_radius)
-        self.chain_key = (s.object_shape, float(s.ring_radius), s.period, s.substeps)
+        self.object = ObjectModel(s.object_shape, s.object_size)
+        self.chain_key = (s.object_shape, float(s.object_size), s.period, s.substeps)
         self.chain, step_fn = _chain(self.n, *self.chain_key)
         self._step = BufferCall(step_fn)
         self.tau_max = self.uvms.params.limits.tau_max

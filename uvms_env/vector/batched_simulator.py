@@ -70,7 +70,7 @@ class BatchedSimulator:
         self.num_envs = k = int(num_envs)
         self.backend, self.dtype = backend, dtype
         self.threads = int(threads or available_cores())
-        self.chain, _ = _chain(n, s.object_shape, float(s.ring_radius), s.period, s.substeps)
+        self.chain, _ = _chain(n, s.object_shape, float(s.object_size), s.period, s.substeps)
         if backend == "cpu":
             self._fn: Any = BatchedFunction(self.chain.step, dtype, lanes)
             self.xp: Any = np
@@ -87,7 +87,7 @@ class BatchedSimulator:
         xp, real = self.xp, DTYPES[dtype][1]
         self._real = real
         self.uvms = default_model()
-        self.object = ObjectModel(s.object_shape, s.ring_radius)
+        self.object = ObjectModel(s.object_shape, s.object_size)
         self.tau_max = self.uvms.params.limits.tau_max
         self._tau_max = xp.asarray(np.tile(self.tau_max, n)[:, None], real)
         nominal = np.tile(self.uvms.nominal_parameters(), (n, 1))
@@ -118,7 +118,7 @@ class BatchedSimulator:
         period and substeps); call ``reset`` for them afterwards."""
         s = scenario
         same, first = (
-            (t.n_agents, t.object_shape, float(t.ring_radius), t.period, t.substeps)
+            (t.n_agents, t.object_shape, float(t.object_size), t.period, t.substeps)
             for t in (s, self.scenario)
         )
         if same != first:

@@ -264,8 +264,8 @@ def backend_kernels(n_agents: int) -> tuple[Kernel, ...]:
     from uvms_env.vector.kernel_list import kernel_functions, period_refinement
 
     s = make("paper") if n_agents == 2 else make("random", n_agents=n_agents, seed=0)
-    chain, _ = _chain(n_agents, s.object_shape, float(s.ring_radius), s.period, s.substeps)
-    n_seg = len(ObjectModel(s.object_shape, s.ring_radius).segments)
+    chain, _ = _chain(n_agents, s.object_shape, float(s.object_size), s.period, s.substeps)
+    n_seg = len(ObjectModel(s.object_shape, s.object_size).segments)
     kernels = [Kernel("period step", chain.step, period_refinement(n_agents))]
     for noisy in (True, False):
         ring = s.object_key if noisy else None

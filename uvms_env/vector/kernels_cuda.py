@@ -210,7 +210,7 @@ def main(argv: list[str] | None = None) -> None:
 
     for n in args.n_agents:
         s = make("paper") if n == 2 else make("random", n_agents=n, seed=0)
-        chain, _ = _chain(n, s.object_shape, float(s.ring_radius), s.period, s.substeps)
+        chain, _ = _chain(n, s.object_shape, float(s.object_size), s.period, s.substeps)
         for dtype in args.dtype:
             for arch in args.arch:
                 path = build_cubin(chain.step, dtype, arch, period_refinement(n, dtype))
