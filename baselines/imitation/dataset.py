@@ -169,7 +169,7 @@ def read_many(
     return np.concatenate(obs), np.concatenate(act), np.concatenate(ring), n
 
 
-def object_key_of(episode) -> float:
+def object_key_of(episode: Any) -> float:
     """The carried object's key (``Scenario.object_key``) that a dataset episode recorded:
     its ``infos``' ``object_key``, or ``object_ring_radius`` in datasets recorded before
     the rename; NaN where it recorded neither."""
