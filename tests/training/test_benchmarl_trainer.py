@@ -67,6 +67,9 @@ def test_the_scenario_names_the_task_and_the_budget_rounds_up_to_whole_iteration
         "checkpoint_64.pt",
     ]
     assert [p.name for p in (out / "checkpoints").iterdir()] == ["checkpoint_64.pt"]
+    # the run's copy is BenchMARL's file (a hard link): an off-policy one is gigabytes
+    last = experiment / "checkpoints" / "checkpoint_64.pt"
+    assert (out / "checkpoints" / "checkpoint_64.pt").samefile(last)
     assert (experiment / experiment.name / "scalars").is_dir()  # BenchMARL's own logs
     assert len(config["eval"]["episodes"]) == 2  # the saved policy played by the evaluator
 
