@@ -62,7 +62,7 @@ DAGGER_SETTINGS = (
     "rollout_noise gate max_cycles constraint_mode n_agents object course current mismatch "
     "workers expert init"
 ).split()
-Samples = tuple[np.ndarray, np.ndarray, np.ndarray]  # observations, labels, ring radii
+Samples = tuple[np.ndarray, np.ndarray, np.ndarray]  # observations, labels, object keys
 
 
 def env_overrides(args: argparse.Namespace) -> dict[str, Any]:

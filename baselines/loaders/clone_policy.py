@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from baselines.loaders.saved import LoadedPolicy, ObservationStats, load_once
-from baselines.networks.features import INPUT_CLIP, CompiledInputs, input_dim, object_ring
+from baselines.networks.features import INPUT_CLIP, CompiledInputs, input_dim, object_argument
 from baselines.networks.mlp import MLPPolicyNet
 from baselines.networks.mlp_decision import decision_function
 from uvms_env.policy import AgentSpec
@@ -61,7 +61,7 @@ class ClonedPolicy(LoadedPolicy):
         if compiled or len(layers) == 1:  # a linear map is CasADi expressions: runs anywhere
             fn = decision_function(
                 self.features,
-                object_ring(ring, self.features),
+                object_argument(ring, self.features),
                 layers,
                 self._residual,
                 input_dim(self.features, len(mean)),

@@ -96,7 +96,7 @@ def input_function(features: str, object_key: float, dim: int = OBS_DIM) -> cs.F
     return compile_function(fn)
 
 
-def object_ring(object_key: float | None, features: str) -> float:
+def object_argument(object_key: float | None, features: str) -> float:
     """The object argument of the compiled functions: its key (``Scenario.object_key``,
     the datasets' ``object_key``; 0 when unused)."""
     if features in FEEDFORWARD and object_key is None:
@@ -129,7 +129,7 @@ class CompiledInputs:
     ) -> None:
         dim = input_dim(features, len(mean))
         if fn is None:
-            fn = input_function(features, object_ring(object_key, features), dim)
+            fn = input_function(features, object_argument(object_key, features), dim)
         self._call = BufferCall(fn)
         self._obs = np.zeros(dim)
         self._consts = (

@@ -37,7 +37,7 @@ def kernel_functions(
     the kinematics of ``n`` robots around an object of ``n_seg`` segments (with or without
     sensor noise; ``waypoints`` slots for the robots' sequencing and navigation; with
     ``wrench`` the ``chain``'s internal wrench inside, in the same call) and with
-    ``priors_ring`` (the object's ring radius) the priors' a_ss and features. One list for
+    ``priors_ring`` (the object's key, ``object_key``) the priors' a_ss and features. One list for
     the engine and for ``kernels_check``, which compiles them for a GPU."""
     layout = (OBSERVATION_LAYOUT, tuple(FAR_OBSTACLE), noisy)
     sampled = chain.internal_wrench if wrench else None
