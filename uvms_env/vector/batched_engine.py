@@ -93,7 +93,7 @@ class BatchedEngine(Engine):
             self.noisy,
             self.sim.chain,
             self._wrench,
-            priors_ring=base.object_key if priors else None,
+            prior_object_key=base.object_key if priors else None,
             waypoints=w,
         )
         self._kinematics = self._kernel(fns["kinematics"])

@@ -30,15 +30,15 @@ def kernel_functions(
     noisy: bool,
     chain: Any,
     wrench: bool,
-    priors_ring: float | None,
+    prior_object_key: float | None,
     waypoints: int = WAYPOINT_SLOTS,
 ) -> dict[str, Any]:
     """The CasADi functions ``BatchedEngine`` batches besides the period step, by role:
     the kinematics of ``n`` robots around an object of ``n_seg`` segments (with or without
     sensor noise; ``waypoints`` slots for the robots' sequencing and navigation; with
     ``wrench`` the ``chain``'s internal wrench inside, in the same call) and with
-    ``priors_ring`` (the object's key, ``object_key``) the priors' a_ss and features. One list for
-    the engine and for ``kernels_check``, which compiles them for a GPU."""
+    ``prior_object_key`` (the object's ``object_key``) the priors' a_ss and features. One
+    list for the engine and for ``kernels_check``, which compiles them for a GPU."""
     layout = (OBSERVATION_LAYOUT, tuple(FAR_OBSTACLE), noisy)
     sampled = chain.internal_wrench if wrench else None
     fns = {
@@ -46,8 +46,8 @@ def kernel_functions(
             n, n_seg, BATCH_CYLINDERS, BATCH_SPHERES, *layout, waypoints, sampled
         )
     }
-    if priors_ring is not None:
-        fns["prior_steady"], fns["prior_features"] = prior_functions(priors_ring)
+    if prior_object_key is not None:
+        fns["prior_steady"], fns["prior_features"] = prior_functions(prior_object_key)
     return fns
 
 

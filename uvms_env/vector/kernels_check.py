@@ -269,7 +269,7 @@ def backend_kernels(n_agents: int) -> tuple[Kernel, ...]:
     kernels = [Kernel("period step", chain.step, period_refinement(n_agents))]
     for noisy in (True, False):
         ring = s.object_key if noisy else None
-        fns = kernel_functions(n_agents, n_seg, noisy, chain, wrench=noisy, priors_ring=ring)
+        fns = kernel_functions(n_agents, n_seg, noisy, chain, wrench=noisy, prior_object_key=ring)
         for role, fn in fns.items():
             name = f"{role} (noiseless)" if role == "kinematics" and not noisy else role
             if noisy or role == "kinematics":
