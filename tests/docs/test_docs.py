@@ -73,12 +73,15 @@ def command_target(args: list[str]) -> tuple[list[str], list[str]]:
         head, rest = args[:2], args[2:]
     else:
         head, rest = args[:1], args[1:]
-    # leading bare words: a subcommand (e.g. ``imitate collect``) or positionals
+    # leading bare words: a subcommand (e.g. ``imitate collect``) or positionals; a path
+    # positional (a run folder, a CSV) is left out, so the commands that differ only in
+    # their files share one ``--help``; a Hydra override (``key=value``) stays
     lead = []
     for word in rest:
         if word.startswith("-"):
             break
-        lead.append(word)
+        if "/" not in word or "=" in word:
+            lead.append(word)
     options = sorted({w.split("=")[0] for w in rest if re.fullmatch(r"--[a-z][\w-]*(=.*)?", w)})
     # an option that picks the parser (the trainer's RL library) is part of the command
     selector = [w for i, w in enumerate(rest[:-1]) if w == "--library" for w in (w, rest[i + 1])]

@@ -35,10 +35,11 @@ from uvms_env.env import (
 from uvms_env.env.infos import end_name, episode_metrics, reward_terms
 from uvms_env.env.registration import register_gymnasium
 from uvms_env.navigation import Cylinder, Sphere
-from uvms_env.robot.observation import FAR_OBSTACLE, NOISE_STD_Q
+from uvms_env.robot.observation import FAR_OBSTACLE, NOISE_STD_Q, OBSERVATION_LAYOUT
 from uvms_env.scenarios import replace
 from uvms_env.sim.simulator import SimulationDiverged
 from uvms_env.task.constraints import SAFETY_CONSTRAINTS
+from uvms_env.task.team_kernel import CYLINDER_SLOTS, TeamKinematics
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -246,6 +247,29 @@ def test_obstacles_sorted_and_padded(paper):
     assert np.allclose(block[0], [*(np.array(sphere.center) - start[:3]), 0.5, 0], atol=1e-5)
     assert np.allclose(block[1], [4.0 - start[0], -4.5 - start[1], 0, 0.6, 1], atol=1e-5)
     assert np.array_equal(block[2], np.array(FAR_OBSTACLE, dtype=np.float32))
+
+
+def test_the_kernels_obstacle_slots_change_no_output(paper):
+    """One kernel serves every scenario: the default slots (five of each kind, far-away
+    stand-ins in the rows the scenario does not fill) give the same outputs, bit for bit,
+    as a kernel with exactly the scenario's one cylinder and one sphere."""
+    scenario = replace(paper, obstacles=(Cylinder(4.0, -4.5, 0.6), Sphere((3.0, 3.0, 2.0), 0.5)))
+    env = CoopTransportEnv(scenario)
+    env.reset(seed=0)
+    rng = np.random.default_rng(1)
+    env.step(random_actions(env, rng, 0.5))
+    sim, n = env.sim, scenario.n_agents
+    outputs = []
+    for slots in (None, (1, 1)):
+        kin = TeamKinematics(scenario, sim.object.segments, OBSERVATION_LAYOUT, FAR_OBSTACLE, slots)
+        assert kin.cylinders.shape[0] == (CYLINDER_SLOTS if slots is None else 1)
+        st = sim.state
+        q, zeta = np.ascontiguousarray(st.q), np.ascontiguousarray(st.zeta)
+        action = rng.uniform(-1, 1, (n, NU)) if not outputs else outputs[0][0]
+        kin(action, q, zeta, q, zeta, np.ascontiguousarray(st.x_O), np.zeros((n, 2)), np.zeros(5))
+        outputs.append([action] + [np.copy(o) for o in kin._call.outputs])
+    for padded, exact in zip(outputs[0][1:], outputs[1][1:], strict=True):
+        assert np.array_equal(padded, exact)
 
 
 @pytest.mark.parametrize("mode", ["raw", "memory"])

@@ -19,8 +19,8 @@ from uvms_env.robot.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT
 from uvms_env.scenarios import Scenario, make
 from uvms_env.sim import Simulator
 from uvms_env.task.team_kernel import (
-    BATCH_CYLINDERS,
-    BATCH_SPHERES,
+    CYLINDER_SLOTS,
+    SPHERE_SLOTS,
     TeamKinematics,
     obstacle_inputs,
     segment_inputs,
@@ -46,7 +46,7 @@ class Env:
 def _shared(noisy: bool = False) -> ca.Function:
     """The symbolic kernel of every two-robot geometry."""
     return team_function(
-        N, N_SEG, BATCH_CYLINDERS, BATCH_SPHERES, OBSERVATION_LAYOUT, FAR_OBSTACLE, noisy
+        N, N_SEG, CYLINDER_SLOTS, SPHERE_SLOTS, OBSERVATION_LAYOUT, FAR_OBSTACLE, noisy
     )
 
 
@@ -93,7 +93,7 @@ def _inputs(env: Env, padded: bool) -> list[np.ndarray]:
     seg, cyl, sph = kin.segments, kin.cylinders, kin.spheres
     if padded:
         seg = segment_inputs(env.segments, N_SEG)
-        cyl, sph = obstacle_inputs(env.scene, BATCH_CYLINDERS, BATCH_SPHERES)
+        cyl, sph = obstacle_inputs(env.scene, CYLINDER_SLOTS, SPHERE_SLOTS)
     fixed = [kin.grasp, kin.static, *env.state[6:8], kin.waypoints, kin.count, kin.goal]
     inputs = [*env.state[:6], *fixed, kin.time_fraction, seg, cyl, sph, kin.workspace]
     return [np.ascontiguousarray(x, dtype=float) for x in inputs]
@@ -148,7 +148,7 @@ def test_fixed_padding_equals_the_per_scenario_padding(envs, noisy):
         ref = _symbolic(own, _inputs(env, padded=False))
         inputs = _inputs(env, padded=True)
         cyl, sph = inputs[-3], inputs[-2]
-        assert cyl.shape == (BATCH_CYLINDERS, 4) and sph.shape == (BATCH_SPHERES, 5)
+        assert cyl.shape == (CYLINDER_SLOTS, 4) and sph.shape == (SPHERE_SLOTS, 5)
         got = _symbolic(shared, inputs)
         assert np.array_equal(got, ref)
         # absent rows around the object (present stays 0) change nothing either
@@ -194,7 +194,7 @@ def test_inputs_refuse_what_does_not_fit():
 @pytest.mark.skipif(shutil.which("nvcc") is None, reason="needs nvcc")
 def test_cuda_source_compiles(tmp_path):
     source, sig = cuda_source(_shared())
-    assert sig.nnz_in[-3:] == (4 * BATCH_CYLINDERS, 5 * BATCH_SPHERES, 4)
+    assert sig.nnz_in[-3:] == (4 * CYLINDER_SLOTS, 5 * SPHERE_SLOTS, 4)
     src = tmp_path / "kinematics.cu"
     src.write_text(source)
     cmd = ["nvcc", "-std=c++17", "-arch=sm_90", "-cubin", "-x", "cu", str(src)]

@@ -58,14 +58,15 @@ if TYPE_CHECKING:
     from uvms_env.scenarios import Scenario
 
 
-# Each kind of obstacle list is padded up to the next of these sizes (see PAD_* in
-# constraints), so a few compiled kernels serve every scenario of a team size; longer
-# lists are used as they are.
-PADDED_SIZES = (0, 2, 5)
-#: Obstacle slots of a kernel shared by every geometry (batched environments): the random
-#: family draws at most five obstacles, the paper scenario has three cylinders.
-BATCH_CYLINDERS = 5
-BATCH_SPHERES = 5
+#: Obstacle slots of every kernel, single and batched (absent rows are far-away stand-ins,
+#: see PAD_* in constraints): the random family draws at most five obstacles of a kind, the
+#: paper scenario has three cylinders, so one compiled kernel serves every scenario of a
+#: team size, object and sensing; a scenario with more obstacles of a kind uses its count.
+#: Padding the paper's 3 cylinders and 0 spheres to 5 and 5 costs ~2 us of the kernel's
+#: ~17 us per step (2-core EPYC, 2026-12-07); a kernel per padded count cost a user up to
+#: nine compiles per team size.
+CYLINDER_SLOTS = 5
+SPHERE_SLOTS = 5
 NS = 13  # per robot, known a priori: load share, grasp offset, R_Oi row-major
 #: Waypoint slots of a kernel: the random family draws at most three, the paper has three;
 #: a scenario with more uses its own count.
@@ -421,10 +422,6 @@ def team_kernel(*args: Any, chain: tuple | None = None) -> cs.Function:
     return compile_function(team_function(*args, wrench=wrench))
 
 
-def _padded(count: int) -> int:
-    return next((size for size in PADDED_SIZES if size >= count), count)
-
-
 def obstacle_inputs(scenario: Scenario, n_cyl: int, n_sph: int) -> tuple[np.ndarray, np.ndarray]:
     """The kernel's ``cylinders`` (n_cyl, 4) rows ``[x, y, r, present]`` and ``spheres``
     (n_sph, 5) rows ``[cx, cy, cz, r, present]`` of a scenario, padded with absent rows
@@ -484,13 +481,15 @@ class TeamKinematics(RebuiltOnUnpickle):
         slots: tuple[int, int] | None = None,
         chain: tuple | None = None,
     ) -> None:
-        """``slots``: (cylinders, spheres) of the kernel; default: the scenario's counts
-        padded to ``PADDED_SIZES`` (the results are the same with any padding)."""
+        """``slots``: (cylinders, spheres) of the kernel; default: ``CYLINDER_SLOTS`` and
+        ``SPHERE_SLOTS``, or the scenario's count where larger (the results are the same
+        with any padding)."""
         self._init_args = (scenario, segments, layout, far, slots, chain)
         self.n = n = scenario.n_agents
         if slots is None:
-            n_cyl = _padded(sum(isinstance(o, Cylinder) for o in scenario.obstacles))
-            n_sph = _padded(sum(not isinstance(o, Cylinder) for o in scenario.obstacles))
+            cylinders = sum(isinstance(o, Cylinder) for o in scenario.obstacles)
+            n_cyl = max(cylinders, CYLINDER_SLOTS)
+            n_sph = max(len(scenario.obstacles) - cylinders, SPHERE_SLOTS)
         else:
             n_cyl, n_sph = slots
         self.cylinders, self.spheres = obstacle_inputs(scenario, n_cyl, n_sph)

@@ -32,10 +32,10 @@ from uvms_env.scenarios.bank import navigation_table
 from uvms_env.sim.period import ENVELOPE, INACCURATE, MAX_REFINEMENTS, OK
 from uvms_env.task.conditions import Conditions
 from uvms_env.task.team_kernel import (
-    BATCH_CYLINDERS,
-    BATCH_SPHERES,
+    CYLINDER_SLOTS,
     ROBOT_SCALARS,
     ROBOT_VIOLATED,
+    SPHERE_SLOTS,
     WAYPOINT_SLOTS,
     obstacle_inputs,
     segment_inputs,
@@ -118,7 +118,7 @@ class BatchedEngine(Engine):
         self._waypoints, self._count = z(NAV_PARAMETERS * self._w), z(1)
         self._goal, self._time_fraction = z(6), z(1)
         self._segments = z(6 * self._n_seg)
-        self._cylinders, self._spheres = z(4 * BATCH_CYLINDERS), z(5 * BATCH_SPHERES)
+        self._cylinders, self._spheres = z(4 * CYLINDER_SLOTS), z(5 * SPHERE_SLOTS)
         self._workspace = z(4)
         self._segments[:] = xp.asarray(segment_inputs(segments, self._n_seg).reshape(-1, 1))
         # views of the true state made once: the kernels keep the addresses of the
@@ -152,14 +152,14 @@ class BatchedEngine(Engine):
         on the host, written with one copy per array: one transfer on a GPU)."""
         m, n = len(rows), self.n
         nav, count = np.zeros((m, self._w, NAV_PARAMETERS)), np.zeros((1, m))
-        cylinders, spheres = np.zeros((4 * BATCH_CYLINDERS, m)), np.zeros((5 * BATCH_SPHERES, m))
+        cylinders, spheres = np.zeros((4 * CYLINDER_SLOTS, m)), np.zeros((5 * SPHERE_SLOTS, m))
         workspace, goal, static = np.zeros((4, m)), np.zeros((6, m)), np.zeros((13 * n, m))
         for row, (i, s) in enumerate(zip(rows, scenarios, strict=True)):
             self.sim.set_scenario([i], s)
             self._scenarios[i] = s
             nav[row, : len(s.waypoints)] = self._navigation_table_of(s)
             count[0, row] = len(s.waypoints)
-            cyl, sph = obstacle_inputs(s, BATCH_CYLINDERS, BATCH_SPHERES)
+            cyl, sph = obstacle_inputs(s, CYLINDER_SLOTS, SPHERE_SLOTS)
             cylinders[:, row], spheres[:, row] = cyl.reshape(-1), sph.reshape(-1)
             workspace[:, row] = [*s.workspace.center, s.workspace.radius]
             goal[:, row] = s.waypoints[-1]

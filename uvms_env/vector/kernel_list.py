@@ -16,8 +16,8 @@ from uvms_env.robot.observation import FAR_OBSTACLE, OBSERVATION_LAYOUT
 from uvms_env.robot.priors import prior_functions
 from uvms_env.sim import period
 from uvms_env.task.team_kernel import (
-    BATCH_CYLINDERS,
-    BATCH_SPHERES,
+    CYLINDER_SLOTS,
+    SPHERE_SLOTS,
     WAYPOINT_SLOTS,
     team_function,
 )
@@ -43,7 +43,7 @@ def kernel_functions(
     sampled = chain.internal_wrench if wrench else None
     fns = {
         "kinematics": team_function(
-            n, n_seg, BATCH_CYLINDERS, BATCH_SPHERES, *layout, waypoints, sampled
+            n, n_seg, CYLINDER_SLOTS, SPHERE_SLOTS, *layout, waypoints, sampled
         )
     }
     if prior_object_key is not None:
