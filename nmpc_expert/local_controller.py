@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from nmpc_expert.observation_reader import OBSERVATION_STRUCTURE, check_observation
-from nmpc_expert.ocp import NC, WEIGHT_LAYOUT, ocp_functions, weight_vector
+from nmpc_expert.ocp import CONSTRAINT_NAMES, NC, WEIGHT_LAYOUT, ocp_functions, weight_vector
 from nmpc_expert.reference import AttitudeSlew, GoalIntegral, HorizonReference
 from nmpc_expert.rti import ExtraRows, RTISolver
 from nmpc_expert.settings import NMPCSettings, controller_settings
@@ -35,6 +35,7 @@ from uvms_env.navigation import WaypointNavigator, task_navigator
 from uvms_env.policy import AgentSpec
 
 SOLVERS = ("rti", "ipopt")
+JOINT_POSITION_ROWS = [i for i, name in enumerate(CONSTRAINT_NAMES) if "joint_position" in name]
 _BOUNDS = ("lower", "upper", "scale")  # the constraint bounds' parts of the weight vector
 
 
@@ -94,13 +95,16 @@ def controller_weights(settings: NMPCSettings) -> np.ndarray:
     input weights, slack penalties and constraint bounds (``constraint_bounds``)."""
     s = settings
     lower, upper, scale = constraint_bounds(s)
+    l1, l2 = s.slack_l1 * np.ones(NC), s.slack_l2 * np.ones(NC)
+    if s.joint_position_penalty is not None:
+        l1[JOINT_POSITION_ROWS], l2[JOINT_POSITION_ROWS] = s.joint_position_penalty
     return weight_vector(
         s.q_x * np.ones(6),
         s.q_v * np.ones(6),
         s.p_x * np.ones(6),
         s.r_u * np.ones(NU),
-        s.slack_l1 * np.ones(NC),
-        s.slack_l2 * np.ones(NC),
+        l1,
+        l2,
         lower,
         upper,
         scale,

@@ -149,6 +149,12 @@ class NMPCSettings:
     """The expert's |qd_m| limit (``joint_speed``) as a fraction of the model's, in (0, 1]."""
     joint_position_fraction: float = 1.0
     """The expert's |q_m| limit (``joint_position``) as a fraction of the model's, in (0, 1]."""
+    joint_position_penalty: tuple[float, float] | None = None
+    """(L1, L2) slack penalties of the four joint-position rows; None: ``slack_l1`` and
+    ``slack_l2``, as every row. With a tighter ``joint_position_fraction`` and no L1, the
+    rows become a pull toward the joints' mid-range (a posture cost that starts at the
+    band's edge) instead of a wall at the limit: a robot whose arm sits at its bound has a
+    reason to move its vehicle so that the arm leaves it (docs/results/expert.md)."""
     pitch_margin_extra: float = 0.0
     """[rad] the expert's pitch margin (``pitch_margin``) beyond the environment's
     representation margin, >= 0."""
@@ -302,6 +308,14 @@ class NMPCSettings:
                 "vehicle_speed_fraction (2), joint_speed_fraction and joint_position_fraction "
                 f"must lie in (0, 1], got {self.vehicle_speed_fraction}, "
                 f"{self.joint_speed_fraction}, {self.joint_position_fraction}"
+            )
+        penalty = self.joint_position_penalty
+        if penalty is not None and (
+            len(penalty) != 2 or not penalty[0] >= 0 or not 0 < penalty[1] < np.inf
+        ):
+            raise ValueError(
+                "joint_position_penalty must be None or (L1 >= 0, L2 > 0) (the soft rows need "
+                f"a quadratic penalty), got {penalty}"
             )
         if not self.pitch_margin_extra >= 0:
             raise ValueError(f"pitch_margin_extra must be >= 0, got {self.pitch_margin_extra}")

@@ -12,7 +12,7 @@ import pytest
 
 import uvms_env
 from nmpc_expert import NMPCPolicy, NMPCSettings, make_policy
-from nmpc_expert.local_controller import local_parameters
+from nmpc_expert.local_controller import controller_weights, local_parameters
 from nmpc_expert.observation_reader import OBSERVATION_SIZE, OBSERVATION_STRUCTURE
 from nmpc_expert.ocp import CONSTRAINT_NAMES, CONSTRAINT_STATE, NC, WEIGHT_LAYOUT, build_outputs
 from nmpc_expert.reference import AttitudeSlew
@@ -330,6 +330,21 @@ def test_soft_rows_carry_the_l1_l2_slack_penalty(env, short_run):
     )
     ref = sol["x"].full().ravel()[: da.size]
     np.testing.assert_allclose(da, ref, atol=1e-5)
+
+
+def test_joint_position_penalty_changes_exactly_those_rows_penalties():
+    """The joint-position rows' own (L1, L2): the weight vector differs from the default's
+    in those rows' slack penalties and nowhere else; bad pairs are refused."""
+    base = controller_weights(NMPCSettings())
+    weights = controller_weights(NMPCSettings(joint_position_penalty=(0.0, 2.0)))
+    rows = [k for k, name in enumerate(CONSTRAINT_NAMES) if name.startswith("joint_position")]
+    l1, l2 = WEIGHT_LAYOUT["slack_l1"], WEIGHT_LAYOUT["slack_l2"]
+    expected = {l1.start + k for k in rows} | {l2.start + k for k in rows}
+    assert set(np.flatnonzero(weights != base)) == expected
+    assert np.all(weights[l1][rows] == 0.0) and np.all(weights[l2][rows] == 2.0)
+    for bad in ((1.0, 0.0), (-1.0, 1.0), (1.0,), (0.0, np.inf)):
+        with pytest.raises(ValueError, match="joint_position_penalty"):
+            NMPCSettings(joint_position_penalty=bad)  # type: ignore[arg-type]
 
 
 def test_goal_integral_moves_the_reference_against_a_steady_offset(env):
