@@ -62,9 +62,10 @@ if TYPE_CHECKING:
 #: see PAD_* in constraints): the random family draws at most five obstacles of a kind, the
 #: paper scenario has three cylinders, so one compiled kernel serves every scenario of a
 #: team size, object and sensing; a scenario with more obstacles of a kind uses its count.
-#: Padding the paper's 3 cylinders and 0 spheres to 5 and 5 costs ~2 us of the kernel's
-#: ~17 us per step (2-core EPYC, 2026-12-07); a kernel per padded count cost a user up to
-#: nine compiles per team size.
+#: The price of the empty rows, per kernel call (2-core EPYC without AVX-512, 2026-12-07,
+#: fastest of 61 repeats): the paper 13.3 -> 14.2 us, a random N = 4 scene with 2 + 1
+#: obstacles 26.6 -> 33.4 us, of an environment step of 0.3-1 ms; a kernel per padded
+#: count (0, 2 or 5 of each kind) cost a user up to nine compiles per team size.
 CYLINDER_SLOTS = 5
 SPHERE_SLOTS = 5
 NS = 13  # per robot, known a priori: load share, grasp offset, R_Oi row-major
