@@ -282,6 +282,8 @@ def train_dagger(args: argparse.Namespace) -> None:
             net = init
             row = {"iteration": 0, "init": args.init, "samples": _count(samples)}
         history = [row]
+        # a run stopped during the first iteration's rollouts resumes after the first fit
+        _save_dagger(args, net, n_streams, _count(samples), history, start)
     bar = tqdm(
         total=args.iterations, initial=first - 1, desc="dagger", unit="iteration", leave=True
     )

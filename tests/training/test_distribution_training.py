@@ -379,12 +379,14 @@ def test_dagger_warm_starts_and_evaluates_each_iteration_per_team_size(tmp_path)
     assert info["warm_start_epochs"] == 1 and info["n_agents"] == [2, 3]
 
 
-def test_dagger_resumes_to_the_network_of_an_uninterrupted_run(tmp_path, capsys):
+def test_dagger_resumes_to_the_network_of_an_uninterrupted_run(tmp_path, capsys, monkeypatch):
     """``--resume RUN`` (a run saved with --save-data) continues from the last iteration's
-    network and aggregate: the resumed run's network is the straight run's, bit for bit."""
+    network and aggregate, also a run stopped before its first iteration ended: the resumed
+    runs' networks are the straight run's, bit for bit."""
     pytest.importorskip("minari")
     import torch
 
+    from baselines.imitation import cli
     from baselines.imitation.cli import main as imitate
 
     data = tmp_path / "data" / "demo"
@@ -399,10 +401,21 @@ def test_dagger_resumes_to_the_network_of_an_uninterrupted_run(tmp_path, capsys)
     imitate(["dagger", *common, "--iterations", "2", "--out", str(straight)])
     imitate(["dagger", *common, "--iterations", "1", "--out", str(resumed)])
     imitate(["dagger", *common, "--iterations", "2", "--resume", str(resumed)])
+    killed = tmp_path / "killed"  # stopped during the first iteration's rollouts
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(cli, "_dagger_iteration", stopped)
+        with pytest.raises(KeyboardInterrupt):
+            imitate(["dagger", *common, "--iterations", "2", "--out", str(killed)])
+    imitate(["dagger", *common, "--iterations", "2", "--resume", str(killed)])
     a = torch.load(straight / "policy.pt", weights_only=False)["state"]
-    b = torch.load(resumed / "policy.pt", weights_only=False)["state"]
-    for key in a:
-        assert torch.equal(a[key], b[key]), key
+    for run in (resumed, killed):
+        b = torch.load(run / "policy.pt", weights_only=False)["state"]
+        for key in a:
+            assert torch.equal(a[key], b[key]), (run.name, key)
     info = json.loads((resumed / "train.json").read_text())
     assert [h["iteration"] for h in info["history"]] == [0, 1, 2]
     unsaved = [a for a in common if a != "--save-data"]
