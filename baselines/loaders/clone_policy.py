@@ -52,7 +52,7 @@ class ClonedPolicy(LoadedPolicy):
         memory = Priors(observation_mode="memory" if self.features == "memory" else "raw")
         super().__init__(spec, memory, obs_stats=stats)
         mean, inv_std = stats.mean, 1.0 / std
-        ring = spec.object_key if spec is not None else None
+        object_key = spec.object_key if spec is not None else None
         # Each layer's bias rides as the last row of its weights, against a constant 1 at
         # the end of its input (see ``input_function``).
         layers = [np.vstack([w, b[None]]) for w, b in self.net.numpy_weights()]
@@ -61,13 +61,15 @@ class ClonedPolicy(LoadedPolicy):
         if compiled or len(layers) == 1:  # a linear map is CasADi expressions: runs anywhere
             fn = decision_function(
                 self.features,
-                object_argument(ring, self.features),
+                object_argument(object_key, self.features),
                 layers,
                 self._residual,
                 input_dim(self.features, len(mean)),
             )
         self.compiled = fn is not None
-        self._network_inputs = CompiledInputs(self.features, mean, inv_std, object_key=ring, fn=fn)
+        self._network_inputs = CompiledInputs(
+            self.features, mean, inv_std, object_key=object_key, fn=fn
+        )
         if self.inputs.memory is not None:
             self._with_memory = np.zeros(OBSERVATION_SIZE + MEMORY_BLOCK, np.float32)
         if not self.compiled:

@@ -268,8 +268,8 @@ def backend_kernels(n_agents: int) -> tuple[Kernel, ...]:
     n_seg = len(ObjectModel(s.object_shape, s.object_size).segments)
     kernels = [Kernel("period step", chain.step, period_refinement(n_agents))]
     for noisy in (True, False):
-        ring = s.object_key if noisy else None
-        fns = kernel_functions(n_agents, n_seg, noisy, chain, wrench=noisy, prior_object_key=ring)
+        key = s.object_key if noisy else None
+        fns = kernel_functions(n_agents, n_seg, noisy, chain, wrench=noisy, prior_object_key=key)
         for role, fn in fns.items():
             name = f"{role} (noiseless)" if role == "kinematics" and not noisy else role
             if noisy or role == "kinematics":
