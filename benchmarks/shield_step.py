@@ -52,14 +52,15 @@ def rate(k: int, n: int, mode: str, seconds: float) -> float:
 def builder_us() -> tuple[float, float]:
     """(scalar, lanes) microseconds per robot of the filter's QP builder."""
     from nmpc_expert.ocp import ocp_functions
-    from nmpc_expert.safety_filter import FILTER_HORIZON
-    from nmpc_expert.settings import NMPCSettings
+    from nmpc_expert.settings import FILTER_HORIZON, LIBRARY_HORIZONS, NMPCSettings
     from uvms_env.dynamics import ObjectModel
     from uvms_env.dynamics.compiled import BufferCall
     from uvms_env.vector.kernels import BatchedFunction
 
     s = NMPCSettings.paper(horizon=FILTER_HORIZON)
-    funcs = ocp_functions(ObjectModel("bar").capacity, FILTER_HORIZON, s.period, s.substeps)
+    funcs = ocp_functions(
+        ObjectModel("bar").capacity, FILTER_HORIZON, s.period, s.substeps, LIBRARY_HORIZONS
+    )
     scalar = BufferCall(funcs.qp_builder)
     lanes = BatchedFunction(funcs.qp_builder, source=funcs.source)
     rng = np.random.default_rng(0)

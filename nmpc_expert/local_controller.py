@@ -26,7 +26,7 @@ from nmpc_expert.observation_reader import OBSERVATION_STRUCTURE, check_observat
 from nmpc_expert.ocp import CONSTRAINT_NAMES, NC, WEIGHT_LAYOUT, ocp_functions, weight_vector
 from nmpc_expert.reference import AttitudeSlew, GoalIntegral, HorizonReference
 from nmpc_expert.rti import ExtraRows, RTISolver
-from nmpc_expert.settings import NMPCSettings, controller_settings
+from nmpc_expert.settings import LIBRARY_HORIZONS, NMPCSettings, controller_settings
 from uvms_env.dynamics import NU, ObjectModel
 from uvms_env.dynamics.compiled import BufferCall
 from uvms_env.dynamics.local_model import NX, ModelParams
@@ -149,7 +149,9 @@ class LocalController:
         self.theta = local_parameters(
             spec, s.piece_fraction_for(float(np.linalg.norm(spec.grasp_offset)))
         )
-        self.funcs = ocp_functions(object_capacity(spec), s.horizon, s.period, s.substeps)
+        self.funcs = ocp_functions(
+            object_capacity(spec), s.horizon, s.period, s.substeps, LIBRARY_HORIZONS
+        )
         self.weights = controller_weights(s)
         self._steady = BufferCall(self.funcs.steady_input)
         if solver == "rti":

@@ -63,6 +63,7 @@ from uvms_env.dynamics.local_model import (
 from uvms_env.dynamics.uvms import UVMSModel, default_model
 
 DRIVER = Path(__file__).with_name("qp_driver.c")  # the library's C around the stage functions
+CONDENSE = Path(__file__).with_name("qp_condense.c")  # the driver's part per horizon
 NR = 12  # residuals per node: pose error (6), twist error (6)
 
 # The soft constraints of one node, in the order ``node_terms`` stacks them (rows of the
@@ -368,15 +369,16 @@ def build_stage_functions(uvms: UVMSModel, obj: ObjectModel, tag: str) -> dict[s
 def library_source(
     uvms: UVMSModel,
     stages: dict[str, cs.Function],
-    horizon: int,
+    horizons: tuple[int, ...],
     period: float,
     substeps: int,
     tag: str,
 ) -> str:
     """The library's C: CasADi's code of the ``stages`` (``build_stage_functions``), then
-    the sizes and constants ``qp_driver.c`` reads, the driver, and the CasADi API of its two
-    entry points, ``nmpc_qp_<tag>`` (``build_qp_builder``'s inputs and outputs) and
-    ``nmpc_steady_<tag>`` (``build_steady_input``'s)."""
+    the sizes and constants ``qp_driver.c`` reads, the driver, the CasADi API of
+    ``nmpc_steady_<tag>`` (``build_steady_input``'s inputs and outputs), and per horizon h
+    of ``horizons`` the condensing (``qp_condense.c``) and the API of its entry point,
+    ``nmpc_qp_<qp_tag(tag, h)>`` (``build_qp_builder``'s)."""
     cg = cs.CodeGenerator("library.c", {"with_header": False})
     for fn in stages.values():
         cg.add(fn)
@@ -388,7 +390,7 @@ def library_source(
     b = np.asarray(uvms.B, float)
     theta_n = stages["terms"].size1_in(1)
     defines = {
-        "UVMS_NQ": NQ, "UVMS_NX": NX, "UVMS_NU": NU, "UVMS_NH": horizon, "UVMS_NS": substeps,
+        "UVMS_NQ": NQ, "UVMS_NX": NX, "UVMS_NU": NU, "UVMS_NS": substeps,
         "UVMS_NTH": theta_n, "UVMS_NW": NW, "UVMS_NC": NC, "UVMS_NR": NR,
         "UVMS_DT": repr(dt), "UVMS_DT_HALF": repr(dt / 2), "UVMS_DT_SIXTH": repr(dt / 6),
         **{f"UVMS_W_{k.upper().replace('_', '')}": v for k, v in WEIGHT_OFFSETS.items()},
@@ -402,25 +404,27 @@ def library_source(
     head += _real_array("UVMS_BT", (b * tau).T.reshape(-1))  # B diag(tau_max), column-major
     head += _real_array("UVMS_B", b.T.reshape(-1))
     head += _real_array("UVMS_TAU", tau)
-    n, nz = horizon, horizon * NU
-    qp = _entry_api(
-        f"nmpc_qp_{tag}",
-        "uvms_build_qp",
-        [("xbar", NX, n + 1), ("abar", NU, n), ("theta", theta_n, 1), ("xd", 6, n + 1),
-         ("vd", 6, n + 1), ("w", NW, 1), ("d", NX, 1)],
-        [("h", nz, nz), ("f", nz, 1), ("c_t", nz, n * NC), ("lb", nz, 1), ("ub", nz, 1),
-         ("lbc", n * NC, 1), ("ubc", n * NC, 1), ("g_t", nz, NX * n), ("e", NX * n, 1),
-         ("a_ref", NU, n)],
-        sub_iw, sub_w,
-    )  # fmt: skip
     steady = _entry_api(
         f"nmpc_steady_{tag}",
         "uvms_steady_input",
         [("x", NX, 1), ("theta", theta_n, 1), ("vd", 6, 1)],
         [("a_ss", NU, 1)],
-        sub_iw, sub_w,
+        "UVMS_STEADY_W", sub_iw, sub_w,
     )  # fmt: skip
-    driver = head + DRIVER.read_text() + qp + steady
+    driver = head + DRIVER.read_text() + steady
+    for n in horizons:
+        nz = n * NU
+        qp = _entry_api(
+            f"nmpc_qp_{qp_tag(tag, n)}",
+            f"uvms_build_qp_n{n}",
+            [("xbar", NX, n + 1), ("abar", NU, n), ("theta", theta_n, 1), ("xd", 6, n + 1),
+             ("vd", 6, n + 1), ("w", NW, 1), ("d", NX, 1)],
+            [("h", nz, nz), ("f", nz, 1), ("c_t", nz, n * NC), ("lb", nz, 1), ("ub", nz, 1),
+             ("lbc", n * NC, 1), ("ubc", n * NC, 1), ("g_t", nz, NX * n), ("e", NX * n, 1),
+             ("a_ref", NU, n)],
+            "UVMS_OWN_W", sub_iw, sub_w,
+        )  # fmt: skip
+        driver += f"#define UVMS_NH {n}\n" + CONDENSE.read_text() + qp + "#undef UVMS_NH\n"
     end = code.rindex(_EXTERN_C_END)  # inside the generated file's extern "C" block
     return code[:end] + driver + code[end:]
 
@@ -438,12 +442,14 @@ def _entry_api(
     entry: str,
     inputs: list[tuple[str, int, int]],
     outputs: list[tuple[str, int, int]],
+    own_w: str,
     sub_iw: int,
     sub_w: int,
 ) -> str:
     """CasADi's external API for the driver's ``entry`` under ``name``: dense inputs and
-    outputs (name, rows, columns); its work is the driver's scratch and a stage
-    function's (``cs.external`` loads it as a Function, ``BufferCall`` calls it)."""
+    outputs (name, rows, columns); its work is the entry's scratch (``own_w`` reals, a C
+    expression) and a stage function's (``cs.external`` loads it as a Function,
+    ``BufferCall`` calls it)."""
     lines = []
     for kind, items in (("in", inputs), ("out", outputs)):
         for i, (_, rows, cols) in enumerate(items):
@@ -481,18 +487,50 @@ CASADI_SYMBOL_EXPORT int {name}_work(casadi_int* sz_arg, casadi_int* sz_res, cas
   if (sz_arg) *sz_arg = {sub_arg};
   if (sz_res) *sz_res = {max(len(outputs), 1)};
   if (sz_iw) *sz_iw = {sub_iw};
-  if (sz_w) *sz_w = UVMS_OWN_W + {sub_w};
+  if (sz_w) *sz_w = {own_w} + {sub_w};
   return 0;
 }}
 """
     return api
 
 
+def library_tag(capacity: int, period: float, substeps: int) -> str:
+    """The library's and its stage functions' name part: what they depend on."""
+    return f"c{capacity}_h{period:g}_s{substeps}".replace(".", "p")
+
+
+def qp_tag(tag: str, horizon: int) -> str:
+    """A horizon's entry point's name part (``library_tag`` with the horizon)."""
+    capacity, rest = tag.split("_", 1)
+    return f"{capacity}_n{horizon}_{rest}"
+
+
 @cache
-def ocp_functions(capacity: int, horizon: int, period: float, substeps: int) -> OCPFunctions:
+def _library(
+    capacity: int, horizons: tuple[int, ...], period: float, substeps: int
+) -> tuple[str, str, str]:
+    """The compiled library (path, source, the object state's entry) of the stage
+    functions and one condensing per horizon: generated once per process (the horizons'
+    ``ocp_functions`` share it)."""
+    uvms = default_model()
+    obj = ObjectModel.of_capacity(capacity)
+    tag = library_tag(capacity, period, substeps)
+    stages = build_stage_functions(uvms, obj, tag)
+    source = library_source(uvms, stages, horizons, period, substeps, tag)
+    lib = str(compiled_library(f"nmpc_qp_{tag}", source))
+    return lib, source, stages["object_state"].name()
+
+
+@cache
+def ocp_functions(
+    capacity: int, horizon: int, period: float, substeps: int, shared: tuple[int, ...] = ()
+) -> OCPFunctions:
     """Build and compile (disk-cached) the OCP functions once per process for the objects
     of a strip ``capacity`` (``ObjectModel.capacity``: one library for every ring and
-    every bar of up to 5.4 m)."""
+    every bar of up to 5.4 m). ``shared``: the horizons one library holds where
+    ``horizon`` is one of them (``settings.LIBRARY_HORIZONS``: the expert's and the safety
+    filter's, so the filter's first use compiles nothing new); any other horizon gets a
+    library of its own."""
     uvms = default_model()
     obj = ObjectModel.of_capacity(capacity)
     model = build_local_model(uvms, obj)
@@ -501,7 +539,6 @@ def ocp_functions(capacity: int, horizon: int, period: float, substeps: int) -> 
     outputs = build_outputs(model)
     steady = build_steady_input(uvms, obj, model)
     graph = build_qp_builder(interval, outputs, steady, horizon)
-    tag = f"c{capacity}_n{horizon}_h{period:g}_s{substeps}".replace(".", "p")
     base = OCPFunctions(
         horizon=horizon,
         capacity=capacity,
@@ -517,13 +554,13 @@ def ocp_functions(capacity: int, horizon: int, period: float, substeps: int) -> 
     )
     if compiler_off():  # CasADi's virtual machine: the symbolic functions themselves
         return base
-    stages = build_stage_functions(uvms, obj, tag)
-    source = library_source(uvms, stages, horizon, period, substeps, tag)
-    lib = str(compiled_library(f"nmpc_qp_{tag}", source))
+    horizons = tuple(sorted(set(shared))) if horizon in shared else (horizon,)
+    lib, source, object_state = _library(capacity, horizons, period, substeps)
+    tag = library_tag(capacity, period, substeps)
     return dataclasses.replace(
         base,
-        qp_builder=cs.external(f"nmpc_qp_{tag}", lib),
-        object_state=cs.external(stages["object_state"].name(), lib),
+        qp_builder=cs.external(f"nmpc_qp_{qp_tag(tag, horizon)}", lib),
+        object_state=cs.external(object_state, lib),
         steady_input=cs.external(f"nmpc_steady_{tag}", lib),
         source=source,
     )

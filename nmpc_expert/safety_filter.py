@@ -27,17 +27,13 @@ import numpy as np
 
 from nmpc_expert.filter_workspace_rows import WorkspaceRows
 from nmpc_expert.local_controller import LocalController, local_parameters
-from nmpc_expert.settings import NMPCSettings
+from nmpc_expert.settings import FILTER_HORIZON, NMPCSettings
 from uvms_env.dynamics import NU
 from uvms_env.dynamics.local_model import NX
 from uvms_env.policy import AgentSpec, Policy, PolicyFactory
 
 # Why each constant below is as it is, with the measurements:
 # docs/notes/2026-11-23-safety-filter-tuning.md.
-# The filter's horizon: 3 periods (0.36 s) instead of the expert's 5. Its constraints are
-# on speeds (relative degree one in the inputs) and on angles behind the back-off
-# (``NMPCSettings.backoff``), so a short look-ahead suffices.
-FILTER_HORIZON = 3
 # |rate offset| clip of the filter's estimator, in speed limits (the expert's:
 # ``NMPCSettings.offset_limit``): the others' pull can exceed one limit.
 FILTER_OFFSET_LIMIT = 2.0

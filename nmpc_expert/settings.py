@@ -27,13 +27,21 @@ from uvms_env.task import constraints as task_constraints
 
 # The control period is the scenario's (one definition: ``Scenario.period``'s default).
 _SCENARIO_PERIOD: float = {f.name: f.default for f in fields(Scenario)}["period"]
+# The safety filter's horizon: 3 periods (0.36 s) instead of the expert's 5. Its
+# constraints are on speeds (relative degree one in the inputs) and on angles behind the
+# back-off (``NMPCSettings.backoff``), so a short look-ahead suffices (measurements:
+# docs/notes/2026-11-23-safety-filter-tuning.md).
+FILTER_HORIZON = 3
+# The horizons one compiled controller library holds (``nmpc_expert.ocp``): the expert's
+# default and the filter's, so that the filter's first use compiles nothing new.
+LIBRARY_HORIZONS = (FILTER_HORIZON, 5)
 
 
 @dataclass(frozen=True)
 class NMPCSettings:
     """Tuning and limits of one robot's NMPC (defaults: the paper's values where it has them)."""
 
-    horizon: int = 5
+    horizon: int = LIBRARY_HORIZONS[1]
     """Np, number of shooting intervals (paper: 5)."""
     period: float = _SCENARIO_PERIOD
     """h [s], sampling time and shooting interval: the scenarios' control period (the

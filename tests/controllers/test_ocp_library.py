@@ -19,7 +19,8 @@ import pytest
 import uvms_env
 from nmpc_expert import NMPCPolicy
 from nmpc_expert.local_controller import object_capacity
-from nmpc_expert.ocp import build_stage_functions, library_source, ocp_functions
+from nmpc_expert.ocp import build_stage_functions, library_source, library_tag, ocp_functions
+from nmpc_expert.settings import FILTER_HORIZON, LIBRARY_HORIZONS
 from uvms_env.dynamics import ObjectModel
 from uvms_env.dynamics.compiled import BufferCall, compiler_off
 from uvms_env.dynamics.local_model import GRASP_THETA, build_steady_input
@@ -109,11 +110,42 @@ def test_one_library_serves_the_bar_and_every_ring(policies):
     assert bar.funcs is ring.funcs
     assert object_capacity(bar.spec) == object_capacity(ring.spec) == bar.funcs.capacity
     uvms = default_model()
+    tag = library_tag(1, 0.12, 2)
     sources = {
-        library_source(uvms, build_stage_functions(uvms, obj, "t"), 2, 0.12, 2, "t")
+        library_source(uvms, build_stage_functions(uvms, obj, tag), (2,), 0.12, 2, tag)
         for obj in (ObjectModel("ring", 0.7), ObjectModel("bar", 3.4))
     }
     assert len(sources) == 1
     assert ObjectModel("bar", 8.2).capacity != bar.funcs.capacity
     s = bar.settings
-    assert ocp_functions(bar.funcs.capacity, s.horizon, s.period, s.substeps) is bar.funcs
+    args = (bar.funcs.capacity, s.horizon, s.period, s.substeps, LIBRARY_HORIZONS)
+    assert ocp_functions(*args) is bar.funcs
+
+
+def _truncated(inputs: tuple[np.ndarray, ...], horizon: int) -> tuple[np.ndarray, ...]:
+    """The builder's inputs of a longer plan cut to ``horizon`` intervals: the first nodes
+    of xbar, xd and vd, the first inputs of abar."""
+    xbar, abar, theta, xd, vd, w, d = inputs
+    nodes = slice(0, horizon + 1)
+    return xbar[nodes], abar[:horizon], theta, xd[nodes], vd[nodes], w, d
+
+
+def test_the_filters_horizon_is_in_the_experts_library(policies):
+    """The safety filter's horizon and the expert's share one compiled library (one
+    source, one file), and its horizon-3 entry is the symbolic builder of horizon 3 on
+    the expert's plan cut to three intervals, to 1e-9 of each output's size."""
+    if compiler_off():
+        pytest.skip("no compiler: the library is the symbolic builder itself")
+    pol = policies["bar"]
+    s, cap = pol.settings, pol.funcs.capacity
+    short = ocp_functions(cap, FILTER_HORIZON, s.period, s.substeps, LIBRARY_HORIZONS)
+    assert short.source == pol.funcs.source
+    assert short.qp_builder.name() != pol.funcs.qp_builder.name()
+    inputs = _truncated(pol.solver.build_inputs(), FILTER_HORIZON)
+    compiled = BufferCall(short.qp_builder)(*(np.ascontiguousarray(a) for a in inputs))
+    reference = short.qp_builder_graph(*_as_casadi(inputs))
+    for mine, ref in zip(compiled, reference, strict=True):
+        ref = np.asarray(ref).ravel(order="F")
+        finite = np.isfinite(ref)
+        scale = max(np.abs(ref[finite]).max(), 1e-12)
+        np.testing.assert_allclose(mine.reshape(-1)[finite], ref[finite], atol=1e-9 * scale)
