@@ -168,7 +168,9 @@ def test_the_mixed_clone_is_a_rung_trained_without_the_paper_and_acts_on_its_tea
     assert "--data runs/data/distbar_n05 --data runs/data/bar2_turns_n05" in commands
     assert card["committed_seed"] == "0" and len(card["seeds"]) == 3
     _acts_within_bounds(uvms_env.parallel_env("paper"), "dagger:mix", seed=6)
-    _acts_within_bounds(uvms_env.parallel_env("random", n_agents=4, seed=2), "dagger:mix", seed=7)
+    # three robots with noisy sensors: the kernels other tests compile (tests/robot)
+    ring = uvms_env.parallel_env("random", n_agents=3, seed=2, sensor_noise=1.0)
+    _acts_within_bounds(ring, "dagger:mix", seed=7)
 
 
 def test_the_pair_specialist_continues_the_bar_clone_and_acts_on_the_papers_team():

@@ -121,18 +121,21 @@ def test_a_ring_and_the_bar_share_the_chain_and_differ_by_their_parameters():
     """The closed chain of two robots is one compiled function for the paper's bar and a
     ring (same capacity); what the object is comes from P_O: the same state and inputs
     move the bar and the ring differently."""
+    paper = make("paper")
+    timing = (paper.period, paper.substeps)  # the simulator's own chain: nothing compiled here
     bar, ring = (
-        compiled_chain(2, shape, size, 0.12, 2) for shape, size in [("bar", 0.0), ("ring", 1.6)]
+        compiled_chain(2, shape, size, *timing) for shape, size in [("bar", 0.0), ("ring", 1.6)]
     )
     assert bar[1] is ring[1]
-    sim = Simulator(make("paper"))
+    sim = Simulator(paper)
+    assert sim._step.fn is bar[1]
     x, tau, vc, p, po = (np.array(a, dtype=float) for a in sim.wrench_inputs())
     tau[:] = 0.3 * sim.tau_max
     args = (x, tau.T, vc, p.T)
     grasp = sim._grasp.T
-    step_bar = np.array(bar[1](*args, po, grasp, 0.12)[0]).ravel()
+    step_bar = np.array(bar[1](*args, po, grasp, paper.period)[0]).ravel()
     po_ring = ObjectModel("ring", 1.6).nominal_parameters()
-    step_ring = np.array(ring[1](*args, po_ring, grasp, 0.12)[0]).ravel()
+    step_ring = np.array(ring[1](*args, po_ring, grasp, paper.period)[0]).ravel()
     assert np.all(np.isfinite(step_bar)) and np.all(np.isfinite(step_ring))
     assert np.max(np.abs(step_bar - step_ring)) > 1e-6
 

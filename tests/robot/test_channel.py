@@ -282,12 +282,13 @@ def test_inbox_keeps_the_newest_m_and_forgets_old_ones():
 @pytest.mark.parametrize("comm", ["atm900", {"preset": "s2c_48_78", "loss_probability": 0.4}])
 def test_single_and_vector_envs_deliver_the_same_messages(comm):
     """Same seed, same actions: the same observations, message blocks included, through
-    automatic resets (each episode's losses from the channel's own seeded generator)."""
+    automatic resets (each episode's losses from the channel's own seeded generator, the
+    sensors' noise from the episode's). With noise: the kernels of the other noisy
+    three-robot tests (tests/robot/test_channel_episodes.py), not two more compiled."""
     k, n, steps = 2, 3, 30
-    venv = VectorEnv("random", num_envs=k, n_agents=n, comm=comm, max_cycles=11)
-    singles = [
-        uvms_env.parallel_env("random", n_agents=n, comm=comm, max_cycles=11) for _ in range(k)
-    ]
+    kw = {"n_agents": n, "comm": comm, "max_cycles": 11, "sensor_noise": 1.0}
+    venv = VectorEnv("random", num_envs=k, **kw)
+    singles = [uvms_env.parallel_env("random", **kw) for _ in range(k)]
     vobs, _ = venv.reset(seed=5)
     obs = [e.reset(seed=5 + i)[0] for i, e in enumerate(singles)]
     size = venv.single_action_space.shape[0]

@@ -203,17 +203,19 @@ def _overspeed(venv: VectorEnv, env: int) -> None:
 def test_emulated_cuda_backend_sequences_waypoints_and_ends_diverged_as_the_cpu_backend(
     emulated_xp,
 ):
-    """Two waypoints at the start: the team passes one at the reset and one in the first
-    step, each robot's sequencer both in its first two measurements; environment 1 then
-    diverges (refused steps) and restarts."""
+    """Two waypoints at the start, then the paper's goal (three in all: the kernels'
+    default room): the team passes one at the reset and one in the first step, each
+    robot's sequencer both in its first two measurements; environment 1 then diverges
+    (refused steps) and restarts."""
     paper = make("paper")
     start = np.asarray(paper.object_start)[None]
-    scenario = replace(paper, waypoints=np.vstack([start, start, paper.waypoints]))
+    goal = paper.waypoints[-1:]
+    scenario = replace(paper, waypoints=np.vstack([start, start, goal]))
     before = {4: lambda venv: _overspeed(venv, 1)}
     ends, (obs, *_) = _compare(scenario, 3, 8, seed=0, before=before)
     assert ends == {"diverged": 1}
     # every robot aims at the first waypoint past the start
-    assert np.allclose(obs[:, :, OBSERVATION_STRUCTURE["waypoint"]], paper.waypoints[0])
+    assert np.allclose(obs[:, :, OBSERVATION_STRUCTURE["waypoint"]], goal[0])
 
 
 def test_emulated_cuda_backend_ends_episodes_by_success_as_the_cpu_backend(emulated_xp):
