@@ -57,18 +57,19 @@ class ClonedPolicy(LoadedPolicy):
         # the end of its input (see ``input_function``).
         layers = [np.vstack([w, b[None]]) for w, b in self.net.numpy_weights()]
         self._residual = self.net.residual
-        fn = None
+        decision = None
         if compiled or len(layers) == 1:  # a linear map is CasADi expressions: runs anywhere
-            fn = decision_function(
+            decision = decision_function(
                 self.features,
                 object_argument(object_key, self.features),
                 layers,
                 self._residual,
                 input_dim(self.features, len(mean)),
             )
-        self.compiled = fn is not None
+        self.compiled = decision is not None
+        fn, extra = decision if decision is not None else (None, ())
         self._network_inputs = CompiledInputs(
-            self.features, mean, inv_std, object_key=object_key, fn=fn
+            self.features, mean, inv_std, object_key=object_key, fn=fn, extra=extra
         )
         if self.inputs.memory is not None:
             self._with_memory = np.zeros(OBSERVATION_SIZE + MEMORY_BLOCK, np.float32)

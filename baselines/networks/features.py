@@ -115,8 +115,9 @@ def input_dim(features: str, n_features: int) -> int:
 class CompiledInputs:
     """``__call__(obs)`` through a compiled function of (obs, mean, inv_std, clip): by
     default ``[z; 1; a_ss]`` (``input_function``); ``fn``: another function of the same
-    inputs, e.g. a network's whole decision (``decision.decision_function``). Returns a
-    float64 view of the output buffer, overwritten by the next call."""
+    inputs and then ``extra`` ones, e.g. a network's whole decision and its weights
+    (``mlp_decision.decision_function``). Returns a float64 view of the output buffer,
+    overwritten by the next call."""
 
     def __init__(
         self,
@@ -126,6 +127,7 @@ class CompiledInputs:
         object_key: float | None = None,
         clip: float = INPUT_CLIP,
         fn: cs.Function | None = None,
+        extra: tuple[np.ndarray, ...] = (),
     ) -> None:
         dim = input_dim(features, len(mean))
         if fn is None:
@@ -136,13 +138,15 @@ class CompiledInputs:
             np.ascontiguousarray(mean, dtype=np.float64),
             np.ascontiguousarray(inv_std, dtype=np.float64),
             np.array([clip], dtype=np.float64),
+            *(np.ascontiguousarray(a, dtype=np.float64) for a in extra),
         )
         self._out = self._call(self._obs, *self._consts)[0][0]  # binds every buffer once
 
     @property
     def whole(self) -> tuple[cs.Function, tuple[np.ndarray, ...]]:
         """The compiled function and its constant inputs after the observation (mean,
-        inv_std, clip): what a batch of robots maps (``baselines.loaders.policy_batch``)."""
+        inv_std, clip and the ``extra`` ones): what a batch of robots maps
+        (``baselines.loaders.policy_batch``)."""
         return self._call.fn, self._consts
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:

@@ -1,19 +1,22 @@
 """A cloned network's whole decision, observation to action, as one compiled function.
 
-One generated-C function of (obs, mean, inv_std, clip): the features with normalization
-and clipping (``features.inputs_sx``), the layers, and the output (clip(a_ss + out, -1,
-1) on ``features``, tanh(out) otherwise), called through preallocated buffers
-(``features.CompiledInputs`` with ``fn``).
+One generated-C function of (obs, mean, inv_std, clip, weights): the features with
+normalization and clipping (``features.inputs_sx``), the layers, and the output
+(clip(a_ss + out, -1, 1) on ``features``, tanh(out) otherwise), called through
+preallocated buffers (``features.CompiledInputs`` with ``fn``).
 
 The layers of a network without hidden layers are CasADi expressions. Hidden layers are
-a C loop nest generated here from the weights (``dense_c``), put in the CasADi function
-as a node that exists only as generated code (``casadi.Function.jit`` with ``jit`` off:
-nothing is compiled when it is built, and ``compile_function`` compiles it with the
-rest); CasADi's own SX or MX layers are several times slower (docs/imitation.md). The
-loop nest keeps 128 partial sums in registers (a block of 32 outputs, 4 interleaved sums
-each) while it streams the block's weights, in float32 (the weights as trained; the
-inputs come in as float64 and are rounded once), and the hidden tanh is a rational
-approximation (``TANH_P`` / ``TANH_Q``).
+a C loop nest generated here for the network's widths (``dense_c``), put in the CasADi
+function as a node that exists only as generated code (``casadi.Function.jit`` with
+``jit`` off: nothing is compiled when it is built, and ``compile_function`` compiles it
+with the rest); CasADi's own SX or MX layers are several times slower
+(docs/imitation.md). The loop nest keeps 128 partial sums in registers (a block of 32
+outputs, 4 interleaved sums each) while it streams the block's weights, in float32 (the
+weights as trained; the inputs come in as float64 and are rounded once), and the hidden
+tanh is a rational approximation (``TANH_P`` / ``TANH_Q``). The weights are an input
+(``pack_layers``), not constants of the code: one library serves every network of an
+architecture (training seeds, DAgger iterations, checkpoints), and a new model compiles
+nothing.
 
 The node cannot run uncompiled: where nothing is compiled (``UVMS_ENV_NO_COMPILE``, no C
 compiler) ``decision_function`` returns None for networks with hidden layers and the
@@ -43,11 +46,6 @@ BLOCK = 32  # outputs per block of the generated layers (see dense_c)
 ACCUMULATORS = 128  # partial sums per block: 8 AVX-512 registers
 
 
-def _floats(values: np.ndarray) -> str:
-    # 9 significant digits identify a float32; the suffix rounds each straight to float
-    return ",".join(f"{v:.8e}f" for v in np.asarray(values, dtype=np.float32).tolist())
-
-
 def _horner(coefs: tuple[float, ...], var: str) -> str:
     expr = f"{coefs[-1]!r}f"
     for c in coefs[-2::-1]:
@@ -59,33 +57,78 @@ def _pad(n: int, multiple: int) -> int:
     return -(-n // multiple) * multiple
 
 
-def dense_c(layers: list[np.ndarray], x: str = "z", y: str = "y") -> str:
-    """C statements for an MLP from the double array ``x`` into the double array ``y``:
-    ``layers`` (n + 1, m) with the bias as the last row, tanh after every layer but the
-    last, float32 arithmetic.
+def layer_widths(layers: list[np.ndarray]) -> tuple[int, ...]:
+    """The widths (inputs, then each layer's outputs) of ``layers`` ((n + 1, m) weights
+    with the bias as the last row). Raises ValueError where the shapes do not chain."""
+    widths = (len(layers[0]) - 1, *(w.shape[1] for w in layers))
+    if any(w.shape[0] != n + 1 for w, n in zip(layers, widths, strict=False)):
+        raise ValueError(f"layer shapes {[w.shape for w in layers]} do not chain")
+    return widths
+
+
+def _plan(widths: tuple[int, ...]) -> tuple[list[int], list[int], list[int]]:
+    """Per layer: outputs per block, interleaved sums per output, padded input count."""
+    blocks = [next(b for b in (BLOCK, 16, 8, 4, 2, 1) if m % b == 0) for m in widths[1:]]
+    parts = [max(1, ACCUMULATORS // b) for b in blocks]
+    padded = [_pad(n, p) for n, p in zip(widths, parts, strict=False)]
+    return blocks, parts, padded
+
+
+def pack_layers(layers: list[np.ndarray]) -> np.ndarray:
+    """The weights input of ``dense_c``'s code: per layer, its float32 weights padded and
+    stored block by block, input by input, then its biases; the float32 words carried in
+    float64 ones (CasADi's inputs are doubles; the code reads the float32 back, bit for
+    bit), an odd count padded with a zero."""
+    widths = layer_widths(layers)
+    blocks, _, padded = _plan(widths)
+    chunks = []
+    for i, (layer, b) in enumerate(zip(layers, blocks, strict=True)):
+        n, m = widths[i], widths[i + 1]
+        weights = np.zeros((padded[i], m), dtype=np.float32)
+        weights[:n] = layer[:n]
+        chunks += [weights.reshape(padded[i], m // b, b).transpose(1, 0, 2).ravel()]
+        chunks += [np.asarray(layer[n], dtype=np.float32)]
+    words = np.concatenate(chunks)
+    if len(words) % 2:
+        words = np.append(words, np.float32(0))
+    return np.ascontiguousarray(words).view(np.float64).copy()
+
+
+def packed_size(widths: tuple[int, ...]) -> int:
+    """The float64 words of ``pack_layers`` for a network of ``widths``."""
+    _, _, padded = _plan(widths)
+    words = sum(p * m + m for p, m in zip(padded, widths[1:], strict=False))
+    return -(-words // 2)
+
+
+def dense_c(widths: tuple[int, ...], x: str = "z", weights: str = "weights", y: str = "y") -> str:
+    """C statements for an MLP of ``widths`` from the double array ``x`` into the double
+    array ``y``, its weights read from ``weights`` (``pack_layers``): tanh after every
+    layer but the last, float32 arithmetic.
 
     Outputs go in blocks of up to ``BLOCK``; each block keeps ``ACCUMULATORS`` partial
     sums in registers (``parts`` interleaved sums over the inputs per output, so that
     enough independent multiply-add chains hide their latency) while it streams its
     weights, stored block by block, input by input. Inputs are padded with zeros to a
     multiple of ``parts``."""
-    widths = [len(layers[0]) - 1] + [w.shape[1] for w in layers]
-    if any(w.shape[0] != n + 1 for w, n in zip(layers, widths, strict=False)):
-        raise ValueError(f"layer shapes {[w.shape for w in layers]} do not chain")
-    blocks = [next(b for b in (BLOCK, 16, 8, 4, 2, 1) if m % b == 0) for m in widths[1:]]
-    parts = [max(1, ACCUMULATORS // b) for b in blocks]
-    padded = [_pad(n, p) for n, p in zip(widths, parts, strict=False)] + [widths[-1]]
-    code = ["{", "  int j0, j, k, p;", "  const float *w;"]
+    blocks, parts, padded = _plan(widths)
+    padded = [*padded, widths[-1]]  # the layers' inputs, then the output
+    code = [
+        "{",
+        # float32 words in a double array: may_alias tells the compiler they are read so
+        "  typedef float __attribute__((may_alias)) uvms_weight;",
+        f"  const uvms_weight* packed = (const uvms_weight*) {weights};",
+        "  int j0, j, k, p;",
+        "  const uvms_weight *w;",
+    ]
     code += [f"  float h{i}[{n}];" for i, n in enumerate(padded)]
-    for i, (layer, b) in enumerate(zip(layers, blocks, strict=True)):
-        n, m = widths[i], widths[i + 1]
-        weights = np.zeros((padded[i], m), dtype=np.float32)
-        weights[:n] = layer[:n]
-        packed = weights.reshape(padded[i], m // b, b).transpose(1, 0, 2)
-        code += [
-            f"  static const float w{i}[{packed.size}] = {{{_floats(packed.ravel())}}};",
-            f"  static const float b{i}[{m}] = {{{_floats(layer[n])}}};",
-        ]
+    offset = 0
+    for i in range(len(widths) - 1):
+        m = widths[i + 1]
+        code.append(f"  const uvms_weight* w{i} = packed + {offset};")
+        offset += padded[i] * m
+        code.append(f"  const uvms_weight* b{i} = packed + {offset};")
+        offset += m
     code.append(f"  for (k = 0; k < {widths[0]}; ++k) h0[k] = (float) {x}[k];")
     code += [
         f"  for (k = {n}; k < {pn}; ++k) h{i}[k] = 0;"
@@ -93,7 +136,7 @@ def dense_c(layers: list[np.ndarray], x: str = "z", y: str = "y") -> str:
         if pn > n
     ]
     for i, (b, np_) in enumerate(zip(blocks, parts, strict=True)):
-        m, last = widths[i + 1], i == len(layers) - 1
+        m, last = widths[i + 1], i == len(widths) - 2
         total = "+".join(f"a[{q * b} + j]" for q in range(np_))
         if last:
             store = f"h{i + 1}[j0 + j] = {total};"
@@ -118,9 +161,14 @@ def dense_c(layers: list[np.ndarray], x: str = "z", y: str = "y") -> str:
             "    }",
             "  }",
         ]
-    code.append(f"  for (j = 0; j < {widths[-1]}; ++j) {y}[j] = h{len(layers)}[j];")
+    code.append(f"  for (j = 0; j < {widths[-1]}; ++j) {y}[j] = h{len(widths) - 1}[j];")
     code.append("}")
     return "\n".join(code) + "\n"
+
+
+def architecture_tag(widths: tuple[int, ...]) -> str:
+    """A network's widths in a function name: ``w95_128_128_8``."""
+    return "w" + "_".join(map(str, widths))
 
 
 def layers_digest(layers: list[np.ndarray]) -> str:
@@ -147,40 +195,40 @@ def linear_decision_function(
 _MLP_CACHE: dict[tuple, cs.Function] = {}
 
 
-def network_graph(
-    name: str, args: list[cs.SX], z: cs.SX, extra: cs.SX | cs.DM, layers: list[np.ndarray]
-) -> tuple[list[cs.MX], cs.MX, cs.MX]:
-    """The layers (``dense_c``) applied to the network input ``z``, a function of the
-    symbolic ``args``: (MX inputs like ``args``, the network's output, ``extra`` (any
-    other expression of ``args`` the caller needs, e.g. a_ss) as MX)."""
-    front = cs.Function(f"{name}_inputs", args, [z, extra], {"cse": True})
-    sym = [cs.MX.sym(f"a{i}", front.sparsity_in(i)) for i in range(front.n_in())]
-    zz, extra_mx = front(*sym)
+def network_graph(name: str, z: cs.SX, widths: tuple[int, ...]) -> tuple[cs.SX, cs.SX]:
+    """The layers of a network of ``widths`` (``dense_c``) applied to the network input
+    ``z``: (the packed weights' symbol (``pack_layers``), the network's output). The
+    layers are one call node of the SX graph: the generated code hands the node the
+    weights input's own pointer (no copy per call) and ``z`` from its work array."""
+    weights = cs.SX.sym("weights", packed_size(widths))
     layers_fn = cs.Function.jit(
         f"{name}_layers",
-        dense_c(layers),
-        ["z"],
+        dense_c(widths),
+        ["z", "weights"],
         ["y"],
-        [cs.Sparsity.dense(z.numel())],
-        [cs.Sparsity.dense(layers[-1].shape[1])],
-        {"jit": False},  # generated code only: see the module docstring
+        [cs.Sparsity.dense(widths[0]), weights.sparsity()],
+        [cs.Sparsity.dense(widths[-1])],
+        # generated code only (see the module docstring), reading its inputs in place
+        {"jit": False, "buffered": False},
     )
-    return sym, layers_fn(zz), extra_mx
+    return weights, layers_fn.call([z, weights], False, True)[0]
 
 
 def mlp_decision_function(
-    features: str, object_key: float, layers: list[np.ndarray], residual: bool, dim: int
+    features: str, object_key: float, widths: tuple[int, ...], residual: bool, dim: int
 ) -> cs.Function | None:
-    """Compiled (obs, mean, inv_std, clip) -> action of an MLP (``layers`` as in
-    ``dense_c``; the last has 8 outputs), or None where nothing is compiled."""
-    key = (features, object_key, dim, residual, layers_digest(layers))
+    """Compiled (obs, mean, inv_std, clip, weights) -> action of an MLP of ``widths``
+    (the last 8; ``weights``: its ``pack_layers``), or None where nothing is compiled.
+    One library per feature set, object, widths and output: every network of that
+    architecture decides through it with its own weights."""
+    key = (features, object_key, dim, residual, widths)
     if key in _MLP_CACHE:  # spares generating and hashing the source again per robot
         return _MLP_CACHE[key]
     args, z, ff, tag = inputs_sx(features, object_key, dim)
-    name = f"cloned_mlp_{tag}_{key[-1]}"
-    sym, out, ff_mx = network_graph(name, args, z, ff, layers)
-    act = cs.fmin(1.0, cs.fmax(-1.0, ff_mx + out)) if residual else cs.tanh(out)
-    fn = cs.Function(name, sym, [act])
+    name = f"cloned_mlp_{tag}_{architecture_tag(widths)}{'_residual' if residual else ''}"
+    weights, out = network_graph(name, z, widths)
+    act = cs.fmin(1.0, cs.fmax(-1.0, ff + out)) if residual else cs.tanh(out)
+    fn = cs.Function(name, [*args, weights], [act], {"cse": True})
     compiled = compile_function(fn)
     if compiled is fn:  # not compiled (see the module docstring)
         return None
@@ -190,9 +238,12 @@ def mlp_decision_function(
 
 def decision_function(
     features: str, object_key: float, layers: list[np.ndarray], residual: bool, dim: int
-) -> cs.Function | None:
-    """The whole decision of a network given by its ``layers`` (see ``dense_c``): one
-    compiled function of (obs, mean, inv_std, clip), or None (see the module docstring)."""
+) -> tuple[cs.Function, tuple[np.ndarray, ...]] | None:
+    """The whole decision of a network given by its ``layers`` (see ``pack_layers``): one
+    compiled function of (obs, mean, inv_std, clip, *inputs) and those further inputs
+    (the packed weights of an MLP; none for a linear map, whose weights are in its
+    code), or None (see the module docstring)."""
     if len(layers) == 1:
-        return linear_decision_function(features, object_key, layers[0], residual, dim)
-    return mlp_decision_function(features, object_key, layers, residual, dim)
+        return linear_decision_function(features, object_key, layers[0], residual, dim), ()
+    fn = mlp_decision_function(features, object_key, layer_widths(layers), residual, dim)
+    return None if fn is None else (fn, (pack_layers(layers),))

@@ -24,7 +24,12 @@ import casadi as cs
 import numpy as np
 
 from baselines.networks.features import FEEDFORWARD, CompiledInputs, input_dim, inputs_sx
-from baselines.networks.mlp_decision import layers_digest, network_graph
+from baselines.networks.mlp_decision import (
+    architecture_tag,
+    layer_widths,
+    network_graph,
+    pack_layers,
+)
 from uvms_env.dynamics.compiled import compile_function
 from uvms_env.robot.priors import ACT_DIM, OBS_DIM, Priors, steady_sx
 
@@ -60,32 +65,33 @@ _CACHE: dict[tuple, cs.Function | None] = {}
 
 
 def actor_function(
-    priors: Priors, object_key: float, layers: list[np.ndarray]
+    priors: Priors, object_key: float, widths: tuple[int, ...]
 ) -> cs.Function | None:
-    """Compiled (obs, mean, inv_std, clip) -> normalized input of a robot whose raw
-    observation is ``obs``, or None where nothing is compiled (no C compiler)."""
-    key = (priors, float(object_key), layers_digest(layers))
+    """Compiled (obs, mean, inv_std, clip, weights) -> normalized input of a robot whose
+    raw observation is ``obs``, for an actor of ``widths`` (``weights``: its
+    ``pack_layers``; one library per priors, object and widths, every model of that
+    architecture its user), or None where nothing is compiled (no C compiler)."""
+    key = (priors, float(object_key), widths)
     if key not in _CACHE:  # an evaluation builds a policy per robot and episode
-        _CACHE[key] = _build(priors, object_key, layers)
+        _CACHE[key] = _build(priors, object_key, widths)
     return _CACHE[key]
 
 
-def _build(priors: Priors, object_key: float, layers: list[np.ndarray]) -> cs.Function | None:
+def _build(priors: Priors, object_key: float, widths: tuple[int, ...]) -> cs.Function | None:
     features = priors.observation_mode  # the feature sets share the modes' names
     args, z, ff, tag = inputs_sx(features, object_key, input_dim(features, OBS_DIM))
-    if z.numel() != len(layers[0]) - 1:
-        raise ValueError(
-            f"the actor reads {len(layers[0]) - 1} numbers, the run's priors give {z.numel()}"
-        )
+    if z.numel() != widths[0]:
+        raise ValueError(f"the actor reads {widths[0]} numbers, the run's priors give {z.numel()}")
     if priors.action_mode == "torque":
         steady = cs.DM.zeros(ACT_DIM)
     elif priors.action_mode == "setpoint":  # the holding a_ss, not the features' own
         steady = steady_sx(priors.steady_source(args[0]), object_key)
     else:
         steady = ff if features in FEEDFORWARD else steady_sx(args[0], object_key)
-    name = f"ppo_actor_{tag}_{layers_digest(layers)}"
-    sym, out, steady_mx = network_graph(name, args, z, steady, layers)
-    fn = cs.Function(name, sym, [priors.command_sx(sym[0], out, steady_mx)])
+    name = f"ppo_actor_{tag}_{architecture_tag(widths)}_{priors.action_mode}"
+    weights, out = network_graph(name, z, widths)
+    act = priors.command_sx(args[0], out, steady)
+    fn = cs.Function(name, [*args, weights], [act], {"cse": True})
     compiled = compile_function(fn)
     return None if compiled is fn else compiled
 
@@ -114,8 +120,10 @@ def compiled_actor(
     else:
         mean, std, clip = norm
         mean, inv_std = np.asarray(mean)[:width], 1.0 / np.asarray(std)[:width]
-    fn = actor_function(priors, object_key, layers)
+    fn = actor_function(priors, object_key, layer_widths(layers))
     if fn is None:
         return None
     features = priors.observation_mode  # the feature sets share the modes' names
-    return CompiledInputs(features, mean, inv_std, object_key=object_key, clip=clip, fn=fn)
+    return CompiledInputs(
+        features, mean, inv_std, object_key, clip, fn=fn, extra=(pack_layers(layers),)
+    )

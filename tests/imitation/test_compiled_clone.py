@@ -18,7 +18,9 @@ from baselines.networks.mlp_decision import (
     TANH_P,
     TANH_Q,
     dense_c,
+    layer_widths,
     mlp_decision_function,
+    pack_layers,
 )
 from uvms_env.dynamics.compiled import compile_function
 from uvms_env.policy import AgentSpec
@@ -129,27 +131,40 @@ def test_generated_layers_compute_the_network(widths):
         for n, m in itertools.pairwise(widths)
     ]
     layers = [w.astype(np.float32) for w in layers]
-    z = cs.MX.sym("z", widths[0])
+    assert layer_widths(layers) == widths
+    packed = pack_layers(layers)
+    z, weights = cs.MX.sym("z", widths[0]), cs.MX.sym("weights", len(packed))
     node = cs.Function.jit(
         "layers_under_test",
-        dense_c(layers),
-        ["z"],
+        dense_c(widths),
+        ["z", "weights"],
         ["y"],
-        [cs.Sparsity.dense(widths[0])],
+        [cs.Sparsity.dense(widths[0]), weights.sparsity()],
         [cs.Sparsity.dense(widths[-1])],
         {"jit": False},
     )
-    outer = cs.Function(f"dense_test_{'_'.join(map(str, widths))}", [z], [node(z)])
+    name = f"dense_test_{'_'.join(map(str, widths))}"
+    outer = cs.Function(name, [z, weights], [node(z, weights)])
     fn = compile_function(outer)
     if fn is outer:
         pytest.skip("no C compiler (or UVMS_ENV_NO_COMPILE)")
     x = rng.normal(size=(50, widths[0])) * 3
-    h = x
-    for w in layers[:-1]:
-        h = np.tanh(h @ w[:-1] + w[-1])
-    want = h @ layers[-1][:-1] + layers[-1][-1]
-    got = np.stack([np.asarray(fn(v)).ravel() for v in x])
+
+    def network(layers: list[np.ndarray]) -> np.ndarray:
+        h = x
+        for w in layers[:-1]:
+            h = np.tanh(h @ w[:-1] + w[-1])
+        return h @ layers[-1][:-1] + layers[-1][-1]
+
+    want = network(layers)
+    got = np.stack([np.asarray(fn(v, packed)).ravel() for v in x])
     assert np.abs(got - want).max() < TOL * max(1.0, np.abs(want).max())
+    # the weights are an input: other weights of the same widths, the same library
+    other = [w[::-1].copy() for w in layers]
+    moved = np.stack([np.asarray(fn(v, pack_layers(other))).ravel() for v in x])
+    want = network(other)
+    assert np.abs(moved - want).max() < TOL * max(1.0, np.abs(want).max())
+    assert np.abs(moved - got).max() > 1e-3
 
 
 def test_without_a_compiler_the_policy_keeps_numpy_layers(monkeypatch, tmp_path, paper):
@@ -161,7 +176,7 @@ def test_without_a_compiler_the_policy_keeps_numpy_layers(monkeypatch, tmp_path,
         net.body[0].bias.add_(0.01)  # weights no earlier test has compiled in this process
     net.save(tmp_path / "policy.pt")
     layers = [np.vstack([w, b[None]]) for w, b in net.numpy_weights()]
-    assert mlp_decision_function("features", 0.0, layers, True, 79) is None
+    assert mlp_decision_function("features", 0.0, layer_widths(layers), True, 79) is None
     spec = AgentSpec.from_scenario(paper, 0)
     policy = ClonedPolicy(spec, tmp_path / "policy.pt")
     assert not policy.compiled

@@ -393,7 +393,7 @@ class Priors:
         """h_j of arm joint j at angle ``q`` and rate ``rate`` (any array or CasADi type)."""
         return -self.hold_stiffness * (q - float(NOMINAL_ARM[j])) - self.hold_damping * rate
 
-    def command_sx(self, o: cs.MX, action: cs.MX, steady: cs.MX) -> cs.MX:
+    def command_sx(self, o: cs.SX, action: cs.SX, steady: cs.SX) -> cs.SX:
         """``command`` of one symbolic (79,) observation ``o`` with its a_ss ``steady``
         (that of ``steady_source(o)``), for compiled decisions
         (``baselines.networks.ppo_decision``); ``action`` is clipped here."""
@@ -407,5 +407,5 @@ class Priors:
         if self.holds:
             q, rate = _JOINTS.start, _JOINT_RATES.start
             arm = [self._hold(o[q + j], o[rate + j], j) for j in range(4)]
-            base = base + cs.vertcat(cs.MX.zeros(ACT_DIM - 4), *arm)
+            base = base + cs.vertcat(cs.DM.zeros(ACT_DIM - 4), *arm)
         return self._residual(base, action, cs.fmin, cs.fmax)
