@@ -128,7 +128,7 @@ def test_a_ring_and_the_bar_share_the_chain_and_differ_by_their_parameters():
     )
     assert bar[1] is ring[1]
     sim = Simulator(paper)
-    assert sim._step.fn is bar[1]
+    assert sim._compiled_step().fn is bar[1]
     x, tau, vc, p, po = (np.array(a, dtype=float) for a in sim.wrench_inputs())
     tau[:] = 0.3 * sim.tau_max
     args = (x, tau.T, vc, p.T)

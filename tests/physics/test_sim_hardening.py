@@ -84,7 +84,7 @@ def test_periods_agree_with_a_much_finer_integration(substeps, tolerance):
         tau = rng.uniform(-0.5, 0.5, (2, 8)) * sim.tau_max
         sim.step(tau)
         for _ in range(16):
-            x_next, _, _ = fine._step(
+            x_next, _, _ = fine._compiled_step()(
                 fine.flat_state,
                 tau,
                 np.zeros(3),

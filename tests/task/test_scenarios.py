@@ -30,6 +30,7 @@ def test_random_family_reproducible_and_sized():
         sim = Simulator(s)
         assert sim.grasp_error()[0].max() < 1e-9
         assert np.all(np.abs(sim.holding_inputs()) <= sim.tau_max)
+        assert sim._step is None  # reading a scenario compiles nothing: its first period does
 
 
 @pytest.mark.parametrize(

@@ -6,7 +6,9 @@
     sim.state.q, sim.state.zeta, sim.state.x_O, sim.state.v_O, sim.state.t
 
 The whole control period (RK4 substeps, KKT solves) is one compiled CasADi call made
-through the zero-copy buffer interface; the compiled library is cached on disk. Its error
+through the zero-copy buffer interface; the compiled library is cached on disk, and
+compiled (or loaded) at the first period, so a simulator built to read a scenario (its
+start, grasps, holding inputs) compiles nothing. Its error
 control, envelope and current are the batched simulator's, on one environment:
 ``uvms_env.sim.period`` and ``uvms_env.sim.current``.
 """
@@ -59,14 +61,20 @@ def _capacity(shape: str, size: float) -> int:
 
 
 @cache
+def chain_functions(n: int, capacity: int, period: float, substeps: int) -> ChainFunctions:
+    """The closed chain of ``n`` robots for every object of a strip ``capacity``
+    (``ObjectModel.capacity``), symbolic (built once per process)."""
+    obj = ObjectModel.of_capacity(capacity)
+    return build_chain(n, default_model(), obj, period, substeps, STABILIZATION)
+
+
+@cache
 def chain_of_capacity(
     n: int, capacity: int, period: float, substeps: int
 ) -> tuple[ChainFunctions, cs.Function]:
     """``compiled_chain`` for every object of a strip ``capacity``
     (``ObjectModel.capacity``)."""
-    uvms = default_model()
-    obj = ObjectModel.of_capacity(capacity)
-    chain = build_chain(n, uvms, obj, period, substeps, STABILIZATION)
+    chain = chain_functions(n, capacity, period, substeps)
     return chain, compile_function(chain.step)
 
 
@@ -179,15 +187,18 @@ class Simulator(RebuiltOnUnpickle):
         self.uvms = default_model()
         self.object = ObjectModel(s.object_shape, s.object_size)
         self.chain_key = (s.object_shape, float(s.object_size), s.period, s.substeps)
-        self.chain, step_fn = _chain(self.n, *self.chain_key)
-        self._step = BufferCall(step_fn)
+        self._chain_args = (self.n, _capacity(s.object_shape, float(s.object_size)))
+        self._chain_args += (s.period, s.substeps)
+        self.chain = chain_functions(*self._chain_args)
+        # compiled at the first period: a simulator built to read a scenario (its start,
+        # grasps, holding inputs) compiles nothing
+        self._step: BufferCall | None = None
         self.tau_max = self.uvms.params.limits.tau_max
         self._tau_min = -self.tau_max
         self._x = np.zeros(state_size(self.n))
         self._x_column = self._x[:, None]  # the period routine's layout, (element, K = 1)
-        # the compiled call's state, drift (N, 12) and error (N, 6) as (element, 1) views
-        self._outputs = tuple(out.reshape(-1, 1) for out in self._step.outputs)
-        self._drift = self._step.outputs[1]
+        self._outputs: tuple[np.ndarray, ...] = ()
+        self._drift = np.zeros((self.n, 12))
         self._x_part = np.zeros_like(self._x)  # start of a refined part of a period
         self._ids = np.zeros(1, np.int64)  # the one environment, as the refinement indexes
         self._h = np.array([s.period])
@@ -289,10 +300,19 @@ class Simulator(RebuiltOnUnpickle):
         """The compiled period step of length ``h`` from ``x`` under the inputs set:
         (x_next, drift, error) as (element, 1) views of its buffers."""
         self._h[0] = h
-        self._step(
+        self._compiled_step()(
             x, self._tau, self._vc, self.parameters, self.object_parameters, self._grasp, self._h
         )
         return self._outputs
+
+    def _compiled_step(self) -> BufferCall:
+        """The compiled period step (``chain.step``), compiled and bound at first use."""
+        if self._step is None:
+            self._step = BufferCall(chain_of_capacity(*self._chain_args)[1])
+            # the call's state, drift (N, 12) and error (N, 6) as (element, 1) views
+            self._outputs = tuple(out.reshape(-1, 1) for out in self._step.outputs)
+            self._drift = self._step.outputs[1]
+        return self._step
 
     def _evaluate(self, ids: object, x0: np.ndarray, h: float) -> tuple[np.ndarray, ...]:
         """A refined part (``uvms_env.sim.period.Evaluate``): part ``h`` from ``x0``
