@@ -13,6 +13,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
+from help_in_process import help_in_process
 
 from baselines import comm_sweep, evaluate, ladder, seeds, train
 from baselines.imitation import cli as imitate
@@ -314,15 +315,9 @@ def test_every_command_names_itself_in_its_usage(main, prog, capsys):
 
 @pytest.mark.parametrize("script", BENCHMARKS)
 def test_every_benchmark_answers_help(script):
-    run = subprocess.run(
-        [sys.executable, f"benchmarks/{script}", "--help"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert run.returncode == 0, run.stderr[-2000:]
-    assert run.stdout.startswith(f"usage: python benchmarks/{script}")
+    status, out = help_in_process((f"benchmarks/{script}",))
+    assert status == 0, out[-2000:]
+    assert out.startswith(f"usage: python benchmarks/{script}")
 
 
 # -- the training budget and its clock -----------------------------------------------------------

@@ -13,6 +13,7 @@ from functools import cache
 from pathlib import Path
 
 import pytest
+from help_in_process import help_in_process
 
 ROOT = Path(__file__).resolve().parents[2]
 # the reference pages and the results appendix (docs/results/), not the dated notes
@@ -90,15 +91,9 @@ def command_target(args: list[str]) -> tuple[list[str], list[str]]:
 
 @cache
 def help_text(command: tuple[str, ...]) -> str:
-    run = subprocess.run(
-        [sys.executable, *command, "--help"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert run.returncode == 0, f"python {' '.join(command)} --help failed:\n{run.stderr[-2000:]}"
-    return run.stdout
+    status, out = help_in_process(command)  # the imports once, not once per command
+    assert status == 0, f"python {' '.join(command)} --help exited {status}:\n{out[-2000:]}"
+    return out
 
 
 SHOWN = sorted(
