@@ -378,7 +378,7 @@ def library_source(
     the sizes and constants ``qp_driver.c`` reads, the driver, the CasADi API of
     ``nmpc_steady_<tag>`` (``build_steady_input``'s inputs and outputs), and per horizon h
     of ``horizons`` the condensing (``qp_condense.c``) and the API of its entry point,
-    ``nmpc_qp_<qp_tag(tag, h)>`` (``build_qp_builder``'s)."""
+    ``nmpc_qp_<tag>_n<h>`` (``build_qp_builder``'s)."""
     cg = cs.CodeGenerator("library.c", {"with_header": False})
     for fn in stages.values():
         cg.add(fn)
@@ -415,7 +415,7 @@ def library_source(
     for n in horizons:
         nz = n * NU
         qp = _entry_api(
-            f"nmpc_qp_{qp_tag(tag, n)}",
+            f"nmpc_qp_{tag}_n{n}",
             f"uvms_build_qp_n{n}",
             [("xbar", NX, n + 1), ("abar", NU, n), ("theta", theta_n, 1), ("xd", 6, n + 1),
              ("vd", 6, n + 1), ("w", NW, 1), ("d", NX, 1)],
@@ -499,12 +499,6 @@ def library_tag(capacity: int, period: float, substeps: int) -> str:
     return f"c{capacity}_h{period:g}_s{substeps}".replace(".", "p")
 
 
-def qp_tag(tag: str, horizon: int) -> str:
-    """A horizon's entry point's name part (``library_tag`` with the horizon)."""
-    capacity, rest = tag.split("_", 1)
-    return f"{capacity}_n{horizon}_{rest}"
-
-
 @cache
 def _library(
     capacity: int, horizons: tuple[int, ...], period: float, substeps: int
@@ -559,7 +553,7 @@ def ocp_functions(
     tag = library_tag(capacity, period, substeps)
     return dataclasses.replace(
         base,
-        qp_builder=cs.external(f"nmpc_qp_{qp_tag(tag, horizon)}", lib),
+        qp_builder=cs.external(f"nmpc_qp_{tag}_n{horizon}", lib),
         object_state=cs.external(object_state, lib),
         steady_input=cs.external(f"nmpc_steady_{tag}", lib),
         source=source,
