@@ -32,16 +32,17 @@ _SCENARIO_PERIOD: float = {f.name: f.default for f in fields(Scenario)}["period"
 # back-off (``NMPCSettings.backoff``), so a short look-ahead suffices (measurements:
 # docs/notes/2026-11-23-safety-filter-tuning.md).
 FILTER_HORIZON = 3
+EXPERT_HORIZON = 5  # the paper's Np
 # The horizons one compiled controller library holds (``nmpc_expert.ocp``): the expert's
 # default and the filter's, so that the filter's first use compiles nothing new.
-LIBRARY_HORIZONS = (FILTER_HORIZON, 5)
+LIBRARY_HORIZONS = (FILTER_HORIZON, EXPERT_HORIZON)
 
 
 @dataclass(frozen=True)
 class NMPCSettings:
     """Tuning and limits of one robot's NMPC (defaults: the paper's values where it has them)."""
 
-    horizon: int = LIBRARY_HORIZONS[1]
+    horizon: int = EXPERT_HORIZON
     """Np, number of shooting intervals (paper: 5)."""
     period: float = _SCENARIO_PERIOD
     """h [s], sampling time and shooting interval: the scenarios' control period (the

@@ -187,8 +187,8 @@ class Simulator(RebuiltOnUnpickle):
         self.uvms = default_model()
         self.object = ObjectModel(s.object_shape, s.object_size)
         self.chain_key = (s.object_shape, float(s.object_size), s.period, s.substeps)
-        self._chain_args = (self.n, _capacity(s.object_shape, float(s.object_size)))
-        self._chain_args += (s.period, s.substeps)
+        capacity = _capacity(s.object_shape, float(s.object_size))
+        self._chain_args = (self.n, capacity, s.period, s.substeps)
         self.chain = chain_functions(*self._chain_args)
         # compiled at the first period: a simulator built to read a scenario (its start,
         # grasps, holding inputs) compiles nothing
