@@ -47,14 +47,6 @@ STABILIZATION = 10.0
 WEIGHED_FRACTION = 0.1
 
 
-def _chain(
-    n: int, shape: str, size: float, period: float, substeps: int
-) -> tuple[ChainFunctions, cs.Function]:
-    """The chain for the object ``shape`` and ``size`` (a scenario's ``object_size``):
-    the one of every object of its strip capacity (the object is in P_O)."""
-    return chain_of_capacity(n, _capacity(shape, size), period, substeps)
-
-
 @cache
 def _capacity(shape: str, size: float) -> int:
     return ObjectModel(shape, size).capacity
@@ -78,14 +70,21 @@ def chain_of_capacity(
     return chain, compile_function(chain.step)
 
 
+def symbolic_chain(n: int, shape: str, size: float, period: float, substeps: int) -> ChainFunctions:
+    """The closed chain the simulator integrates with, symbolic (nothing compiled): for
+    builds of its own, e.g. the batched simulator's lanes. ``size``: the object's."""
+    return chain_functions(n, _capacity(shape, float(size)), period, substeps)
+
+
 def compiled_chain(
     n: int, shape: str, size: float, period: float, substeps: int
 ) -> tuple[ChainFunctions, cs.Function]:
     """The closed chain of ``n`` robots and its compiled period step, the very ones the
     simulator integrates with (one build per process and strip capacity, the library
     cached on disk): for a controller whose prediction model is the simulator's
-    (``nmpc_expert.central``). ``size``: the object's (``Scenario.object_size``)."""
-    return _chain(n, shape, float(size), period, substeps)
+    (``nmpc_expert.central``). ``size``: the object's (``Scenario.object_size``); every
+    object of its strip capacity shares them (the object is in P_O)."""
+    return chain_of_capacity(n, _capacity(shape, float(size)), period, substeps)
 
 
 def grasp_parameters(scenario: Scenario) -> np.ndarray:

@@ -29,7 +29,7 @@ from uvms_env.dynamics.uvms import default_model
 from uvms_env.sim.chain import NG, state_size
 from uvms_env.sim.current import Currents
 from uvms_env.sim.period import OK, PeriodControl
-from uvms_env.sim.simulator import _chain, draw_truth_parameters, grasp_parameters
+from uvms_env.sim.simulator import draw_truth_parameters, grasp_parameters, symbolic_chain
 from uvms_env.vector.kernels import DTYPES, REFUSED, BatchedFunction, available_cores
 
 if TYPE_CHECKING:
@@ -70,7 +70,7 @@ class BatchedSimulator:
         self.num_envs = k = int(num_envs)
         self.backend, self.dtype = backend, dtype
         self.threads = int(threads or available_cores())
-        self.chain, _ = _chain(n, s.object_shape, float(s.object_size), s.period, s.substeps)
+        self.chain = symbolic_chain(n, s.object_shape, s.object_size, s.period, s.substeps)
         if backend == "cpu":
             self._fn: Any = BatchedFunction(self.chain.step, dtype, lanes)
             self.xp: Any = np

@@ -260,11 +260,11 @@ def backend_kernels(n_agents: int) -> tuple[Kernel, ...]:
     ``kernels_cuda``'s cubin builder uses ("paper" for N = 2, else "random")."""
     from uvms_env.dynamics import ObjectModel
     from uvms_env.scenarios import make
-    from uvms_env.sim.simulator import _chain
+    from uvms_env.sim.simulator import symbolic_chain
     from uvms_env.vector.kernel_list import kernel_functions, period_refinement
 
     s = make("paper") if n_agents == 2 else make("random", n_agents=n_agents, seed=0)
-    chain, _ = _chain(n_agents, s.object_shape, float(s.object_size), s.period, s.substeps)
+    chain = symbolic_chain(n_agents, s.object_shape, s.object_size, s.period, s.substeps)
     n_seg = len(ObjectModel(s.object_shape, s.object_size).segments)
     kernels = [Kernel("period step", chain.step, period_refinement(n_agents))]
     for noisy in (True, False):

@@ -187,7 +187,7 @@ def main(argv: list[str] | None = None) -> None:
     --report compile every kernel the backend launches with NVRTC and ptxas and print what
     each needs per thread (``kernels_check``; the cuda-check extra, no GPU needed)."""
     from uvms_env.scenarios import make
-    from uvms_env.sim.simulator import _chain
+    from uvms_env.sim.simulator import symbolic_chain
 
     ap = argparse.ArgumentParser(
         prog="python -m uvms_env.vector.kernels_cuda", description=main.__doc__, allow_abbrev=False
@@ -210,7 +210,7 @@ def main(argv: list[str] | None = None) -> None:
 
     for n in args.n_agents:
         s = make("paper") if n == 2 else make("random", n_agents=n, seed=0)
-        chain, _ = _chain(n, s.object_shape, float(s.object_size), s.period, s.substeps)
+        chain = symbolic_chain(n, s.object_shape, s.object_size, s.period, s.substeps)
         for dtype in args.dtype:
             for arch in args.arch:
                 path = build_cubin(chain.step, dtype, arch, period_refinement(n, dtype))
