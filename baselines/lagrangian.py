@@ -5,7 +5,9 @@ the RL library:
     lambda <- clip(lambda + lr (J_c - d), 0, lambda_max),
 
 J_c the mean cost per robot of the episodes that ended in the rollout and d the cost
-limit per episode; ``lr = 0`` is a fixed penalty. Costs ``count`` and ``magnitude``
+limit per episode, or (``limit_per="period"``) J_c the mean of each such episode's cost
+over the periods it covers and d a limit per period, the same for a 100-period and a
+3,000-period episode; ``lr = 0`` is a fixed penalty. Costs ``count`` and ``magnitude``
 (``SCALES``): docs/rl.md. Per robot and period either costs at most ``PERIOD_CAP`` (every
 safety kind violated; a kind's magnitude counts up to one whole limit), and an episode
 that ends in failure also costs ``PERIOD_CAP`` for each period left to its time limit:
@@ -32,6 +34,7 @@ from uvms_env.models import load_parameters
 from uvms_env.task.constraints import CONSTRAINTS, SAFETY_CONSTRAINTS, constraint_scales
 
 COSTS = ("count", "magnitude")
+LIMIT_UNITS = ("episode", "period")  # what the cost limit d is per
 
 
 # one unit of normalized cost is a violation by the whole limit (``constraint_scales``)
@@ -44,18 +47,22 @@ FAILURES = ("diverged", "collision", "constraint")  # the ends ``periods_left`` 
 
 @dataclass
 class CostSettings:
-    """``kind`` of cost, the starting multiplier, the cost limit d per episode and robot,
-    the multiplier's learning rate (0: a fixed penalty) and its ceiling."""
+    """``kind`` of cost, the starting multiplier, the cost limit d per robot and
+    ``limit_per`` (episode or period), the multiplier's learning rate (0: a fixed penalty)
+    and its ceiling."""
 
     kind: str = "magnitude"
     multiplier: float = 0.1
     cost_limit: float = 0.0
     lr: float = 0.0
     max_multiplier: float = 100.0
+    limit_per: str = "episode"
 
     def __post_init__(self) -> None:
         if self.kind not in COSTS:
             raise ValueError(f"cost must be one of {COSTS}, got {self.kind!r}")
+        if self.limit_per not in LIMIT_UNITS:
+            raise ValueError(f"limit_per must be one of {LIMIT_UNITS}, got {self.limit_per!r}")
         for name in ("multiplier", "cost_limit", "lr", "max_multiplier"):
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0:
@@ -96,28 +103,34 @@ class Lagrangian:
         self.settings = settings
         self.multiplier = float(settings.multiplier)
         self._episode = np.zeros(robots)
-        self._finished: list[float] = []
+        self._periods = np.zeros(robots)
+        self._finished: list[tuple[float, float]] = []  # (cost, periods it covers)
 
     def reset(self) -> None:
         self._episode[:] = 0.0
+        self._periods[:] = 0.0
 
-    def record(self, cost: np.ndarray, done: np.ndarray) -> None:
-        """Adds the step's (R,) costs; closes the episodes where ``done``."""
+    def record(self, cost: np.ndarray, done: np.ndarray, left: Any = None) -> None:
+        """Adds the step's (R,) costs (and the (R,) periods a failure prices, if any);
+        closes the episodes where ``done``."""
         self._episode += cost
+        self._periods += 1.0 if left is None else 1.0 + np.asarray(left, dtype=np.float64)
         if np.any(done):
             ended = np.flatnonzero(done)
-            self._finished.extend(self._episode[ended].tolist())
+            pairs = zip(self._episode[ended].tolist(), self._periods[ended].tolist(), strict=True)
+            self._finished.extend(pairs)
             self._episode[ended] = 0.0
+            self._periods[ended] = 0.0
 
-    def take_finished(self) -> list[float]:
-        """The costs of the episodes ended since the last call, handed over: where the
-        episodes run elsewhere (RLlib's env runners), the driver's ``Lagrangian`` ``add``s
-        them before its ``end_rollout``."""
+    def take_finished(self) -> list[tuple[float, float]]:
+        """The (cost, periods covered) of the episodes ended since the last call, handed
+        over: where the episodes run elsewhere (RLlib's env runners), the driver's
+        ``Lagrangian`` ``add``s them before its ``end_rollout``."""
         finished, self._finished = self._finished, []
         return finished
 
-    def add(self, episode_costs: list[float]) -> None:
-        self._finished.extend(float(c) for c in episode_costs)
+    def add(self, episodes: list[tuple[float, float]]) -> None:
+        self._finished.extend((float(c), float(n)) for c, n in episodes)
 
     def penalize(self, g: Any, count: Any, done: np.ndarray, left: Any = None) -> np.ndarray:
         """``g`` and ``count`` are only read for their kind of cost (the other may be
@@ -128,19 +141,23 @@ class Lagrangian:
         else:
             cost = np.asarray(count, dtype=np.float64).reshape(robots)
         if left is not None:
-            cost = cost + PERIOD_CAP * np.asarray(left, dtype=np.float64).reshape(robots)
-        self.record(cost, np.asarray(done).reshape(-1))
+            left = np.asarray(left, dtype=np.float64).reshape(robots)
+            cost = cost + PERIOD_CAP * left
+        self.record(cost, np.asarray(done).reshape(-1), left)
         return cost
 
     def end_rollout(self) -> float | None:
         """One dual step from the episodes ended since the last call; returns their mean
-        cost (None, and no step, when none ended)."""
+        cost per episode (None, and no step, when none ended). The step compares the limit
+        with that mean, or (``limit_per="period"``) with the mean of each episode's cost
+        over the periods it covers."""
         if not self._finished:
             return None
-        mean = float(np.mean(self._finished))
+        costs, periods = np.array(self._finished).T
         self._finished.clear()
         s = self.settings
+        measured = float(np.mean(costs / periods if s.limit_per == "period" else costs))
         self.multiplier = float(
-            np.clip(self.multiplier + s.lr * (mean - s.cost_limit), 0.0, s.max_multiplier)
+            np.clip(self.multiplier + s.lr * (measured - s.cost_limit), 0.0, s.max_multiplier)
         )
-        return mean
+        return float(np.mean(costs))

@@ -41,7 +41,7 @@ from baselines.command_line import (
     team_variants,
     usage_errors,
 )
-from baselines.lagrangian import COSTS, CostSettings
+from baselines.lagrangian import COSTS, LIMIT_UNITS, CostSettings
 from baselines.loaders.saved import CONFIG_FILE, read_config
 from baselines.registry import DEFAULT_LIBRARY, LIBRARIES, library, trainer_module
 from baselines.runs import RunSettings
@@ -157,7 +157,7 @@ def _add_evaluation_arguments(g: Any) -> None:
 # the cost flags beside --cost: (flag, CostSettings field, meaning)
 COST_FLAGS = (
     ("--cost-weight", "multiplier", "with --cost: the starting multiplier"),
-    ("--cost-limit", "cost_limit", "with --cost: the target cost per episode and robot"),
+    ("--cost-limit", "cost_limit", "with --cost: the target cost per robot and --cost-limit-per"),
     ("--multiplier-lr", "lr", "with --cost: the dual step size (0: fixed penalty)"),
 )
 
@@ -176,6 +176,13 @@ def _add_cost_arguments(g: Any) -> None:
         g.add_argument(
             flag, type=non_negative_float, default=None, help=f"{what} (default {default})"
         )
+    g.add_argument(
+        "--cost-limit-per",
+        choices=LIMIT_UNITS,
+        default=None,
+        help="with --cost: the limit is per episode (its summed cost) or per period (its "
+        f"cost over the periods it covers, whatever its length) (default {CostSettings.limit_per})",
+    )
 
 
 def build_parser(name: str) -> argparse.ArgumentParser:
@@ -232,15 +239,16 @@ def settings_from(args: argparse.Namespace, defaults: dict[str, Any]) -> RunSett
 
 def _cost_settings(args: argparse.Namespace) -> CostSettings | None:
     """``--cost`` and its flags; ValueError where a flag is given without ``--cost``."""
+    flags = (*COST_FLAGS, ("--cost-limit-per", "limit_per", ""))
     given = {
         field: getattr(args, flag[2:].replace("-", "_"))
-        for flag, field, _ in COST_FLAGS
+        for flag, field, _ in flags
         if getattr(args, flag[2:].replace("-", "_")) is not None
     }
     if args.cost == "none":
         if given:
-            flags = [flag for flag, field, _ in COST_FLAGS if field in given]
-            raise ValueError(f"{', '.join(flags)} without --cost: no cost to weigh")
+            named = [flag for flag, field, _ in flags if field in given]
+            raise ValueError(f"{', '.join(named)} without --cost: no cost to weigh")
         return None
     return CostSettings(args.cost, **given)
 

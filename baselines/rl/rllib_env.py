@@ -113,8 +113,8 @@ class UVMSMultiAgentEnv(ParallelPettingZooEnv):
         out, self._finished = self._finished, []
         return out
 
-    def take_episode_costs(self) -> list[float]:
-        """The per-robot costs of the episodes ended since the last call."""
+    def take_episode_costs(self) -> list[tuple[float, float]]:
+        """The per-robot (cost, periods covered) of the episodes ended since the last call."""
         return self.lagrangian.take_finished() if self.lagrangian is not None else []
 
 

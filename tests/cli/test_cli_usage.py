@@ -65,6 +65,8 @@ def usage_error(main, argv: list[str], capsys) -> str:
         # an option that would be dropped is refused
         (["--cost-weight", "0.2"], ["--cost-weight", "without --cost"]),
         (["--cost-limit", "1", "--multiplier-lr", "0.1"], ["--cost-limit", "--multiplier-lr"]),
+        (["--cost-limit-per", "period"], ["--cost-limit-per", "without --cost"]),
+        (["--cost", "magnitude", "--cost-limit-per", "step"], ["--cost-limit-per", "'step'"]),
         (["--eval-ladder"], ["--eval-ladder", "without --eval-every"]),
         (["--eval-episodes", "3", "--eval-seed", "7"], ["--eval-seed", "--eval-episodes"]),
         (["--filter-penalty", "2"], ["--filter-penalty", "--filter"]),

@@ -51,9 +51,38 @@ def test_a_failure_costs_the_rest_of_its_episode_at_the_cap():
     assert periods_left({"episode_end": end_code("collision"), "episode_steps": 9}, 10) == 1
 
 
+def test_a_limit_per_period_compares_each_episodes_cost_over_its_periods():
+    """With ``limit_per="period"`` an ended episode counts as its cost over the periods it
+    covers (those it ran, and those a failure prices), so a long and a short episode that
+    violate alike weigh alike; the dual step compares their mean with the limit, and the
+    reported cost stays the mean per episode."""
+    from uvms_env.env.infos import end_code
+
+    settings = CostSettings("count", multiplier=1.0, cost_limit=0.25, lr=0.5, limit_per="period")
+    lag = Lagrangian(settings, robots=2)
+    per_episode = Lagrangian(CostSettings("count", multiplier=1.0, cost_limit=0.25, lr=0.5), 2)
+    running = [{"episode_end": 0}] * 2
+    for step in range(1, 5):  # robot 0: 4 periods at cost 1 then a time-out; robot 1 fails
+        done = np.array([step == 4, step == 2])
+        infos = list(running)
+        if step == 2:
+            infos[1] = {"episode_end": end_code("diverged"), "episode_steps": 2, "max_cycles": 6}
+        left = [periods_left(i) for i in infos]
+        for lg in (lag, per_episode):
+            lg.penalize(None, [1, 3], done, left)
+    # robot 1: 3 + 3 over 2 periods run, then 4 left at PERIOD_CAP: (6 + 4 * 7) / 6 periods
+    robot1 = (6 + 4 * PERIOD_CAP) / 6
+    totals = (4 + 6 + 4 * PERIOD_CAP) / 2  # what both report: the mean cost per episode
+    assert lag.end_rollout() == per_episode.end_rollout() == pytest.approx(totals)
+    assert lag.multiplier == pytest.approx(1.0 + 0.5 * ((4 / 4 + robot1) / 2 - 0.25))
+    assert per_episode.multiplier == pytest.approx(1.0 + 0.5 * (totals - 0.25))
+
+
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match="cost"):
         CostSettings(kind="area")
+    with pytest.raises(ValueError, match="limit_per"):
+        CostSettings(limit_per="step")
     with pytest.raises(ValueError, match="lr"):
         CostSettings(lr=-1.0)
 
