@@ -9,7 +9,9 @@ evaluation's episodes.
 
 Several episodes.csv (runs of the same seed played apart) are read as one. A group's
 score matrix is seeds x cases (the rows' ``scenario``); bootstrap intervals resample
-seeds within each case. Reference: docs/rl.md, docs/results.md.
+seeds within each case. Each group's seeds are also ranked by the committed-seed rule
+(``rank_by_rule``; run on ``dev``'s episodes, it names the seed a method commits).
+Reference: docs/rl.md, docs/evaluation.md ("Learned methods: five seeds, one rule").
 
 May import: the standard library, numpy, ``baselines.evaluation`` (the episodes.csv reader,
 the Markdown table), ``baselines.command_line`` and ``baselines.stats``
@@ -74,6 +76,32 @@ def score_matrix(
     return scores, cases
 
 
+def rank_by_rule(rows: list[dict[str, Any]], policies: list[str]) -> list[dict[str, Any]]:
+    """The seeds' models best first by the committed-seed rule: the most clean successes
+    summed over the cases, then the most successes, then the lower mean graded excess per
+    period. Only seeds that played the same episodes compare; else a ``ValueError``."""
+    played = {
+        p: {(r["scenario"], str(r["episode"])) for r in rows if r["policy"] == p} for p in policies
+    }
+    if len({frozenset(v) for v in played.values()}) > 1:
+        raise ValueError(
+            f"the committed-seed rule compares seeds on the same episodes; {policies} "
+            "played different ones"
+        )
+    keyed = []
+    for policy in policies:
+        mine = [r for r in rows if r["policy"] == policy]
+        keyed.append({
+            "policy": policy,
+            "clean_success": sum(bool(r["clean_success"]) for r in mine),
+            "success": sum(bool(r["success"]) for r in mine),
+            # an episode the policy failed to play (an error) has no excess
+            "excess": float(np.mean([r["excess"] for r in mine if r["excess"] is not None])),
+            "episodes": len(mine),
+        })  # fmt: skip
+    return sorted(keyed, key=lambda k: (-k["clean_success"], -k["success"], k["excess"]))
+
+
 def report(rows: list[dict[str, Any]], groups: dict[str, list[str]]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for name, policies in groups.items():
@@ -86,6 +114,11 @@ def report(rows: list[dict[str, Any]], groups: dict[str, list[str]]) -> dict[str
                 **iqm_and_mean(scores),
                 "per_seed": scores.tolist(),
             }
+        if all("excess" in r for r in mine):  # older files carry no graded excess
+            try:
+                entry["rule"] = rank_by_rule(rows, policies)
+            except ValueError as e:
+                entry["rule_not_ranked"] = str(e)
         out[name] = entry
     return out
 
@@ -113,6 +146,29 @@ def markdown(summary: dict[str, Any]) -> str:
                 for i, scores in enumerate(entry["metrics"][metric]["per_seed"])
             ),
         )
+    for name, entry in summary.items():
+        if "rule" in entry:
+            lines += [
+                "",
+                f"{name}, its seeds by the committed-seed rule (meaningful on `dev`):",
+                "",
+            ]
+            lines += table(
+                "rank | policy | clean successes | successes | mean excess / period | episodes",
+                (
+                    [
+                        i + 1,
+                        f"`{k['policy']}`",
+                        k["clean_success"],
+                        k["success"],
+                        f"{k['excess']:.3f}",
+                        k["episodes"],
+                    ]
+                    for i, k in enumerate(entry["rule"])
+                ),
+            )
+        elif "rule_not_ranked" in entry:
+            lines += ["", f"{name}: not ranked ({entry['rule_not_ranked']})"]
     return "\n".join(lines) + "\n"
 
 

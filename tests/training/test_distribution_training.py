@@ -349,6 +349,31 @@ def test_seed_aggregate_is_rliables_iqm_of_the_seed_by_case_scores(tmp_path):
     assert iqm_and_mean(rates, seed=3) == iqm_and_mean(rates, seed=3)  # reproducible
 
 
+def test_the_committed_seed_rule_ranks_clean_then_success_then_lower_excess():
+    from baselines.seeds import rank_by_rule
+
+    def rows(policy: str, clean: int, success: int, excess: list[float]) -> list[dict]:
+        return [{"policy": policy, "scenario": case, "episode": e,
+                 "clean_success": 2 * j + e < clean, "success": 2 * j + e < success,
+                 "excess": excess[2 * j + e]}
+                for j, case in enumerate(("random N=2", "paper")) for e in range(2)]  # fmt: skip
+
+    table = [
+        *rows("a", 2, 3, [0.0, 0.0, 1.0, 3.0]),  # mean excess 1.0
+        *rows("b", 2, 3, [0.0, 0.0, 0.2, 0.2]),  # same counts as a, lower excess: first
+        *rows("c", 3, 3, [9.0, 9.0, 9.0, 9.0]),  # most clean successes: first, whatever else
+        *rows("d", 2, 4, [5.0, 5.0, 5.0, 5.0]),  # a's clean count, one more success
+    ]
+    ranked = rank_by_rule(table, ["a", "b", "c", "d"])
+    assert [k["policy"] for k in ranked] == ["c", "d", "b", "a"]
+    assert ranked[2] == {"policy": "b", "clean_success": 2, "success": 3,
+                         "excess": pytest.approx(0.1), "episodes": 4}  # fmt: skip
+    table[-1]["excess"] = None  # an episode the policy failed to play: no excess
+    assert rank_by_rule(table, ["d"])[0]["excess"] == pytest.approx(5.0)
+    with pytest.raises(ValueError, match="same episodes"):
+        rank_by_rule(table[:-1], ["a", "d"])  # d lacks one of a's episodes
+
+
 def test_dagger_warm_starts_and_evaluates_each_iteration_per_team_size(tmp_path):
     """``--warm-start E``: iterations fine-tune the previous network for E epochs;
     ``--eval-episodes``: each iteration's network on every team size under the run's
