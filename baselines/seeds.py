@@ -147,28 +147,15 @@ def markdown(summary: dict[str, Any]) -> str:
             ),
         )
     for name, entry in summary.items():
-        if "rule" in entry:
-            lines += [
-                "",
-                f"{name}, its seeds by the committed-seed rule (meaningful on `dev`):",
-                "",
-            ]
+        if "rule_not_ranked" in entry:
+            lines += ["", f"{name}: not ranked ({entry['rule_not_ranked']})"]
+        elif "rule" in entry:
+            lines += ["", f"{name}, its seeds by the committed-seed rule (on `dev`):", ""]
             lines += table(
                 "rank | policy | clean successes | successes | mean excess / period | episodes",
-                (
-                    [
-                        i + 1,
-                        f"`{k['policy']}`",
-                        k["clean_success"],
-                        k["success"],
-                        f"{k['excess']:.3f}",
-                        k["episodes"],
-                    ]
-                    for i, k in enumerate(entry["rule"])
-                ),
-            )
-        elif "rule_not_ranked" in entry:
-            lines += ["", f"{name}: not ranked ({entry['rule_not_ranked']})"]
+                ([i + 1, f"`{k['policy']}`", k["clean_success"], k["success"],
+                  f"{k['excess']:.3f}", k["episodes"]] for i, k in enumerate(entry["rule"])),
+            )  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
