@@ -5,7 +5,9 @@
 
 One evaluation of the rungs ``LADDER`` on random rings and bars at N = 2..6 and ``paper``,
 on a split of episodes (``baselines.evaluation.splits``: ``dev`` for tuning and
-selection, ``test`` played once per release of the tables) or on ``--seed``'s; then the
+selection, ``test`` played once per release of the tables) or on ``--seed``'s; with
+``--beyond``, on the cases beyond the training conditions instead (rings and bars of 7 and
+8 robots, at the split's counts for them); then the
 main table (what each rung was trained on, clean success and success per group of
 cases, the graded excess, the return, the paired test against the expert), the per-case
 table and the paired comparisons (``baselines.evaluation.ladder_tables``).
@@ -80,6 +82,8 @@ LADDER = (
     "random",
 )
 TEAM_SIZES = (2, 3, 4, 5, 6)
+# team sizes no learned rung trained on: the random family's largest (``--beyond``)
+BEYOND_TEAM_SIZES = (7, 8)
 CONDITIONS = {"current": "mild", "mismatch": 0.1}
 # what a price compares: name -> the row's key (``baselines.evaluation.paired``)
 PRICED = PAIRED_METRICS
@@ -195,9 +199,18 @@ def add_case_arguments(
         "--n-agents",
         type=team_size,
         nargs="+",
-        default=list(team_sizes),
-        help=f"random team sizes (the ladder's: {' '.join(map(str, TEAM_SIZES))})",
+        default=None,
+        help=f"random team sizes (default {' '.join(map(str, team_sizes))}; with --beyond "
+        f"{' '.join(map(str, BEYOND_TEAM_SIZES))})",
     )
+    ap.add_argument(
+        "--beyond",
+        action="store_true",
+        help="the cases beyond the training conditions: rings and bars of "
+        f"{' and '.join(map(str, BEYOND_TEAM_SIZES))} robots, no paper, at the split's "
+        "counts for them",
+    )
+    ap.set_defaults(team_sizes=team_sizes)
     ap.add_argument("--no-paper", action="store_true", help="leave the paper scenario out")
     ap.add_argument("--no-rings", action="store_true", help="leave the ring cases out")
     if bars:
@@ -227,12 +240,17 @@ def settings_of(args: argparse.Namespace) -> Settings:
         conditions=conditions,
         max_cycles=args.max_cycles,
         batch=args.batch,
+        beyond=args.beyond,
     )
 
 
 def cases_of(args: argparse.Namespace) -> list[Case]:
-    """The cases of ``add_case_arguments``' flags."""
-    chosen = cases(tuple(args.n_agents), not args.no_paper, args.bars, not args.no_rings)
+    """The cases of ``add_case_arguments``' flags (``--beyond``: its team sizes, no paper)."""
+    sizes = tuple(args.n_agents or (BEYOND_TEAM_SIZES if args.beyond else args.team_sizes))
+    if args.beyond and not set(sizes) <= set(BEYOND_TEAM_SIZES):
+        raise UsageError(f"--beyond plays team sizes {BEYOND_TEAM_SIZES}, not {list(sizes)}")
+    paper = not (args.no_paper or args.beyond)
+    chosen = cases(sizes, paper, args.bars, not args.no_rings)
     if not chosen:
         raise UsageError("no case left: --no-rings, --no-paper and no bar cases")
     return chosen

@@ -272,7 +272,8 @@ class Settings:
     the environment keywords of every case (``conditions``, ``evaluate``'s
     ``overrides``), the cap on periods, the progress bar, the backend and the replays.
     ``split``: a split's name (``baselines.evaluation.splits``): its seed, and its
-    episodes per kind of rung unless ``episodes`` is given (None)."""
+    episodes per kind of rung unless ``episodes`` is given (None); ``beyond``: the split's
+    counts for the cases beyond the training conditions."""
 
     episodes: int | None
     seed: int
@@ -285,6 +286,7 @@ class Settings:
     replay_dir: Path | None = None
     check: bool = True  # ``evaluate``'s preflight
     split: str | None = None
+    beyond: bool = False
     batch: int = 0  # episodes per batched environment (``evaluate``'s ``batch``)
 
     def __post_init__(self) -> None:
@@ -310,7 +312,7 @@ class Settings:
         """Episodes per case of ``policy``: ``episodes``, or the split's count for it."""
         if self.episodes is not None:
             return self.episodes
-        return SPLITS[self.split].episodes(policy)  # type: ignore[index]
+        return SPLITS[self.split].episodes(policy, self.beyond)  # type: ignore[index]
 
     def evaluate(
         self, policies: Sequence[str], cases: Sequence[str | Case]
@@ -318,7 +320,7 @@ class Settings:
         """``evaluate`` of the policies on the cases with these settings."""
         options = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         options["overrides"] = options.pop("conditions")
-        del options["split"]
+        del options["split"], options["beyond"]
         options["episodes"] = self.episodes_of
         return evaluate(policies, cases, **options)
 
@@ -326,5 +328,6 @@ class Settings:
         """The settings a result records as its ``command`` (a split with its version)."""
         out = {k: getattr(self, k) for k in ("episodes", "seed", "conditions", "max_cycles")}
         if self.split is not None:
-            out["split"] = {"name": self.split, "version": SPLITS[self.split].version}
+            split = SPLITS[self.split]
+            out["split"] = {"name": self.split, "version": split.version, "beyond": self.beyond}
         return out

@@ -13,6 +13,13 @@ robot and period) and 10 for the full-information reference, whose episodes cost
 The first episodes of a case are the same whatever the count, so every pair of rungs is
 compared on the episodes both played.
 
+Beyond the training conditions (``Split.beyond``; the ladder's ``--beyond``): random rings
+and bars of 7 and 8 robots, team sizes no learned rung trained on, with their own counts
+per kind of rung (``beyond``: fast, model, central), smaller than the split's own because
+an episode of 8 robots costs several of 2. ``test`` version 2 is version 1's cases,
+episode for episode, and these; the other condition beyond training, mismatch 0.25, is
+the split's own cases under ``--mismatch 0.25``.
+
 Changing a setting after looking at ``test`` numbers spends the split: freeze a new one
 (a new seed and ``version``) and say so in the results. Reference: docs/evaluation.md,
 "Splits".
@@ -40,10 +47,16 @@ class Split:
     fast: int  # learned and trivial rungs
     model: int  # the expert's controllers and the +filter rungs
     central: int  # the full-information reference
+    beyond: tuple[int, int, int]  # fast, model, central on the cases beyond training
 
-    def episodes(self, policy: str) -> int:
-        """How many episodes per case ``policy`` plays on this split."""
-        return getattr(self, kind_of(policy))
+    def episodes(self, policy: str, beyond: bool = False) -> int:
+        """How many episodes per case ``policy`` plays on this split (``beyond``: on the
+        cases beyond the training conditions)."""
+        kind = kind_of(policy)
+        return self.beyond[KINDS.index(kind)] if beyond else getattr(self, kind)
+
+
+KINDS = ("fast", "model", "central")
 
 
 def kind_of(policy: str) -> str:
@@ -56,8 +69,8 @@ def kind_of(policy: str) -> str:
     return "fast"
 
 
-DEV = Split("dev", 1, 202, fast=10, model=10, central=10)
-TEST = Split("test", 1, 61061, fast=50, model=20, central=10)
+DEV = Split("dev", 1, 202, fast=10, model=10, central=10, beyond=(10, 10, 10))
+TEST = Split("test", 2, 61061, fast=50, model=20, central=10, beyond=(20, 10, 5))
 SPLITS = {s.name: s for s in (DEV, TEST)}
 
 

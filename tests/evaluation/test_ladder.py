@@ -3,6 +3,7 @@ the evaluator's rows, and it runs end to end on a short case."""
 
 from __future__ import annotations
 
+import argparse
 import json
 
 import numpy as np
@@ -11,8 +12,23 @@ from scipy import stats
 
 from baselines.evaluation.paired import significance_tests
 from baselines.evaluation.runner import Case, case_episode_seed, evaluate
-from baselines.evaluation.splits import DEV
-from baselines.ladder import PRICED, TALKER, cases, ladder, main, price, talks
+from baselines.evaluation.splits import DEV, TEST
+from baselines.ladder import (
+    BEYOND_TEAM_SIZES,
+    PRICED,
+    TALKER,
+    TEAM_SIZES,
+    add_case_arguments,
+    cases,
+    cases_of,
+    ladder,
+    main,
+    price,
+    settings_of,
+    talks,
+)
+from uvms_env.scenarios.families import make
+from uvms_env.scenarios.reach import current_within_reach
 
 
 def _row(policy: str, episode: int, success: bool, steps: int, wrench: float, effort: float):
@@ -133,7 +149,7 @@ def test_the_ladder_command_runs_end_to_end(tmp_path):
         ("prior", "nmpc:central"),
     }
     assert result["command"]["conditions"] == {"current": "mild", "mismatch": 0.1}
-    assert result["command"]["split"] == {"name": "dev", "version": DEV.version}
+    assert result["command"]["split"] == {"name": "dev", "version": DEV.version, "beyond": False}
     assert result["command"]["seed"] == DEV.seed
     pooled = {(s["policy"], s["scenario"]) for s in result["pooled"]}
     assert ("nmpc", "rings") in pooled and ("nmpc", "all") in pooled
@@ -181,6 +197,53 @@ def test_split_and_seed_exclude_each_other_before_any_work(capsys):
         main(["--split", "test", "--seed", "3", "--out", "/nonexistent/ladder"])
     assert exit_info.value.code == 2
     assert "not allowed with argument" in capsys.readouterr().err
+
+
+def _ladder_args(*argv: str) -> argparse.Namespace:
+    ap = argparse.ArgumentParser()
+    add_case_arguments(ap, TEAM_SIZES, "runs/ladder")
+    return ap.parse_args(argv)
+
+
+def test_beyond_plays_the_largest_teams_at_the_splits_counts_for_them():
+    """``--beyond``: rings and bars of 7 and 8 robots, no ``paper``, each kind of rung at
+    the split's ``beyond`` count; without it the ladder's own cases and counts."""
+    assert set(BEYOND_TEAM_SIZES).isdisjoint(TEAM_SIZES)
+    args = _ladder_args("--beyond", "--split", "test")
+    labels = [c.label for c in cases_of(args)]
+    assert labels == ["random N=7", "random N=8", "random bar N=7", "random bar N=8"]
+    settings = settings_of(args)
+    counts = [settings.episodes_of(p) for p in ("dagger:mix", "nmpc:paper", "nmpc:central")]
+    assert counts == list(TEST.beyond) and TEST.beyond != (TEST.fast, TEST.model, TEST.central)
+    assert settings.record()["split"] == {"name": "test", "version": TEST.version, "beyond": True}
+    plain = _ladder_args("--split", "test")
+    assert [c.label for c in cases_of(plain)][-1] == "paper" and len(cases_of(plain)) == 11
+    assert settings_of(plain).episodes_of("dagger:mix") == TEST.fast
+    only_bars = _ladder_args("--beyond", "--no-rings", "--n-agents", "8")
+    assert [c.label for c in cases_of(only_bars)] == ["random bar N=8"]
+
+
+def test_beyond_refuses_a_training_team_size_before_any_work(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--beyond", "--n-agents", "6", "--out", "/nonexistent/ladder"])
+    assert exit_info.value.code == 2
+    assert "--beyond" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("shape", ["ring", "bar"])
+def test_the_beyond_cases_are_seeded_and_within_reach(shape):
+    """Each beyond case's first test episodes: the same geometry from the same seed, a
+    team the random family draws at that size, and the ladder's mild current within its
+    reach (every episode counts in the tables)."""
+    for n in BEYOND_TEAM_SIZES:
+        for k in range(3):
+            seed = case_episode_seed(TEST.seed, "random", k)
+            kw = dict(seed=seed, n_agents=n, object=shape, course="mixed", current="mild")
+            a, b = make("random", **kw), make("random", **kw)
+            assert a.n_agents == n and np.array_equal(a.waypoints, b.waypoints)
+            assert np.array_equal(a.grasp_offsets, b.grasp_offsets)
+            within, current, top = current_within_reach(a)
+            assert within and current < top
 
 
 def test_runs_apart_merge_into_the_ladder_of_one_run(tmp_path):

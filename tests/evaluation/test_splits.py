@@ -55,5 +55,9 @@ def test_dev_is_seed_202_and_the_counts_follow_the_kind_of_rung():
         10,
     ]
     assert Settings(3, TEST.seed, 1, split="test").episodes_of("nmpc") == 3  # --episodes wins
+    # beyond the training conditions: fewer episodes per case, in the same order of kinds
+    assert TEST.beyond == (20, 10, 5) and DEV.beyond == (10, 10, 10)
+    beyond = Settings(None, TEST.seed, 1, split="test", beyond=True)
+    assert [beyond.episodes_of(p) for p in ("prior", "nmpc:comm", "nmpc:central")] == [20, 10, 5]
     with pytest.raises(ValueError, match="seed"):
         Settings(None, 5, 1, split="test")
